@@ -1,0 +1,213 @@
+"""The recursive Gibbs–Appell dynamics of MODEL.md, as compiled kernels.
+
+Notation follows MODEL.md, with links numbered 1..n and index 0 for the base:
+``q = (x, y, yaw, θ_R, θ_L, q_1, l_1, …, q_n, l_n)``, ``u = (v, ω, q̇_1, l̇_1, …)``.
+
+The kernels take the model as a tuple ``model = (base, mount, R0, L, mu, J, tip_mass)``
+(see `RobotModel` and `Workspace.model_arrays`) and a workspace tuple
+``ws = (R, O, x, z, F, N)`` of preallocated arrays, all in the world frame `odom`:
+
+- ``R[k]``  (n+1, 3, 3) orientation of joint frame k (R[0]: base_link);
+- ``O[k]``  (n+2, 3) joint origins: O[0] = A, O[k] = O_k, O[n+1] = distal end of rod n (tip);
+- ``x[k]``, ``z[k]`` (n+1, 3) frame axes (x[0]: base heading, z[0]: up);
+- ``F[k]``, ``N[k]`` (n+2, 3) per-rod Gibbs–Appell force Σμ·a and moment about O_k
+  (Σ η x × μ a + J α + ω × J ω); row n+1 holds the tip payload.
+
+Nothing here allocates per call except what numba keeps in registers (tuples).
+"""
+import math
+
+from .jit import jit
+from .vec3 import add, axpy, cross, dot, matvec, put, row, scale, sub, tmatvec
+
+
+@jit
+def frames(model, q, ws):
+    """Position pass: R_k = R_{k−1} · R0_k · Rz(q_k), O_{k+1} = O_k + l_k x_k (MODEL.md frames)."""
+    mount, R0 = model[1], model[2]
+    R, O, x, z = ws[0], ws[1], ws[2], ws[3]
+    n = R0.shape[0]
+    c, s = math.cos(q[2]), math.sin(q[2])
+    R[0, 0, 0], R[0, 0, 1], R[0, 0, 2] = c, -s, 0.0
+    R[0, 1, 0], R[0, 1, 1], R[0, 1, 2] = s, c, 0.0
+    R[0, 2, 0], R[0, 2, 1], R[0, 2, 2] = 0.0, 0.0, 1.0
+    put(x, 0, (c, s, 0.0))
+    put(z, 0, (0.0, 0.0, 1.0))
+    put(O, 0, (q[0], q[1], 0.0))
+    put(O, 1, add(row(O, 0), matvec(R[0], (mount[0], mount[1], mount[2]))))
+    for k in range(1, n + 1):
+        cq, sq = math.cos(q[3 + 2 * k]), math.sin(q[3 + 2 * k])
+        for i in range(3):
+            # (R_{k−1} · R0_k) row i, then · Rz(q_k)
+            a0 = R[k - 1, i, 0] * R0[k - 1, 0, 0] + R[k - 1, i, 1] * R0[k - 1, 1, 0] + R[k - 1, i, 2] * R0[k - 1, 2, 0]
+            a1 = R[k - 1, i, 0] * R0[k - 1, 0, 1] + R[k - 1, i, 1] * R0[k - 1, 1, 1] + R[k - 1, i, 2] * R0[k - 1, 2, 1]
+            a2 = R[k - 1, i, 0] * R0[k - 1, 0, 2] + R[k - 1, i, 1] * R0[k - 1, 1, 2] + R[k - 1, i, 2] * R0[k - 1, 2, 2]
+            R[k, i, 0] = a0 * cq + a1 * sq
+            R[k, i, 1] = -a0 * sq + a1 * cq
+            R[k, i, 2] = a2
+        put(x, k, (R[k, 0, 0], R[k, 1, 0], R[k, 2, 0]))
+        put(z, k, (R[k, 0, 2], R[k, 1, 2], R[k, 2, 2]))
+        put(O, k + 1, axpy(q[4 + 2 * k], row(x, k), row(O, k)))
+
+
+@jit
+def rod_moments(l, L):
+    """∫η dη and ∫η² dη over the rod, η ∈ [l − L, l]."""
+    s1 = L * (l - 0.5 * L)
+    s2 = (l * l * l - (l - L) ** 3) / 3.0
+    return s1, s2
+
+
+@jit
+def cross_section_moment(Rk, Jk, Lk, alpha, omega):
+    """L·(J α + ω × J ω) in the world frame, J (kg·m, link frame) per unit length."""
+    ab = tmatvec(Rk, alpha)
+    wb = tmatvec(Rk, omega)
+    return scale(Lk, matvec(Rk, add(matvec(Jk, ab), cross(wb, matvec(Jk, wb)))))
+
+
+@jit
+def gibbs_appell(model, q, u, ud, g, ws, Q):
+    """Inverse dynamics Q = ∂S/∂u̇ = M(q) u̇ + h(q, u), gravity g (m/s², along −z) included.
+
+    Needs `frames(model, q, ws)` first. One outward pass (ω_k, α_k, a_{O_k}; rod forces F_k and
+    moments N_k) and one inward pass (accumulated f, n projected on z_k, x_k, then the base).
+    """
+    base, L, mu, J, tip_mass = model[0], model[3], model[4], model[5], model[6]
+    R, O, x, z, F, N = ws
+    n = L.shape[0]
+    v, om, vd, omd = u[0], u[1], ud[0], ud[1]
+    x0 = row(x, 0)
+    y0 = (-x0[1], x0[0], 0.0)
+    omega = (0.0, 0.0, om)
+    alpha = (0.0, 0.0, omd)
+    # a_A = v̇ x + v ω y, plus g z: gravity as an acceleration of the root (MODEL.md).
+    a_A = axpy(vd, x0, scale(v * om, y0))
+    a_A = (a_A[0], a_A[1], a_A[2] + g)
+    m_w = sub(row(O, 1), row(O, 0))
+    a_O = add(a_A, add(cross(alpha, m_w), cross(omega, cross(omega, m_w))))
+    for k in range(1, n + 1):
+        j = 2 * k
+        qd, ld, qdd, ldd = u[j], u[j + 1], ud[j], ud[j + 1]
+        l, Lk, muk = q[4 + 2 * k], L[k - 1], mu[k - 1]
+        xk, zk = row(x, k), row(z, k)
+        alpha = add(alpha, axpy(qdd, zk, cross(omega, scale(qd, zk))))
+        omega = axpy(qd, zk, omega)
+        # a(η) = b + η c along the rod (MODEL.md kinematics of a rod point)
+        b = add(a_O, axpy(2.0 * ld, cross(omega, xk), scale(ldd, xk)))
+        c = add(cross(alpha, xk), cross(omega, cross(omega, xk)))
+        s1, s2 = rod_moments(l, Lk)
+        put(F, k, scale(muk, axpy(Lk, b, scale(s1, c))))
+        N_rod = scale(muk, axpy(s1, cross(xk, b), scale(s2, cross(xk, c))))
+        put(N, k, add(N_rod, cross_section_moment(R[k], J[k - 1], Lk, alpha, omega)))
+        a_O = axpy(l, c, b)
+    put(F, n + 1, scale(tip_mass, a_O))
+    put(N, n + 1, (0.0, 0.0, 0.0))
+    f = row(F, n + 1)
+    m = (0.0, 0.0, 0.0)  # moment about O_{k+1}
+    for k in range(n, 0, -1):
+        xk = row(x, k)
+        m = add(add(row(N, k), m), cross(scale(q[4 + 2 * k], xk), f))
+        f = add(row(F, k), f)
+        Q[2 * k] = dot(row(z, k), m)
+        Q[2 * k + 1] = dot(xk, f)
+    m_A = add(m, cross(m_w, f))
+    M_pw, I_pw, d, r, half_track, I_w = base[0], base[1], base[2], base[3], base[4], base[5]
+    wheels = 2.0 * I_w / (r * r)
+    Q[0] = dot(x0, f) + M_pw * (vd - d * om * om) + wheels * vd
+    Q[1] = m_A[2] + M_pw * d * (v * om + d * omd) + I_pw * omd + wheels * half_track ** 2 * omd
+
+
+@jit
+def mass_matrix(model, q, ws, zeros, unit, column, M):
+    """M(q) column by column: M e_k = gibbs_appell(q, u = 0, u̇ = e_k, g = 0). Needs `frames`."""
+    nu = M.shape[0]
+    for k in range(nu):
+        unit[:] = 0.0
+        unit[k] = 1.0
+        gibbs_appell(model, q, zeros, unit, 0.0, ws, column)
+        M[:, k] = column
+
+
+@jit
+def kinetic_energy(model, q, u, ws):
+    """T = Σ ½∫μ|v|² + ½ ω·(J L) ω over rods, plus the base and wheels. Needs `frames`."""
+    base, L, mu, J, tip_mass = model[0], model[3], model[4], model[5], model[6]
+    R, O, x = ws[0], ws[1], ws[2]
+    n = L.shape[0]
+    M_pw, I_pw, d, r, half_track, I_w = base[0], base[1], base[2], base[3], base[4], base[5]
+    v, om = u[0], u[1]
+    T = 0.5 * M_pw * (v * v + d * d * om * om) + 0.5 * I_pw * om * om
+    T += 0.5 * I_w * ((v + half_track * om) ** 2 + (v - half_track * om) ** 2) / (r * r)
+    omega = (0.0, 0.0, om)
+    v_O = add(scale(v, row(x, 0)), cross(omega, sub(row(O, 1), row(O, 0))))
+    for k in range(1, n + 1):
+        xk = row(x, k)
+        omega = axpy(u[2 * k], (R[k, 0, 2], R[k, 1, 2], R[k, 2, 2]), omega)
+        l, Lk = q[4 + 2 * k], L[k - 1]
+        s1, s2 = rod_moments(l, Lk)
+        b = axpy(u[2 * k + 1], xk, v_O)     # v(η) = b + η c
+        c = cross(omega, xk)
+        T += 0.5 * mu[k - 1] * (Lk * dot(b, b) + 2.0 * s1 * dot(b, c) + s2 * dot(c, c))
+        wb = tmatvec(R[k], omega)
+        T += 0.5 * Lk * dot(wb, matvec(J[k - 1], wb))
+        v_O = axpy(l, c, b)
+    return T + 0.5 * tip_mass * dot(v_O, v_O)
+
+
+@jit
+def potential_energy(model, q, g, ws):
+    """V = g Σ μ ∫ z(η) dη + g m_tip z_tip (the base moves in the plane). Needs `frames`."""
+    L, mu, tip_mass = model[3], model[4], model[6]
+    O, x = ws[1], ws[2]
+    n = L.shape[0]
+    V = 0.0
+    for k in range(1, n + 1):
+        s1, _ = rod_moments(q[4 + 2 * k], L[k - 1])
+        V += mu[k - 1] * (L[k - 1] * O[k, 2] + s1 * x[k, 2])
+    return g * (V + tip_mass * O[n + 1, 2])
+
+
+@jit
+def configuration_rate(model, q, u, qdot):
+    """q̇ from u with the nonholonomic constraints built in: ẋ = v cos yaw, θ̇_R = (v + bω)/r, …"""
+    r, half_track = model[0][3], model[0][4]
+    v, om = u[0], u[1]
+    qdot[0] = v * math.cos(q[2])
+    qdot[1] = v * math.sin(q[2])
+    qdot[2] = om
+    qdot[3] = (v + half_track * om) / r
+    qdot[4] = (v - half_track * om) / r
+    for j in range(2, u.shape[0]):
+        qdot[j + 3] = u[j]
+
+
+@jit
+def cholesky_solve(A, b, free, n_free, L, y):
+    """Solve A[free, free] · y = b[free] in place (A symmetric positive definite).
+
+    ``free[:n_free]`` lists the indices kept (locked degrees of freedom are left out);
+    ``L`` is scratch of A's shape. Raises nothing: a non-positive pivot yields NaN, which the
+    engine reports.
+    """
+    for a in range(n_free):
+        i = free[a]
+        for c in range(a + 1):
+            j = free[c]
+            s = A[i, j]
+            for k in range(c):
+                s -= L[a, k] * L[c, k]
+            if a == c:
+                L[a, a] = math.sqrt(s) if s > 0.0 else math.nan
+            else:
+                L[a, c] = s / L[c, c]
+    for a in range(n_free):
+        s = b[free[a]]
+        for k in range(a):
+            s -= L[a, k] * y[k]
+        y[a] = s / L[a, a]
+    for a in range(n_free - 1, -1, -1):
+        s = y[a]
+        for k in range(a + 1, n_free):
+            s -= L[k, a] * y[k]
+        y[a] = s / L[a, a]

@@ -1,0 +1,32 @@
+"""ament_python package: `colcon build` on a ROS 2 Jazzy install, or plain `pip install .`."""
+from glob import glob
+
+from setuptools import find_packages, setup
+
+package_name = "mobile_manip_sim"
+
+setup(
+    name=package_name,
+    version="0.1.0",
+    packages=find_packages(exclude=["test", "test.*"]),
+    data_files=[
+        ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
+        ("share/" + package_name, ["package.xml"]),
+        ("share/" + package_name + "/config", glob("config/*.yaml") + glob("config/*.json")),
+    ],
+    package_data={package_name: ["scenes/*.yaml"]},
+    include_package_data=True,
+    install_requires=["setuptools", "numpy", "scipy", "pyyaml", "mcap"],
+    zip_safe=True,
+    maintainer="mobile_manip_sim developers",
+    maintainer_email="dev@example.invalid",
+    description="Nonholonomic mobile manipulator with R-P arm joints: recursive Gibbs–Appell "
+                "dynamics, ROS 2 simulator node, MCAP recording and replay.",
+    license="Apache-2.0",
+    tests_require=["pytest"],
+    entry_points={
+        "console_scripts": [
+            "simulate = mobile_manip_sim.simulate:main",
+        ],
+    },
+)
