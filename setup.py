@@ -27,6 +27,7 @@ setup(
     entry_points={
         "console_scripts": [
             "simulate = mobile_manip_sim.simulate:main",
+            "describe = mobile_manip_sim.describe:main",
         ],
     },
 )

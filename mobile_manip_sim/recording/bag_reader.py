@@ -9,13 +9,15 @@ scanning its records from the start; the scan stops cleanly at the first incompl
 record, so every complete chunk is still read. Record lengths are checked against the file size
 before anything is read: a truncated file once made the Python reader allocate its way into a
 ``MemoryError`` (foxglove/mcap #1220). Every read failure becomes a one-line ``UserError``.
-Unchunked files (rosbag2's ``fastwrite`` preset) are read only when complete.
+Unchunked files (rosbag2's ``fastwrite`` preset) are read only when complete: their messages
+have no chunk index to recover from.
 """
 
 import contextlib
 import heapq
 import io
 import struct
+import zlib
 from pathlib import Path, PurePath
 from typing import Iterable, Iterator, NamedTuple
 
@@ -34,11 +36,12 @@ from mcap.writer import MCAP0_MAGIC as MCAP_MAGIC
 from mobile_manip_sim.errors import UserError
 
 # What the mcap library raises on damaged input (lz4 raises RuntimeError, CRC mismatch is a
-# ValueError, a short read an EndOfFile or struct.error).
-READ_ERRORS = (McapError, EOFError, MemoryError, struct.error, ValueError, KeyError,
-               UnicodeDecodeError, zstandard.ZstdError, RuntimeError)
+# ValueError, a short read an EndOfFile or struct.error, a huge garbage length OverflowError).
+READ_ERRORS = (McapError, EOFError, MemoryError, OverflowError, struct.error, ValueError,
+               KeyError, UnicodeDecodeError, zstandard.ZstdError, RuntimeError)
 
 _RECORD_PREFIX = struct.Struct("<BQ")  # opcode, record length
+_FOOTER = struct.Struct("<QQI")  # summary start, summary offset start, summary CRC
 
 
 class BagMessage(NamedTuple):
@@ -85,7 +88,7 @@ class Bag:
     def messages(self, topics: Iterable[str] | None = None) -> Iterator[BagMessage]:
         """Messages of ``topics`` (all if None) in log-time order, read lazily."""
         if topics is not None:
-            topics = set(topics)
+            topics = {topics} if isinstance(topics, str) else set(topics)
             unknown = sorted(topics - self.topics().keys())
             if unknown:
                 raise UserError(unknown[0], f"topic not in bag {self.path}")
@@ -110,32 +113,38 @@ class _McapFile:
             _check_header(path, stream)
             summary = _stored_summary(stream)
             self.recovered = summary is None
-            self.summary = _scanned_summary(stream) if summary is None else summary
+            self.summary = _scanned_summary(path, stream) if summary is None else summary
         self.topics = _checked_topics(path, self.summary)
 
     def messages(self, topics: set[str] | None) -> Iterator[BagMessage]:
-        with _reading(self.path), open(self.path, "rb") as stream:
-            reader = _IndexedReader(stream, self.summary)
+        if self.recovered and not self.summary.chunk_indexes:
+            return  # cut before its first complete chunk; mcap would read on into the cut
+        with self._reader() as reader:
             for schema, channel, message in reader.iter_messages(topics, log_time_order=True):
                 yield BagMessage(channel.topic, schema.name, message.data, message.log_time,
                                  message.publish_time)
 
     def attachments(self) -> dict[str, bytes]:
-        with _reading(self.path), open(self.path, "rb") as stream:
-            reader = _IndexedReader(stream, self.summary)
+        with self._reader() as reader:
             return {record.name: bytes(record.data) for record in reader.iter_attachments()}
 
     def metadata(self) -> dict[str, dict[str, str]]:
-        with _reading(self.path), open(self.path, "rb") as stream:
-            reader = _IndexedReader(stream, self.summary)
+        with self._reader() as reader:
             return {record.name: dict(record.metadata) for record in reader.iter_metadata()}
+
+    @contextlib.contextmanager
+    def _reader(self):
+        """An mcap reader on a fresh handle, its failures turned into ``UserError``."""
+        with _reading(self.path), open(self.path, "rb") as stream:
+            yield _IndexedReader(stream, self.summary)
 
 
 class _IndexedReader(SeekingReader):
-    """The mcap seeking reader, given the summary we already hold (stored or rebuilt)."""
+    """The mcap seeking reader, given the summary we already hold (stored or rebuilt). Chunk
+    CRCs are checked: damaged data must fail loudly, not decode into wrong values."""
 
     def __init__(self, stream, summary: Summary):
-        super().__init__(stream)
+        super().__init__(stream, validate_crcs=True)
         self._given_summary = summary
 
     def get_summary(self) -> Summary:
@@ -182,20 +191,20 @@ def _check_header(path: Path, stream) -> None:
     try:
         stream.seek(0)
         header = SeekingReader(stream).get_header()
-    except (InvalidMagic, *READ_ERRORS) as error:
-        raise UserError(str(path), "not a rosbag2 MCAP bag "
-                                   f"(no MCAP header: {_one_line(error)})") from None
+    except InvalidMagic:
+        raise UserError(str(path), "not a rosbag2 MCAP bag (not an MCAP file)") from None
+    except READ_ERRORS:
+        raise UserError(str(path), "not a rosbag2 MCAP bag (no complete MCAP header)") from None
     if header.profile != "ros2":
         raise UserError(str(path), f"not a rosbag2 MCAP bag (profile {header.profile!r}, "
                                    "expected 'ros2')")
 
 
 def _stored_summary(stream) -> Summary | None:
-    """The file's own summary, or None if it has none or it does not fit the file. A cut file
-    does not end in the MCAP magic; checking that first keeps the footer parser away from
-    garbage lengths."""
+    """The file's own summary, or None if it has none, is damaged or does not fit the file.
+    Checking the footer first keeps the summary parser away from garbage lengths."""
     size = stream.seek(0, io.SEEK_END)
-    if size < 2 * MAGIC_SIZE or _read_at(stream, size - MAGIC_SIZE, MAGIC_SIZE) != MCAP_MAGIC:
+    if not _footer_checks_out(stream, size):
         return None
     try:
         stream.seek(0)
@@ -212,12 +221,32 @@ def _stored_summary(stream) -> Summary | None:
     return summary
 
 
+def _footer_checks_out(stream, size: int) -> bool:
+    """The file ends in a footer and the magic (a cut file does not), and the summary matches
+    the footer's CRC (the mcap reader does not check it, and a damaged chunk index would
+    silently reorder or drop messages)."""
+    footer_size = _RECORD_PREFIX.size + _FOOTER.size
+    if size < 2 * MAGIC_SIZE + footer_size:
+        return False
+    tail = _read_at(stream, size - MAGIC_SIZE - footer_size, footer_size + MAGIC_SIZE)
+    opcode, length = _RECORD_PREFIX.unpack_from(tail)
+    summary_start, _, summary_crc = _FOOTER.unpack_from(tail, _RECORD_PREFIX.size)
+    if tail[-MAGIC_SIZE:] != MCAP_MAGIC or opcode != Opcode.FOOTER or length != _FOOTER.size:
+        return False
+    if summary_crc == 0:
+        return True
+    crc_end = size - MAGIC_SIZE - 4  # everything up to the CRC field itself
+    if summary_start == 0 or not MAGIC_SIZE <= summary_start < crc_end:
+        return False
+    return zlib.crc32(_read_at(stream, summary_start, crc_end - summary_start)) == summary_crc
+
+
 def _read_at(stream, offset: int, length: int) -> bytes:
     stream.seek(offset)
     return stream.read(length)
 
 
-def _scanned_summary(stream) -> Summary:
+def _scanned_summary(path: Path, stream) -> Summary:
     """Rebuild schemas, channels and chunk/attachment/metadata indexes from the records, up to
     the first incomplete or corrupt one (a crashed recording ends mid-chunk)."""
     size = stream.seek(0, io.SEEK_END)
@@ -228,6 +257,9 @@ def _scanned_summary(stream) -> Summary:
         end = offset + _RECORD_PREFIX.size + length
         if end > size:
             break
+        if opcode == Opcode.MESSAGE:
+            raise UserError(str(path), "unchunked MCAP file without summary (a crashed "
+                                       "'fastwrite' recording?); run `mcap recover` on it")
         try:
             if not _index_record(summary, opcode, stream.read(length), offset, end - offset):
                 break

@@ -1,0 +1,326 @@
+"""`Simulation`: one scene being stepped in simulated time, the one interface every adapter uses
+(headless `simulate`, the ROS node, replay, benchmarks).
+
+    sim = Simulation(scene)
+    sim.set_efforts(wheels=[0.1, 0.2], joints=[...])   # zero-order hold from now on
+    sim.advance_to(0.01)                              # lands exactly on t = 0.01 s
+    sim.q, sim.u, sim.t, sim.energy_error(), sim.impacts, sim.stats()
+
+Commands change only between calls to `advance_to`, so a run is a pure function of the scene
+and the command sequence: repeating it gives bit-identical states.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy import integrate
+
+from ..dynamics import Dynamics
+from ..errors import UserError
+from ..scene import IntegratorSettings, Scene
+from . import fixed_step
+from .stops import Impact, apply_impact, crossing_in_step, locate, release_wanted
+from .system import RHS_EVALS, System
+
+ADAPTIVE = {"rk45": integrate.RK45, "dop853": integrate.DOP853, "radau": integrate.Radau,
+            "bdf": integrate.BDF}
+MAX_IMPACTS_PER_STEP = 64   # a guard against Zeno: beyond it the rod is held at rest
+
+
+class SimulationError(RuntimeError):
+    """The numbers went bad (NaN/Inf): says when and which quantity."""
+
+
+class Simulation:
+    def __init__(self, scene: Scene, integrator: IntegratorSettings | None = None):
+        self.scene = scene
+        self.settings = integrator or scene.integrator
+        model, effects = scene.robot, scene.effects
+        self.model = model
+        self.dynamics = Dynamics(model, gravity=effects.gravity, tip_mass=effects.payload or 0.0,
+                                 wheel_inertia=effects.wheel_inertia)
+        self.system = System(self.dynamics, _damping(scene), _locked_indices(scene))
+        self.nq, self.nu = model.n_q, model.n_u
+        n = model.n_links
+        self.stop_law = effects.stroke_limits
+        self.watched = np.full(n if self.stop_law else 0, True)
+        self.resting = np.zeros(n, dtype=np.int64)
+        self.stroke = np.array(model.stroke)
+        self._out = np.zeros(self.nq + self.nu + 1)
+        self._stages = np.zeros((4, self.nq + self.nu + 1))
+        self._forces = np.zeros(self.nu)
+        self._method = fixed_step.METHOD_IDS.get(self.settings.method)
+        self.reset()
+
+    # --- state ---------------------------------------------------------------------------
+    def reset(self) -> None:
+        """Back to the scene's initial state at t = 0, with the scene's efforts."""
+        u0 = np.array(self.scene.initial_u, dtype=float)
+        u0[list(self.system.permanently_locked)] = 0.0
+        self.s = np.concatenate([self.scene.initial_q, u0, [0.0]])
+        self._t0, self._k = 0.0, 0
+        self.resting[:] = 0
+        self.watched[:] = True
+        self.system.set_locked(())
+        self.impacts: list[Impact] = []
+        self.impact_energy_lost = 0.0
+        self.steps = 0
+        self.system.counters[:] = 0
+        self._h_last = None
+        self.set_efforts(self.scene.wheel_efforts, self.scene.joint_efforts)
+        self.energy0 = self.total_energy()
+
+    @property
+    def t(self) -> float:
+        return self._t0 + self._k * self.settings.dt if self.settings.fixed_step else self._t0
+
+    @property
+    def q(self) -> np.ndarray:
+        return self.s[:self.nq]
+
+    @property
+    def u(self) -> np.ndarray:
+        return self.s[self.nq:self.nq + self.nu]
+
+    @property
+    def work(self) -> float:
+        """Work done by efforts and dissipation since t = 0 (J)."""
+        return float(self.s[-1])
+
+    def total_energy(self) -> float:
+        T, V = self.dynamics.energy(self.q, self.u)
+        return T + V
+
+    def energy_error(self) -> float:
+        """(T + V)(t) − (T + V)(0) − W(t) + impact losses: zero for exact physics (J)."""
+        return self.total_energy() - self.energy0 - self.work + self.impact_energy_lost
+
+    def qdot(self) -> np.ndarray:
+        return self.dynamics.configuration_rate(self.q, self.u)
+
+    @property
+    def rhs_evaluations(self) -> int:
+        return int(self.system.counters[RHS_EVALS])
+
+    # --- commands ------------------------------------------------------------------------
+    def set_efforts(self, wheels=None, joints=None) -> None:
+        """Hold these efforts from now on: wheels (τ_R, τ_L) N·m, joints (τ_1, F_1, …)."""
+        limits = self.scene.effects.effort_limits or {}
+        if wheels is not None:
+            self.wheel_efforts = _command(wheels, 2, "wheels", limits.get("wheels"))
+        if joints is not None:
+            self.joint_efforts = _command(joints, self.nu - 2, "joints", limits.get("joints"))
+        Q = self.system.Q_cmd
+        Q[0], Q[1] = self.dynamics.wheel_forces(*self.wheel_efforts)
+        Q[2:] = self.joint_efforts
+
+    # --- stepping ------------------------------------------------------------------------
+    def advance_to(self, t_end: float) -> None:
+        """Integrate from the current time to exactly t_end (s)."""
+        if t_end < self.t:
+            raise UserError("t_end", f"{t_end} is before the current time {self.t}")
+        if self.settings.fixed_step:
+            self._advance_fixed(t_end)
+        else:
+            self._advance_adaptive(t_end)
+
+    def _advance_fixed(self, t_end: float) -> None:
+        dt = self.settings.dt
+        steps = (t_end - self._t0) / dt
+        whole = math.floor(steps + 1e-9)
+        while self._k < whole:
+            done, why = fixed_step.run(self._method, self.system.tuple, self.s, dt, whole - self._k,
+                                       (self.watched, self.resting, self.stroke),
+                                       self._out, self._stages, self._forces)
+            self._k += done
+            self.steps += done
+            if why == fixed_step.CROSSING:
+                self._step_with_events(dt)
+                self._k += 1
+                self.steps += 1
+            elif why == fixed_step.RELEASE:
+                self._release()
+            elif why == fixed_step.NOT_FINITE:
+                self._fail()
+        if steps - whole > 1e-9:  # t_end is off the grid: a last, shorter step
+            self._step_with_events(t_end - self.t)
+            self.steps += 1
+            self._t0, self._k = t_end, 0
+
+    def _step(self, s, h) -> np.ndarray:
+        out = np.empty_like(s)
+        fixed_step.step(self._method, self.system.tuple, s, h, out, self._stages)
+        return out
+
+    def _step_with_events(self, h: float) -> None:
+        """One step of length h in which end stops may be hit (and hit again)."""
+        t_start = self.t
+        for _ in range(MAX_IMPACTS_PER_STEP):
+            out = self._step(self.s, h)
+            if not np.all(np.isfinite(out)):
+                self._fail()
+            if not crossing_in_step(self.s, out, h, self.system.tuple, self.watched, self.stroke,
+                                    self._stages[0], self._stages[1]):
+                self.s = out
+                return
+            hit = self._first_crossing(lambda dh, s0=self.s.copy(): self._step(s0, dh), h)
+            if hit is None:  # the interpolant dipped, the step itself did not
+                self.s = out
+                return
+            h_hit, k, side, state = hit
+            self.s = state
+            h -= h_hit
+            t_start += h_hit
+            self._impact(k, side, t_start)
+            if h <= 1e-15 * self.settings.dt:
+                return
+        self.s = self._step(self.s, h)
+
+    def _first_crossing(self, state_at, h):
+        """Earliest (h', rod, side, state) where a watched rod meets a stop within h, or None."""
+        samples = [h * j / 16 for j in range(1, 17)]
+        best = None
+        for k in np.flatnonzero(self.watched) + 1:
+            i_l = 4 + 2 * k
+            for side, stop in ((-1, self.stroke[k - 1, 0]), (1, self.stroke[k - 1, 1])):
+                def g(dh, i_l=i_l, side=side, stop=stop):
+                    return (stop - state_at(dh)[i_l]) * side if dh > 0 else (stop - self.s[i_l]) * side
+                # Bracket the first crossing between samples: an interpolant's round-off right
+                # after an impact must not pass for a new crossing at h' ≈ 0.
+                end = next((j for j, x in enumerate(samples) if g(x) < 0.0), None)
+                if end is None:
+                    continue
+                h_hit = locate(g, samples[end - 1] if end else 0.0, samples[end])
+                if best is None or h_hit < best[0]:
+                    best = (h_hit, int(k), side, state_at(h_hit))
+        if best is not None:
+            best[3][4 + 2 * best[1]] = self.stroke[best[1] - 1, 0 if best[2] < 0 else 1]
+        return best
+
+    def _impact(self, k: int, side: int, t: float) -> None:
+        law = self.stop_law
+        j = 2 * k + 1
+        u_before = self.u.copy()
+        if side * u_before[j] <= 0.0:  # at the stop but already leaving it: nothing to do
+            return
+        T_before, _ = self.dynamics.energy(self.q, u_before)
+        if law.law == "impulse" and abs(law.restitution * u_before[j]) < law.rest_speed:
+            restitution = 0.0
+        else:
+            restitution = law.restitution
+        free = [int(i) for i in self.system.free if i >= 0]
+        u_after = apply_impact(self.dynamics, free, self.q, u_before, k, restitution, law.law)
+        resting = abs(u_after[j]) < law.rest_speed
+        if resting:
+            u_after[j] = 0.0
+        self.s[self.nq:self.nq + self.nu] = u_after
+        T_after, _ = self.dynamics.energy(self.q, u_after)
+        self.impact_energy_lost += T_before - T_after
+        self.impacts.append(Impact(t, k, "lower" if side < 0 else "upper", float(u_before[j]),
+                                   float(u_after[j]), float(T_before - T_after), resting))
+        if resting:
+            self.resting[k - 1] = side
+            self.watched[k - 1] = False
+            self._relock()
+            if release_wanted(self.system.tuple, self.s, self.resting, self._out, self._forces):
+                self._release()
+
+    def _relock(self) -> None:
+        self.system.set_locked(tuple(2 * (k + 1) + 1 for k in np.flatnonzero(self.resting)))
+
+    def _release(self) -> None:
+        """Free every resting rod that its stop would have to pull."""
+        release_wanted(self.system.tuple, self.s, self.resting, self._out, self._forces)
+        for k in np.flatnonzero(self.resting):
+            if self.resting[k] * self._forces[2 * (k + 1) + 1] > 0.0:
+                self.resting[k] = 0
+                self.watched[k] = True
+        self._relock()
+
+    def _advance_adaptive(self, t_end: float) -> None:
+        solver_class = ADAPTIVE[self.settings.method]
+        system = self.system
+
+        def fun(_t, y):
+            return system.derivative(y)
+
+        while t_end - self._t0 > 1e-15 * max(1.0, abs(t_end)):
+            first = min(self._h_last, t_end - self._t0) if self._h_last else None
+            solver = solver_class(fun, self._t0, self.s, t_end, rtol=self.settings.rtol,
+                                  atol=self.settings.atol, first_step=first)
+            restart = False
+            while solver.status == "running" and not restart:
+                s_before, t_before = solver.y.copy(), solver.t
+                message = solver.step()
+                if solver.status == "failed":
+                    raise SimulationError(f"t = {t_before:.9g} s: {self.settings.method} failed: {message}")
+                self.steps += 1
+                self._h_last = solver.t - t_before
+                if not np.all(np.isfinite(solver.y)):
+                    self.s = solver.y
+                    self._fail()
+                if self.watched.size and crossing_in_step(s_before, solver.y, solver.t - t_before,
+                                                          system.tuple, self.watched, self.stroke,
+                                                          self._stages[0], self._stages[1]):
+                    dense = solver.dense_output()
+                    self.s = s_before
+                    hit = self._first_crossing(lambda dh: dense(t_before + dh), solver.t - t_before)
+                    if hit is not None:
+                        h_hit, k, side, state = hit
+                        self.s, self._t0 = state, t_before + h_hit
+                        self._impact(k, side, self._t0)
+                        restart = True
+                        continue
+                self.s, self._t0 = solver.y.copy(), solver.t
+                if self.resting.any() and release_wanted(system.tuple, self.s, self.resting,
+                                                         self._out, self._forces):
+                    self._release()
+                    restart = True
+        self._t0 = t_end
+
+    def _fail(self) -> None:
+        bad = [i for i, value in enumerate(self.s) if not math.isfinite(value)]
+        raise SimulationError(f"t = {self.t:.9g} s: state became non-finite (entries {bad}); "
+                              f"try a smaller dt or tighter tolerances")
+
+    def stats(self) -> dict:
+        return {"t": self.t, "steps": self.steps, "rhs_evaluations": self.rhs_evaluations,
+                "impacts": len(self.impacts), "energy_error": self.energy_error()}
+
+
+def _command(values, size, group, limits) -> np.ndarray:
+    try:
+        array = np.array(values, dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        raise UserError(f"efforts.{group}", f"expected {size} numbers, got {values!r}") from None
+    if array.size != size:
+        raise UserError(f"efforts.{group}", f"expected {size} values, got {array.size}")
+    if not np.all(np.isfinite(array)):
+        raise UserError(f"efforts.{group}", f"values must be finite, got {array.tolist()}")
+    if limits is not None:
+        array = np.clip(array, -limits, limits)
+    return array
+
+
+def _damping(scene: Scene):
+    """Diagonal viscous coefficients on u, or None when no damping effect is on."""
+    effects, base = scene.effects, scene.robot.base
+    if effects.joint_damping is None and effects.wheel_damping is None:
+        return None
+    c = np.zeros(scene.robot.n_u)
+    if effects.wheel_damping:
+        # Wheel torques −c θ̇ with θ̇_R/L = (v ± bω)/r, projected: Q_v = −2c v/r², Q_ω = −2c b² ω/r².
+        c[0] = 2.0 * effects.wheel_damping / base.wheel_radius ** 2
+        c[1] = 2.0 * effects.wheel_damping * base.half_track ** 2 / base.wheel_radius ** 2
+    if effects.joint_damping is not None:
+        c[2:] = effects.joint_damping
+    return c
+
+
+def _locked_indices(scene: Scene) -> list[int]:
+    names = scene.robot.joint_names()[2:]
+    locked = [2 + names.index(name) for name in scene.effects.locked_joints]
+    if scene.effects.fixed_base:
+        locked += [0, 1]
+    return locked

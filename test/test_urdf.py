@@ -1,0 +1,239 @@
+"""The URDF describes the simulated robot: Pinocchio's URDF parser, given a planar root joint,
+builds a multibody whose projected mass matrix ``M = Sᵀ M_full S`` equals the Gibbs–Appell core's
+(scenes built through `parse_scene`, so payload and wheel-inertia effects take the real path);
+joint names and types match /joint_states; ``describe`` behaves as a command-line tool."""
+import copy
+import zlib
+import subprocess
+import sys
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+import pytest
+import yaml
+
+from mobile_manip_sim.dynamics import Dynamics
+from mobile_manip_sim.scene import load_scene, parse_scene
+from mobile_manip_sim.urdf import robot_description
+
+ROOT = Path(__file__).resolve().parents[1]
+PAPER = ROOT / "config" / "paper_two_link.yaml"
+TOL = 1e-9
+SEEDS = list(range(12))
+
+
+def paper_document() -> dict:
+    return yaml.safe_load(PAPER.read_text())
+
+
+def payload_scene():
+    doc = paper_document()
+    doc["effects"]["payload"] = {"mass": 0.75}
+    return parse_scene(doc, "paper_payload")
+
+
+def random_scene(seed):
+    """A random robot (0–5 links, random rpy, full cross-section inertias) as a scene document."""
+    rng = np.random.default_rng(seed)
+    n = seed % 6
+    doc = copy.deepcopy(paper_document())
+    doc["robot"]["base"] = dict(
+        mass=float(rng.uniform(1.0, 20.0)), yaw_inertia=float(rng.uniform(0.01, 1.0)),
+        com_offset=float(rng.uniform(-0.3, 0.3)), wheel_radius=float(rng.uniform(0.03, 0.2)),
+        half_track=float(rng.uniform(0.1, 0.4)), wheel_inertia=float(rng.uniform(1e-4, 1e-2)))
+    links = []
+    for _ in range(n):
+        L = float(rng.uniform(0.2, 2.0))
+        A = rng.normal(size=(3, 3)) * 0.03
+        J = A @ A.T + 1e-4 * np.eye(3)
+        lo = float(rng.uniform(0.0, 0.5)) * L
+        links.append(dict(length=L, mass_per_length=float(rng.uniform(0.2, 5.0)),
+                          inertia_per_length=J.tolist(),
+                          joint_rpy=rng.uniform(-np.pi, np.pi, 3).tolist(), stroke=[lo, L]))
+    doc["robot"]["arm"] = {"mount": rng.uniform(-0.3, 0.3, 3).tolist(), "links": links}
+    doc["initial"] = {"joints": [v for link in links for v in (0.0, link["stroke"][0])]}
+    doc["efforts"] = {}
+    effects = {"gravity": 9.81, "wheel_inertia": bool(seed % 3 != 2)}
+    if n and seed % 2:
+        effects["payload"] = float(rng.uniform(0.1, 3.0))
+    if seed % 4 == 1:
+        effects["joint_damping"] = 0.3
+        effects["wheel_damping"] = 0.05
+        effects["effort_limits"] = {"wheels": 2.0, "joints": 50.0}
+    doc["effects"] = effects
+    return parse_scene(doc, f"random_{seed}")
+
+
+def scenes():
+    yield "paper", load_scene()
+    yield "payload", payload_scene()
+    for seed in SEEDS:
+        yield f"random_{seed}", random_scene(seed)
+
+
+SCENES = dict(scenes())
+
+
+class UrdfModel:
+    """Pinocchio's model of the URDF with a planar root, and the map S from u to v_full built by
+    joint NAME (the parser's joint order is its own)."""
+
+    def __init__(self, scene):
+        self.scene = scene
+        self.model = pin.buildModelFromXML(robot_description(scene), pin.JointModelPlanar())
+        self.data = self.model.createData()
+        robot = scene.robot
+        self.root = self.model.joints[1]
+        assert self.model.names[1] == "root_joint" and self.root.nq == 4 and self.root.nv == 3
+        names = robot.joint_names()
+        assert sorted(self.model.names[2:]) == sorted(names)
+        self.joints = [self.model.joints[self.model.getJointId(name)] for name in names]
+        r, b = robot.base.wheel_radius, robot.base.half_track
+        S = np.zeros((self.model.nv, robot.n_u))
+        v0 = self.root.idx_v
+        S[v0 + 0, 0] = 1.0                   # v_x (base_link) = v
+        S[v0 + 2, 1] = 1.0                   # ω_z = ω
+        right, left = self.joints[0].idx_v, self.joints[1].idx_v
+        S[right, 0], S[right, 1] = 1.0 / r, b / r    # θ̇_R = (v + bω)/r
+        S[left, 0], S[left, 1] = 1.0 / r, -b / r     # θ̇_L = (v − bω)/r
+        for column, joint in enumerate(self.joints[2:], start=2):
+            S[joint.idx_v, column] = 1.0
+        self.S = S
+
+    def full_configuration(self, q) -> np.ndarray:
+        q_full = np.empty(self.model.nq)
+        i = self.root.idx_q
+        q_full[i:i + 4] = q[0], q[1], np.cos(q[2]), np.sin(q[2])
+        for joint, value in zip(self.joints, q[3:]):
+            if joint.nq == 2:    # continuous joints: (cos θ, sin θ)
+                q_full[joint.idx_q:joint.idx_q + 2] = np.cos(value), np.sin(value)
+            else:
+                q_full[joint.idx_q] = value
+        return q_full
+
+    def mass_matrix(self, q) -> np.ndarray:
+        M = pin.crba(self.model, self.data, self.full_configuration(q)).copy()
+        M = np.triu(M) + np.triu(M, 1).T
+        return self.S.T @ M @ self.S
+
+
+def random_configuration(rng, robot) -> np.ndarray:
+    q = np.empty(robot.n_q)
+    q[:2] = rng.uniform(-5.0, 5.0, 2)
+    q[2:5] = rng.uniform(-np.pi, np.pi, 3)
+    for k in range(robot.n_links):
+        q[5 + 2 * k] = rng.uniform(-np.pi, np.pi)
+        q[6 + 2 * k] = rng.uniform(*robot.stroke[k])
+    return q
+
+
+def core_dynamics(scene) -> Dynamics:
+    return Dynamics(scene.robot, gravity=scene.effects.gravity,
+                    tip_mass=scene.effects.payload or 0.0,
+                    wheel_inertia=scene.effects.wheel_inertia)
+
+
+@pytest.mark.parametrize("name", SCENES)
+def test_urdf_mass_matrix_equals_core_mass_matrix(name):
+    scene = SCENES[name]
+    urdf, dyn = UrdfModel(scene), core_dynamics(scene)
+    rng = np.random.default_rng(zlib.crc32(name.encode()))
+    for _ in range(5):
+        q = random_configuration(rng, scene.robot)
+        M, M_urdf = dyn.mass_matrix(q), urdf.mass_matrix(q)
+        assert np.max(np.abs(M - M_urdf)) <= TOL * np.linalg.norm(M), (M - M_urdf)
+
+
+@pytest.mark.parametrize("name", SCENES)
+def test_urdf_frames_are_the_core_frames(name):
+    """Joint frame k of the URDF (child of arm_revolute_k) is O_k, R_k; `tip` is the core's tip;
+    the planar root maps (x, y, yaw) and (v, ω) as the core does."""
+    scene = SCENES[name]
+    urdf, dyn = UrdfModel(scene), core_dynamics(scene)
+    model, data = urdf.model, urdf.data
+    rng = np.random.default_rng(7)
+    for _ in range(3):
+        q = random_configuration(rng, scene.robot)
+        u = rng.normal(size=scene.robot.n_u)
+        pin.forwardKinematics(model, data, urdf.full_configuration(q), urdf.S @ u)
+        pin.updateFramePlacements(model, data)
+        origins, rotations = dyn.joint_origins(q), dyn.link_rotations(q)
+        base = data.oMi[1]
+        assert np.allclose(base.translation, [q[0], q[1], 0.0], atol=1e-12)
+        assert np.allclose(base.rotation, rotations[0], atol=1e-12)
+        assert np.allclose(data.v[1].linear, [u[0], 0.0, 0.0], atol=1e-12)
+        assert np.allclose(data.v[1].angular, [0.0, 0.0, u[1]], atol=1e-12)
+        for k in range(scene.robot.n_links):
+            frame = data.oMi[model.getJointId(f"arm_revolute_{k + 1}")]
+            assert np.allclose(frame.translation, origins[k + 1], atol=1e-12)
+            assert np.allclose(frame.rotation, rotations[k + 1], atol=1e-12)
+        tip = data.oMf[model.getFrameId("tip")]
+        assert np.allclose(tip.translation, origins[-1], atol=1e-12)
+
+
+@pytest.mark.parametrize("name", SCENES)
+def test_urdf_joint_names_and_types_match_joint_states(name):
+    scene = SCENES[name]
+    robot = scene.robot
+    root = ET.fromstring(robot_description(scene))
+    assert root.tag == "robot" and root.get("name") == scene.name
+    joints = root.findall("joint")
+    moving = [j for j in joints if j.get("type") != "fixed"]
+    assert [j.get("name") for j in moving] == robot.joint_names()
+    links = {link.get("name") for link in root.findall("link")}
+    for joint in joints:
+        assert joint.find("parent").get("link") in links
+        assert joint.find("child").get("link") in links
+    expected = {"right_wheel_joint": ("continuous", "0.0 1.0 0.0"),
+                "left_wheel_joint": ("continuous", "0.0 1.0 0.0")}
+    for k in range(robot.n_links):
+        expected[f"arm_revolute_{k + 1}"] = ("continuous", "0.0 0.0 1.0")
+        expected[f"arm_prismatic_{k + 1}"] = ("prismatic", "1.0 0.0 0.0")
+    for joint in moving:
+        assert (joint.get("type"), joint.find("axis").get("xyz")) == expected[joint.get("name")]
+    for k in range(robot.n_links):
+        limit = root.find(f"joint[@name='arm_prismatic_{k + 1}']/limit")
+        assert [float(limit.get("lower")), float(limit.get("upper"))] == list(robot.stroke[k])
+    assert [j.get("name") for j in joints if j.get("type") == "fixed"] == ["tip_joint"]
+    tip = root.find("link[@name='tip']")
+    if scene.effects.payload:
+        assert float(tip.find("inertial/mass").get("value")) == scene.effects.payload
+    else:
+        assert tip.find("inertial") is None
+    wheel = root.find("link[@name='right_wheel']")
+    assert (wheel.find("inertial") is not None) == bool(scene.effects.wheel_inertia)
+
+
+def run_describe(*args):
+    return subprocess.run([sys.executable, "-m", "mobile_manip_sim.describe", *args],
+                          capture_output=True, text=True, timeout=60, cwd=ROOT)
+
+
+def test_describe_prints_the_scene_urdf():
+    result = run_describe("--scene", str(PAPER))
+    assert result.returncode == 0, result.stderr
+    assert result.stdout == robot_description(load_scene(PAPER))
+    assert ET.fromstring(result.stdout).get("name") == "paper_two_link"
+
+
+def test_describe_without_scene_prints_the_default_scene():
+    result = run_describe()
+    assert result.returncode == 0, result.stderr
+    assert result.stdout == robot_description(load_scene())
+
+
+def test_describe_missing_scene_is_a_one_line_user_error(tmp_path):
+    missing = tmp_path / "no_such_scene.yaml"
+    result = run_describe("--scene", str(missing))
+    assert result.returncode == 2
+    assert result.stdout == ""
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and str(missing) in lines[0], result.stderr
+
+
+def test_describe_bad_flag_is_a_one_line_user_error():
+    result = run_describe("--no-such-flag")
+    assert result.returncode == 2
+    assert len(result.stderr.strip().splitlines()) == 1, result.stderr
