@@ -25,3 +25,8 @@ def run(main: Callable[[list[str] | None], int | None], argv: list[str] | None =
         return EXIT_USER_ERROR
     except KeyboardInterrupt:
         return 130
+    except RuntimeError as error:  # SimulationError: the numbers went bad; say when and where
+        if type(error).__name__ != "SimulationError":
+            raise
+        print(f"{prog}: error: {error}", file=sys.stderr)
+        return 1

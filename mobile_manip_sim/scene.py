@@ -277,14 +277,17 @@ def _integrator(doc) -> IntegratorSettings:
 def make_integrator(settings: IntegratorSettings, method=None, dt=None, rtol=None, atol=None,
                     prefix="integrator") -> IntegratorSettings:
     """Settings with the given overrides (scene keys or command-line flags), validated."""
+    def key(name):
+        return f"{prefix}{name}" if prefix.endswith("-") else f"{prefix}.{name}"
+
     method = settings.method if method is None else method
     if method not in METHODS:
-        raise UserError(f"{prefix}.method", f"unknown method {method!r} (choose one of: {', '.join(METHODS)})")
+        raise UserError(key("method"), f"unknown method {method!r} (choose one of: {', '.join(METHODS)})")
     return IntegratorSettings(
         method=method,
-        dt=settings.dt if dt is None else _number(dt, f"{prefix}.dt", positive=True),
-        rtol=settings.rtol if rtol is None else _number(rtol, f"{prefix}.rtol", positive=True),
-        atol=settings.atol if atol is None else _number(atol, f"{prefix}.atol", positive=True))
+        dt=settings.dt if dt is None else _number(dt, key("dt"), positive=True),
+        rtol=settings.rtol if rtol is None else _number(rtol, key("rtol"), positive=True),
+        atol=settings.atol if atol is None else _number(atol, key("atol"), positive=True))
 
 
 def parse_scene(doc, name="scene") -> Scene:

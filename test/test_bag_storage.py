@@ -311,6 +311,30 @@ def test_corrupt_chunk_is_a_one_line_user_error(tmp_path, records):
     assert _is_one_line_user_error(caught.value, mcap_path)
 
 
+def test_damaged_bytes_never_give_wrong_data_or_a_traceback(tmp_path, records):
+    """Overwrite a few bytes anywhere (header, chunks, indexes, summary, footer): the reader
+    returns every message, a prefix of them (summary unusable, data scanned), or a UserError."""
+    bag = _write_bag(tmp_path / "damaged", records, chunk_size=2048)
+    mcap_path = bag / "damaged_0.mcap"
+    good = mcap_path.read_bytes()
+    expected = [(r[0], r[3], r[5]) for r in records]
+    rng = random.Random(11)
+    for _ in range(150):
+        raw = bytearray(good)
+        width = rng.randrange(1, 8)
+        position = rng.randrange(0, len(raw) - width)
+        raw[position:position + width] = rng.randbytes(width)
+        mcap_path.write_bytes(bytes(raw))
+        try:
+            opened = open_bag(bag)
+            read = [(m.topic, m.log_time_ns, m.data) for m in opened.messages()]
+            opened.attachments(), opened.metadata()
+        except UserError as error:
+            assert _is_one_line_user_error(error, mcap_path), position
+            continue
+        assert read == expected[:len(read)], position
+
+
 # --- crash, write failures, memory --------------------------------------------------------
 
 _KILLED_WRITER = textwrap.dedent("""
