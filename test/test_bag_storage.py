@@ -459,6 +459,20 @@ def test_misuse_is_a_user_error(tmp_path):
     assert open_bag(tmp_path / "bag").topics() == {"/clock": "rosgraph_msgs/msg/Clock"}
 
 
+def test_flush_puts_the_open_chunk_on_disk(tmp_path):
+    writer = BagWriter(tmp_path / "flushed")
+    writer.add_topic("/clock", "rosgraph_msgs/msg/Clock")
+    for step in range(10):
+        writer.write("/clock", serialize_message(Clock()), step)
+    assert writer.buffered_bytes > 0
+    writer.flush()
+    assert writer.buffered_bytes == 0
+    unfinished = open_bag(tmp_path / "flushed")  # as a crash now would leave it
+    assert unfinished.recovered and len(list(unfinished.messages())) == 10
+    writer.close()
+    assert len(list(open_bag(tmp_path / "flushed").messages())) == 10
+
+
 def test_open_chunk_stays_bounded_over_a_long_run(tmp_path):
     chunk_size = 16 * 1024
     writer = BagWriter(tmp_path / "long", chunk_size=chunk_size)

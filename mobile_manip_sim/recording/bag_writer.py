@@ -193,7 +193,8 @@ class BagWriter:
         if entry is None:
             raise UserError(topic, "not a topic of this bag (call add_topic first)")
         if log_time_ns < 0 or (publish_time_ns is not None and publish_time_ns < 0):
-            raise UserError(topic, f"negative message time {log_time_ns} ns")
+            raise UserError(topic, f"negative time (log {log_time_ns} ns, "
+                                   f"publish {publish_time_ns} ns)")
         publish_time_ns = log_time_ns if publish_time_ns is None else publish_time_ns
         with self._io("cannot write message"):
             before = self._file.bytes_written
