@@ -14,20 +14,32 @@ setup(
         ("share/" + package_name, ["package.xml"]),
         ("share/" + package_name + "/config", glob("config/*.yaml") + glob("config/*.json")),
     ],
-    package_data={package_name: ["scenes/*.yaml"]},
+    package_data={package_name: ["config/*.yaml", "config/*.json"]},
     include_package_data=True,
-    install_requires=["setuptools", "numpy", "scipy", "pyyaml", "mcap"],
+    python_requires=">=3.10",
+    install_requires=[
+        "setuptools", "numpy", "scipy", "pyyaml", "mcap", "numba", "matplotlib",
+        # ROS 2 Jazzy from PyPI wheels; on a ROS install these are already there (colcon does
+        # not pip-install them).
+        "ros-jazzy-rclpy", "ros-jazzy-common-interfaces", "ros-jazzy-rosgraph-msgs",
+        "ros-jazzy-std-srvs", "ros-jazzy-rmw-fastrtps-cpp",
+    ],
+    extras_require={"test": [
+        "pytest", "pin", "rosbags", "mcap-ros2-support", "ros-jazzy-ament-package",
+        "colcon-core", "colcon-ros", "colcon-python-setup-py", "colcon-package-information",
+        "colcon-package-selection",
+    ]},
     zip_safe=True,
     maintainer="mobile_manip_sim developers",
     maintainer_email="dev@example.invalid",
     description="Nonholonomic mobile manipulator with R-P arm joints: recursive Gibbs–Appell "
                 "dynamics, ROS 2 simulator node, MCAP recording and replay.",
     license="Apache-2.0",
-    tests_require=["pytest"],
     entry_points={
         "console_scripts": [
             "simulate = mobile_manip_sim.simulate:main",
             "describe = mobile_manip_sim.describe:main",
+            "simulator = mobile_manip_sim.node:main",
         ],
     },
 )

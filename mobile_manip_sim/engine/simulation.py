@@ -114,6 +114,12 @@ class Simulation:
         Q = self.system.Q_cmd
         Q[0], Q[1] = self.dynamics.wheel_forces(*self.wheel_efforts)
         Q[2:] = self.joint_efforts
+        # The steppers look for a release only after a step: a new command that pulls a resting
+        # rod off its stop must free it here, at the step boundary where the command changes,
+        # or the rod would stay held for one more step (a lag of a whole dt in fixed-step runs).
+        if self.resting.any() and release_wanted(self.system.tuple, self.s, self.resting,
+                                                 self._out, self._forces):
+            self._release()
 
     # --- stepping ------------------------------------------------------------------------
     def advance_to(self, t_end: float) -> None:

@@ -1,0 +1,516 @@
+"""`simulator`: the ROS 2 node — effort commands in, joint states, odometry and /clock out.
+
+    ros2 run mobile_manip_sim simulator [--ros-args --params-file config/simulator.params.yaml]
+
+A thin adapter around `Simulation` (no physics here). Interface (node name `mobile_manip_sim`):
+
+Subscriptions (ros2_control effort-controller convention, ``std_msgs/Float64MultiArray``)
+  /wheel_effort_controller/commands  [tau_R, tau_L] (N·m)
+  /arm_effort_controller/commands    [tau_1, F_1, ..., tau_n, F_n] (N·m revolute, N prismatic)
+Publications, stamped with the simulated time of the state they carry
+  /joint_states        sensor_msgs/JointState: right_wheel_joint, left_wheel_joint,
+                       arm_revolute_i, arm_prismatic_i; position (θ_R, θ_L, q_i, l_i), velocity
+                       (their time derivatives), effort = the efforts applied during the segment
+                       that ended at the stamp (after the scene's effort limits, if any)
+  /odom                nav_msgs/Odometry: pose of base_link (x, y, yaw) in odom; twist in
+                       base_link (linear.x = v, angular.z = ω; the wheel axis does not slip, so
+                       linear.y = 0); covariances: see GROUND_TRUTH_VARIANCE
+  /clock               rosgraph_msgs/Clock, for nodes running with use_sim_time
+  /robot_description   std_msgs/String (URDF), transient local, depth 1: at start and on reset
+Services
+  ~/reset  std_srvs/Trigger   back to the scene's initial state, t = 0, efforts zero
+  ~/pause  std_srvs/SetBool   true: time and /clock stand still; false: resume
+
+Timing. Publication k carries the state at simulated time t_k = k / publish_rate; its stamp is
+computed from the integer k in integer nanoseconds (exactly k·10⁹/rate when that is an integer,
+otherwise rounded to the nearest ns without accumulating), so stamps never drift, skip or repeat.
+One stepping thread owns the engine: for each k it takes the latest valid commands (zero-order
+hold: a command that arrives during a segment takes effect at the start of the next one),
+advances the engine to t_{k+1}, waits until the wall clock reaches
+start_wall + t_{k+1} / real_time_factor, then publishes. Computing before waiting keeps the
+compute time out of the publication jitter. The first publication (k = 0) is the initial state.
+If the node falls behind the wall clock it says so (throttled, with the measured real-time
+factor) and re-anchors its pacing instead of bursting to catch up. The executor (subscriptions,
+services, parameters) runs in the main thread and never waits for the engine.
+
+The node starts with ZERO efforts, not the scene's `efforts:` (those are for headless runs): a
+robot should not move before someone commands it. Commands older than `command_timeout` seconds
+of simulated time fall to zero, one warning per timeout, re-armed by the next command.
+
+Bad input never stops the node: a command of the wrong length or with NaN/Inf is rejected with a
+throttled warning naming the topic and the problem, and the last valid command stays. If the
+engine's state becomes non-finite the node logs the error and pauses; ~/reset recovers. A missing
+or invalid scene or parameter at start-up is one line on stderr and exit status 2.
+
+Odometry covariances: this is ground truth from the model, and a planar model knows z, roll and
+pitch exactly (all zero), so every one of the six dimensions is "known": the diagonals of
+pose.covariance and twist.covariance are GROUND_TRUTH_VARIANCE (1e-9 in m², rad², (m/s)²,
+(rad/s)²) and every off-diagonal entry is 0. A small positive diagonal rather than 0 keeps the
+matrices invertible for filters (robot_localization rejects all-zero covariances).
+"""
+from __future__ import annotations
+
+import math
+import threading
+import time
+from fractions import Fraction
+
+import numpy as np
+import rclpy
+from geometry_msgs.msg import Quaternion
+from nav_msgs.msg import Odometry
+from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, SetParametersResult
+from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.time import Time
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray, String
+from std_srvs.srv import SetBool, Trigger
+
+from . import cli
+from .engine.simulation import Simulation, SimulationError
+from .errors import UserError
+from .scene import METHODS, load_scene, make_integrator
+from .urdf import robot_description
+
+NODE_NAME = "mobile_manip_sim"
+WHEEL_TOPIC = "/wheel_effort_controller/commands"
+ARM_TOPIC = "/arm_effort_controller/commands"
+GROUND_TRUTH_VARIANCE = 1e-9
+WARN_EVERY = 5.0           # s of wall time between repeats of one kind of warning
+STATE_QOS_DEPTH = 100      # room for slow subscribers at high real-time factors
+NS = 10 ** 9
+
+
+def _float_range(low: float, high: float) -> list[FloatingPointRange]:
+    return [FloatingPointRange(from_value=low, to_value=high, step=0.0)]
+
+
+# name: (default, description, range or None, changeable at run time)
+PARAMETERS = {
+    "scene": ("", "Scene YAML file; empty = the embedded paper scene.", None, False),
+    "publish_rate": (100.0, "Publications per second of SIMULATED time (Hz).",
+                     _float_range(0.001, 100000.0), False),
+    "real_time_factor": (1.0, "Simulated seconds per wall second; 0 = as fast as possible.",
+                         _float_range(0.0, 10000.0), True),
+    "command_timeout": (0.5, "Seconds of SIMULATED time after the last command of a group "
+                             "(wheels, arm) before its efforts fall to zero; 0 disables.",
+                        _float_range(0.0, 1.0e6), True),
+    "odom_frame": ("odom", "frame_id of /odom.", None, False),
+    "base_frame": ("base_link", "child_frame_id of /odom.", None, False),
+    "record": ("", "Record a rosbag2 (MCAP) to this directory; empty = off (not implemented "
+                   "yet).", None, False),
+    "integrator.method": ("", f"Integrator overriding the scene's ({', '.join(METHODS)}); "
+                              "empty = the scene's.", None, False),
+    "integrator.dt": (0.0, "Fixed step (s) overriding the scene's; 0 = the scene's.",
+                      _float_range(0.0, 1.0), False),
+    "integrator.rtol": (0.0, "Relative tolerance overriding the scene's; 0 = the scene's.",
+                        _float_range(0.0, 1.0), False),
+    "integrator.atol": (0.0, "Absolute tolerance overriding the scene's; 0 = the scene's.",
+                        _float_range(0.0, 1.0), False),
+}
+
+
+# --- pure helpers (no rclpy state: testable on their own) ---------------------------------
+
+def command_problem(values, expected: int, labels: str) -> tuple[str, str] | None:
+    """(kind, explanation) of why `values` is not a valid command of `expected` numbers, or
+    None when it is one. `kind` ("length", "NaN", "Inf", "NaN and Inf") keys the throttling."""
+    if len(values) != expected:
+        return "length", f"expected {expected} values ({labels}), got {len(values)}"
+    bad = [(i, v) for i, v in enumerate(values) if not math.isfinite(v)]
+    if bad:
+        kind = " and ".join(sorted({"NaN" if math.isnan(v) else "Inf" for _, v in bad},
+                                   reverse=True))
+        where = ", ".join(f"[{i}] = {v}" for i, v in bad)
+        return kind, f"contains {kind} ({where})"
+    return None
+
+
+def stamp_ns(k: int, rate: Fraction) -> int:
+    """k / rate in integer nanoseconds, rounded half up: exact, and never drifting with k."""
+    numerator = k * NS * rate.denominator
+    return (2 * numerator + rate.numerator) // (2 * rate.numerator)
+
+
+def format_ns(ns: int) -> str:
+    return f"{'-' if ns < 0 else ''}{abs(ns) // NS}.{abs(ns) % NS:09d}"
+
+
+def yaw_quaternion(yaw: float) -> Quaternion:
+    return Quaternion(x=0.0, y=0.0, z=math.sin(0.5 * yaw), w=math.cos(0.5 * yaw))
+
+
+GROUND_TRUTH_COVARIANCE = [GROUND_TRUTH_VARIANCE if i % 7 == 0 else 0.0 for i in range(36)]
+
+
+class _CommandGroup:
+    """The latest valid command of one topic and when it arrived (simulated ns)."""
+
+    def __init__(self, topic: str, size: int, labels: str, what: str):
+        self.topic, self.size, self.labels, self.what = topic, size, labels, what
+        self.clear()
+
+    def clear(self) -> None:
+        self.values = np.zeros(self.size)
+        self.received_ns: int | None = None
+        self.timed_out = False
+
+
+class SimulatorNode(Node):
+    """The scene's simulation behind ROS topics; see the module docstring for the interface."""
+
+    def __init__(self, **node_options):
+        super().__init__(NODE_NAME, **node_options)
+        self._declare_parameters()
+        p = self._read_parameters()
+        scene = load_scene(p["scene"] or None)
+        settings = make_integrator(scene.integrator, p["integrator.method"] or None,
+                                   p["integrator.dt"] or None, p["integrator.rtol"] or None,
+                                   p["integrator.atol"] or None, prefix="integrator")
+        self.scene = scene
+        self.sim = Simulation(scene, settings)
+        self.joint_names = scene.robot.joint_names()
+        n_joints = len(self.joint_names) - 2
+        self.rate = Fraction(p["publish_rate"])
+        self.real_time_factor = p["real_time_factor"]
+        self.command_timeout_ns = round(p["command_timeout"] * NS)
+        self.odom_frame, self.base_frame = p["odom_frame"], p["base_frame"]
+        self.record = p["record"]
+        if self.record:
+            self.get_logger().warning(f"record: recording is not implemented yet; "
+                                      f"'{self.record}' ignored")
+
+        arm_labels = ", ".join(f"tau_{i}, F_{i}" for i in range(1, n_joints // 2 + 1)) or "none"
+        self._wheels = _CommandGroup(WHEEL_TOPIC, 2, "tau_R, tau_L", "wheel")
+        self._arm = _CommandGroup(ARM_TOPIC, n_joints, arm_labels, "arm")
+        self._command_lock = threading.Lock()      # guards the two _CommandGroup
+        self._warned_at: dict[tuple, float] = {}    # throttle: (topic, kind) → wall time
+
+        # Everything below is owned by the stepping thread; services change it under _cv.
+        self._cv = threading.Condition()
+        self._k = 0                  # index of the latest published state
+        self._now_ns = 0             # its stamp: simulated time at the start of the open segment
+        self._pending = None         # (k + 1, messages) computed, waiting for its wall time
+        self._paused = False
+        self._failed: str | None = None
+        self._stopping = False
+        self._anchor = (time.monotonic(), 0)   # (wall s, simulated ns) pacing origin
+        self._window = self._anchor            # start of the real-time-factor measurement
+
+        state_qos = QoSProfile(depth=STATE_QOS_DEPTH, reliability=ReliabilityPolicy.RELIABLE)
+        latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
+        self._joint_pub = self.create_publisher(JointState, "/joint_states", state_qos)
+        self._odom_pub = self.create_publisher(Odometry, "/odom", state_qos)
+        self._clock_pub = self.create_publisher(Clock, "/clock", state_qos)
+        self._description_pub = self.create_publisher(String, "/robot_description", latched)
+        self._description = robot_description(scene)
+        self.create_subscription(Float64MultiArray, WHEEL_TOPIC,
+                                 lambda msg: self._on_command(self._wheels, msg), 10)
+        self.create_subscription(Float64MultiArray, ARM_TOPIC,
+                                 lambda msg: self._on_command(self._arm, msg), 10)
+        self.create_service(Trigger, "~/reset", self._on_reset)
+        self.create_service(SetBool, "~/pause", self._on_pause)
+        self.add_on_set_parameters_callback(self._validate_parameters)
+        self.add_post_set_parameters_callback(self._apply_parameters)
+
+        self._reset_state()
+        self._thread = threading.Thread(target=self._run, name="stepping", daemon=True)
+        self.get_logger().info(
+            f"scene '{scene.name}', integrator {settings.method} "
+            f"({'dt ' + str(settings.dt) if settings.fixed_step else f'rtol {settings.rtol}'}), "
+            f"publishing at {float(self.rate):g} Hz of simulated time, real-time factor "
+            f"{self.real_time_factor:g}{' (free-running)' if self.real_time_factor == 0 else ''}")
+
+    # --- parameters ------------------------------------------------------------------------
+    def _declare_parameters(self) -> None:
+        for name, (default, description, floats, dynamic) in PARAMETERS.items():
+            descriptor = ParameterDescriptor(description=description, read_only=not dynamic)
+            if floats:
+                descriptor.floating_point_range = floats
+            try:
+                self.declare_parameter(name, default, descriptor)
+            except InvalidParameterTypeException:
+                kind = "a floating-point number (write 1.0, not 1)" if isinstance(default, float) \
+                    else "a string"
+                raise UserError(name, f"expected {kind}") from None
+            except InvalidParameterValueException:
+                override = self._parameter_overrides.get(name)
+                value = override.value if override is not None else default
+                raise UserError(name, f"{value} is outside [{floats[0].from_value:g}, "
+                                      f"{floats[0].to_value:g}]") from None
+
+    def _read_parameters(self) -> dict:
+        values = {name: self.get_parameter(name).value for name in PARAMETERS}
+        for name, value in values.items():
+            if isinstance(value, float) and not math.isfinite(value):
+                raise UserError(name, f"must be finite, got {value}")
+        return values
+
+    def _validate_parameters(self, parameters) -> SetParametersResult:
+        for parameter in parameters:
+            if isinstance(parameter.value, float) and not math.isfinite(parameter.value):
+                return SetParametersResult(successful=False,
+                                           reason=f"{parameter.name} must be finite")
+        return SetParametersResult(successful=True)
+
+    def _apply_parameters(self, parameters) -> None:
+        with self._cv:
+            for parameter in parameters:
+                if parameter.name == "real_time_factor":
+                    self.real_time_factor = parameter.value
+                    self._reanchor()
+                elif parameter.name == "command_timeout":
+                    self.command_timeout_ns = round(parameter.value * NS)
+            self._cv.notify_all()
+
+    # --- commands (executor thread) --------------------------------------------------------
+    def _on_command(self, group: _CommandGroup, msg: Float64MultiArray) -> None:
+        values = msg.data
+        problem = command_problem(values, group.size, group.labels)
+        if problem:
+            kind, text = problem
+            self._warn_throttled((group.topic, kind),
+                                 f"{group.topic}: {text}; keeping the last valid command")
+            return
+        with self._command_lock:
+            group.values = np.array(values, dtype=float)
+            group.received_ns = self._now_ns
+            group.timed_out = False
+
+    def _held_efforts(self, segment_start_ns: int) -> tuple[np.ndarray, np.ndarray]:
+        """The efforts to hold from segment_start_ns on, after the command timeout."""
+        with self._command_lock:
+            for group in (self._wheels, self._arm):
+                stale = (self.command_timeout_ns > 0 and group.received_ns is not None
+                         and not group.timed_out
+                         and segment_start_ns - group.received_ns >= self.command_timeout_ns)
+                if stale:
+                    group.values = np.zeros(group.size)
+                    group.timed_out = True
+                    self.get_logger().warning(
+                        f"{group.topic}: no command for {self.command_timeout_ns / NS:g} s of "
+                        f"simulated time (command_timeout); {group.what} efforts set to zero "
+                        f"until commands resume")
+            return self._wheels.values.copy(), self._arm.values.copy()
+
+    # --- services (executor thread) --------------------------------------------------------
+    def _on_reset(self, request, response):
+        with self._cv:
+            self._reset_state()
+            self._publish_description()
+            self._publish(0, self._messages(0))
+            self._cv.notify_all()
+        self.get_logger().info("reset to the initial state, t = 0")
+        response.success, response.message = True, "reset to the initial state at t = 0"
+        return response
+
+    def _on_pause(self, request, response):
+        with self._cv:
+            now = format_ns(self._now_ns)
+            if request.data:
+                response.message = f"{'already ' if self._paused else ''}paused at t = {now} s"
+                self._paused = True
+                response.success = True
+            elif self._failed:
+                response.success = False
+                response.message = (f"cannot resume: the simulation failed ({self._failed}); "
+                                    f"call ~/reset")
+            else:
+                response.message = f"{'resumed' if self._paused else 'running'} at t = {now} s"
+                if self._paused:
+                    self._paused = False
+                    self._reanchor()
+                response.success = True
+            self._cv.notify_all()
+        self.get_logger().info(response.message)
+        return response
+
+    # --- stepping thread -------------------------------------------------------------------
+    def start(self) -> None:
+        """Publish the description and the initial state, then start stepping."""
+        with self._cv:
+            self._publish_description()
+            self._publish(0, self._messages(0))
+            self._reanchor()
+        self._thread.start()
+
+    def stop(self) -> None:
+        """Stop the stepping thread (idempotent); nothing is published afterwards."""
+        with self._cv:
+            self._stopping = True
+            self._cv.notify_all()
+        if self._thread.is_alive():
+            self._thread.join()
+
+    def _run(self) -> None:
+        while True:
+            with self._cv:
+                while not self._stopping and (self._paused or self._failed):
+                    self._cv.wait()
+                if self._stopping:
+                    return
+                if self._pending is None:
+                    self._pending = self._compute_next()
+                    if self._pending is None:
+                        continue
+                k, messages = self._pending
+                paced = self.real_time_factor > 0
+                delay = self._due(stamp_ns(k, self.rate)) - time.monotonic() if paced else 0.0
+                if delay > 0:
+                    self._cv.wait(delay)   # woken early by pause, reset, parameters or stop
+                    continue
+                if paced:
+                    self._check_lag(-delay, k)
+                try:
+                    self._publish(k, messages)
+                except Exception:  # the context went down under us: shutting down
+                    if self._stopping or not rclpy.ok(context=self.context):
+                        return
+                    raise
+                self._pending = None
+
+    def _compute_next(self):
+        """Advance the engine over segment k → k + 1; (k + 1, messages), or None on failure."""
+        k = self._k
+        start_ns = self._now_ns
+        wheels, joints = self._held_efforts(start_ns)
+        try:
+            self.sim.set_efforts(wheels, joints)
+            self._on_command_applied(start_ns, self.sim.wheel_efforts, self.sim.joint_efforts)
+            self.sim.advance_to((k + 1) / float(self.rate))
+        except (SimulationError, UserError) as error:
+            self._failed = f"t = {format_ns(start_ns)} s: {error}"
+            self.get_logger().error(f"simulation failed in the segment after t = "
+                                    f"{format_ns(start_ns)} s: {error}; paused, call ~/reset "
+                                    f"to start again")
+            return None
+        return k + 1, self._messages(k + 1)
+
+    def _due(self, target_ns: int) -> float:
+        wall0, ns0 = self._anchor
+        return wall0 + (target_ns - ns0) / NS / self.real_time_factor
+
+    def _reanchor(self) -> None:
+        self._anchor = (time.monotonic(), self._now_ns)
+        self._window = self._anchor
+
+    def _check_lag(self, late: float, k: int) -> None:
+        """Behind the wall clock by `late` s: warn (throttled) and pace from here on."""
+        period = 1.0 / float(self.rate) / self.real_time_factor
+        if late <= max(0.05, 2.0 * period):
+            return
+        wall, ns = time.monotonic(), stamp_ns(k, self.rate)
+        wall0, ns0 = self._window
+        measured = (ns - ns0) / NS / (wall - wall0) if wall > wall0 else float("nan")
+        if self._warn_throttled(("lag",), f"cannot keep up with real_time_factor "
+                                          f"{self.real_time_factor:g}: measured real-time factor "
+                                          f"{measured:.2f}; simulated time runs slower"):
+            self._window = (wall, ns)
+        self._anchor = (wall, ns)
+
+    def _reset_state(self) -> None:
+        self.sim.reset()
+        self.sim.set_efforts(np.zeros(2), np.zeros(self.sim.nu - 2))
+        with self._command_lock:
+            self._wheels.clear()
+            self._arm.clear()
+        self._k, self._now_ns, self._pending = 0, 0, None
+        self._failed = None
+        self._reanchor()
+
+    # --- messages --------------------------------------------------------------------------
+    def _messages(self, k: int) -> dict:
+        """/joint_states, /odom and /clock for the engine's current state, stamped t_k."""
+        sim = self.sim
+        ns = stamp_ns(k, self.rate)
+        stamp = Time(nanoseconds=ns).to_msg()
+        q, u, qdot = sim.q, sim.u, sim.qdot()
+
+        joints = JointState()
+        joints.header.stamp = stamp
+        joints.name = self.joint_names
+        joints.position = q[3:].tolist()
+        joints.velocity = qdot[3:].tolist()
+        joints.effort = sim.wheel_efforts.tolist() + sim.joint_efforts.tolist()
+
+        odom = Odometry()
+        odom.header.stamp = stamp
+        odom.header.frame_id = self.odom_frame
+        odom.child_frame_id = self.base_frame
+        odom.pose.pose.position.x = float(q[0])
+        odom.pose.pose.position.y = float(q[1])
+        odom.pose.pose.orientation = yaw_quaternion(float(q[2]))
+        odom.pose.covariance = GROUND_TRUTH_COVARIANCE
+        odom.twist.twist.linear.x = float(u[0])
+        odom.twist.twist.angular.z = float(u[1])
+        odom.twist.covariance = GROUND_TRUTH_COVARIANCE
+
+        return {"/joint_states": joints, "/odom": odom, "/clock": Clock(clock=stamp)}
+
+    def _publish(self, k: int, messages: dict) -> None:
+        self._joint_pub.publish(messages["/joint_states"])
+        self._odom_pub.publish(messages["/odom"])
+        self._clock_pub.publish(messages["/clock"])
+        self._k, self._now_ns = k, stamp_ns(k, self.rate)
+        self._on_state_published(self._now_ns, messages)
+
+    def _publish_description(self) -> None:
+        self._description_pub.publish(String(data=self._description))
+
+    def _warn_throttled(self, key: tuple, text: str) -> bool:
+        now = time.monotonic()
+        last = self._warned_at.get(key)
+        if last is not None and now - last < WARN_EVERY:
+            return False
+        self._warned_at[key] = now
+        self.get_logger().warning(text)
+        return True
+
+    # --- hooks for the recorder (recording issue): called by the stepping thread ------------
+    def _on_state_published(self, stamp_ns: int, messages: dict) -> None:
+        """After each publication: `messages` maps topic → message, all stamped stamp_ns.
+
+        Also called with stamp 0 for the initial state and after every reset (time restarts).
+        Does nothing yet."""
+
+    def _on_command_applied(self, stamp_ns: int, wheels: np.ndarray, joints: np.ndarray) -> None:
+        """At the start of each segment: the efforts held from stamp_ns to the next stamp
+        (after timeout and effort limits). Does nothing yet."""
+
+    def _on_close(self) -> None:
+        """After the stepping thread has stopped, before the node is destroyed (SIGINT,
+        SIGTERM, normal exit): where a recorder closes its bag. Does nothing yet."""
+
+
+def _main(argv) -> int:
+    rclpy.init(args=argv)
+    node = None
+    try:
+        node = SimulatorNode()
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        node.start()
+        try:
+            executor.spin()
+        except (KeyboardInterrupt, ExternalShutdownException):
+            pass
+    finally:
+        if node is not None:
+            node.stop()
+            node._on_close()
+            node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+def main(args=None) -> int:
+    return cli.run(_main, args)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,10 @@
+#!/usr/bin/env bash
+# Create .venv beside this repository and install the package with everything its tests need,
+# all from PyPI (ROS 2 Jazzy's rclpy and message packages come as wheels). Safe to run again.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+if [ ! -x .venv/bin/python ]; then
+  python3 -m venv .venv
+fi
+.venv/bin/python -m pip install --quiet --upgrade pip
+.venv/bin/python -m pip install --quiet -e '.[test]'
