@@ -31,7 +31,11 @@ start_wall + t_{k+1} / real_time_factor, then publishes. Computing before waitin
 compute time out of the publication jitter. The first publication (k = 0) is the initial state.
 If the node falls behind the wall clock it says so (throttled, with the measured real-time
 factor) and re-anchors its pacing instead of bursting to catch up. The executor (subscriptions,
-services, parameters) runs in the main thread and never waits for the engine.
+services, parameters) runs in the main thread and never waits for the engine: ~/pause and
+~/reset set flags under a lock that also guards every publication, so once they have answered
+nothing more of the old time line goes out (a segment computed across a pause is published after
+the resume; one computed across a reset is dropped). State topics are reliable, depth 100.
+`real_time_factor` and `command_timeout` can be changed while running; the others are read-only.
 
 The node starts with ZERO efforts, not the scene's `efforts:` (those are for headless runs): a
 robot should not move before someone commands it. Commands older than `command_timeout` seconds
@@ -81,8 +85,10 @@ WHEEL_TOPIC = "/wheel_effort_controller/commands"
 ARM_TOPIC = "/arm_effort_controller/commands"
 GROUND_TRUTH_VARIANCE = 1e-9
 WARN_EVERY = 5.0           # s of wall time between repeats of one kind of warning
+LAG_TOLERANCE = 0.1        # s behind the wall clock before the node says it cannot keep up
 STATE_QOS_DEPTH = 100      # room for slow subscribers at high real-time factors
 NS = 10 ** 9
+SHUTDOWN_POLL = 0.2        # s: how often the executor checks for an external shutdown
 
 
 def _float_range(low: float, high: float) -> list[FloatingPointRange]:
@@ -190,13 +196,14 @@ class SimulatorNode(Node):
         self._command_lock = threading.Lock()      # guards the two _CommandGroup
         self._warned_at: dict[tuple, float] = {}    # throttle: (topic, kind) → wall time
 
-        # Everything below is owned by the stepping thread; services change it under _cv.
+        # Stepping state: the stepping thread owns the engine; services only set flags (_cv).
         self._cv = threading.Condition()
         self._k = 0                  # index of the latest published state
         self._now_ns = 0             # its stamp: simulated time at the start of the open segment
         self._pending = None         # (k + 1, messages) computed, waiting for its wall time
         self._paused = False
         self._failed: str | None = None
+        self._reset_requested = False
         self._stopping = False
         self._anchor = (time.monotonic(), 0)   # (wall s, simulated ns) pacing origin
         self._window = self._anchor            # start of the real-time-factor measurement
@@ -298,13 +305,15 @@ class SimulatorNode(Node):
                         f"until commands resume")
             return self._wheels.values.copy(), self._arm.values.copy()
 
-    # --- services (executor thread) --------------------------------------------------------
+    # --- services (executor thread): they set flags; the stepping thread acts on them --------
     def _on_reset(self, request, response):
+        with self._command_lock:   # commands sent after this call are kept
+            self._wheels.clear()
+            self._arm.clear()
         with self._cv:
-            self._reset_state()
-            self._publish_description()
-            self._publish(0, self._messages(0))
+            self._reset_requested = True
             self._cv.notify_all()
+        # From here on nothing of the old run is published: the next state out is t = 0.
         self.get_logger().info("reset to the initial state, t = 0")
         response.success, response.message = True, "reset to the initial state at t = 0"
         return response
@@ -336,6 +345,9 @@ class SimulatorNode(Node):
         with self._cv:
             self._publish_description()
             self._publish(0, self._messages(0))
+        # The first segment loads the compiled kernels: compute it before the pacing starts.
+        self._pending = self._compute_next()
+        with self._cv:
             self._reanchor()
         self._thread.start()
 
@@ -348,31 +360,51 @@ class SimulatorNode(Node):
             self._thread.join()
 
     def _run(self) -> None:
-        while True:
+        """The engine's only user once started. _cv guards the flags and every publication, and
+        is never held while integrating, so services answer even during a long segment (such
+        as one that compiles a kernel); a segment computed across a pause is kept for the
+        resume, one computed across a reset is dropped."""
+        try:
+            while self._step():
+                pass
+        except Exception:
+            if self._stopping or not rclpy.ok(context=self.context):
+                return   # the context went down under a publication: shutting down
+            raise
+
+    def _step(self) -> bool:
+        with self._cv:
+            if self._stopping:
+                return False
+            if self._reset_requested:
+                self._reset_state()
+                self._publish_description()
+                self._publish(0, self._messages(0))
+                return True
+            if self._paused or self._failed:
+                self._cv.wait()
+                return True
+            pending = self._pending
+        if pending is None:
+            computed = self._compute_next()   # outside the lock
             with self._cv:
-                while not self._stopping and (self._paused or self._failed):
-                    self._cv.wait()
-                if self._stopping:
-                    return
-                if self._pending is None:
-                    self._pending = self._compute_next()
-                    if self._pending is None:
-                        continue
-                k, messages = self._pending
-                paced = self.real_time_factor > 0
-                delay = self._due(stamp_ns(k, self.rate)) - time.monotonic() if paced else 0.0
-                if delay > 0:
-                    self._cv.wait(delay)   # woken early by pause, reset, parameters or stop
-                    continue
-                if paced:
-                    self._check_lag(-delay, k)
-                try:
-                    self._publish(k, messages)
-                except Exception:  # the context went down under us: shutting down
-                    if self._stopping or not rclpy.ok(context=self.context):
-                        return
-                    raise
-                self._pending = None
+                if not self._reset_requested:
+                    self._pending = computed
+            return True
+        with self._cv:
+            if self._stopping or self._reset_requested or self._paused or self._failed:
+                return True
+            k, messages = pending
+            paced = self.real_time_factor > 0
+            delay = self._due(stamp_ns(k, self.rate)) - time.monotonic() if paced else 0.0
+            if delay > 0:
+                self._cv.wait(delay)   # woken early by pause, reset, parameters or stop
+                return True
+            if paced:
+                self._check_lag(-delay, k)
+            self._publish(k, messages)
+            self._pending = None
+        return True
 
     def _compute_next(self):
         """Advance the engine over segment k → k + 1; (k + 1, messages), or None on failure."""
@@ -384,7 +416,8 @@ class SimulatorNode(Node):
             self._on_command_applied(start_ns, self.sim.wheel_efforts, self.sim.joint_efforts)
             self.sim.advance_to((k + 1) / float(self.rate))
         except (SimulationError, UserError) as error:
-            self._failed = f"t = {format_ns(start_ns)} s: {error}"
+            with self._cv:
+                self._failed = f"t = {format_ns(start_ns)} s: {error}"
             self.get_logger().error(f"simulation failed in the segment after t = "
                                     f"{format_ns(start_ns)} s: {error}; paused, call ~/reset "
                                     f"to start again")
@@ -402,25 +435,30 @@ class SimulatorNode(Node):
     def _check_lag(self, late: float, k: int) -> None:
         """Behind the wall clock by `late` s: warn (throttled) and pace from here on."""
         period = 1.0 / float(self.rate) / self.real_time_factor
-        if late <= max(0.05, 2.0 * period):
+        if late <= max(LAG_TOLERANCE, 5.0 * period):
             return
         wall, ns = time.monotonic(), stamp_ns(k, self.rate)
         wall0, ns0 = self._window
         measured = (ns - ns0) / NS / (wall - wall0) if wall > wall0 else float("nan")
         if self._warn_throttled(("lag",), f"cannot keep up with real_time_factor "
-                                          f"{self.real_time_factor:g}: measured real-time factor "
-                                          f"{measured:.2f}; simulated time runs slower"):
+                                          f"{self.real_time_factor:g}: {late:.3f} s behind the "
+                                          f"wall clock, measured real-time factor {measured:.2f} "
+                                          f"since {format_ns(ns0)} s; simulated time runs slower"):
             self._window = (wall, ns)
-        self._anchor = (wall, ns)
+        self._anchor = (wall, ns)   # pace on from here rather than burst to catch up
 
     def _reset_state(self) -> None:
+        """Initial state, t = 0, zero efforts. Commands were cleared when the reset was asked
+        for; any that arrived since count as received at t = 0."""
         self.sim.reset()
         self.sim.set_efforts(np.zeros(2), np.zeros(self.sim.nu - 2))
         with self._command_lock:
-            self._wheels.clear()
-            self._arm.clear()
+            for group in (self._wheels, self._arm):
+                if group.received_ns is not None:
+                    group.received_ns = 0
         self._k, self._now_ns, self._pending = 0, 0, None
         self._failed = None
+        self._reset_requested = False
         self._reanchor()
 
     # --- messages --------------------------------------------------------------------------
@@ -495,15 +533,26 @@ def _main(argv) -> int:
         executor = SingleThreadedExecutor()
         executor.add_node(node)
         node.start()
-        try:
-            executor.spin()
-        except (KeyboardInterrupt, ExternalShutdownException):
-            pass
+        # spin_once with a timeout rather than spin(): a signal that shuts the context down
+        # while the executor is between waits could otherwise leave it waiting forever.
+        while rclpy.ok(context=node.context):
+            executor.spin_once(timeout_sec=SHUTDOWN_POLL)
+    except KeyboardInterrupt:
+        pass
+    except Exception:
+        # ExternalShutdownException, or an RCLError from a wait set or a publication that the
+        # context vanished under: SIGINT/SIGTERM (at start-up too) is a normal exit.
+        if rclpy.ok():
+            raise
     finally:
         if node is not None:
             node.stop()
             node._on_close()
-            node.destroy_node()
+            try:
+                node.destroy_node()
+            except Exception:
+                if rclpy.ok():
+                    raise
         rclpy.try_shutdown()
     return 0
 

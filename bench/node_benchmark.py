@@ -1,0 +1,254 @@
+"""Benchmark of the `simulator` node (issue 4): CPU use and publication jitter at real-time
+factor 1, the free-running real-time factor, resident memory. A script, not a test:
+
+    python bench/node_benchmark.py [--duration 20] [--free-duration 10] [--out bench/NODE.md]
+
+The node runs as users run it (the installed executable, its own process, real DDS on a private
+domain) on the paper scene with rk4 at dt = 1 ms, driven by the scene's efforts (sent once,
+command timeout off). This process subscribes to /clock and measures:
+- CPU: utime + stime of the node process from /proc/<pid>/stat over the measuring window,
+  as % of one core;
+- jitter: wall-clock intervals between successive /clock receptions here (so it includes this
+  subscriber's own scheduling): mean, std, p99, max;
+- resident memory: VmRSS (and its anonymous / file-backed split) and VmHWM from /proc;
+- free-running real-time factor (real_time_factor 0): simulated seconds (from /clock stamps) per
+  wall second.
+Prints a markdown table and writes it to --out.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import random
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import rclpy
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.qos import QoSProfile, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock
+from std_msgs.msg import Float64MultiArray
+
+from mobile_manip_sim.scene import load_scene
+
+HERE = Path(__file__).resolve().parent
+DOMAIN_ID = 100 + random.randrange(100)
+RK4_1KHZ = ["-p", "integrator.method:=rk4", "-p", "integrator.dt:=0.001"]
+WARM_UP = 3.0          # s of wall time before measuring (start-up, first impacts)
+TICKS = os.sysconf("SC_CLK_TCK")
+
+
+def simulator_executable() -> str:
+    beside = Path(sys.executable).with_name("simulator")
+    found = str(beside) if beside.exists() else shutil.which("simulator")
+    if not found:
+        sys.exit("node_benchmark: the simulator executable is not installed (pip install -e .)")
+    return found
+
+
+def cpu_seconds(pid: int) -> float:
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / TICKS   # utime, stime (fields 14, 15)
+
+
+def memory_mb(pid: int) -> dict:
+    status = {}
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        key, _, value = line.partition(":")
+        if key in ("VmRSS", "VmHWM", "RssAnon", "RssFile", "RssShmem"):
+            status[key] = int(value.split()[0]) / 1024.0
+    return status
+
+
+class Listener:
+    def __init__(self, context: Context):
+        self.node = rclpy.create_node("node_benchmark", context=context)
+        self.lock = threading.Lock()
+        self.ticks: list[tuple[int, float]] = []   # (stamp ns, receive time s)
+        qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+        self.node.create_subscription(Clock, "/clock", self._on_clock, qos)
+        self.wheels = self.node.create_publisher(Float64MultiArray, "/wheel_effort_controller/commands", 10)
+        self.arm = self.node.create_publisher(Float64MultiArray, "/arm_effort_controller/commands", 10)
+
+    def _on_clock(self, msg):
+        now = time.monotonic()
+        with self.lock:
+            self.ticks.append((msg.clock.sec * 10 ** 9 + msg.clock.nanosec, now))
+
+    def count(self) -> int:
+        with self.lock:
+            return len(self.ticks)
+
+    def since(self, index: int) -> list:
+        with self.lock:
+            return self.ticks[index:]
+
+
+def wait_for(predicate, what: str, timeout: float = 120.0) -> None:
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if predicate():
+            return
+        time.sleep(0.01)
+    sys.exit(f"node_benchmark: timed out waiting for {what}")
+
+
+def warm_kernels() -> None:
+    """Compile (or load from numba's cache) the kernels both integrators use, end stops
+    included, so that no node compiles them while it is being measured."""
+    from mobile_manip_sim.engine.simulation import Simulation
+    from mobile_manip_sim.scene import make_integrator
+    scene = load_scene(None)
+    for settings in (make_integrator(scene.integrator, "rk4", 0.001), scene.integrator):
+        sim = Simulation(scene, settings)
+        sim.advance_to(1.5)
+
+
+def run_phase(listener: Listener, env: dict, args: list[str], duration: float) -> dict:
+    """Start the node with `args`, drive it with the scene's efforts, measure for `duration` s."""
+    scene = load_scene(None)
+    process = subprocess.Popen([simulator_executable(), "--ros-args", *args,
+                                "-p", "command_timeout:=0.0"], env=env,
+                               stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        start = listener.count()
+        wait_for(lambda: process.poll() is not None or (
+            listener.count() > start and listener.wheels.get_subscription_count() > 0
+            and listener.arm.get_subscription_count() > 0), "the node")
+        if process.poll() is not None:
+            sys.exit(f"node_benchmark: the node exited: {process.stderr.read()}")
+        listener.wheels.publish(Float64MultiArray(data=scene.wheel_efforts.tolist()))
+        listener.arm.publish(Float64MultiArray(data=scene.joint_efforts.tolist()))
+        time.sleep(WARM_UP)
+        first = listener.count()
+        cpu0, wall0 = cpu_seconds(process.pid), time.monotonic()
+        peak_rss = 0.0
+        while time.monotonic() < wall0 + duration:
+            time.sleep(0.5)
+            peak_rss = max(peak_rss, memory_mb(process.pid)["VmRSS"])
+        cpu1, wall1 = cpu_seconds(process.pid), time.monotonic()
+        memory = memory_mb(process.pid)
+        ticks = listener.since(first)
+    finally:
+        if process.poll() is None:
+            process.send_signal(signal.SIGTERM)
+        try:
+            code = process.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            code = "killed after SIGTERM timeout"
+    if len(ticks) < 2:
+        sys.exit(f"node_benchmark: only {len(ticks)} /clock messages in {wall1 - wall0:.0f} s")
+    stamps = np.array([t[0] for t in ticks], dtype=np.int64)
+    received = np.array([t[1] for t in ticks])
+    intervals = np.diff(received) * 1e3
+    steps = np.diff(stamps)
+    period = int(np.median(steps)) if steps.size else 0
+    return {
+        "cpu_percent": 100.0 * (cpu1 - cpu0) / (wall1 - wall0),
+        "rtf": (stamps[-1] - stamps[0]) / 1e9 / (received[-1] - received[0]),
+        "received": len(ticks), "missing": int(np.sum(steps // period - 1)) if period else 0,
+        "interval_mean": float(intervals.mean()), "interval_std": float(intervals.std()),
+        "interval_p99": float(np.percentile(intervals, 99)), "interval_max": float(intervals.max()),
+        "rss": memory["VmRSS"], "rss_peak": max(peak_rss, memory["VmHWM"]),
+        "rss_anon": memory.get("RssAnon", float("nan")),
+        "rss_file": memory.get("RssFile", float("nan")),
+        "rss_shmem": memory.get("RssShmem", float("nan")), "exit": code,
+        "window": wall1 - wall0,
+    }
+
+
+def machine() -> str:
+    lines = Path("/proc/cpuinfo").read_text().splitlines()
+    model = next((line.split(":", 1)[1].strip() for line in lines if line.startswith("model name")),
+                 platform.processor() or "unknown CPU")
+    load = Path("/proc/loadavg").read_text().split()[:3]
+    return (f"{os.cpu_count()} × {model}, Python {platform.python_version()}, "
+            f"load average {' '.join(load)} at start")
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--duration", type=float, default=20.0,
+                        help="s measured at real-time factor 1")
+    parser.add_argument("--free-duration", type=float, default=10.0,
+                        help="s measured free-running")
+    parser.add_argument("--out", default=str(HERE / "NODE.md"), help="markdown file to write")
+    args = parser.parse_args(argv)
+
+    env = dict(os.environ, ROS_DOMAIN_ID=str(DOMAIN_ID), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    os.environ.update(ROS_DOMAIN_ID=str(DOMAIN_ID), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    warm_kernels()
+    where = machine()
+    context = Context()
+    rclpy.init(context=context, domain_id=DOMAIN_ID)
+    listener = Listener(context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(listener.node)
+    thread = threading.Thread(target=executor.spin, daemon=True)
+    thread.start()
+    try:
+        paced = run_phase(listener, env, [*RK4_1KHZ, "-p", "real_time_factor:=1.0"], args.duration)
+        free = run_phase(listener, env, [*RK4_1KHZ, "-p", "real_time_factor:=0.0"], args.free_duration)
+        default = run_phase(listener, env, ["-p", "real_time_factor:=0.0"], args.free_duration)
+    finally:
+        executor.shutdown()
+        listener.node.destroy_node()
+        rclpy.shutdown(context=context)
+
+    rows = [
+        ("CPU at real_time_factor 1 (rk4, dt = 1 ms, 100 Hz publishing)",
+         f"{paced['cpu_percent']:.1f} % of one core", "< 25 %"),
+        ("achieved real-time factor when paced at 1", f"{paced['rtf']:.4f}", "1"),
+        ("/clock reception interval: mean ± std",
+         f"{paced['interval_mean']:.3f} ± {paced['interval_std']:.3f} ms", "10 ms"),
+        ("/clock reception interval: p99 / max",
+         f"{paced['interval_p99']:.3f} / {paced['interval_max']:.3f} ms", ""),
+        ("messages received / missing in the window", f"{paced['received']} / {paced['missing']}", "— / 0"),
+        ("resident memory VmRSS (anonymous + file-backed + shmem)",
+         f"{paced['rss']:.0f} MB ({paced['rss_anon']:.0f} + {paced['rss_file']:.0f} + "
+         f"{paced['rss_shmem']:.0f})", "< 200 MB"),
+        ("peak resident memory VmHWM", f"{paced['rss_peak']:.0f} MB", "< 200 MB"),
+        ("free-running real-time factor (rk4, dt = 1 ms)",
+         f"{free['rtf']:.1f} (CPU {free['cpu_percent']:.0f} %)", ""),
+        ("  the same per CPU second: simulated s / node CPU s (load-independent)",
+         f"{100.0 * free['rtf'] / free['cpu_percent']:.1f}", ""),
+        ("free-running real-time factor (scene's dop853, rtol 1e-10)",
+         f"{default['rtf']:.1f} (CPU {default['cpu_percent']:.0f} %)", ""),
+        ("  the same per CPU second", f"{100.0 * default['rtf'] / default['cpu_percent']:.1f}", ""),
+        ("exit status after SIGTERM (paced / free / default)",
+         f"{paced['exit']} / {free['exit']} / {default['exit']}", "0"),
+    ]
+    table = ["| measure | value | target |", "| --- | --- | --- |"]
+    table += [f"| {name} | {value} | {target} |" for name, value, target in rows]
+    text = "\n".join([
+        "# Simulator node benchmark",
+        "",
+        f"`python bench/node_benchmark.py` — paper scene, driven by the scene's efforts; "
+        f"{paced['window']:.0f} s measured at real_time_factor 1 after {WARM_UP:.0f} s of warm-up, "
+        f"{free['window']:.0f} s free-running (real_time_factor 0). Machine: {where}.",
+        "",
+        *table,
+        "",
+        "Jitter is measured where a user sees it: receive times of /clock in a separate subscriber "
+        "process (Python), so it includes that subscriber's scheduling. CPU is the node process's "
+        "utime + stime over the window. Free-running figures include publishing every message; "
+        "a free-running CPU well below 100 % means the node was competing for the cores with "
+        "other processes (see the load average), so those real-time factors are lower bounds.",
+        "",
+    ])
+    print(text)
+    Path(args.out).write_text(text)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

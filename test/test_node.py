@@ -1,0 +1,478 @@
+"""The `simulator` node as users run it: the installed executable in its own process, real DDS,
+and a probe node in this process that publishes efforts, calls the services and records what
+comes back. Every wait is on a condition with a timeout; a random ROS_DOMAIN_ID (and localhost
+discovery) keeps concurrent runs apart."""
+import math
+import os
+import random
+import re
+import shutil
+import signal
+import subprocess
+import threading
+import time
+
+import numpy as np
+import pytest
+import rclpy
+from nav_msgs.msg import Odometry
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray, String
+from std_srvs.srv import SetBool, Trigger
+
+from mobile_manip_sim.engine.simulation import Simulation
+from mobile_manip_sim.node import yaw_quaternion
+from mobile_manip_sim.scene import load_scene, make_integrator
+
+DOMAIN_ID = 100 + random.randrange(100)
+SIMULATOR = shutil.which("simulator")
+RATE = 100                       # publish_rate (Hz) of the shared node
+PERIOD_NS = 10 ** 9 // RATE
+FAST = ["-p", "integrator.method:=rk4", "-p", "integrator.dt:=0.001",
+        "-p", "real_time_factor:=5.0"]
+TIMEOUT = 20.0                   # s of wall time for any one condition
+STARTUP_TIMEOUT = 60.0           # a loaded machine may need to compile the kernels first
+RELIABLE = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+
+pytestmark = pytest.mark.skipif(SIMULATOR is None, reason="the simulator executable is not installed")
+
+
+def ns(stamp) -> int:
+    return stamp.sec * 10 ** 9 + stamp.nanosec
+
+
+def child_env() -> dict:
+    env = dict(os.environ, ROS_DOMAIN_ID=str(DOMAIN_ID), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
+               RCUTILS_COLORIZED_OUTPUT="0", PYTHONUNBUFFERED="1")
+    env.pop("ROS_LOCALHOST_ONLY", None)
+    return env
+
+
+def wait_for(predicate, what: str, timeout: float = TIMEOUT):
+    """Poll `predicate` until it returns something other than None, False or an empty sequence
+    (an index 0 counts as found); fail naming `what` after `timeout`. Returns that value."""
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        value = predicate()
+        if not (value is None or value is False or (isinstance(value, (list, tuple, str)) and not value)):
+            return value
+        time.sleep(0.005)
+    pytest.fail(f"timed out after {timeout} s waiting for {what}")
+
+
+class Probe:
+    """A test node: records every /joint_states, /odom and /clock, publishes efforts, calls the
+    services. Records are appended in arrival order (one writer per topic keeps them ordered)."""
+
+    def __init__(self, context: Context):
+        self.node = rclpy.create_node("node_test_probe", context=context)
+        self.lock = threading.Lock()
+        self.joints, self.odom, self.clock = [], [], []
+        self.node.create_subscription(JointState, "/joint_states", self._on_joints, RELIABLE)
+        self.node.create_subscription(Odometry, "/odom", self._on_odom, RELIABLE)
+        self.node.create_subscription(Clock, "/clock", self._on_clock, RELIABLE)
+        self.wheels = self.node.create_publisher(Float64MultiArray, "/wheel_effort_controller/commands", 10)
+        self.arm = self.node.create_publisher(Float64MultiArray, "/arm_effort_controller/commands", 10)
+        self.reset_client = self.node.create_client(Trigger, "/mobile_manip_sim/reset")
+        self.pause_client = self.node.create_client(SetBool, "/mobile_manip_sim/pause")
+
+    def _on_joints(self, msg):
+        with self.lock:
+            self.joints.append((ns(msg.header.stamp), tuple(msg.position), tuple(msg.velocity),
+                                tuple(msg.effort), tuple(msg.name)))
+
+    def _on_odom(self, msg):
+        pose, twist = msg.pose.pose, msg.twist.twist
+        with self.lock:
+            self.odom.append((ns(msg.header.stamp), pose.position.x, pose.position.y,
+                              pose.orientation.z, pose.orientation.w, twist.linear.x,
+                              twist.angular.z, msg))
+
+    def _on_clock(self, msg):
+        with self.lock:
+            self.clock.append(ns(msg.clock))
+
+    def snapshot(self, name: str) -> list:
+        with self.lock:
+            return list(getattr(self, name))
+
+    def connected(self) -> bool:
+        return (self.wheels.get_subscription_count() > 0 and self.arm.get_subscription_count() > 0
+                and self.reset_client.service_is_ready() and self.pause_client.service_is_ready())
+
+    def send(self, wheels=None, arm=None) -> None:
+        if wheels is not None:
+            self.wheels.publish(Float64MultiArray(data=[float(v) for v in wheels]))
+        if arm is not None:
+            self.arm.publish(Float64MultiArray(data=[float(v) for v in arm]))
+
+    def call(self, client, request):
+        future = client.call_async(request)
+        wait_for(future.done, f"a response from {client.srv_name}")
+        return future.result()
+
+    def pause(self, paused: bool):
+        return self.call(self.pause_client, SetBool.Request(data=paused))
+
+    def marks(self) -> dict:
+        return {name: len(self.snapshot(name)) for name in ("joints", "odom")}
+
+    def await_start(self, marks: dict) -> None:
+        """Wait for the t = 0 messages that follow `marks`; run() starts there from now on."""
+        self.starts = {}
+        for name, mark in marks.items():
+            self.starts[name] = wait_for(lambda name=name, mark=mark: index_of(
+                self.snapshot(name), lambda record: record[0] == 0, mark), f"/{name} at t = 0")
+
+    def reset(self) -> None:
+        marks = self.marks()
+        assert self.call(self.reset_client, Trigger.Request()).success
+        self.await_start(marks)
+
+    def run(self, name: str) -> list:
+        """Records of `name` (joints or odom) since the last start or reset."""
+        return self.snapshot(name)[self.starts[name]:]
+
+    def wait_run(self, name: str, predicate, what: str, timeout: float = TIMEOUT):
+        return wait_for(lambda: predicate(self.run(name)), what, timeout)
+
+
+class SimulatorProcess:
+    """The installed `simulator` executable, started the way `ros2 run` starts it."""
+
+    def __init__(self, tmp_path, *args):
+        self.log_path = tmp_path / f"simulator-{time.monotonic_ns()}.log"
+        self.log = open(self.log_path, "w")
+        self.process = subprocess.Popen([SIMULATOR, "--ros-args", *args], env=child_env(),
+                                        stdout=self.log, stderr=subprocess.STDOUT)
+
+    def output(self) -> str:
+        return self.log_path.read_text()
+
+    def stop(self) -> int:
+        """SIGTERM, as a launch system or a container runtime sends it: must end cleanly."""
+        if self.process.poll() is None:
+            self.process.send_signal(signal.SIGTERM)
+        try:
+            code = self.process.wait(timeout=15)
+        except subprocess.TimeoutExpired:
+            self.process.kill()
+            self.process.wait()
+            code = None
+        self.log.close()
+        return code
+
+
+def warm_kernels() -> None:
+    """Compile (or load) every engine kernel the nodes will use, start-up and end stops alike,
+    here where it blocks nobody: numba holds the GIL while compiling, so a node compiling a
+    kernel on its first impact would answer no service for that long."""
+    scene = load_scene(None)
+    sim = Simulation(scene, make_integrator(scene.integrator, "rk4", 0.001))
+    sim.set_efforts([0.0, 0.0], [0.0] * 4)
+    sim.advance_to(1.5)
+    assert sim.impacts
+
+
+@pytest.fixture(scope="module")
+def probe():
+    warm_kernels()
+    saved = {key: os.environ.get(key) for key in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")}
+    os.environ.update(ROS_DOMAIN_ID=str(DOMAIN_ID), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    context = Context()
+    rclpy.init(context=context, domain_id=DOMAIN_ID)
+    probe = Probe(context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(probe.node)
+    thread = threading.Thread(target=executor.spin, daemon=True)
+    thread.start()
+    yield probe
+    executor.shutdown()
+    probe.node.destroy_node()
+    rclpy.shutdown(context=context)
+    thread.join(timeout=5)
+    for key, value in saved.items():
+        if value is None:
+            os.environ.pop(key, None)
+        else:
+            os.environ[key] = value
+
+
+def start_simulator(probe, tmp_path, *args) -> SimulatorProcess:
+    """Start a node; wait until it is connected and publishing. probe.run() then holds what
+    arrived since the start (other nodes on the domain must be paused); the first messages may
+    have gone out before discovery, so the run need not begin at t = 0."""
+    marks = probe.marks()
+    simulator = SimulatorProcess(tmp_path, *args)
+    try:
+        wait_for(lambda: simulator.process.poll() is not None or (
+            probe.connected() and all(len(probe.snapshot(name)) > mark for name, mark in marks.items())),
+            "the simulator's topics, services and first messages", STARTUP_TIMEOUT)
+        assert simulator.process.poll() is None, simulator.output()
+    except BaseException:
+        simulator.stop()
+        raise
+    probe.starts = marks
+    return simulator
+
+
+@pytest.fixture(scope="module")
+def simulator(probe, tmp_path_factory):
+    """One node for most tests (command timeout off); each test starts with a reset."""
+    simulator = start_simulator(probe, tmp_path_factory.mktemp("node"), *FAST,
+                                "-p", "command_timeout:=0.0")
+    yield simulator
+    code = simulator.stop()
+    assert code == 0, f"exit status {code} after SIGTERM:\n{simulator.output()}"
+
+
+@pytest.fixture
+def fresh(probe, simulator):
+    """A reset, running node; paused again afterwards so it idles between tests."""
+    probe.pause(True)
+    probe.reset()
+    assert probe.pause(False).success
+    yield probe
+    assert simulator.process.poll() is None, simulator.output()
+    probe.pause(True)
+
+
+def efforts_equal(target):
+    target = tuple(float(v) for v in target)
+    return lambda record: record[3] == target
+
+
+def index_of(records, predicate, start=0):
+    return next((i for i in range(start, len(records)) if predicate(records[i])), None)
+
+
+# --- timing -----------------------------------------------------------------------------------
+
+def test_stamps_are_exact_multiples_of_the_period_with_no_gaps(fresh):
+    for name in ("joints", "odom"):
+        fresh.wait_run(name, lambda run: len(run) >= 150, f"150 /{name} messages")
+    for name in ("joints", "odom"):
+        stamps = [record[0] for record in fresh.run(name)]
+        assert stamps == [k * PERIOD_NS for k in range(len(stamps))], f"/{name} stamps"
+    clock = fresh.snapshot("clock")
+    start = len(clock) - 1 - clock[::-1].index(0)
+    ticks = clock[start:]
+    assert ticks == [k * PERIOD_NS for k in range(len(ticks))]
+    names = fresh.run("joints")[0][4]
+    assert names == ("right_wheel_joint", "left_wheel_joint", "arm_revolute_1",
+                     "arm_prismatic_1", "arm_revolute_2", "arm_prismatic_2")
+    odom = fresh.run("odom")[0][7]
+    assert (odom.header.frame_id, odom.child_frame_id) == ("odom", "base_link")
+    covariance = np.array(odom.pose.covariance).reshape(6, 6)
+    assert np.array_equal(covariance, np.diag(np.diag(covariance))) and np.all(np.diag(covariance) > 0)
+
+
+# --- motion -----------------------------------------------------------------------------------
+
+def drive(probe, wheels, seconds):
+    """Hold `wheels` from the start of a fresh run; the odometry records once `seconds` of
+    simulated time have passed with them applied."""
+    probe.send(wheels=wheels)
+    applied = probe.wait_run("joints", lambda run: index_of(run, lambda r: r[3][:2] == tuple(wheels)),
+                             f"efforts {wheels} in /joint_states")
+    t0 = probe.run("joints")[applied][0]
+    probe.wait_run("odom", lambda run: run and run[-1][0] >= t0 + seconds * 1e9,
+                   f"{seconds} s of driving")
+    return [record for record in probe.run("odom") if record[0] >= t0]
+
+
+def yaw(record):
+    return 2.0 * math.atan2(record[3], record[4])
+
+
+def test_equal_wheel_torques_drive_straight_ahead(fresh):
+    odom = drive(fresh, [0.3, 0.3], 1.5)
+    assert max(abs(yaw(r)) for r in odom) < 1e-9
+    assert max(abs(r[2]) for r in odom) < 1e-9
+    assert odom[-1][1] > odom[0][1] + 0.2 and odom[-1][5] > 0.0
+    joints = [r for r in fresh.run("joints") if r[0] >= odom[0][0]]
+    assert max(abs(r[1][0] - r[1][1]) for r in joints) < 1e-9   # θ_R = θ_L
+
+
+def test_stronger_right_wheel_turns_left(fresh):
+    odom = drive(fresh, [0.3, 0.1], 1.5)
+    yaws = [yaw(r) for r in odom]
+    assert yaws[-1] > yaws[0] + 0.1 and odom[-1][6] > 0.0
+    assert all(later >= earlier - 1e-12 for earlier, later in zip(yaws, yaws[1:]))
+
+
+# --- the node is an adapter: same numbers as the engine run headless --------------------------
+
+def test_published_state_matches_a_headless_run_of_the_same_commands(fresh):
+    commands = [([0.2, 0.1], [4.5, 7.0, 0.0, 1.0]), ([-0.1, 0.3], [0.0, 0.0, 0.5, -1.0]),
+                ([0.0, 0.0], [1.0, 2.0, 0.0, 0.0])]
+    for wheels, arm in commands:
+        fresh.send(wheels=wheels, arm=arm)
+        fresh.wait_run("joints", lambda run: run and run[-1][3] == tuple(wheels + arm),
+                       f"efforts {wheels + arm}")
+        fresh.wait_run("joints", lambda run, n=len(fresh.run("joints")): len(run) >= n + 20,
+                       "20 more segments")
+    fresh.pause(True)
+    joints, odom = fresh.run("joints"), fresh.run("odom")
+    count = min(len(joints), len(odom))
+    assert [r[0] for r in joints[:count]] == [r[0] for r in odom[:count]] == \
+        [k * PERIOD_NS for k in range(count)]
+    assert len({r[3] for r in joints}) >= 4   # zero, then the three commands
+
+    scene = load_scene(None)
+    sim = Simulation(scene, make_integrator(scene.integrator, "rk4", 0.001))
+    sim.set_efforts([0.0, 0.0], [0.0] * 4)
+    for k in range(count):
+        if k > 0:   # message k carries the efforts held during (t_{k-1}, t_k]
+            sim.set_efforts(joints[k][3][:2], joints[k][3][2:])
+            sim.advance_to(k / RATE)
+        assert joints[k][1] == tuple(sim.q[3:].tolist()), f"positions at k = {k}"
+        assert joints[k][2] == tuple(sim.qdot()[3:].tolist()), f"velocities at k = {k}"
+        quaternion = yaw_quaternion(float(sim.q[2]))
+        assert odom[k][1:7] == (sim.q[0], sim.q[1], quaternion.z, quaternion.w, sim.u[0], sim.u[1]), \
+            f"odometry at k = {k}"
+
+
+# --- services and timeout ---------------------------------------------------------------------
+
+def test_reset_returns_to_the_initial_state_with_zero_efforts(fresh):
+    drive(fresh, [0.3, 0.3], 0.5)
+    fresh.reset()
+    scene = load_scene(None)
+    first = fresh.run("joints")[0]
+    assert first[0] == 0
+    assert first[1] == tuple(scene.initial_q[3:].tolist())
+    assert first[2] == (0.0,) * 6 and first[3] == (0.0,) * 6
+    odom = fresh.run("odom")[0]
+    assert odom[1:7] == (0.0, 0.0, 0.0, 1.0, 0.0, 0.0)
+    # The held command was cleared: efforts stay zero, and time runs on from 0.
+    run = fresh.wait_run("joints", lambda run: len(run) >= 30 and run, "30 segments after reset")
+    assert [r[0] for r in run] == [k * PERIOD_NS for k in range(len(run))]
+    assert all(r[3] == (0.0,) * 6 for r in run)
+
+
+def paused_at(response) -> int:
+    seconds, nanos = re.search(r"t = (\d+)\.(\d{9}) s", response.message).groups()
+    return int(seconds) * 10 ** 9 + int(nanos)
+
+
+def test_pause_stops_time_and_resume_continues_without_a_gap(fresh):
+    fresh.wait_run("joints", lambda run: len(run) >= 20, "20 segments")
+    response = fresh.pause(True)
+    assert response.success
+    stop = paused_at(response)
+    wait_for(lambda: fresh.snapshot("clock")[-1] == stop, "/clock to reach the pause time")
+    count = len(fresh.snapshot("clock"))
+    time.sleep(0.3)   # at real_time_factor 5 that is 150 periods in which nothing may arrive
+    assert fresh.snapshot("clock")[count - 1:] == [stop]
+    assert "already paused" in fresh.pause(True).message
+    assert fresh.pause(False).success
+    wait_for(lambda: len(fresh.snapshot("clock")) > count + 5, "/clock to run again")
+    assert fresh.snapshot("clock")[count - 1:count + 5] == [stop + k * PERIOD_NS for k in range(6)]
+
+
+def test_command_timeout_zeroes_efforts_once_per_silence(probe, simulator, tmp_path):
+    # The shared node idles (paused: it publishes nothing) while this one, under another node
+    # name so that the services do not clash, runs on the same topics.
+    probe.pause(True)
+    node = start_simulator(probe, tmp_path, *FAST, "-p", "command_timeout:=0.2",
+                           "-r", "__node:=timeout_sim")
+    try:
+        wheels, arm = (0.3, 0.3), (1.0, 2.0, 3.0, 4.0)
+        probe.send(wheels=wheels, arm=arm)
+        on = probe.wait_run("joints", lambda run: index_of(run, efforts_equal(wheels + arm)),
+                            "the commanded efforts")
+        off = probe.wait_run("joints", lambda run: index_of(run, efforts_equal((0.0,) * 6), on),
+                             "the efforts to time out")
+        run = probe.run("joints")
+        held = (run[off][0] - run[on][0]) / 1e9
+        assert 0.2 - 2 / RATE <= held <= 0.2 + 2 / RATE
+        warning = "no command for 0.2 s of simulated time"
+        wait_for(lambda: node.output().count(warning) == 2, "one timeout warning per group")
+        # A new command re-arms the timeout: efforts come back, then time out again.
+        probe.send(wheels=wheels)
+        again = probe.wait_run("joints", lambda run: index_of(run, lambda r: r[3][:2] == wheels, off),
+                               "the wheel efforts again")
+        probe.wait_run("joints", lambda run: index_of(run, efforts_equal((0.0,) * 6), again),
+                       "the second timeout")
+        wait_for(lambda: node.output().count(warning) == 3, "a second wheel timeout warning")
+        assert node.output().count(f"/wheel_effort_controller/commands: {warning}") == 2
+    finally:
+        code = node.stop()
+    assert code == 0, node.output()
+
+
+# --- bad input --------------------------------------------------------------------------------
+
+def test_bad_commands_are_rejected_and_the_last_valid_one_kept(fresh, simulator):
+    good, marker = (0.25, 0.25), (0.2, 0.2)
+    fresh.send(wheels=good)
+    first = fresh.wait_run("joints", lambda run: index_of(run, lambda r: r[3][:2] == good),
+                           "the valid command")
+    fresh.send(wheels=[1.0])
+    fresh.send(wheels=[math.nan, 0.0])
+    fresh.send(wheels=[0.0, math.inf])
+    fresh.send(arm=[1.0, 2.0, 3.0])
+    fresh.send(arm=[0.0, -math.inf, 0.0, math.nan])
+    fresh.send(wheels=marker)   # same topic, so it arrives after the bad ones
+    last = fresh.wait_run("joints", lambda run: index_of(run, lambda r: r[3][:2] == marker, first),
+                          "the marker command")
+    run = fresh.run("joints")
+    assert all(r[3] == good + (0.0,) * 4 for r in run[first:last])
+    for line in ("/wheel_effort_controller/commands: expected 2 values (tau_R, tau_L), got 1; "
+                 "keeping the last valid command",
+                 "/wheel_effort_controller/commands: contains NaN ([0] = nan)",
+                 "/wheel_effort_controller/commands: contains Inf ([1] = inf)",
+                 "/arm_effort_controller/commands: expected 4 values (tau_1, F_1, tau_2, F_2), got 3",
+                 "/arm_effort_controller/commands: contains NaN and Inf"):
+        wait_for(lambda line=line: line in simulator.output(), f"the warning {line!r}")
+    fresh.wait_run("joints", lambda run: len(run) > last + 20, "publishing to go on")
+    assert simulator.process.poll() is None
+
+
+def test_a_non_finite_state_pauses_the_node_until_reset(fresh, simulator):
+    fresh.send(wheels=[1e300, 1e300])   # finite, so accepted; the state overflows
+    wait_for(lambda: "simulation failed" in simulator.output(), "the engine's error in the log")
+    stop = paused_at(fresh.pause(True))   # already stopped: this only reports where
+    wait_for(lambda: fresh.snapshot("clock")[-1] == stop, "/clock to reach the failure time")
+    count = len(fresh.snapshot("clock"))
+    time.sleep(0.2)   # 100 periods at real_time_factor 5
+    assert len(fresh.snapshot("clock")) == count
+    assert all(math.isfinite(v) for r in fresh.run("joints") for v in r[1] + r[2])
+    response = fresh.pause(False)
+    assert not response.success and "call ~/reset" in response.message
+    fresh.reset()
+    assert fresh.pause(False).success
+    fresh.wait_run("joints", lambda run: len(run) >= 20, "publishing after the reset")
+    assert simulator.process.poll() is None
+
+
+# --- start-up ---------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("content", [None, "robot: [1, 2\n", "robot: {base: {mass: -1}}\n"])
+def test_a_missing_or_invalid_scene_exits_2_with_one_line(tmp_path, content):
+    path = tmp_path / "scene.yaml"
+    if content is not None:
+        path.write_text(content)
+    result = subprocess.run([SIMULATOR, "--ros-args", "-p", f"scene:={path}"], env=child_env(),
+                            capture_output=True, text=True, timeout=60)
+    assert result.returncode == 2
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("simulator: error: "), result.stderr
+
+
+def test_robot_description_reaches_a_late_subscriber(probe, simulator):
+    received = []
+    latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+    subscription = probe.node.create_subscription(String, "/robot_description",
+                                                  lambda msg: received.append(msg.data), latched)
+    try:
+        text = wait_for(lambda: received and received[0], "/robot_description")
+        assert text.lstrip().startswith("<") and "<robot" in text and "right_wheel_joint" in text
+    finally:
+        probe.node.destroy_subscription(subscription)
