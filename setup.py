@@ -39,6 +39,7 @@ setup(
         "console_scripts": [
             "simulate = mobile_manip_sim.simulate:main",
             "describe = mobile_manip_sim.describe:main",
+            "plot = mobile_manip_sim.plot:main",
             "simulator = mobile_manip_sim.node:main",
         ],
     },
