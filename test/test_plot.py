@@ -1,0 +1,358 @@
+"""`plot` draws every figure of a run, from a `simulate` CSV and from a recorded bag: the curves
+are there (counted on the returned Figure objects, not guessed from file sizes), they carry the
+run's data (a bag and a CSV of the same run give the same curves), the PNGs are real images,
+index.html shows them all, and bad input is a one-line error with status 2."""
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from matplotlib.image import imread
+from nav_msgs.msg import Odometry
+from rclpy.serialization import serialize_message
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray
+
+from mobile_manip_sim import plot as plotting
+from mobile_manip_sim.engine.simulation import Simulation
+from mobile_manip_sim.errors import EXIT_USER_ERROR
+from mobile_manip_sim.recording.bag_writer import BagWriter, qos_yaml
+from mobile_manip_sim.scene import load_scene, parse_scene
+from mobile_manip_sim.simulate import sample_times
+
+BIN = Path(sys.executable).parent
+SAMPLE_RATE = 100.0
+FIGURE_NAMES = ["joint_angles", "joint_rates", "extensions", "extension_rates", "base_path",
+                "constraints", "energy"]
+
+
+# --- runs -------------------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def paper_csv(tmp_path_factory):
+    """The paper run, made by the `simulate` executable."""
+    out = tmp_path_factory.mktemp("paper") / "paper.csv"
+    subprocess.run([str(BIN / "simulate"), "--out", str(out), "--sample-rate", str(SAMPLE_RATE)],
+                   check=True, capture_output=True, text=True, timeout=120)
+    return out
+
+
+def _stamp(t: float):
+    ns = round(t * 1e9)
+    return {"sec": ns // 10**9, "nanosec": ns % 10**9}
+
+
+def _plain(value):
+    """numpy scalars (Impact.resting is a numpy bool) as plain JSON values."""
+    return value.item()
+
+
+def write_bag(path: Path, scene, duration: float, joint_states=True) -> Simulation:
+    """Record a run as the simulator's recorder does: /clock, /joint_states (efforts included),
+    /odom (twist in base_link), the controllers' commands, scene.yaml and impacts.json."""
+    sim = Simulation(scene)
+    names = scene.robot.joint_names()
+    with BagWriter(path) as bag:
+        topics = {"/clock": "rosgraph_msgs/msg/Clock", "/odom": "nav_msgs/msg/Odometry",
+                  "/wheel_effort_controller/commands": "std_msgs/msg/Float64MultiArray",
+                  "/arm_effort_controller/commands": "std_msgs/msg/Float64MultiArray"}
+        if joint_states:
+            topics["/joint_states"] = "sensor_msgs/msg/JointState"
+        for topic, type_name in topics.items():
+            bag.add_topic(topic, type_name, qos_yaml())
+        bag.write("/wheel_effort_controller/commands",
+                  serialize_message(Float64MultiArray(data=scene.wheel_efforts.tolist())), 0)
+        bag.write("/arm_effort_controller/commands",
+                  serialize_message(Float64MultiArray(data=scene.joint_efforts.tolist())), 0)
+        for t in sample_times(duration, SAMPLE_RATE):
+            sim.advance_to(t)
+            log_ns = round(t * 1e9)
+            stamp = _stamp(sim.t)
+            clock = Clock()
+            clock.clock.sec, clock.clock.nanosec = stamp["sec"], stamp["nanosec"]
+            bag.write("/clock", serialize_message(clock), log_ns)
+            q, u, qdot = sim.q, sim.u, sim.qdot()
+            if joint_states:
+                state = JointState(name=names,
+                                   position=[*q[3:5].tolist(), *q[5:].tolist()],
+                                   velocity=[*qdot[3:5].tolist(), *u[2:].tolist()],
+                                   effort=[*sim.wheel_efforts.tolist(),
+                                           *sim.joint_efforts.tolist()])
+                state.header.stamp.sec, state.header.stamp.nanosec = stamp["sec"], stamp["nanosec"]
+                bag.write("/joint_states", serialize_message(state), log_ns)
+            odometry = Odometry(child_frame_id="base_link")
+            odometry.header.frame_id = "odom"
+            odometry.header.stamp.sec = stamp["sec"]
+            odometry.header.stamp.nanosec = stamp["nanosec"]
+            odometry.pose.pose.position.x, odometry.pose.pose.position.y = float(q[0]), float(q[1])
+            odometry.pose.pose.orientation.z = math.sin(q[2] / 2)
+            odometry.pose.pose.orientation.w = math.cos(q[2] / 2)
+            odometry.twist.twist.linear.x, odometry.twist.twist.angular.z = float(u[0]), float(u[1])
+            bag.write("/odom", serialize_message(odometry), log_ns)
+        bag.add_attachment("scene.yaml", "application/yaml", scene.to_yaml().encode())
+        impacts = json.dumps([impact.as_dict() for impact in sim.impacts], default=_plain)
+        bag.add_attachment("impacts.json", "application/json", impacts.encode())
+        bag.add_metadata("mobile_manip_sim", {"scene": scene.name})
+    return sim
+
+
+@pytest.fixture(scope="module")
+def paper_bag(tmp_path_factory):
+    path = tmp_path_factory.mktemp("bag") / "paper_bag"
+    scene = load_scene()
+    sim = write_bag(path, scene, scene.duration)
+    return path, sim
+
+
+# --- checks shared by every input kind --------------------------------------------------------
+
+def impacted_links(run) -> set:
+    return {impact["link"] for impact in run.impacts}
+
+
+def check_figures(figures, run):
+    """Every figure exists with the expected number and kind of curves."""
+    n = run.n_links
+    assert list(figures) == FIGURE_NAMES
+    for name, figure in figures.items():
+        assert run.scene.name in figure.get_suptitle(), name
+        assert "(" in figure.axes[-1].get_xlabel(), f"{name}: x label without a unit"
+        for axes in figure.axes:
+            assert "(" in axes.get_ylabel(), f"{name}: y label without a unit"
+    names = run.joint_names()
+    hit = impacted_links(run)
+
+    def lines(name, index=0):
+        return figures[name].axes[index].get_lines()
+
+    def legend(name, index=0):
+        return [text.get_text() for text in figures[name].axes[index].get_legend().get_texts()]
+
+    assert len(lines("joint_angles")) == n
+    assert len(lines("joint_rates")) == n
+    assert len(lines("extensions")) == n + 2 * n + len(hit)
+    assert len(lines("extension_rates")) == n + len(hit)
+    for name, joint in (("joint_angles", "arm_revolute"), ("extensions", "arm_prismatic")):
+        for i in range(1, n + 1):
+            assert any(f"{joint}_{i}" in text for text in legend(name)), (name, i)
+    for i in range(n):  # the data: q_i, l_i, q̇_i, l̇_i against t
+        np.testing.assert_array_equal(lines("joint_angles")[i].get_ydata(), run.q[:, 5 + 2 * i])
+        np.testing.assert_array_equal(lines("extensions")[i].get_ydata(), run.q[:, 6 + 2 * i])
+        np.testing.assert_array_equal(lines("joint_rates")[i].get_ydata(), run.u[:, 2 + 2 * i])
+        np.testing.assert_array_equal(lines("extension_rates")[i].get_xdata(), run.t)
+
+    # the stroke ends, dashed, at the scene's limits
+    strokes = sorted(float(line.get_ydata()[0]) for line in lines("extensions")[n:3 * n])
+    assert strokes == sorted(np.asarray(run.scene.robot.stroke).ravel().tolist())
+    assert all(line.get_linestyle() == "--" for line in lines("extensions")[n:3 * n])
+    # the impacts, marked at their stop and time
+    markers = lines("extensions")[3 * n:]
+    assert sum(len(line.get_xdata()) for line in markers) == len(run.impacts)
+    for impact in run.impacts:
+        low, high = run.scene.robot.stroke[impact["link"] - 1]
+        stop = low if impact["stop"] == "lower" else high
+        assert any(np.any((np.asarray(line.get_xdata()) == impact["time"])
+                          & (np.asarray(line.get_ydata()) == stop)) for line in markers)
+
+    path_lines = lines("base_path")
+    assert len(path_lines) == (3 if n else 2)     # base, tip (with an arm), start markers
+    np.testing.assert_array_equal(path_lines[0].get_xdata(), run.q[:, 0])
+    arrows = figures["base_path"].axes[0].collections
+    assert len(arrows) == 1 and 3 <= len(arrows[0].get_offsets()) <= plotting.HEADING_MARKS + 1
+    assert figures["base_path"].axes[0].get_aspect() == 1.0
+
+    constraints = figures["constraints"].axes[0]
+    assert constraints.get_yscale() == "log" and len(constraints.get_lines()) == 2
+    for line in constraints.get_lines():
+        values = np.asarray(line.get_ydata())
+        assert len(values) == len(run.t) and values.min() >= plotting.RESIDUAL_FLOOR
+        assert values.max() < 1e-12  # the constraints hold to round-off
+
+    top, bottom = figures["energy"].axes
+    assert len(top.get_lines()) == 3 and len(bottom.get_lines()) == 1
+    return bottom.get_lines()[0].get_ydata()
+
+
+def check_files(out: Path):
+    index = (out / "index.html").read_text()
+    for name in FIGURE_NAMES:
+        png = out / f"{name}.png"
+        assert png.stat().st_size > 15_000, name
+        pixels = imread(png)
+        assert pixels.shape[0] > 300 and pixels.shape[1] > 600, name
+        assert pixels[..., :3].std() > 0.05, f"{name}.png is blank"
+        assert f'src="{name}.png"' in index
+    assert index.count("<img") == len(FIGURE_NAMES)
+
+
+# --- the tests --------------------------------------------------------------------------------
+
+def test_paper_csv_gives_every_figure_with_its_curves(paper_csv, tmp_path):
+    run = plotting.load_run(paper_csv)
+    assert run.kind == "csv" and run.n_links == 2 and len(run.t) == 151
+    assert impacted_links(run) == {1, 2}  # the paper run hits both stops (see its scene file)
+    figures = plotting.plot(paper_csv, tmp_path / "figures")
+    balance = check_figures(figures, run)
+    # W rebuilt from 100 Hz samples agrees with T + V and the impact losses to a few mJ
+    assert np.abs(balance).max() < 5e-3
+    check_files(tmp_path / "figures")
+
+
+def test_bag_gives_the_same_figures_as_the_csv_of_the_same_run(paper_bag, paper_csv, tmp_path):
+    path, sim = paper_bag
+    run = plotting.load_run(path)
+    assert run.kind == "bag" and run.effort_source == "/joint_states effort"
+    assert len(run.impacts) == len(sim.impacts) == 2
+    figures = plotting.plot(path, tmp_path / "figures")
+    balance = check_figures(figures, run)
+    assert np.abs(balance).max() < 5e-3
+    check_files(tmp_path / "figures")
+    csv_run = plotting.load_run(paper_csv)
+    np.testing.assert_allclose(run.t, csv_run.t, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(run.q, csv_run.q, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(run.u, csv_run.u, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(run.energy, csv_run.energy, rtol=0, atol=1e-12)
+    assert run.impacts == csv_run.impacts
+
+
+def test_the_plot_executable_writes_png_files_and_index(paper_csv, tmp_path):
+    out = tmp_path / "out"
+    result = subprocess.run([str(BIN / "plot"), str(paper_csv), "--out", str(out)],
+                            capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert "7 figures" in result.stdout
+    check_files(out)
+
+
+def test_a_base_only_run_draws_its_path_and_empty_arm_figures(tmp_path):
+    """n = 0 links: the arm figures say so instead of failing; the bag's efforts come from the
+    controllers' commands when /joint_states carries none."""
+    doc = load_scene().document
+    doc = {**doc, "robot": {"base": doc["robot"]["base"]}, "initial": {}, "efforts":
+           {"wheels": [0.3, 0.1]}, "effects": {"wheel_damping": 0.01}}
+    scene = parse_scene(doc, "base_only")
+    write_bag(tmp_path / "bag", scene, 0.5)
+    run = plotting.load_run(tmp_path / "bag")
+    assert run.n_links == 0 and run.q.shape[1] == 5 and run.u.shape[1] == 2
+    figures = plotting.plot(tmp_path / "bag", tmp_path / "figures")
+    balance = check_figures(figures, run)
+    assert np.abs(balance).max() < 1e-4     # smooth run, damped: W includes the damping
+    assert abs(run.q[-1, 2]) > 0.1          # it turned
+
+
+def test_bag_efforts_fall_back_to_the_controller_commands(tmp_path):
+    """Without efforts in /joint_states, the recorded commands are held from their log time."""
+    scene = load_scene()
+    sim = Simulation(scene)
+    sim.advance_to(0.05)
+    path = tmp_path / "bag"
+    with BagWriter(path) as bag:
+        bag.add_topic("/joint_states", "sensor_msgs/msg/JointState")
+        bag.add_topic("/odom", "nav_msgs/msg/Odometry")
+        bag.add_topic("/wheel_effort_controller/commands", "std_msgs/msg/Float64MultiArray")
+        for k in range(3):
+            state = JointState(name=scene.robot.joint_names(), position=[0.0] * 6,
+                               velocity=[0.0] * 6)
+            state.header.stamp.nanosec = k * 10_000_000
+            bag.write("/joint_states", serialize_message(state), k * 10_000_000 + 1)
+            odometry = Odometry()
+            odometry.header.stamp.nanosec = k * 10_000_000
+            odometry.pose.pose.orientation.w = 1.0
+            bag.write("/odom", serialize_message(odometry), k * 10_000_000 + 1)
+        bag.write("/wheel_effort_controller/commands",
+                  serialize_message(Float64MultiArray(data=[1.0, -1.0])), 15_000_000)
+        bag.add_attachment("scene.yaml", "application/yaml", scene.to_yaml().encode())
+    run = plotting.load_run(path)
+    assert run.effort_source == "/wheel_effort_controller/commands"
+    np.testing.assert_array_equal(run.efforts[:, :2], [[0.1, 0.2], [0.1, 0.2], [1.0, -1.0]])
+    np.testing.assert_array_equal(run.efforts[:, 2:], np.tile(scene.joint_efforts, (3, 1)))
+    assert run.impacts == []
+
+
+# --- bad input: one line, status 2 ------------------------------------------------------------
+
+def _drop_columns(source: Path, target: Path, names):
+    lines = source.read_text().splitlines()
+    header = lines[0].split(",")
+    keep = [i for i, name in enumerate(header) if name not in names]
+    rows = (",".join(line.split(",")[i] for i in keep) for line in lines)
+    target.write_text("\n".join(rows) + "\n")
+
+
+def bad_inputs(tmp_path: Path, paper_csv: Path) -> dict:
+    cases = {"missing file": ([str(tmp_path / "nothing.csv")], "no such file")}
+    _drop_columns(paper_csv, tmp_path / "cut.csv", {"l2", "energy"})
+    cases["missing columns"] = ([str(tmp_path / "cut.csv")], "missing columns l2, energy")
+    bad_number = tmp_path / "bad_number.csv"
+    bad_number.write_text(paper_csv.read_text().replace("\n0.01,", "\nzero,", 1))
+    cases["not a number"] = ([str(bad_number)], "line 3, column t")
+    (tmp_path / "run.txt").write_text("t\n0\n")
+    cases["unknown suffix"] = ([str(tmp_path / "run.txt")], "unknown kind of run '.txt'")
+    write_bag(tmp_path / "no_joint_states", load_scene(), 0.02, joint_states=False)
+    cases["bag without /joint_states"] = ([str(tmp_path / "no_joint_states")],
+                                          "no /joint_states topic")
+    (tmp_path / "empty_dir").mkdir()
+    cases["not a bag"] = ([str(tmp_path / "empty_dir")], "not a rosbag2 MCAP bag")
+    cases["bad scene"] = ([str(paper_csv), "--scene", str(tmp_path / "none.yaml")],
+                          "cannot read scene file")
+    return cases
+
+
+def test_bad_input_is_one_line_and_status_2(paper_csv, tmp_path, capsys):
+    for case, (argv, message) in bad_inputs(tmp_path, paper_csv).items():
+        status = plotting.main([*argv, "--out", str(tmp_path / "out")])
+        err = capsys.readouterr().err
+        assert status == EXIT_USER_ERROR, case
+        assert err.count("\n") == 1 and message in err, (case, err)
+    assert not (tmp_path / "out").exists()
+
+
+def test_the_executable_reports_bad_input_in_one_line(paper_csv, tmp_path):
+    _drop_columns(paper_csv, tmp_path / "cut.csv", {"qd1"})
+    result = subprocess.run([str(BIN / "plot"), str(tmp_path / "cut.csv"), "--out",
+                             str(tmp_path / "out")], capture_output=True, text=True, timeout=120)
+    assert result.returncode == EXIT_USER_ERROR
+    assert result.stderr.startswith("plot: error: ") and result.stderr.count("\n") == 1
+    assert "missing column qd1" in result.stderr
+
+
+# --- the Foxglove layout shipped beside the figures -------------------------------------------
+
+def _panels(node) -> list[str]:
+    if isinstance(node, str):
+        return [node]
+    assert node["direction"] in ("row", "column") and 0 < node["splitPercentage"] < 100
+    return _panels(node["first"]) + _panels(node["second"])
+
+
+def test_foxglove_layout_plots_the_recorded_topics_by_joint_name():
+    """config/foxglove_layout.json: every panel of the tree is configured, its message paths
+    name topics the simulator records, and /joint_states indices match the joint names."""
+    layout = json.loads((Path(__file__).resolve().parents[1] / "config"
+                         / "foxglove_layout.json").read_text())
+    panels = _panels(layout["layout"])
+    assert sorted(panels) == sorted(layout["configById"])
+    assert {panel.split("!")[0] for panel in panels} == {"3D", "Plot", "RawMessages"}
+    three_d = layout["configById"][next(p for p in panels if p.startswith("3D!"))]
+    assert three_d["followTf"] == "odom"
+    assert three_d["topics"]["/robot_description"]["visible"] is True
+    names = load_scene().robot.joint_names()
+    plotted = set()
+    for panel in panels:
+        if not panel.startswith("Plot!"):
+            continue
+        config = layout["configById"][panel]
+        paths = config["paths"] + ([config["xAxisPath"]] if "xAxisPath" in config else [])
+        for path in paths:
+            topic = path["value"].split(".")[0]
+            assert topic in ("/joint_states", "/odom"), path
+            if topic == "/joint_states":
+                field, index = path["value"][len(topic) + 1:-1].split("[")
+                assert field in ("position", "velocity", "effort")
+                assert path["label"].startswith(names[int(index)]), path
+                plotted.add((field, names[int(index)]))
+    assert {(field, name) for field in ("position", "velocity") for name in names[2:]} <= plotted
