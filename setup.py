@@ -39,8 +39,10 @@ setup(
         "console_scripts": [
             "simulate = mobile_manip_sim.simulate:main",
             "describe = mobile_manip_sim.describe:main",
+            "bench = mobile_manip_sim.bench.main:main",
             "plot = mobile_manip_sim.plot:main",
             "simulator = mobile_manip_sim.node:main",
+            "replay = mobile_manip_sim.replay:main",
         ],
     },
 )

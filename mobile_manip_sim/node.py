@@ -46,6 +46,16 @@ throttled warning naming the topic and the problem, and the last valid command s
 engine's state becomes non-finite the node logs the error and pauses; ~/reset recovers. A missing
 or invalid scene or parameter at start-up is one line on stderr and exit status 2.
 
+Recording (parameter `record` = a new bag directory): a rosbag2 MCAP bag of /joint_states, /odom
+and /clock as published and of both command topics as applied (the efforts held from a segment
+start on, after timeout and limits: at t = 0 and whenever they change), every record stamped
+with its simulated time; plus the scene, the integrator settings and the impact log
+(recording/recorder.py). SIGINT/SIGTERM close it (summary, metadata.yaml); a SIGKILL loses at
+most the open chunk, about a second of wall time. A bag holds one time line: after ~/reset it
+is closed and recording goes on in `<record>_1`, `<record>_2`, ... An unusable `record` path at
+start-up is a one-line error and exit status 2; a write failure while running (a full disk) is
+one error line, recording stops, the simulation goes on.
+
 Odometry covariances: this is ground truth from the model, and a planar model knows z, roll and
 pitch exactly (all zero), so every one of the six dimensions is "known": the diagonals of
 pose.covariance and twist.covariance are GROUND_TRUTH_VARIANCE (1e-9 in m², rad², (m/s)²,
@@ -61,14 +71,13 @@ from fractions import Fraction
 
 import numpy as np
 import rclpy
-from geometry_msgs.msg import Quaternion
+import rclpy.logging
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, SetParametersResult
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
-from rclpy.time import Time
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, String
@@ -77,17 +86,16 @@ from std_srvs.srv import SetBool, Trigger
 from . import cli
 from .engine.simulation import Simulation, SimulationError
 from .errors import UserError
+from .messages import (ARM_TOPIC, GROUND_TRUTH_COVARIANCE, GROUND_TRUTH_VARIANCE, NS,  # noqa: F401
+                       STATE_QOS_DEPTH, WHEEL_TOPIC, stamp_ns, state_messages, yaw_quaternion)
+from .recording.recorder import RunRecorder
 from .scene import METHODS, load_scene, make_integrator
 from .urdf import robot_description
 
 NODE_NAME = "mobile_manip_sim"
-WHEEL_TOPIC = "/wheel_effort_controller/commands"
-ARM_TOPIC = "/arm_effort_controller/commands"
-GROUND_TRUTH_VARIANCE = 1e-9
 WARN_EVERY = 5.0           # s of wall time between repeats of one kind of warning
 LAG_TOLERANCE = 0.1        # s behind the wall clock before the node says it cannot keep up
-STATE_QOS_DEPTH = 100      # room for slow subscribers at high real-time factors
-NS = 10 ** 9
+BAG_FLUSH_INTERVAL = 1.0   # s of wall time: the most of a recording a SIGKILL may lose
 SHUTDOWN_POLL = 0.2        # s: how often the executor checks for an external shutdown
 
 
@@ -107,8 +115,8 @@ PARAMETERS = {
                         _float_range(0.0, 1.0e6), True),
     "odom_frame": ("odom", "frame_id of /odom.", None, False),
     "base_frame": ("base_link", "child_frame_id of /odom.", None, False),
-    "record": ("", "Record a rosbag2 (MCAP) to this directory; empty = off (not implemented "
-                   "yet).", None, False),
+    "record": ("", "Record a rosbag2 (MCAP) bag to this new directory; empty = off.", None,
+               False),
     "integrator.method": ("", f"Integrator overriding the scene's ({', '.join(METHODS)}); "
                               "empty = the scene's.", None, False),
     "integrator.dt": (0.0, "Fixed step (s) overriding the scene's; 0 = the scene's.",
@@ -136,21 +144,8 @@ def command_problem(values, expected: int, labels: str) -> tuple[str, str] | Non
     return None
 
 
-def stamp_ns(k: int, rate: Fraction) -> int:
-    """k / rate in integer nanoseconds, rounded half up: exact, and never drifting with k."""
-    numerator = k * NS * rate.denominator
-    return (2 * numerator + rate.numerator) // (2 * rate.numerator)
-
-
 def format_ns(ns: int) -> str:
     return f"{'-' if ns < 0 else ''}{abs(ns) // NS}.{abs(ns) % NS:09d}"
-
-
-def yaw_quaternion(yaw: float) -> Quaternion:
-    return Quaternion(x=0.0, y=0.0, z=math.sin(0.5 * yaw), w=math.cos(0.5 * yaw))
-
-
-GROUND_TRUTH_COVARIANCE = [GROUND_TRUTH_VARIANCE if i % 7 == 0 else 0.0 for i in range(36)]
 
 
 class _CommandGroup:
@@ -186,9 +181,10 @@ class SimulatorNode(Node):
         self.command_timeout_ns = round(p["command_timeout"] * NS)
         self.odom_frame, self.base_frame = p["odom_frame"], p["base_frame"]
         self.record = p["record"]
-        if self.record:
-            self.get_logger().warning(f"record: recording is not implemented yet; "
-                                      f"'{self.record}' ignored")
+        self._settings = settings
+        self._recorder: RunRecorder | None = None
+        self._recorded_stamp: int | None = None   # last state stamp in the open bag
+        self._bag_count = 0
 
         arm_labels = ", ".join(f"tau_{i}, F_{i}" for i in range(1, n_joints // 2 + 1)) or "none"
         self._wheels = _CommandGroup(WHEEL_TOPIC, 2, "tau_R, tau_L", "wheel")
@@ -227,6 +223,11 @@ class SimulatorNode(Node):
 
         self._reset_state()
         self._thread = threading.Thread(target=self._run, name="stepping", daemon=True)
+        if self.record:   # last: nothing after this may fail and leave an unfinished bag
+            try:
+                self._recorder = self._open_bag(self.record)
+            except UserError as error:
+                raise UserError("record", str(error)) from None
         self.get_logger().info(
             f"scene '{scene.name}', integrator {settings.method} "
             f"({'dt ' + str(settings.dt) if settings.fixed_step else f'rtol {settings.rtol}'}), "
@@ -464,38 +465,21 @@ class SimulatorNode(Node):
     # --- messages --------------------------------------------------------------------------
     def _messages(self, k: int) -> dict:
         """/joint_states, /odom and /clock for the engine's current state, stamped t_k."""
-        sim = self.sim
-        ns = stamp_ns(k, self.rate)
-        stamp = Time(nanoseconds=ns).to_msg()
-        q, u, qdot = sim.q, sim.u, sim.qdot()
-
-        joints = JointState()
-        joints.header.stamp = stamp
-        joints.name = self.joint_names
-        joints.position = q[3:].tolist()
-        joints.velocity = qdot[3:].tolist()
-        joints.effort = sim.wheel_efforts.tolist() + sim.joint_efforts.tolist()
-
-        odom = Odometry()
-        odom.header.stamp = stamp
-        odom.header.frame_id = self.odom_frame
-        odom.child_frame_id = self.base_frame
-        odom.pose.pose.position.x = float(q[0])
-        odom.pose.pose.position.y = float(q[1])
-        odom.pose.pose.orientation = yaw_quaternion(float(q[2]))
-        odom.pose.covariance = GROUND_TRUTH_COVARIANCE
-        odom.twist.twist.linear.x = float(u[0])
-        odom.twist.twist.angular.z = float(u[1])
-        odom.twist.covariance = GROUND_TRUTH_COVARIANCE
-
-        return {"/joint_states": joints, "/odom": odom, "/clock": Clock(clock=stamp)}
+        return state_messages(self.sim, stamp_ns(k, self.rate), self.joint_names,
+                              self.odom_frame, self.base_frame)
 
     def _publish(self, k: int, messages: dict) -> None:
-        self._joint_pub.publish(messages["/joint_states"])
-        self._odom_pub.publish(messages["/odom"])
-        self._clock_pub.publish(messages["/clock"])
+        published = {}
+        try:
+            for topic, publisher in (("/joint_states", self._joint_pub),
+                                     ("/odom", self._odom_pub), ("/clock", self._clock_pub)):
+                publisher.publish(messages[topic])
+                published[topic] = messages[topic]
+        finally:
+            # What went out is recorded, even when a shutdown fails the rest of the group.
+            if published:
+                self._on_state_published(stamp_ns(k, self.rate), published)
         self._k, self._now_ns = k, stamp_ns(k, self.rate)
-        self._on_state_published(self._now_ns, messages)
 
     def _publish_description(self) -> None:
         self._description_pub.publish(String(data=self._description))
@@ -509,20 +493,74 @@ class SimulatorNode(Node):
         self.get_logger().warning(text)
         return True
 
-    # --- hooks for the recorder (recording issue): called by the stepping thread ------------
-    def _on_state_published(self, stamp_ns: int, messages: dict) -> None:
-        """After each publication: `messages` maps topic → message, all stamped stamp_ns.
+    # --- recording (hooks called by the stepping thread, and _on_close after it stopped) ----
+    def _open_bag(self, path: str) -> RunRecorder:
+        self._bag_count += 1
+        self._recorded_stamp = None
+        return RunRecorder(path, self.scene, self._settings,
+                           {"source": "node", "publish_rate": repr(float(self.rate))},
+                           flush_interval=BAG_FLUSH_INTERVAL)
 
-        Also called with stamp 0 for the initial state and after every reset (time restarts).
-        Does nothing yet."""
+    def _on_state_published(self, stamp_ns: int, messages: dict) -> None:
+        """After each publication (stamp 0: the initial state, or the first after a reset).
+        A bag holds one time line: after a reset the bag is closed and recording goes on in
+        ``<record>_<n>``. The engine is at stamp_ns here, so its impact list is the run's."""
+        if self._recorder is None:
+            return
+        if self._recorded_stamp is not None and stamp_ns <= self._recorded_stamp:
+            previous = self._recorder.path
+            self._recording(lambda recorder: recorder.close())
+            if self._recorder is None:
+                return
+            self._recorder = None
+            try:
+                self._recorder = self._open_bag(f"{self.record}_{self._bag_count}")
+            except Exception as error:
+                self.get_logger().error(f"recording stopped at the reset: {error}")
+                return
+            self.get_logger().info(f"reset: bag {previous} closed, recording on in "
+                                   f"{self._recorder.path}")
+        self._recorded_stamp = stamp_ns
+
+        def record(recorder):
+            recorder.states(stamp_ns, messages)
+            recorder.impacts(self.sim.impacts)
+        self._recording(record)
 
     def _on_command_applied(self, stamp_ns: int, wheels: np.ndarray, joints: np.ndarray) -> None:
         """At the start of each segment: the efforts held from stamp_ns to the next stamp
-        (after timeout and effort limits). Does nothing yet."""
+        (after timeout and effort limits); the recorder keeps the changes."""
+        self._recording(lambda recorder: recorder.commands(stamp_ns, wheels, joints))
 
     def _on_close(self) -> None:
         """After the stepping thread has stopped, before the node is destroyed (SIGINT,
-        SIGTERM, normal exit): where a recorder closes its bag. Does nothing yet."""
+        SIGTERM, normal exit): the bag gets its impacts, summary and metadata.yaml."""
+        if self._recorder is not None:
+            path = self._recorder.path
+            self._recording(lambda recorder: recorder.close(), self._closing_logger())
+            if self._recorder is not None:
+                self._recorder = None
+                self._closing_logger().info(f"bag {path} closed")
+
+    def _closing_logger(self):
+        """The node's logger while its context is up; after SIGINT/SIGTERM shut it down, a
+        logger without /rosout (the node's would fail to publish and say so)."""
+        if rclpy.ok(context=self.context):
+            return self.get_logger()
+        return rclpy.logging.get_logger(f"{NODE_NAME}_recording")
+
+    def _recording(self, action, logger=None) -> None:
+        """Run ``action(recorder)``; a failure (full disk, ...) is one error line and the end of
+        recording, never of the simulation."""
+        if self._recorder is None:
+            return
+        try:
+            action(self._recorder)
+        except Exception as error:
+            recorder, self._recorder = self._recorder, None
+            recorder.abandon()
+            (logger or self.get_logger()).error(f"recording stopped: {error}; the simulation "
+                                                f"goes on without it")
 
 
 def _main(argv) -> int:

@@ -103,7 +103,7 @@ def _main(argv) -> int:
     recorder = None
     if args.record:
         from .recording.headless import HeadlessRecorder
-        recorder = HeadlessRecorder(args.record, scene, settings, args.sample_rate)
+        recorder = HeadlessRecorder(args.record, scene, settings, args.sample_rate, duration)
     try:
         handle = out.open("w", newline="")
     except OSError as error:

@@ -85,6 +85,14 @@ class Bag:
                     raise UserError(name, f"recorded as both {topics[name]} and {type_name}")
         return topics
 
+    def channel_metadata(self) -> dict[str, dict[str, str]]:
+        """Topic → its channel's metadata (``offered_qos_profiles``, ...), first file first."""
+        found: dict[str, dict[str, str]] = {}
+        for file in self._files:
+            for channel in file.summary.channels.values():
+                found.setdefault(channel.topic, dict(channel.metadata))
+        return found
+
     def messages(self, topics: Iterable[str] | None = None) -> Iterator[BagMessage]:
         """Messages of ``topics`` (all if None) in log-time order, read lazily."""
         if topics is not None:

@@ -1,0 +1,126 @@
+"""The one place where simulator state becomes ROS messages (the node publishes them, the
+recorder stores them, replay rebuilds them to compare): equal states give equal messages.
+
+Topics and types (see node.py for their meaning):
+  /joint_states                      sensor_msgs/msg/JointState
+  /odom                              nav_msgs/msg/Odometry
+  /clock                             rosgraph_msgs/msg/Clock
+  /wheel_effort_controller/commands  std_msgs/msg/Float64MultiArray
+  /arm_effort_controller/commands    std_msgs/msg/Float64MultiArray
+
+Stamps are integer nanoseconds of simulated time. ``state`` is anything with the engine's state
+interface (``q``, ``u``, ``qdot()``, ``wheel_efforts``, ``joint_efforts``): a ``Simulation``.
+"""
+from __future__ import annotations
+
+import math
+from fractions import Fraction
+
+from builtin_interfaces.msg import Time
+from geometry_msgs.msg import Quaternion
+from nav_msgs.msg import Odometry
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Float64MultiArray
+
+NS = 10 ** 9
+JOINT_STATES_TOPIC = "/joint_states"
+ODOM_TOPIC = "/odom"
+CLOCK_TOPIC = "/clock"
+WHEEL_TOPIC = "/wheel_effort_controller/commands"
+ARM_TOPIC = "/arm_effort_controller/commands"
+STATE_TOPICS = (JOINT_STATES_TOPIC, ODOM_TOPIC, CLOCK_TOPIC)
+COMMAND_TOPICS = (WHEEL_TOPIC, ARM_TOPIC)
+
+# Topic → message type name, as bags and `ros2 topic` spell it.
+TOPIC_TYPES = {
+    JOINT_STATES_TOPIC: "sensor_msgs/msg/JointState",
+    ODOM_TOPIC: "nav_msgs/msg/Odometry",
+    CLOCK_TOPIC: "rosgraph_msgs/msg/Clock",
+    WHEEL_TOPIC: "std_msgs/msg/Float64MultiArray",
+    ARM_TOPIC: "std_msgs/msg/Float64MultiArray",
+}
+STATE_QOS_DEPTH = 100      # the node's state publishers: room for slow subscribers
+COMMAND_QOS_DEPTH = 10     # rclpy's default publisher depth, what command senders use
+
+# Ground truth: every one of the six pose/twist dimensions is known (see node.py).
+GROUND_TRUTH_VARIANCE = 1e-9
+GROUND_TRUTH_COVARIANCE = [GROUND_TRUTH_VARIANCE if i % 7 == 0 else 0.0 for i in range(36)]
+
+
+def stamp_ns(k: int, rate: Fraction) -> int:
+    """k / rate in integer nanoseconds, rounded half up: exact, and never drifting with k."""
+    numerator = k * NS * rate.denominator
+    return (2 * numerator + rate.numerator) // (2 * rate.numerator)
+
+
+def seconds_ns(seconds: float) -> int:
+    """A time in seconds (a float, taken exactly) in integer nanoseconds, rounded half up."""
+    value = Fraction(seconds) * NS
+    return math.floor(value + Fraction(1, 2))
+
+
+def time_msg(ns: int) -> Time:
+    return Time(sec=ns // NS, nanosec=ns % NS)
+
+
+def yaw_quaternion(yaw: float) -> Quaternion:
+    return Quaternion(x=0.0, y=0.0, z=math.sin(0.5 * yaw), w=math.cos(0.5 * yaw))
+
+
+def quaternion_yaw(quaternion) -> float:
+    """The yaw of a rotation about z (the inverse of ``yaw_quaternion``, up to 2π)."""
+    return 2.0 * math.atan2(quaternion.z, quaternion.w)
+
+
+def applied_efforts(state) -> list[float]:
+    """[τ_R, τ_L, τ_1, F_1, …]: the efforts the engine holds (after effort limits)."""
+    return state.wheel_efforts.tolist() + state.joint_efforts.tolist()
+
+
+def joint_state(state, stamp: int, names, efforts=None) -> JointState:
+    """Wheels and arm joints: positions (θ_R, θ_L, q_i, l_i), their rates, and the efforts
+    (default: the ones the engine holds, i.e. those of the segment that ended at ``stamp``)."""
+    message = JointState()
+    message.header.stamp = time_msg(stamp)
+    message.name = list(names)
+    message.position = state.q[3:].tolist()
+    message.velocity = state.qdot()[3:].tolist()
+    message.effort = [float(v) for v in (applied_efforts(state) if efforts is None else efforts)]
+    return message
+
+
+def odometry(state, stamp: int, odom_frame: str = "odom",
+             base_frame: str = "base_link") -> Odometry:
+    """Pose of ``base_frame`` (x, y, yaw) in ``odom_frame``; twist in ``base_frame``
+    (linear.x = v, angular.z = ω)."""
+    q, u = state.q, state.u
+    message = Odometry()
+    message.header.stamp = time_msg(stamp)
+    message.header.frame_id = odom_frame
+    message.child_frame_id = base_frame
+    message.pose.pose.position.x = float(q[0])
+    message.pose.pose.position.y = float(q[1])
+    message.pose.pose.orientation = yaw_quaternion(float(q[2]))
+    message.pose.covariance = GROUND_TRUTH_COVARIANCE
+    message.twist.twist.linear.x = float(u[0])
+    message.twist.twist.angular.z = float(u[1])
+    message.twist.covariance = GROUND_TRUTH_COVARIANCE
+    return message
+
+
+def clock(stamp: int) -> Clock:
+    return Clock(clock=time_msg(stamp))
+
+
+def float64_array(values) -> Float64MultiArray:
+    """An effort command as the effort controllers take it."""
+    return Float64MultiArray(data=[float(v) for v in values])
+
+
+def state_messages(state, stamp: int, names, odom_frame: str = "odom",
+                   base_frame: str = "base_link") -> dict:
+    """Topic → message for /joint_states, /odom and /clock, all stamped ``stamp``."""
+    return {JOINT_STATES_TOPIC: joint_state(state, stamp, names),
+            ODOM_TOPIC: odometry(state, stamp, odom_frame, base_frame),
+            CLOCK_TOPIC: clock(stamp)}

@@ -1,0 +1,152 @@
+"""`RunRecorder`: one simulated run (one time line) → one self-describing rosbag2 bag.
+
+Topics (types and offered QoS as the node publishes them, see ``messages.py``):
+/joint_states, /odom, /clock (reliable, volatile, keep_last 100) and both effort command topics
+(reliable, volatile, keep_last 10). Every record's log_time and publish_time is the simulated
+time it belongs to: a state's stamp; a command's segment start, the simulated time from which
+the engine held it. Commands are written as applied (after the command timeout and the effort
+limits), at t = 0 and then only when they change, so the bag determines the whole command
+sequence (zero-order hold between records).
+
+Self-describing: attachment ``scene.yaml`` (the full scene, defaults applied), written first;
+MCAP metadata ``mobile_manip_sim`` (package version, integrator settings, rates, scene name,
+source; floats as ``repr``, exact); attachment ``impacts.json`` (the end-stop impacts up to the
+last recorded state), written at close.
+
+Payloads are the exact CDR of rclpy's serialisation (``cdr.exact_cdr``): equal runs give equal
+bags, byte for byte. Errors are ``UserError`` from the ``BagWriter``; after one the recorder is
+unusable and ``abandon()`` releases the file.
+"""
+from __future__ import annotations
+
+import contextlib
+import json
+import time
+
+import numpy as np
+
+from mobile_manip_sim import __version__
+from mobile_manip_sim.errors import UserError
+from mobile_manip_sim.messages import (ARM_TOPIC, COMMAND_QOS_DEPTH, COMMAND_TOPICS,
+                                       STATE_QOS_DEPTH, STATE_TOPICS, TOPIC_TYPES, WHEEL_TOPIC,
+                                       float64_array)
+from mobile_manip_sim.recording.bag_writer import DEFAULT_CHUNK_SIZE, BagWriter, qos_yaml
+from mobile_manip_sim.recording.cdr import exact_cdr
+
+METADATA_NAME = "mobile_manip_sim"
+SCENE_ATTACHMENT = "scene.yaml"
+IMPACTS_ATTACHMENT = "impacts.json"
+SOURCES = ("node", "simulate")
+
+
+def topic_qos(topic: str) -> str:
+    """The offered QoS YAML of one of our topics."""
+    return qos_yaml("reliable", "volatile",
+                    COMMAND_QOS_DEPTH if topic in COMMAND_TOPICS else STATE_QOS_DEPTH)
+
+
+def run_metadata(scene, settings, extra: dict) -> dict:
+    """The ``mobile_manip_sim`` metadata map: everything besides the scene that a re-run needs."""
+    metadata = {"version": __version__, "integrator_method": settings.method,
+                "dt": repr(float(settings.dt)), "rtol": repr(float(settings.rtol)),
+                "atol": repr(float(settings.atol)), "scene_name": scene.name}
+    metadata.update({key: str(value) for key, value in extra.items()})
+    if metadata.get("source") not in SOURCES:
+        raise UserError("source", f"{metadata.get('source')!r} is not one of {SOURCES}")
+    return metadata
+
+
+class RunRecorder:
+    """Records one run into a new bag directory ``path`` (see the module docstring).
+
+    ``extra_metadata`` adds to the metadata map: ``source`` (node|simulate) and the rate
+    (``publish_rate`` or ``sample_rate``) at least. ``flush_interval`` (wall seconds, None = off)
+    closes the open chunk that often, bounding what a SIGKILL loses in a slow run; headless runs
+    leave it off so that their chunks, and hence their bags, do not depend on the wall clock.
+    """
+
+    def __init__(self, path, scene, settings, extra_metadata: dict, *,
+                 chunk_size: int = DEFAULT_CHUNK_SIZE, flush_interval: float | None = None):
+        metadata = run_metadata(scene, settings, extra_metadata)
+        self.writer = BagWriter(path, chunk_size=chunk_size)
+        self.path = self.writer.path
+        try:
+            for topic, type_name in TOPIC_TYPES.items():
+                self.writer.add_topic(topic, type_name, topic_qos(topic))
+            self.writer.add_attachment(SCENE_ATTACHMENT, "application/yaml",
+                                       scene.to_yaml().encode())
+            self.writer.add_metadata(METADATA_NAME, metadata)
+        except BaseException:
+            self.abandon()
+            raise
+        self._last_commands: dict[str, bytes] = {}
+        self._impacts: list[dict] = []
+        self._last_stamp = 0
+        self._flush_interval = flush_interval
+        self._flushed_at = time.monotonic()
+
+    def states(self, stamp: int, messages: dict) -> None:
+        """Write the state messages (topic → rclpy message) published at ``stamp`` ns."""
+        for topic in STATE_TOPICS:
+            message = messages.get(topic)
+            if message is not None:
+                self.writer.write(topic, exact_cdr(message), stamp, stamp)
+        self._last_stamp = max(self._last_stamp, stamp)
+        self._maybe_flush()
+
+    def commands(self, stamp: int, wheels, joints) -> None:
+        """The efforts held from ``stamp`` ns on; written when they differ (bit for bit) from
+        the last ones written, and always the first time."""
+        for topic, values in ((WHEEL_TOPIC, wheels), (ARM_TOPIC, joints)):
+            values = np.asarray(values, dtype=float)
+            key = values.tobytes()
+            if self._last_commands.get(topic) != key:
+                self.writer.write(topic, exact_cdr(float64_array(values)), stamp, stamp)
+                self._last_commands[topic] = key
+        self._last_stamp = max(self._last_stamp, stamp)
+
+    def impacts(self, impacts) -> None:
+        """The engine's impact list so far (``Impact`` objects); only new ones are taken, so
+        call it whenever a state is recorded."""
+        self._impacts.extend({key: _plain(value) for key, value in impact.as_dict().items()}
+                             for impact in impacts[len(self._impacts):])
+
+    @property
+    def recorded_impacts(self) -> list[dict]:
+        return list(self._impacts)
+
+    def close(self) -> None:
+        """Attach ``impacts.json``, then finish the bag (summary, metadata.yaml). Idempotent."""
+        if self.writer is None:
+            return
+        writer, self.writer = self.writer, None
+        try:
+            writer.add_attachment(IMPACTS_ATTACHMENT, "application/json",
+                                  json.dumps(self._impacts, indent=1).encode(), self._last_stamp)
+        except BaseException:
+            with contextlib.suppress(Exception):
+                writer.close()
+            raise
+        writer.close()
+
+    def abandon(self) -> None:
+        """After an error: finish the bag if the writer still can, else just release the file.
+        Never raises (the error that led here has been reported)."""
+        writer, self.writer = self.writer, None
+        if writer is not None:
+            with contextlib.suppress(Exception):
+                writer.close()
+
+    def _maybe_flush(self) -> None:
+        if self._flush_interval is None:
+            return
+        now = time.monotonic()
+        if now - self._flushed_at >= self._flush_interval:
+            self._flushed_at = now
+            if self.writer.buffered_bytes:
+                self.writer.flush()
+
+
+def _plain(value):
+    """A JSON-ready Python scalar (the engine may hand numpy ones)."""
+    return value.item() if isinstance(value, np.generic) else value
