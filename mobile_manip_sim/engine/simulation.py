@@ -20,7 +20,7 @@ from ..dynamics import Dynamics
 from ..errors import UserError
 from ..scene import IntegratorSettings, Scene
 from . import fixed_step
-from .stops import Impact, apply_impact, crossing_in_step, locate, release_wanted
+from .stops import Impact, apply_impact, crossing_in_step, hermite_turns, locate, release_wanted
 from .system import RHS_EVALS, System
 
 ADAPTIVE = {"rk45": integrate.RK45, "dop853": integrate.DOP853, "radau": integrate.Radau,
@@ -64,6 +64,7 @@ class Simulation:
         self.watched[:] = True
         self.system.set_locked(())
         self.impacts: list[Impact] = []
+        self._run = (0, 0, 0, 0.0)   # rod, stop, count and first time of the latest run of impacts
         self.impact_energy_lost = 0.0
         self.steps = 0
         self.system.counters[:] = 0
@@ -181,11 +182,24 @@ class Simulation:
             self._impact(k, side, t_start)
             if h <= 1e-15 * self.settings.dt:
                 return
-        self.s = self._step(self.s, h)
+        # Zeno guard: this many impacts in one step are a rod chattering against its stop with
+        # ever smaller rebounds. Hold it there (it leaves when the net force pulls it away) and
+        # finish the step with it held; stepping on regardless would carry it through the stop.
+        if not self.resting[k - 1]:
+            self._impact(k, side, t_start, hold=True)
+        self._step_with_events(h)
 
     def _first_crossing(self, state_at, h):
         """Earliest (h', rod, side, state) where a watched rod meets a stop within h, or None."""
         samples = [h * j / 16 for j in range(1, 17)]
+        # A rod that crosses and comes back between two samples would be missed: add the instants
+        # where each rod's Hermite path over the step (the one `crossing_in_step` flagged) turns.
+        end_state = state_at(h)
+        for k in np.flatnonzero(self.watched) + 1:
+            i_l, i_ld = 4 + 2 * k, self.nq + 2 * k + 1
+            turns, _, _ = hermite_turns(self.s[i_l], self.s[i_ld], end_state[i_l], end_state[i_ld], h)
+            samples += [tau for tau in turns if 0.0 < tau < h]
+        samples.sort()
         best = None
         for k in np.flatnonzero(self.watched) + 1:
             i_l = 4 + 2 * k
@@ -204,33 +218,51 @@ class Simulation:
             best[3][4 + 2 * best[1]] = self.stroke[best[1] - 1, 0 if best[2] < 0 else 1]
         return best
 
-    def _impact(self, k: int, side: int, t: float) -> None:
+    def _impact(self, k: int, side: int, t: float, hold: bool = False) -> None:
+        """Rod k (1-based) meets its lower (side −1) or upper (+1) stop at time t (s): the impact
+        law, then a rebound or rest. ``hold`` stops it at rest whatever its speed."""
         law = self.stop_law
         j = 2 * k + 1
         u_before = self.u.copy()
-        if side * u_before[j] <= 0.0:  # at the stop but already leaving it: nothing to do
-            return
+        # A crossing located with the rod at the stop but not moving into it is found at the very
+        # instant the rod left: its rebound is too small to resolve in time, i.e. the rod is
+        # pressed against the stop. Hold it there; ignoring the crossing would restart the event
+        # loop at this same instant forever (a Zeno stall, e.g. with rest_speed 0).
+        hold = hold or side * u_before[j] <= 0.0
         T_before, _ = self.dynamics.energy(self.q, u_before)
-        if law.law == "impulse" and abs(law.restitution * u_before[j]) < law.rest_speed:
+        if hold or law.law == "impulse" and abs(law.restitution * u_before[j]) < law.rest_speed:
             restitution = 0.0
         else:
             restitution = law.restitution
         free = [int(i) for i in self.system.free if i >= 0]
         u_after = apply_impact(self.dynamics, free, self.q, u_before, k, restitution, law.law)
-        resting = abs(u_after[j]) < law.rest_speed
+        resting = hold or abs(u_after[j]) < law.rest_speed
         if resting:
             u_after[j] = 0.0
         self.s[self.nq:self.nq + self.nu] = u_after
         T_after, _ = self.dynamics.energy(self.q, u_after)
         self.impact_energy_lost += T_before - T_after
-        self.impacts.append(Impact(t, k, "lower" if side < 0 else "upper", float(u_before[j]),
-                                   float(u_after[j]), float(T_before - T_after), resting))
+        # Plain Python numbers (not numpy scalars), so records serialise anywhere (CSV, YAML, bags).
+        self.impacts.append(Impact(float(t), k, "lower" if side < 0 else "upper", float(u_before[j]),
+                                   float(u_after[j]), float(T_before - T_after), bool(resting)))
         if resting:
             self.resting[k - 1] = side
             self.watched[k - 1] = False
             self._relock()
             if release_wanted(self.system.tuple, self.s, self.resting, self._out, self._forces):
                 self._release()
+
+    def _chattering(self, k: int, side: int, h: float) -> bool:
+        """Zeno guard of the adaptive methods (the fixed-step one counts impacts per step): rod k
+        hitting the same stop MAX_IMPACTS_PER_STEP times in a row within one step length h (s) is
+        chattering with ever smaller rebounds, down to round-off and on forever; hold it."""
+        k_run, side_run, count, t_first = self._run
+        if (k_run, side_run) == (k, side) and self._t0 - t_first < h:
+            count += 1
+        else:
+            count, t_first = 1, self._t0
+        self._run = (k, side, count, t_first)
+        return count >= MAX_IMPACTS_PER_STEP
 
     def _relock(self) -> None:
         self.system.set_locked(tuple(2 * (k + 1) + 1 for k in np.flatnonzero(self.resting)))
@@ -275,7 +307,8 @@ class Simulation:
                     if hit is not None:
                         h_hit, k, side, state = hit
                         self.s, self._t0 = state, t_before + h_hit
-                        self._impact(k, side, self._t0)
+                        self._impact(k, side, self._t0,
+                                     hold=self._chattering(k, side, solver.t - t_before))
                         restart = True
                         continue
                 self.s, self._t0 = solver.y.copy(), solver.t

@@ -7,28 +7,32 @@ A rod k (1-based) has ``l_k = s[4 + 2k]`` and ``l̇_k = s[n_q + 2k + 1]`` in the
   interpolant's extremum leaves the stroke — so a fast rod that crosses and comes back within
   one step is not missed (SciPy's sign-change detection misses it, scipy #9228).
 - Location (`locate`): the root in h' of l(step(s, h')) − stop, by the Illinois method on the
-  real integrator step, so the overshoot is at round-off, not at the interpolant's error.
+  real integrator step, so the overshoot is at round-off, not at the interpolant's error. It is
+  bracketed by samples of the step that include the interpolant's turning points
+  (`hermite_turns`), where a rod that only grazes past its stop is out of the stroke.
 - Impact (`impact`): MODEL.md's generalized impulse along e_k, or the paper's `reflect` law.
 - Resting: a rod whose rebound speed is below ``rest_speed`` is held at the stop (its l̇ degree
-  of freedom is locked, not stiffly pushed back). It leaves when the stop would have to pull to
-  hold it (`release_wanted`: the constraint force changes sign).
+  of freedom is locked, not stiffly pushed back), and so is a rod whose rebounds are too small
+  to resolve (the Zeno guards in `simulation.py`). It leaves when the stop would have to pull to
+  hold it (`release_wanted`: the constraint force changes sign), checked after every step and
+  whenever the command changes.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from ..dynamics.jit import jit
-from .system import constraint_forces, derivative
+from .system import CROSSING_CHECKS, constraint_forces, derivative
 
 
 @jit
-def hermite_extrema(l0, d0, l1, d1, h):
-    """(min, max) over [0, h] of the cubic Hermite with values l0, l1 and slopes d0, d1."""
-    lo = min(l0, l1)
-    hi = max(l0, l1)
-    # p(τ) = l0 + d0 τ + c2 τ² + c3 τ³, τ ∈ [0, h]
+def hermite_turns(l0, d0, l1, d1, h):
+    """((τ₁, τ₂), c2, c3): where the cubic Hermite with values l0, l1 and slopes d0, d1 over
+    [0, h] has zero slope (−1 for a missing root; roots may lie outside (0, h)), and its
+    coefficients p(τ) = l0 + d0 τ + c2 τ² + c3 τ³."""
     c2 = (3.0 * (l1 - l0) / h - 2.0 * d0 - d1) / h
     c3 = (d0 + d1 - 2.0 * (l1 - l0) / h) / (h * h)
     a, b, c = 3.0 * c3, 2.0 * c2, d0
@@ -39,8 +43,19 @@ def hermite_extrema(l0, d0, l1, d1, h):
     else:
         disc = b * b - 4.0 * a * c
         if disc >= 0.0:
-            sq = disc ** 0.5
-            roots = ((-b - sq) / (2.0 * a), (-b + sq) / (2.0 * a))
+            # The cancellation-free form: a path that is nearly a parabola (a rod under a constant
+            # force) has a ≈ 0 from round-off, and (−b ± √disc)/2a would lose its turning point.
+            w = -0.5 * (b + math.copysign(disc ** 0.5, b))
+            roots = (w / a, c / w if w != 0.0 else -1.0)
+    return roots, c2, c3
+
+
+@jit
+def hermite_extrema(l0, d0, l1, d1, h):
+    """(min, max) over [0, h] of the cubic Hermite with values l0, l1 and slopes d0, d1."""
+    lo = min(l0, l1)
+    hi = max(l0, l1)
+    roots, c2, c3 = hermite_turns(l0, d0, l1, d1, h)
     for tau in roots:
         if 0.0 < tau < h:
             p = l0 + tau * (d0 + tau * (c2 + tau * c3))
@@ -53,6 +68,7 @@ def hermite_extrema(l0, d0, l1, d1, h):
 def crossing_in_step(s0, s1, h, system, watched, stroke, scratch_a, scratch_b):
     """True when a watched rod leaves its stroke during the step s0 → s1 (see module doc)."""
     nq = system[4].shape[0] + 3
+    system[7][CROSSING_CHECKS] += 1
     for k in range(1, watched.shape[0] + 1):
         if not watched[k - 1]:
             continue
@@ -122,14 +138,18 @@ def locate(g, a: float, b: float, tol: float = 1e-13) -> float:
     """
     h = b - a
     ga, gb = g(a), g(b)
+    g_root = gb  # g at b itself: the Illinois steps halve gb, which must not pass for convergence
     side = 0
     for _ in range(200):
-        c = b - gb * (b - a) / (gb - ga) if gb != ga else 0.5 * (a + b)
+        # With g(a) = 0 (a rod starting exactly at its stop, as after every impact) the secant
+        # lands on a itself, or a round-off above it where g may read ≤ 0: a false root at
+        # h' ≈ 0. Bisect until g(a) > 0.
+        c = b - gb * (b - a) / (gb - ga) if gb != ga and ga != 0.0 else 0.5 * (a + b)
         if not a < c < b:
             c = 0.5 * (a + b)
         gc = g(c)
         if gc <= 0.0:
-            b, gb = c, gc
+            b, gb, g_root = c, gc, gc
             if side == -1:
                 ga *= 0.5
             side = -1
@@ -138,6 +158,6 @@ def locate(g, a: float, b: float, tol: float = 1e-13) -> float:
             if side == 1:
                 gb *= 0.5
             side = 1
-        if -tol <= gb <= 0.0 or b - a <= 1e-15 * h:
+        if -tol <= g_root <= 0.0 or b - a <= 1e-15 * h:
             break
     return b

@@ -18,8 +18,8 @@ from ..dynamics import kernels
 from ..dynamics.jit import jit
 
 # counters[...] indices
-RHS_EVALS, DAMPING_STAGE, REDUCED_SOLVE = 0, 1, 2
-N_COUNTERS = 3
+RHS_EVALS, DAMPING_STAGE, REDUCED_SOLVE, CROSSING_CHECKS = 0, 1, 2, 3
+N_COUNTERS = 4
 
 
 @jit

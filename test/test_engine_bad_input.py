@@ -1,0 +1,247 @@
+"""Bad input, as a user meets it: `python -m mobile_manip_sim.simulate` on a broken scene file or
+with a bad flag exits with status 2 and exactly one stderr line naming the key path (issues 2, 3).
+
+Every case is one change to the valid paper scene, so the change alone is what fails. One case of
+each kind runs as a real process (a few at a time: each pays the interpreter's start-up); the
+variants call the same entry point, `simulate.main`, in this process.
+"""
+import copy
+import math
+import subprocess
+import sys
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+import pytest
+import yaml
+
+from mobile_manip_sim import simulate
+from mobile_manip_sim.errors import UserError
+
+try:
+    from .engine_cases import paper_doc, simulation
+except ImportError:  # test/ is not a package: pytest puts it on sys.path
+    from engine_cases import paper_doc, simulation
+
+
+def edit(path, value):
+    """A change to the paper scene: set (or, with value DELETE, remove) the key at `path`."""
+    def apply(doc):
+        *parents, last = path
+        node = doc
+        for key in parents:
+            node = node[key]
+        if value is DELETE:
+            del node[last]
+        else:
+            node[last] = value
+    return apply
+
+
+DELETE = object()
+NAN, INF = float("nan"), float("inf")
+
+# id: (change to the scene or raw file text or None, extra flags, key path expected on stderr)
+CASES = {
+    # issue 3: the engine's own settings
+    "unknown method in the scene": (edit(["integrator", "method"], "rk5"), [], "integrator.method"),
+    "unknown method flag": (None, ["--method", "rk5"], "--method"),
+    "unknown effect": (edit(["effects", "magnetism"], 1.0), [], "effects.magnetism"),
+    "zero dt": (edit(["integrator", "dt"], 0.0), [], "integrator.dt"),
+    "negative dt": (edit(["integrator", "dt"], -1e-3), [], "integrator.dt"),
+    "zero dt flag": (None, ["--method", "rk4", "--dt", "0"], "--dt"),
+    "negative dt flag": (None, ["--dt", "-0.001"], "--dt"),
+    "nan dt flag": (None, ["--dt", "nan"], "--dt"),
+    "zero rtol": (edit(["integrator", "rtol"], 0.0), [], "integrator.rtol"),
+    "negative rtol flag": (None, ["--rtol", "-1e-6"], "--rtol"),
+    "restitution above 1": (edit(["effects", "stroke_limits", "restitution"], 1.5), [],
+                            "effects.stroke_limits.restitution"),
+    "restitution below 0": (edit(["effects", "stroke_limits", "restitution"], -0.1), [],
+                            "effects.stroke_limits.restitution"),
+    "unknown impact law": (edit(["effects", "stroke_limits", "law"], "bounce"), [],
+                           "effects.stroke_limits.law"),
+    "negative rest speed": (edit(["effects", "stroke_limits", "rest_speed"], -1.0), [],
+                            "effects.stroke_limits.rest_speed"),
+    "locked joint that does not exist": (edit(["effects", "locked_joints"], ["arm_revolute_3"]), [],
+                                         "effects.locked_joints[0]"),
+    "joint efforts of the wrong length": (edit(["efforts", "joints"], [4.5, 7.0, 0.0]), [],
+                                          "efforts.joints"),
+    "wheel efforts of the wrong length": (edit(["efforts", "wheels"], [0.1]), [], "efforts.wheels"),
+    "joint damping of the wrong length": (edit(["effects", "joint_damping"], [1.0, 2.0, 3.0]), [],
+                                          "effects.joint_damping"),
+    "negative joint damping": (edit(["effects", "joint_damping"], [-1.0, 0.0, 0.0, 0.0]), [],
+                               "effects.joint_damping[0]"),
+    "effort limits of the wrong length": (edit(["effects", "effort_limits"], {"joints": [1.0, 2.0]}),
+                                          [], "effects.effort_limits.joints"),
+    "zero effort limit": (edit(["effects", "effort_limits"], {"wheels": 0.0}), [],
+                          "effects.effort_limits.wheels"),
+    "zero duration flag": (None, ["--duration", "0"], "--duration"),
+    # issue 2: the scene file itself
+    "unreadable file": ("missing", [], "does-not-exist.yaml"),
+    "a directory for a file": ("directory", [], "scene_dir"),
+    "not UTF-8": (b"name: \xff\xfe\n", [], "scene.yaml"),
+    "not YAML": ("robot: [unclosed\n", [], "scene"),
+    "empty file": ("", [], "scene"),
+    "missing robot": (edit(["robot"], DELETE), [], "robot"),
+    "missing base mass": (edit(["robot", "base", "mass"], DELETE), [], "robot.base.mass"),
+    "unknown top-level key": (edit(["integrater"], {"method": "rk4"}), [], "integrater"),
+    "unknown base key": (edit(["robot", "base", "colour"], "red"), [], "robot.base.colour"),
+    "unknown link key": (edit(["robot", "arm", "links", 1, "mass"], 1.0), [],
+                         "robot.arm.links[1].mass"),
+    "zero base mass": (edit(["robot", "base", "mass"], 0.0), [], "robot.base.mass"),
+    "negative rod density": (edit(["robot", "arm", "links", 1, "mass_per_length"], -1.0), [],
+                             "robot.arm.links[1].mass_per_length"),
+    "zero rod length": (edit(["robot", "arm", "links", 0, "length"], 0.0), [],
+                        "robot.arm.links[0].length"),
+    "zero wheel radius": (edit(["robot", "base", "wheel_radius"], 0.0), [], "robot.base.wheel_radius"),
+    "nan base mass": (edit(["robot", "base", "mass"], NAN), [], "robot.base.mass"),
+    "infinite gravity": (edit(["effects", "gravity"], INF), [], "effects.gravity"),
+    "nan initial joint": (edit(["initial", "joints"], [0.3, NAN, -0.2, 0.5]), [], "initial.joints[1]"),
+    "a string for a number": (edit(["robot", "base", "half_track"], "wide"), [], "robot.base.half_track"),
+    "stroke beyond the rod": (edit(["robot", "arm", "links", 0, "stroke"], [0.0, 1.5]), [],
+                              "robot.arm.links[0].stroke[1]"),
+    "stroke below zero": (edit(["robot", "arm", "links", 1, "stroke"], [-0.1, 1.0]), [],
+                          "robot.arm.links[1].stroke[0]"),
+    "stroke reversed": (edit(["robot", "arm", "links", 0, "stroke"], [0.8, 0.2]), [],
+                        "robot.arm.links[0].stroke"),
+    "initial l outside its stroke": (edit(["initial", "joints"], [0.3, 1.2, -0.2, 0.5]), [],
+                                     "initial.joints[1]"),
+    "initial joints of the wrong length": (edit(["initial", "joints"], [0.3, 0.5, -0.2]), [],
+                                           "initial.joints"),
+    "initial velocity of the wrong length": (edit(["initial", "velocity"], [0.0] * 5), [],
+                                             "initial.velocity"),
+    "mount of the wrong length": (edit(["robot", "arm", "mount"], [0.0, 0.2]), [], "robot.arm.mount"),
+    "pose of the wrong length": (edit(["initial", "pose"], [0.0, 0.0]), [], "initial.pose"),
+}
+
+
+# One of each kind, run as `python -m mobile_manip_sim.simulate`.
+AS_PROCESS = [
+    "unknown method in the scene", "unknown method flag", "unknown effect", "zero dt",
+    "negative dt flag", "zero rtol", "restitution above 1", "locked joint that does not exist",
+    "joint efforts of the wrong length", "unreadable file", "missing base mass",
+    "unknown base key", "zero base mass", "nan base mass", "stroke beyond the rod",
+    "initial l outside its stroke", "initial joints of the wrong length",
+]
+
+
+def scene_file(case_id, tmp_dir):
+    change = CASES[case_id][0]
+    scene = tmp_dir / f"{abs(hash(case_id))}" / "scene.yaml"
+    scene.parent.mkdir()
+    if change == "missing":
+        scene = tmp_dir / "does-not-exist.yaml"
+    elif change == "directory":
+        scene = tmp_dir / "scene_dir"
+        scene.mkdir(exist_ok=True)
+    elif isinstance(change, bytes):
+        scene.write_bytes(change)
+    elif isinstance(change, str):
+        scene.write_text(change)
+    else:
+        doc = paper_doc()
+        doc["effects"]["joint_damping"] = 0.1      # present, so that cases can break it
+        doc["effects"]["stroke_limits"]["rest_speed"] = 1e-3
+        if change:
+            change(doc)
+        text = yaml.safe_dump(doc, sort_keys=False)
+        assert ".nan" in text or ".inf" in text or not any(
+            isinstance(v, float) and not math.isfinite(v) for v in _leaves(doc))
+        scene.write_text(text)
+    return scene
+
+
+def arguments(case_id, tmp_dir):
+    scene = scene_file(case_id, tmp_dir)
+    return ["--scene", str(scene), "--duration", "0.01",
+            "--out", str(tmp_dir / f"{abs(hash(case_id))}.csv"), *CASES[case_id][1]]
+
+
+def run_case(case_id, tmp_dir):
+    return subprocess.run([sys.executable, "-m", "mobile_manip_sim.simulate", *arguments(case_id, tmp_dir)],
+                          capture_output=True, text=True, timeout=120)
+
+
+def _leaves(node):
+    if isinstance(node, dict):
+        for value in node.values():
+            yield from _leaves(value)
+    elif isinstance(node, list):
+        for value in node:
+            yield from _leaves(value)
+    else:
+        yield node
+
+
+@pytest.fixture(scope="module")
+def results(tmp_path_factory):
+    tmp_dir = tmp_path_factory.mktemp("bad_input")
+    ids = ["valid scene"] + AS_PROCESS
+    CASES["valid scene"] = (None, [], None)
+    try:
+        with ThreadPoolExecutor(max_workers=4) as pool:
+            outcomes = list(pool.map(lambda case_id: run_case(case_id, tmp_dir), ids))
+    finally:
+        del CASES["valid scene"]
+    return dict(zip(ids, outcomes))
+
+
+def test_the_unbroken_scene_runs(results):
+    result = results["valid scene"]
+    assert result.returncode == 0, result.stderr
+    assert result.stderr == ""
+
+
+def assert_one_line_naming(key, status, stdout, stderr):
+    lines = stderr.strip().splitlines()
+    assert status == 2, stderr
+    assert len(lines) == 1, stderr
+    assert "Traceback" not in stderr
+    assert f"error: {key}" in lines[0] or f"{key}:" in lines[0], lines[0]
+    assert stdout == ""
+
+
+@pytest.mark.parametrize("case_id", AS_PROCESS)
+def test_bad_input_is_one_line_naming_the_key_and_status_2(results, case_id):
+    result = results[case_id]
+    assert_one_line_naming(CASES[case_id][2], result.returncode, result.stdout, result.stderr)
+
+
+@pytest.mark.parametrize("case_id", [case for case in CASES if case not in AS_PROCESS])
+def test_every_variant_is_one_line_naming_the_key_and_status_2(case_id, tmp_path, capsys):
+    status = simulate.main(arguments(case_id, tmp_path))
+    captured = capsys.readouterr()
+    assert_one_line_naming(CASES[case_id][2], status, captured.out, captured.err)
+
+
+# --- the same checks at the engine's interface ---------------------------------------------
+
+@pytest.mark.parametrize("wheels, joints, key", [
+    ([0.1, 0.2, 0.3], None, "efforts.wheels"),
+    (None, [1.0, 2.0], "efforts.joints"),
+    (None, [1.0, math.nan, 0.0, 0.0], "efforts.joints"),
+    ([math.inf, 0.0], None, "efforts.wheels"),
+    ("fast", None, "efforts.wheels"),
+])
+def test_a_bad_command_is_rejected_and_the_last_one_kept(wheels, joints, key):
+    sim = simulation(paper_doc(), "rk4")
+    before = (sim.wheel_efforts.copy(), sim.joint_efforts.copy(), sim.system.Q_cmd.copy())
+    with pytest.raises(UserError) as error:
+        sim.set_efforts(wheels=wheels, joints=joints)
+    assert error.value.key == key
+    assert np.array_equal(sim.wheel_efforts, before[0]) and np.array_equal(sim.joint_efforts, before[1])
+    assert np.array_equal(sim.system.Q_cmd, before[2])
+
+
+def test_a_numerical_blow_up_says_when_and_exits_1(tmp_path):
+    """Not a user error: euler with a huge step on a stiff scene diverges; status 1, one line."""
+    doc = paper_doc(effects={"gravity": 10.0, "joint_damping": [1e6, 1e6, 1e6, 1e6]})
+    doc["integrator"] = {"method": "euler", "dt": 0.01}
+    scene = tmp_path / "stiff.yaml"
+    scene.write_text(yaml.safe_dump(doc))
+    result = subprocess.run([sys.executable, "-m", "mobile_manip_sim.simulate", "--scene", str(scene),
+                             "--duration", "1.0", "--out", str(tmp_path / "out.csv")],
+                            capture_output=True, text=True, timeout=120)
+    lines = result.stderr.strip().splitlines()
+    assert result.returncode == 1 and len(lines) == 1, result.stderr
+    assert "non-finite" in lines[0] and "t = " in lines[0]
