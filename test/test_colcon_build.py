@@ -6,6 +6,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from executables import executable
 
 REPO = Path(__file__).resolve().parents[1]
 BIN = Path(sys.executable).parent
@@ -25,7 +26,7 @@ def workspace(tmp_path_factory):
             target.symlink_to(os.readlink(source))
         elif source.is_file():
             shutil.copy2(source, target)
-    colcon = shutil.which("colcon", path=str(BIN)) or shutil.which("colcon")
+    colcon = executable("colcon")
     result = subprocess.run([colcon, "build", "--event-handlers", "console_direct-"], cwd=root,
                             capture_output=True, text=True, timeout=300)
     assert result.returncode == 0, result.stdout + result.stderr

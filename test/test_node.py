@@ -6,7 +6,6 @@ import math
 import os
 import random
 import re
-import shutil
 import signal
 import subprocess
 import threading
@@ -24,12 +23,13 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import SetBool, Trigger
 
+from executables import executable
 from mobile_manip_sim.engine.simulation import Simulation
 from mobile_manip_sim.node import yaw_quaternion
 from mobile_manip_sim.scene import load_scene, make_integrator
 
 DOMAIN_ID = 100 + random.randrange(100)
-SIMULATOR = shutil.which("simulator")
+SIMULATOR = executable("simulator")
 RATE = 100                       # publish_rate (Hz) of the shared node
 PERIOD_NS = 10 ** 9 // RATE
 FAST = ["-p", "integrator.method:=rk4", "-p", "integrator.dt:=0.001",
@@ -37,9 +37,6 @@ FAST = ["-p", "integrator.method:=rk4", "-p", "integrator.dt:=0.001",
 TIMEOUT = 20.0                   # s of wall time for any one condition
 STARTUP_TIMEOUT = 60.0           # a loaded machine may need to compile the kernels first
 RELIABLE = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
-
-pytestmark = pytest.mark.skipif(SIMULATOR is None, reason="the simulator executable is not installed")
-
 
 def ns(stamp) -> int:
     return stamp.sec * 10 ** 9 + stamp.nanosec

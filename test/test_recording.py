@@ -6,7 +6,6 @@ import os
 import random
 import re
 import resource
-import shutil
 import signal
 import subprocess
 import threading
@@ -31,6 +30,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
 
+from executables import executable
 from mobile_manip_sim import __version__
 from mobile_manip_sim.engine.simulation import Simulation
 from mobile_manip_sim.messages import TOPIC_TYPES, float64_array
@@ -42,7 +42,7 @@ from mobile_manip_sim.scene import load_scene, make_integrator
 from mobile_manip_sim.simulate import run as simulate_run
 
 DOMAIN_ID = 1 + random.randrange(99)   # test_node.py uses 100-199
-EXECUTABLES = {name: shutil.which(name) for name in ("simulator", "simulate", "replay")}
+EXECUTABLES = {name: executable(name) for name in ("simulator", "simulate", "replay")}
 FAST = ["-p", "real_time_factor:=5.0", "-p", "integrator.method:=rk4", "-p", "integrator.dt:=0.001"]
 PERIOD_NS = 10 ** 7                    # the node's default 100 Hz
 TIMEOUT = 20.0
@@ -52,8 +52,6 @@ STATE_TOPICS = ("/joint_states", "/odom", "/clock")
 # The headless run used for replay and determinism: 20 Hz samples and a last one off the grid.
 HEADLESS = ["--duration", "2.005", "--sample-rate", "20", "--method", "rk4", "--dt", "0.001"]
 
-pytestmark = pytest.mark.skipif(None in EXECUTABLES.values(),
-                                reason="the package's executables are not installed")
 
 
 def child_env() -> dict:
