@@ -3,8 +3,8 @@
     from mobile_manip_sim.dynamics import Dynamics
     dyn = Dynamics(model, gravity=10.0)
     Q = dyn.inverse_dynamics(q, u, ud)   # M(q) u̇ + h(q, u), gravity included
-    ud = dyn.forward_dynamics(q, u, Q)   # u̇ = M⁻¹ (Q − h)
-    M = dyn.mass_matrix(q); h = dyn.bias(q, u)
+    ud = dyn.forward_dynamics(q, u, Q)   # u̇ = M⁻¹ (Q − h), articulated bodies, O(n)
+    M = dyn.mass_matrix(q); h = dyn.bias(q, u)   # composite rigid bodies, O(n²)
     dyn.energy(q, u) -> (T, V)
 
 Vectors follow MODEL.md: ``q = (x, y, yaw, θ_R, θ_L, q_1, l_1, …)`` (m, rad),
@@ -16,7 +16,8 @@ from __future__ import annotations
 import numpy as np
 
 from ..model import RobotModel
-from . import kernels
+from . import articulated, kernels
+from .workspace import make_workspace
 
 
 class Dynamics:
@@ -37,8 +38,7 @@ class Dynamics:
                              np.array(model.length), np.array(model.mass_per_length),
                              np.array(model.inertia_per_length), float(tip_mass))
         n, nu = model.n_links, model.n_u
-        self.ws = (np.zeros((n + 1, 3, 3)), np.zeros((n + 2, 3)), np.zeros((n + 1, 3)),
-                   np.zeros((n + 1, 3)), np.zeros((n + 2, 3)), np.zeros((n + 2, 3)))
+        self.ws = make_workspace(n)
         self._zeros = np.zeros(nu)
         self._unit = np.zeros(nu)
         self._column = np.zeros(nu)
@@ -70,7 +70,15 @@ class Dynamics:
         return M
 
     def forward_dynamics(self, q, u, Q) -> np.ndarray:
-        """u̇ = M(q)⁻¹ (Q − h(q, u)), solved by Cholesky."""
+        """u̇ = M(q)⁻¹ (Q − h(q, u)) by the articulated-body recursion, O(n) (`articulated.py`)."""
+        ud = np.empty(self.model.n_u)
+        articulated.forward_dynamics(self.model_arrays, np.asarray(q, dtype=float),
+                                     np.asarray(u, dtype=float), np.asarray(Q, dtype=float),
+                                     self.gravity, self._all, self.ws, ud)
+        return ud
+
+    def forward_dynamics_by_cholesky(self, q, u, Q) -> np.ndarray:
+        """The same u̇ from the mass matrix and the bias: M(q)⁻¹ (Q − h(q, u)), by Cholesky."""
         M = self.mass_matrix(q)
         rhs = np.asarray(Q, dtype=float) - self.bias(q, u)
         ud = np.empty(self.model.n_u)

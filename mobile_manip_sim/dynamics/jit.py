@@ -3,8 +3,20 @@
 ``MOBILE_MANIP_SIM_NO_JIT=1`` (or numba's own ``NUMBA_DISABLE_JIT=1``) runs the very same source
 as plain Python: the tests compare both paths. Compiled code is cached on disk, so only the first
 run of a new install pays the compile time.
+
+`jit_inline` is for small helpers that numba should inline into their callers at the IR level.
+Both use ``error_model="numpy"``: a float division by zero gives inf/NaN (which the engine
+reports) instead of raising, which leaves no exception paths, hence no reference counting, in
+the hot loops.
+
+numba keys a cached function on its own source file only, yet a kernel called from another
+module is compiled *into* its caller: after an edit of `kernels.py`, the cached
+`engine.system.derivative` would keep running the old kernel. So the caches of the whole
+package are dropped whenever any of its sources changes (`_drop_stale_caches`).
 """
+import hashlib
 import os
+from pathlib import Path
 
 ENABLED = os.environ.get("MOBILE_MANIP_SIM_NO_JIT", "") in ("", "0")
 
@@ -17,6 +29,39 @@ except ImportError:  # pure-Python path
 
     def jit(function):
         return function
+
+    jit_inline = jit
 else:
     def jit(function):
-        return numba.njit(cache=True, fastmath=False, nogil=True)(function)
+        return numba.njit(cache=True, fastmath=False, nogil=True, error_model="numpy")(function)
+
+    def jit_inline(function):
+        return numba.njit(cache=True, fastmath=False, nogil=True, error_model="numpy",
+                          inline="always")(function)
+
+
+def _drop_stale_caches() -> None:
+    """Delete the package's numba cache files (``__pycache__/*.nbi, *.nbc``) when a source that
+    compiles anything (it mentions ``jit``) changed."""
+    package = Path(__file__).resolve().parents[1]
+    digest = hashlib.sha1(numba.__version__.encode())
+    try:
+        for path in sorted(package.rglob("*.py")):
+            source = path.read_bytes()
+            if b"jit" in source:
+                digest.update(str(path.relative_to(package)).encode())
+                digest.update(source)
+        stamp = package / "__pycache__" / "numba-sources.sha1"
+        if stamp.is_file() and stamp.read_text() == digest.hexdigest():
+            return
+        for cache in package.rglob("__pycache__"):
+            for path in list(cache.glob("*.nbi")) + list(cache.glob("*.nbc")):
+                path.unlink(missing_ok=True)
+        stamp.parent.mkdir(exist_ok=True)
+        stamp.write_text(digest.hexdigest())
+    except OSError:  # a read-only install: its caches cannot go stale either
+        pass
+
+
+if ENABLED:
+    _drop_stale_caches()

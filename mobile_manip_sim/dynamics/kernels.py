@@ -4,8 +4,8 @@ Notation follows MODEL.md, with links numbered 1..n and index 0 for the base:
 ``q = (x, y, yaw, θ_R, θ_L, q_1, l_1, …, q_n, l_n)``, ``u = (v, ω, q̇_1, l̇_1, …)``.
 
 The kernels take the model as a tuple ``model = (base, mount, R0, L, mu, J, tip_mass)``
-(see `RobotModel` and `Workspace.model_arrays`) and a workspace tuple
-``ws = (R, O, x, z, F, N)`` of preallocated arrays, all in the world frame `odom`:
+(see `RobotModel` and `Dynamics.model_arrays`) and the workspace tuple ``ws`` of preallocated
+arrays declared in `workspace.py`; the first six, all in the world frame `odom`:
 
 - ``R[k]``  (n+1, 3, 3) orientation of joint frame k (R[0]: base_link);
 - ``O[k]``  (n+2, 3) joint origins: O[0] = A, O[k] = O_k, O[n+1] = distal end of rod n (tip);
@@ -14,10 +14,12 @@ The kernels take the model as a tuple ``model = (base, mount, R0, L, mu, J, tip_
   (Σ η x × μ a + J α + ω × J ω); row n+1 holds the tip payload.
 
 Nothing here allocates per call except what numba keeps in registers (tuples).
+The forward dynamics in O(n) is in `articulated.py`.
 """
 import math
 
-from .jit import jit
+from .jit import jit, jit_inline
+from .spatial import inertia_times, sym_add
 from .vec3 import add, axpy, cross, dot, matvec, put, row, scale, sub, tmatvec
 
 
@@ -50,7 +52,7 @@ def frames(model, q, ws):
         put(O, k + 1, axpy(q[4 + 2 * k], row(x, k), row(O, k)))
 
 
-@jit
+@jit_inline
 def rod_moments(l, L):
     """∫η dη and ∫η² dη over the rod, η ∈ [l − L, l]."""
     s1 = L * (l - 0.5 * L)
@@ -58,7 +60,7 @@ def rod_moments(l, L):
     return s1, s2
 
 
-@jit
+@jit_inline
 def cross_section_moment(Rk, Jk, Lk, alpha, omega):
     """L·(J α + ω × J ω) in the world frame, J (kg·m, link frame) per unit length."""
     ab = tmatvec(Rk, alpha)
@@ -74,7 +76,7 @@ def gibbs_appell(model, q, u, ud, g, ws, Q):
     moments N_k) and one inward pass (accumulated f, n projected on z_k, x_k, then the base).
     """
     base, L, mu, J, tip_mass = model[0], model[3], model[4], model[5], model[6]
-    R, O, x, z, F, N = ws
+    R, O, x, z, F, N = ws[0], ws[1], ws[2], ws[3], ws[4], ws[5]
     n = L.shape[0]
     v, om, vd, omd = u[0], u[1], ud[0], ud[1]
     x0 = row(x, 0)
@@ -118,9 +120,122 @@ def gibbs_appell(model, q, u, ud, g, ws, Q):
     Q[1] = m_A[2] + M_pw * d * (v * om + d * omd) + I_pw * omd + wheels * half_track ** 2 * omd
 
 
+@jit_inline
+def rod_inertia(model, q, ws, k):
+    """Rigid-body inertia (m, h, I) of rod k (1 … n) about A (see `spatial.py`):
+    ∫ over η ∈ [l_k − L_k, l_k] of μ_k at p = O_k + η x_k, plus L_k R J Rᵀ. Needs `frames`."""
+    L, mu, J = model[3], model[4], model[5]
+    R, O, x = ws[0], ws[1], ws[2]
+    Lk, muk = L[k - 1], mu[k - 1]
+    s1, s2 = rod_moments(q[4 + 2 * k], Lk)
+    A = row(O, 0)
+    r = sub(row(O, k), A)
+    xk = row(x, k)
+    m = muk * Lk
+    h = scale(muk, axpy(Lk, r, scale(s1, xk)))
+    rr, rx = dot(r, r), dot(r, xk)
+    # μ [L (|r|² 1 − r rᵀ) + s1 (2 r·x 1 − r xᵀ − x rᵀ) + s2 (1 − x xᵀ)]
+    a, b, c = muk * Lk, muk * s1, muk * s2
+    diag = a * rr + 2.0 * b * rx + c
+    Ixx = diag - a * r[0] * r[0] - 2.0 * b * r[0] * xk[0] - c * xk[0] * xk[0]
+    Iyy = diag - a * r[1] * r[1] - 2.0 * b * r[1] * xk[1] - c * xk[1] * xk[1]
+    Izz = diag - a * r[2] * r[2] - 2.0 * b * r[2] * xk[2] - c * xk[2] * xk[2]
+    Ixy = -a * r[0] * r[1] - b * (r[0] * xk[1] + xk[0] * r[1]) - c * xk[0] * xk[1]
+    Ixz = -a * r[0] * r[2] - b * (r[0] * xk[2] + xk[0] * r[2]) - c * xk[0] * xk[2]
+    Iyz = -a * r[1] * r[2] - b * (r[1] * xk[2] + xk[1] * r[2]) - c * xk[1] * xk[2]
+    # the cross-section: L R J Rᵀ, the same about any point
+    Jk, Rk = J[k - 1], R[k]
+    RJ = ((Rk[0, 0] * Jk[0, 0] + Rk[0, 1] * Jk[1, 0] + Rk[0, 2] * Jk[2, 0],
+           Rk[0, 0] * Jk[0, 1] + Rk[0, 1] * Jk[1, 1] + Rk[0, 2] * Jk[2, 1],
+           Rk[0, 0] * Jk[0, 2] + Rk[0, 1] * Jk[1, 2] + Rk[0, 2] * Jk[2, 2]),
+          (Rk[1, 0] * Jk[0, 0] + Rk[1, 1] * Jk[1, 0] + Rk[1, 2] * Jk[2, 0],
+           Rk[1, 0] * Jk[0, 1] + Rk[1, 1] * Jk[1, 1] + Rk[1, 2] * Jk[2, 1],
+           Rk[1, 0] * Jk[0, 2] + Rk[1, 1] * Jk[1, 2] + Rk[1, 2] * Jk[2, 2]),
+          (Rk[2, 0] * Jk[0, 0] + Rk[2, 1] * Jk[1, 0] + Rk[2, 2] * Jk[2, 0],
+           Rk[2, 0] * Jk[0, 1] + Rk[2, 1] * Jk[1, 1] + Rk[2, 2] * Jk[2, 1],
+           Rk[2, 0] * Jk[0, 2] + Rk[2, 1] * Jk[1, 2] + Rk[2, 2] * Jk[2, 2]))
+    Ixx += Lk * (RJ[0][0] * Rk[0, 0] + RJ[0][1] * Rk[0, 1] + RJ[0][2] * Rk[0, 2])
+    Iyy += Lk * (RJ[1][0] * Rk[1, 0] + RJ[1][1] * Rk[1, 1] + RJ[1][2] * Rk[1, 2])
+    Izz += Lk * (RJ[2][0] * Rk[2, 0] + RJ[2][1] * Rk[2, 1] + RJ[2][2] * Rk[2, 2])
+    Ixy += Lk * (RJ[0][0] * Rk[1, 0] + RJ[0][1] * Rk[1, 1] + RJ[0][2] * Rk[1, 2])
+    Ixz += Lk * (RJ[0][0] * Rk[2, 0] + RJ[0][1] * Rk[2, 1] + RJ[0][2] * Rk[2, 2])
+    Iyz += Lk * (RJ[1][0] * Rk[2, 0] + RJ[1][1] * Rk[2, 1] + RJ[1][2] * Rk[2, 2])
+    return m, h, (Ixx, Iyy, Izz, Ixy, Ixz, Iyz)
+
+
+@jit_inline
+def payload_inertia(model, ws):
+    """Rigid-body inertia (m, h, I) about A of the payload, a point mass at the tip O_{n+1}
+    (carried by rod n, or by the base when n = 0). Needs `frames`."""
+    m, O = model[6], ws[1]
+    t = sub(row(O, O.shape[0] - 1), row(O, 0))
+    tt = dot(t, t)
+    return m, scale(m, t), (m * (tt - t[0] * t[0]), m * (tt - t[1] * t[1]), m * (tt - t[2] * t[2]),
+                            -m * t[0] * t[1], -m * t[0] * t[2], -m * t[1] * t[2])
+
+
+@jit_inline
+def motion_subspaces(ws):
+    """S[k] (6 × 2, about A): columns (z_k, (O_k − A) × z_k) for q̇_k and (0, x_k) for l̇_k;
+    S[0]: (0, x_0) for v and (z, 0) for ω (constant in base_link). Needs `frames`."""
+    O, x, z, S = ws[1], ws[2], ws[3], ws[6]
+    n = S.shape[0] - 1
+    A = row(O, 0)
+    for i in range(6):
+        S[0, i, 0] = 0.0
+        S[0, i, 1] = 0.0
+    S[0, 3, 0], S[0, 4, 0] = x[0, 0], x[0, 1]
+    S[0, 2, 1] = 1.0
+    for k in range(1, n + 1):
+        zk = row(z, k)
+        lin = cross(sub(row(O, k), A), zk)
+        for i in range(3):
+            S[k, i, 0] = zk[i]
+            S[k, 3 + i, 0] = lin[i]
+            S[k, i, 1] = 0.0
+            S[k, 3 + i, 1] = x[k, i]
+
+
 @jit
 def mass_matrix(model, q, ws, zeros, unit, column, M):
-    """M(q) column by column: M e_k = gibbs_appell(q, u = 0, u̇ = e_k, g = 0). Needs `frames`."""
+    """M(q) by composite rigid bodies, O(n²) (`zeros`, `unit`, `column` are unused). Needs `frames`.
+
+    The u̇-quadratic part of the Gibbs function is ½ Σ_b (S u̇)ᵀ I_b (S u̇) over the bodies, so
+    M_ij = ∂²S/∂u̇_i∂u̇_j = s_iᵀ I^c_{max(i,j)} s_j, with I^c_k the composite inertia of rods
+    k … n about A (one inward pass) and s_i the motion subspace columns about A; the base and
+    wheels add their own terms to the (v, ω) block, as in `gibbs_appell`.
+    """
+    base = model[0]
+    S = ws[6]
+    n = S.shape[0] - 1
+    motion_subspaces(ws)
+    m_c, h_c, I_c = payload_inertia(model, ws)
+    for k in range(n, 0, -1):
+        m, h, I = rod_inertia(model, q, ws, k)
+        m_c, h_c, I_c = m_c + m, add(h_c, h), sym_add(I_c, I)
+        for c in range(2):
+            # f = I^c_k s, then M[j, 2k + c] = s_jᵀ f for every column s_j at or before it
+            w, v = (S[k, 0, c], S[k, 1, c], S[k, 2, c]), (S[k, 3, c], S[k, 4, c], S[k, 5, c])
+            f_n, f_f = inertia_times(m_c, h_c, I_c, w, v)
+            col = 2 * k + c
+            for j in range(k + 1):
+                for d in range(2 if j < k else c + 1):
+                    value = (S[j, 0, d] * f_n[0] + S[j, 1, d] * f_n[1] + S[j, 2, d] * f_n[2]
+                             + S[j, 3, d] * f_f[0] + S[j, 4, d] * f_f[1] + S[j, 5, d] * f_f[2])
+                    M[2 * j + d, col] = value
+                    M[col, 2 * j + d] = value
+    M_pw, I_pw, d, r, half_track, I_w = base[0], base[1], base[2], base[3], base[4], base[5]
+    wheels = 2.0 * I_w / (r * r)
+    x0 = row(ws[2], 0)
+    M[0, 0] = m_c + M_pw + wheels
+    M[0, 1] = M[1, 0] = dot(x0, cross((0.0, 0.0, 1.0), h_c))
+    M[1, 1] = I_c[2] + I_pw + M_pw * d * d + wheels * half_track ** 2
+
+
+@jit
+def mass_matrix_by_columns(model, q, ws, zeros, unit, column, M):
+    """M(q) column by column: M e_k = gibbs_appell(q, u = 0, u̇ = e_k, g = 0), O(n²) by n_u
+    inverse-dynamics passes. The baseline `mass_matrix` is checked against. Needs `frames`."""
     nu = M.shape[0]
     for k in range(nu):
         unit[:] = 0.0
@@ -187,8 +302,9 @@ def cholesky_solve(A, b, free, n_free, L, y):
     """Solve A[free, free] · y = b[free] in place (A symmetric positive definite).
 
     ``free[:n_free]`` lists the indices kept (locked degrees of freedom are left out);
-    ``L`` is scratch of A's shape. Raises nothing: a non-positive pivot yields NaN, which the
-    engine reports.
+    ``L`` is scratch of A's shape; its diagonal holds the reciprocal pivots (a multiply is
+    several times cheaper than a divide). Raises nothing: a non-positive pivot yields NaN,
+    which the engine reports.
     """
     for a in range(n_free):
         i = free[a]
@@ -198,16 +314,16 @@ def cholesky_solve(A, b, free, n_free, L, y):
             for k in range(c):
                 s -= L[a, k] * L[c, k]
             if a == c:
-                L[a, a] = math.sqrt(s) if s > 0.0 else math.nan
+                L[a, a] = 1.0 / math.sqrt(s) if s > 0.0 else math.nan
             else:
-                L[a, c] = s / L[c, c]
+                L[a, c] = s * L[c, c]
     for a in range(n_free):
         s = b[free[a]]
         for k in range(a):
             s -= L[a, k] * y[k]
-        y[a] = s / L[a, a]
+        y[a] = s * L[a, a]
     for a in range(n_free - 1, -1, -1):
         s = y[a]
         for k in range(a + 1, n_free):
             s -= L[k, a] * y[k]
-        y[a] = s / L[a, a]
+        y[a] = s * L[a, a]

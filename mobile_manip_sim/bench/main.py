@@ -1,0 +1,103 @@
+"""`bench`: measure what accuracy costs, how the dynamics scale, how we compare with Pinocchio,
+and how the hard cases behave; write ``REPORT.md`` and PNG plots.
+
+    bench --out bench/            # the full run, about 10 minutes
+    bench --out /tmp/b --quick    # a smoke run: short sweeps, one repeat
+"""
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+from .. import cli
+from ..errors import UserError
+
+
+class Progress:
+    """Numbered section headers and one line per measurement, on stderr, with elapsed time."""
+
+    def __init__(self, sections: int, stream=sys.stderr):
+        self.sections, self.stream = sections, stream
+        self.start = time.perf_counter()
+        self.index = 0
+
+    def section(self, title: str) -> None:
+        self.index += 1
+        self._write(f"[{self.index}/{self.sections}] {title}")
+
+    def __call__(self, line: str) -> None:
+        self._write(f"      {line}")
+
+    def _write(self, text: str) -> None:
+        self.stream.write(f"{time.perf_counter() - self.start:7.1f} s  {text}\n")
+        self.stream.flush()
+
+
+def _main(argv) -> int:
+    parser = cli.ArgumentParser(prog="bench", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--out", default="bench", help="directory for REPORT.md and the plots (default bench)")
+    parser.add_argument("--quick", action="store_true", help="a smoke run: short sweeps, one repeat")
+    args = parser.parse_args(argv)
+    out = Path(args.out)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise UserError("--out", f"cannot create {out} ({error.strerror})") from None
+
+    from . import effects, hard_cases, report, scaling, versus, work_precision
+    from .scenes import paper_document, scene_file
+    from ..scene import load_scene
+
+    progress = Progress(7)
+    results = {"quick": args.quick, "started": time.time()}
+
+    progress.section("warming up the compiled kernels")
+    versus.realtime(lambda _line: None, quick=True)
+
+    progress.section("work–precision: paper scene and hard scene")
+    results["wp"] = []
+    for scene in (load_scene(), scene_file("hard_impacts.yaml")):
+        wp = work_precision.sweep(scene, progress, quick=args.quick)
+        work_precision.plot(wp, out / f"work_precision_{scene.name}.png")
+        results["wp"].append(wp)
+
+    progress.section("cost of each effect (paper scene)")
+    results["effects"] = effects.measure(paper_document(), progress, quick=args.quick)
+
+    progress.section("scaling with the number of links")
+    results["scaling"] = scaling.measure(progress, quick=args.quick)
+    scaling.plot(results["scaling"], out / "scaling.png")
+
+    progress.section("against the peer (projected Pinocchio)")
+    if versus.peers.available():
+        results["per_evaluation"] = versus.per_evaluation(progress, quick=args.quick)
+        results["whole_run"] = versus.whole_run(progress, quick=args.quick)
+    else:
+        progress("pinocchio is not installed: peer comparison skipped")
+
+    progress.section("fixed-step 1 kHz real-time factor")
+    results["realtime"] = versus.realtime(progress, quick=args.quick)
+
+    progress.section("hard cases")
+    results["hard"] = []
+    for name, case in hard_cases.all_cases(quick=args.quick):
+        start = time.perf_counter()
+        result = case()
+        results["hard"].append(result)
+        progress(f"{result.name}: {'within bounds' if result.passed else 'OUT OF BOUNDS'} "
+                 f"({time.perf_counter() - start:.1f} s)")
+
+    results["finished"] = time.time()
+    path = report.write(results, out)
+    progress(f"wrote {path}")
+    print(path)
+    return 0
+
+
+def main(argv=None) -> int:
+    return cli.run(_main, argv)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
