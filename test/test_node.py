@@ -16,7 +16,6 @@ import pytest
 import rclpy
 from nav_msgs.msg import Odometry
 from rclpy.context import Context
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
@@ -24,6 +23,7 @@ from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import SetBool, Trigger
 
 from executables import executable
+from ros_helpers import spinning
 from mobile_manip_sim.engine.simulation import Simulation
 from mobile_manip_sim.node import yaw_quaternion
 from mobile_manip_sim.scene import load_scene, make_integrator
@@ -180,18 +180,8 @@ def probe():
     warm_kernels()
     saved = {key: os.environ.get(key) for key in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")}
     os.environ.update(ROS_DOMAIN_ID=str(DOMAIN_ID), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
-    context = Context()
-    rclpy.init(context=context, domain_id=DOMAIN_ID)
-    probe = Probe(context)
-    executor = SingleThreadedExecutor(context=context)
-    executor.add_node(probe.node)
-    thread = threading.Thread(target=executor.spin, daemon=True)
-    thread.start()
-    yield probe
-    executor.shutdown()
-    probe.node.destroy_node()
-    rclpy.shutdown(context=context)
-    thread.join(timeout=5)
+    with spinning(Probe, DOMAIN_ID) as probe:
+        yield probe
     for key, value in saved.items():
         if value is None:
             os.environ.pop(key, None)

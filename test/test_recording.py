@@ -20,7 +20,6 @@ from mcap.reader import NonSeekingReader, make_reader
 from mcap_ros2.decoder import DecoderFactory
 from nav_msgs.msg import Odometry
 from rclpy.context import Context
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rclpy.serialization import deserialize_message
 from rosbags.rosbag2 import Reader as RosbagsReader
@@ -31,6 +30,7 @@ from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
 
 from executables import executable
+from ros_helpers import spinning
 from mobile_manip_sim import __version__
 from mobile_manip_sim.engine.simulation import Simulation
 from mobile_manip_sim.messages import TOPIC_TYPES, float64_array
@@ -167,18 +167,8 @@ def probe():
     scene = load_scene(None)
     sim = Simulation(scene, make_integrator(scene.integrator, "rk4", 0.001))
     sim.advance_to(1.0)
-    context = Context()
-    rclpy.init(context=context, domain_id=DOMAIN_ID)
-    probe = Probe(context)
-    executor = SingleThreadedExecutor(context=context)
-    executor.add_node(probe.node)
-    thread = threading.Thread(target=executor.spin, daemon=True)
-    thread.start()
-    yield probe
-    executor.shutdown()
-    probe.node.destroy_node()
-    rclpy.shutdown(context=context)
-    thread.join(timeout=5)
+    with spinning(Probe, DOMAIN_ID) as probe:
+        yield probe
 
 
 class Simulator:

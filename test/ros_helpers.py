@@ -1,0 +1,26 @@
+"""A test-side ROS context: its own rclpy context on the test's domain, a node spun in a thread."""
+import contextlib
+import threading
+
+import rclpy
+from rclpy.context import Context
+from rclpy.executors import SingleThreadedExecutor
+
+
+@contextlib.contextmanager
+def spinning(make_probe, domain_id: int):
+    """Yield ``make_probe(context)`` (anything with a ``.node``) while an executor spins it."""
+    context = Context()
+    rclpy.init(context=context, domain_id=domain_id)
+    probe = make_probe(context)
+    executor = SingleThreadedExecutor(context=context)
+    executor.add_node(probe.node)
+    thread = threading.Thread(target=executor.spin, daemon=True)
+    thread.start()
+    try:
+        yield probe
+    finally:
+        executor.shutdown()
+        probe.node.destroy_node()
+        rclpy.shutdown(context=context)
+        thread.join(timeout=5)
