@@ -14,7 +14,7 @@ Publications, stamped with the simulated time of the state they carry
                        that ended at the stamp (after the scene's effort limits, if any)
   /odom                nav_msgs/Odometry: pose of base_link (x, y, yaw) in odom; twist in
                        base_link (linear.x = v, angular.z = ω; the wheel axis does not slip, so
-                       linear.y = 0); covariances: see GROUND_TRUTH_VARIANCE
+                       linear.y = 0); covariances: see messages.GROUND_TRUTH_VARIANCE
   /clock               rosgraph_msgs/Clock, for nodes running with use_sim_time
   /robot_description   std_msgs/String (URDF), transient local, depth 1: at start and on reset
 Services
@@ -75,7 +75,7 @@ import rclpy.logging
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, SetParametersResult
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
-from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
+from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
@@ -86,8 +86,7 @@ from std_srvs.srv import SetBool, Trigger
 from . import cli
 from .engine.simulation import Simulation, SimulationError
 from .errors import UserError
-from .messages import (ARM_TOPIC, GROUND_TRUTH_COVARIANCE, GROUND_TRUTH_VARIANCE, NS,  # noqa: F401
-                       STATE_QOS_DEPTH, WHEEL_TOPIC, stamp_ns, state_messages, yaw_quaternion)
+from .messages import ARM_TOPIC, NS, STATE_QOS_DEPTH, WHEEL_TOPIC, stamp_ns, state_messages
 from .recording.recorder import RunRecorder
 from .scene import METHODS, load_scene, make_integrator
 from .urdf import robot_description

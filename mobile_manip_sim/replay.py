@@ -141,7 +141,7 @@ class RecordedRun:
 
     def _field(self, key: str) -> str:
         if key not in self.metadata:
-            raise UserError(f"{METADATA_NAME}.{key}", f"missing from the bag's metadata")
+            raise UserError(f"{METADATA_NAME}.{key}", "missing from the bag's metadata")
         return self.metadata[key]
 
     def _number(self, key: str) -> float:

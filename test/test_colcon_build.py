@@ -67,7 +67,6 @@ def test_built_simulator_starts_publishes_and_stops_cleanly(workspace):
     """The built node comes up (its first /clock reaches a subscriber) and exits 0 on SIGINT."""
     import random
     import signal
-    import time
     domain = str(200 + random.randrange(30))
     env = dict(os.environ, PATH=f"{BIN}:{os.environ['PATH']}", ROS_DOMAIN_ID=domain,
                ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")

@@ -6,7 +6,6 @@ Independent references: closed forms where the motion has one (exponential decay
 damping, constant acceleration of the base), Pinocchio (`pinocchio_reference.py`) for M and h,
 Simpson's rule on dense samples for dissipated work, and a very stiff PD-held joint for a lock.
 """
-import copy
 import math
 
 import numpy as np

@@ -5,7 +5,6 @@ Every case is one change to the valid paper scene, so the change alone is what f
 each kind runs as a real process (a few at a time: each pays the interpreter's start-up); the
 variants call the same entry point, `simulate.main`, in this process.
 """
-import copy
 import math
 import subprocess
 import sys

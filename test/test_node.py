@@ -25,7 +25,7 @@ from std_srvs.srv import SetBool, Trigger
 from executables import executable
 from ros_helpers import spinning
 from mobile_manip_sim.engine.simulation import Simulation
-from mobile_manip_sim.node import yaw_quaternion
+from mobile_manip_sim.messages import yaw_quaternion
 from mobile_manip_sim.scene import load_scene, make_integrator
 
 DOMAIN_ID = 100 + random.randrange(100)
