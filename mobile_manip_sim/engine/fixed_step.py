@@ -71,7 +71,8 @@ def run(method, system, s, h, n_steps, stops, out, stages, forces):
 
     ``stops`` = (watched, resting, stroke): watched[k] is true for rods whose end stops are
     checked, resting[k] is −1/+1 for a rod held at its lower/upper stop (0 otherwise),
-    stroke (n, 2). On CROSSING, s is left at the start of the offending step.
+    stroke (n, 2). On CROSSING and RELEASE (a resting rod is pulled off its stop during the step),
+    s is left at the start of the offending step, for the engine to locate the event in it.
     """
     watched, resting, stroke = stops
     any_resting = False
@@ -84,8 +85,8 @@ def run(method, system, s, h, n_steps, stops, out, stages, forces):
             return i, NOT_FINITE
         if watched.shape[0] > 0 and crossing_in_step(s, out, h, system, watched, stroke, stages[0], stages[1]):
             return i, CROSSING
+        if any_resting and release_wanted(system, out, resting, stages[1], forces):
+            return i, RELEASE
         for j in range(s.shape[0]):
             s[j] = out[j]
-        if any_resting and release_wanted(system, s, resting, out, forces):
-            return i + 1, RELEASE
     return n_steps, DONE

@@ -147,7 +147,11 @@ class Simulation:
                 self._k += 1
                 self.steps += 1
             elif why == fixed_step.RELEASE:
-                self._release()
+                s_start = self.s.copy()
+                h_release, self.s = self._locate_release(lambda dh: self._step(s_start, dh), dt)
+                self._step_with_events(dt - h_release)
+                self._k += 1
+                self.steps += 1
             elif why == fixed_step.NOT_FINITE:
                 self._fail()
         if steps - whole > 1e-9:  # t_end is off the grid: a last, shorter step
@@ -267,6 +271,25 @@ class Simulation:
     def _relock(self) -> None:
         self.system.set_locked(tuple(2 * (k + 1) + 1 for k in np.flatnonzero(self.resting)))
 
+    def _holding_margin(self, state) -> float:
+        """min over resting rods of the force the stop pushes with (> 0: all still held)."""
+        forces = self.system.constraint_forces(state)
+        return min(-self.resting[k] * forces[2 * (k + 1) + 1] for k in np.flatnonzero(self.resting))
+
+    def _locate_release(self, state_at, h: float):
+        """The instant in (0, h] at which a resting rod's stop would start to pull, found like an
+        impact (Illinois on the holding force along the step), and the state there with that rod
+        freed. Deciding at the end of the step instead would hold the rod up to a step too long."""
+        h_release = locate(lambda dh: self._holding_margin(state_at(dh) if dh > 0 else self.s), 0.0, h)
+        state = state_at(h_release)
+        forces = self.system.constraint_forces(state)
+        for k in np.flatnonzero(self.resting):
+            if self.resting[k] * forces[2 * (k + 1) + 1] >= 0.0:
+                self.resting[k] = 0
+                self.watched[k] = True
+        self._relock()
+        return h_release, state
+
     def _release(self) -> None:
         """Free every resting rod that its stop would have to pull."""
         release_wanted(self.system.tuple, self.s, self.resting, self._out, self._forces)
@@ -311,11 +334,16 @@ class Simulation:
                                      hold=self._chattering(k, side, solver.t - t_before))
                         restart = True
                         continue
-                self.s, self._t0 = solver.y.copy(), solver.t
-                if self.resting.any() and release_wanted(system.tuple, self.s, self.resting,
+                if self.resting.any() and release_wanted(system.tuple, solver.y, self.resting,
                                                          self._out, self._forces):
-                    self._release()
+                    dense = solver.dense_output()
+                    self.s = s_before
+                    h_release, self.s = self._locate_release(lambda dh: dense(t_before + dh),
+                                                             solver.t - t_before)
+                    self._t0 = t_before + h_release
                     restart = True
+                    continue
+                self.s, self._t0 = solver.y.copy(), solver.t
         self._t0 = t_end
 
     def _fail(self) -> None:
