@@ -101,16 +101,15 @@ def _targets(results) -> tuple[str, list]:
         pick = paper.recommend(ACCURACY)
         limit = SEED_SECONDS / 1000.0
         if pick:
-            rows.append(("the paper scene as it is (end stops on), error ≤ 1e-6 against its reference "
-                         "(before the release, §1.1), under 1/1000 of 34.32 s",
-                         f"{pick.method} {pick.run.setting}: {seconds(pick.run.cpu)} (error {sci(pick.score)}; "
-                         f"whole run {sci(pick.error)})",
+            rows.append(("the paper scene as it is (end stops on), error ≤ 1e-6 against its reference, "
+                         "under 1/1000 of 34.32 s",
+                         f"{pick.method} {pick.run.setting}: {seconds(pick.run.cpu)} (error {sci(pick.error)})",
                          verdict(pick.run.cpu < limit, f"{limit / pick.run.cpu:.1f}× inside" if pick.run.cpu < limit
                                  else f"{pick.run.cpu / limit:.1f}× too slow")))
         else:
-            best = min((p for p in paper.points if p.run.ok), key=lambda p: p.score, default=None)
+            best = min((p for p in paper.points if p.run.ok), key=lambda p: p.error, default=None)
             rows.append(("the paper scene as it is (end stops on), error ≤ 1e-6 against its reference",
-                         f"no setting reaches 1e-6 (best {sci(best.score) if best else '—'}): see §1.1",
+                         f"no setting reaches 1e-6 (best {sci(best.error) if best else '—'}): see §1.1",
                          "**MISS** (accuracy floor, see §1.1)"))
     scaling = results.get("scaling")
     if scaling:
@@ -128,39 +127,33 @@ def _targets(results) -> tuple[str, list]:
 
 
 def _work_precision(wp, index) -> str:
-    release = wp.release_time
-    window = f"t < {release - 0.01:.2f} s" if release else None
     parts = [f"### 1.{index} {wp.scene}", "",
              f"![work–precision {wp.scene}](work_precision_{wp.scene}.png)", "",
              f"Reference: DOP853 rtol 1e-13 ({wp.reference.steps} steps, {wp.reference.impacts} impacts, "
              f"{seconds(wp.reference.cpu)}); it differs from DOP853 rtol 1e-12 by {sci(wp.reference_spread)}"
-             + (f" over {window}" if window else "") + ", the floor below which errors here mean nothing.", ""]
-    if window:
-        parts += [f"A resting rod leaves its stop in this run (by t = {release:.2f} s in the reference). "
-                  f"Errors and recommendations are taken over {window}, before that release; the "
-                  "whole-run error is listed beside them (see the note on the accuracy floor below).", ""]
+             + ", the floor below which errors here mean nothing.", ""]
     rows = []
     for target in TARGETS:
         pick = wp.recommend(target)
         if pick:
             rows.append((f"≤ {target:g}", f"`{pick.method}` {pick.run.setting}",
-                         seconds(pick.run.cpu_per_second), f"{pick.run.rhs_evaluations}", sci(pick.score)))
+                         seconds(pick.run.cpu_per_second), f"{pick.run.rhs_evaluations}", sci(pick.error)))
         else:
             rows.append((f"≤ {target:g}", "not reached on this scene", "—", "—", "—"))
     parts += ["Recommended setting (cheapest run within each accuracy):", "",
               table(("accuracy", "setting", "CPU per simulated s", "rhs evaluations",
-                     f"error ({window})" if window else "error"), rows), ""]
+                     "error"), rows), ""]
     rows = []
     for p in wp.points:
         r = p.run
-        errors = (sci(p.error_before_release), sci(p.error)) if window else (sci(p.error),)
+        errors = (sci(p.error),)
         if not r.ok:
             rows.append((p.method, r.setting, "failed", "—", "—", "—", "—", *("—" for _ in errors), "—", "—"))
             continue
         rows.append((p.method, r.setting, seconds(r.cpu_per_second), seconds(r.wall_per_second),
                      r.rhs_evaluations, r.steps, r.impacts, *errors, sci(r.energy_error),
                      sci(r.constraint_residual)))
-    error_columns = (f"state error, {window}", "state error, whole run") if window else ("largest state error",)
+    error_columns = ("largest state error",)
     parts += ["<details><summary>every run</summary>", "",
               table(("method", "setting", "CPU / sim s", "wall / sim s", "rhs evals", "steps", "impacts",
                      *error_columns, "energy error (J)", "constraint residual (m/s)"), rows),
@@ -194,7 +187,6 @@ def write(results, out: Path) -> Path:
               "in one piece).", ""]
     for index, wp in enumerate(results.get("wp", []), start=1):
         parts.append(_work_precision(wp, index))
-    parts += [_accuracy_floor_note(results), ""]
 
     parts += ["## 2. Cost of each effect", "",
               "The paper scene with no effect, each effect alone, and all on. RK4 at 1 kHz takes the "
@@ -292,28 +284,3 @@ def write(results, out: Path) -> Path:
     return path
 
 
-def _accuracy_floor_note(results) -> str:
-    paper = next((wp for wp in results.get("wp", []) if wp.scene == "paper_two_link"), None)
-    if paper is None or paper.release_time is None:
-        return ""
-    hard = ""
-    for wp in results.get("wp", []):
-        if wp is not paper and wp.release_time is None:
-            hard = (f" No rod is released in {wp.scene}: its whole-run errors converge down to its "
-                    "reference spread.")
-    fine = sorted((p for p in paper.points if p.method == "rk4" and p.run.ok), key=lambda p: p.value)
-    detail = ""
-    if len(fine) >= 2:
-        detail = (f" RK4 at dt = {fine[0].value:g} s and {fine[1].value:g} s: whole-run errors "
-                  f"{sci(fine[0].error)} and {sci(fine[1].error)} against the reference, "
-                  f"{sci(fine[0].run.error_against(fine[1].run))} against each other.")
-    return ("**Accuracy floor of the paper scene (an engine limitation, reported to its owner).** "
-            "Rod 2 rests at its lower stop from t ≈ 0.59 s and is released at t ≈ 1.13 s, when the "
-            "stop would have to pull. The engine decides a release at the end of the step in which "
-            "the constraint force changed sign (it locates impacts, not releases), so each run — the "
-            "reference too — releases up to one step late, and the arm, an unstable open chain at "
-            "that moment, amplifies the difference by t = 1.5 s. Runs whose steps end on the same "
-            "10 ms sample boundary (RK4 at dt = 1e-3, the adaptive runs restarted at every sample) "
-            "agree with the reference by coincidence, fine fixed steps converge to a different, "
-            "better answer." + detail + " Locating the release like an impact (the root, over the "
-            "step, of the resting rod's constraint force) removes the floor." + hard)

@@ -3,11 +3,8 @@
 Error is the largest |state − reference| (q and u, ∞-norm) over the 100 Hz samples; the
 reference is DOP853 at rtol 1e-13, atol 1e-14. A second reference at rtol 1e-12 tells how far
 the reference itself can be trusted (`reference_spread`).
-
-When the reference run has a rod leave its stop (a release), the error is also measured over
-the samples before it (`Point.error_before_release`): the engine decides a release at the end of
-a step without locating it, so every run, the reference included, releases up to a step late,
-and the comparison after it measures that, not the integrator.
+Impacts and releases from a stop are located in time by the engine, so errors converge across
+them and are measured over the whole run.
 """
 from __future__ import annotations
 
@@ -36,12 +33,6 @@ class Point:
     value: float          # dt (s) or rtol
     run: Run
     error: float          # largest state error against the reference, whole run
-    error_before_release: float = math.nan   # … over the samples before the first release
-
-    @property
-    def score(self) -> float:
-        """The error recommendations go by: before the first release when there is one."""
-        return self.error if math.isnan(self.error_before_release) else self.error_before_release
 
 
 @dataclass
@@ -57,14 +48,9 @@ class WorkPrecision:
             methods.setdefault(point.method, []).append(point)
         return methods
 
-    @property
-    def release_time(self) -> float | None:
-        return self.reference.releases[0] if self.reference.releases else None
-
     def recommend(self, target: float):
-        """The cheapest (CPU per simulated second) setting whose error (`Point.score`) is
-        within `target`."""
-        good = [p for p in self.points if p.run.ok and p.score <= target]
+        """The cheapest (CPU per simulated second) setting whose error is within `target`."""
+        good = [p for p in self.points if p.run.ok and p.error <= target]
         return min(good, key=lambda p: p.run.cpu) if good else None
 
 
@@ -72,18 +58,14 @@ def sweep(scene, progress, quick: bool = False, repeats: int = 2) -> WorkPrecisi
     progress(f"reference run: dop853 rtol 1e-13 ({scene.name})")
     reference = simulate(scene, make_integrator(scene.integrator, "dop853", rtol=1e-13, atol=1e-14))
     second = simulate(scene, make_integrator(scene.integrator, "dop853", rtol=1e-12, atol=1e-13))
-    # samples strictly before the 10 ms interval in which the reference released a rod
-    window = int(round(reference.releases[0] * 100.0)) if reference.releases else None
-    result = WorkPrecision(scene.name, reference, second.error_against(reference, window))
+    result = WorkPrecision(scene.name, reference, second.error_against(reference))
     for method, values in (QUICK_SWEEPS if quick else SWEEPS).items():
         for value in values:
             run = simulate(scene, integrator(scene, method, value), repeats=1 if quick else repeats)
-            point = Point(method, value, run, run.error_against(reference),
-                          run.error_against(reference, window) if window else math.nan)
+            point = Point(method, value, run, run.error_against(reference))
             result.points.append(point)
             progress(f"{scene.name}: {method} {run.setting}: "
                      + (f"{run.cpu_per_second * 1e3:.2f} ms CPU per simulated s, error {point.error:.1e}"
-                        + (f" ({point.error_before_release:.1e} before the release)" if window else "")
                         if run.ok else f"failed ({run.failure})"))
     return result
 
@@ -100,15 +82,14 @@ def plot(result: WorkPrecision, path) -> None:
         good = [p for p in points if p.run.ok and math.isfinite(p.error)]
         if not good:
             continue
-        ax.loglog([p.run.cpu_per_second for p in good], [max(p.score, 1e-16) for p in good],
+        ax.loglog([p.run.cpu_per_second for p in good], [max(p.error, 1e-16) for p in good],
                   marker=markers.get(method, "o"), label=method)
     for target in TARGETS:
         ax.axhline(target, color="0.8", lw=0.8, zorder=0)
     ax.axhline(max(result.reference_spread, 1e-16), color="r", ls=":", lw=1.0,
                label="reference spread (rtol 1e-12 vs 1e-13)")
     ax.set_xlabel("CPU seconds per simulated second")
-    ax.set_ylabel("largest state error against the reference"
-                  + (f"\n(t < {result.release_time - 0.01:.2f} s, before the release)" if result.release_time else ""))
+    ax.set_ylabel("largest state error against the reference")
     ax.set_title(f"Work–precision: {result.scene}")
     ax.grid(True, which="major", alpha=0.3)
     ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0))
