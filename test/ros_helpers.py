@@ -24,3 +24,12 @@ def spinning(make_probe, domain_id: int):
         probe.node.destroy_node()
         rclpy.shutdown(context=context)
         thread.join(timeout=5)
+
+
+def child_env(domain_id: int) -> dict:
+    """The environment of a node started by a test: the test's own domain, on this host only."""
+    import os
+    env = dict(os.environ, ROS_DOMAIN_ID=str(domain_id), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
+               RCUTILS_COLORIZED_OUTPUT="0", PYTHONUNBUFFERED="1")
+    env.pop("ROS_LOCALHOST_ONLY", None)
+    return env

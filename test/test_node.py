@@ -23,6 +23,7 @@ from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import SetBool, Trigger
 
 from executables import executable
+from ros_helpers import child_env as ros_child_env
 from ros_helpers import spinning
 from mobile_manip_sim.engine.simulation import Simulation
 from mobile_manip_sim.messages import yaw_quaternion
@@ -43,10 +44,7 @@ def ns(stamp) -> int:
 
 
 def child_env() -> dict:
-    env = dict(os.environ, ROS_DOMAIN_ID=str(DOMAIN_ID), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
-               RCUTILS_COLORIZED_OUTPUT="0", PYTHONUNBUFFERED="1")
-    env.pop("ROS_LOCALHOST_ONLY", None)
-    return env
+    return ros_child_env(DOMAIN_ID)
 
 
 def wait_for(predicate, what: str, timeout: float = TIMEOUT):

@@ -2,7 +2,6 @@
 and `replay` executables in their own processes, real DDS (a random ROS_DOMAIN_ID, localhost
 discovery), and bags read back by independent readers (rosbags; mcap + mcap_ros2)."""
 import json
-import os
 import random
 import re
 import resource
@@ -30,6 +29,7 @@ from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
 
 from executables import executable
+from ros_helpers import child_env as ros_child_env
 from ros_helpers import spinning
 from mobile_manip_sim import __version__
 from mobile_manip_sim.engine.simulation import Simulation
@@ -55,10 +55,7 @@ HEADLESS = ["--duration", "2.005", "--sample-rate", "20", "--method", "rk4", "--
 
 
 def child_env() -> dict:
-    env = dict(os.environ, ROS_DOMAIN_ID=str(DOMAIN_ID), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
-               RCUTILS_COLORIZED_OUTPUT="0", PYTHONUNBUFFERED="1")
-    env.pop("ROS_LOCALHOST_ONLY", None)
-    return env
+    return ros_child_env(DOMAIN_ID)
 
 
 def wait_for(predicate, what: str, timeout: float = TIMEOUT):
