@@ -46,31 +46,20 @@ def forward_dynamics_articulated(model, q, u, Q, g, free, ws, ud, count):
 
 
 @jit
-def forward_dynamics_composite(model, q, u, Q, g, free, ws, ud, h, rhs, M, L, zeros, unit,
-                               column, count):
-    """frames + h by one pass + M by composite rigid bodies (O(n²)) + Cholesky (O(n³))."""
+def forward_dynamics_cholesky(model, q, u, Q, g, free, ws, ud, h, rhs, M, L, zeros, unit,
+                              column, by_columns, count):
+    """frames + h by one pass + M + Cholesky (O(n³)); M by composite rigid bodies (O(n²)), or,
+    with ``by_columns``, the non-recursive baseline: n_u inverse-dynamics passes."""
     nu = Q.shape[0]
     for _ in range(count):
         kernels.frames(model, q, ws)
         kernels.gibbs_appell(model, q, u, zeros, g, ws, h)
         for i in range(nu):
             rhs[i] = Q[i] - h[i]
-        kernels.mass_matrix(model, q, ws, zeros, unit, column, M)
-        kernels.cholesky_solve(M, rhs, free, nu, L, ud)
-
-
-@jit
-def forward_dynamics_by_columns(model, q, u, Q, g, free, ws, ud, h, rhs, M, L, zeros, unit,
-                                column, count):
-    """The non-recursive baseline: h, then M column by column (n_u inverse-dynamics passes),
-    then Cholesky."""
-    nu = Q.shape[0]
-    for _ in range(count):
-        kernels.frames(model, q, ws)
-        kernels.gibbs_appell(model, q, u, zeros, g, ws, h)
-        for i in range(nu):
-            rhs[i] = Q[i] - h[i]
-        kernels.mass_matrix_by_columns(model, q, ws, zeros, unit, column, M)
+        if by_columns:
+            kernels.mass_matrix_by_columns(model, q, ws, zeros, unit, column, M)
+        else:
+            kernels.mass_matrix(model, q, ws, zeros, unit, column, M)
         kernels.cholesky_solve(M, rhs, free, nu, L, ud)
 
 

@@ -45,7 +45,6 @@ class Run:
     stroke_violation: float = 0.0           # m, largest distance of a rod outside its stroke
     energy_scale: float = 0.0               # J, largest T + |V − V0| + |W| over samples
     samples: np.ndarray | None = field(default=None, repr=False)   # (k, n_q + n_u) at sample times
-    releases: list = field(default_factory=list)   # sample times by which a resting rod had left its stop
     failure: str | None = None
     simulation: Simulation | None = field(default=None, repr=False)
 
@@ -62,14 +61,11 @@ class Run:
     def wall_per_second(self) -> float:
         return self.wall / self.duration
 
-    def error_against(self, reference: "Run", samples: int | None = None) -> float:
-        """Largest |state − reference state| over the common samples (q and u, ∞-norm), or
-        over the first `samples` of them."""
+    def error_against(self, reference: "Run") -> float:
+        """Largest |state − reference state| over the common samples (q and u, ∞-norm)."""
         if not self.ok or self.samples is None or reference.samples is None:
             return math.inf
         k = min(len(self.samples), len(reference.samples))
-        if samples is not None:
-            k = min(k, samples)
         return float(np.abs(self.samples[:k] - reference.samples[:k]).max()) if k else 0.0
 
 
@@ -96,7 +92,6 @@ def simulate(scene: Scene, settings: IntegratorSettings, duration: float | None 
         n = scene.robot.n_links
         stroke = np.array(scene.robot.stroke)
         samples, energy, residual, outside, scale = [], 0.0, 0.0, 0.0, 0.0
-        releases, resting = [], np.zeros(n, dtype=bool)
         V0 = sim.dynamics.energy(sim.q, sim.u)[1]
         cpu = wall = 0.0
         try:
@@ -112,10 +107,6 @@ def simulate(scene: Scene, settings: IntegratorSettings, duration: float | None 
                     T, V = sim.dynamics.energy(sim.q, sim.u)
                     scale = max(scale, T + abs(V - V0) + abs(sim.work))
                     residual = max(residual, *map(abs, constraint_residuals(sim.model, sim.q, sim.qdot())))
-                    now = sim.resting != 0
-                    if np.any(resting & ~now):
-                        releases.append(t)
-                    resting = now
                     if n and scene.effects.stroke_limits is not None:
                         l = sim.q[6::2]
                         outside = max(outside, float(np.max(np.maximum(stroke[:, 0] - l, l - stroke[:, 1]))))
@@ -129,7 +120,6 @@ def simulate(scene: Scene, settings: IntegratorSettings, duration: float | None 
             run.energy_error, run.constraint_residual = energy, residual
             run.stroke_violation = max(outside, 0.0)
             run.energy_scale = scale
-            run.releases = releases
             run.samples = np.array(samples) if record else None
             run.simulation = sim
     run.cpu, run.wall = best_cpu, best_wall

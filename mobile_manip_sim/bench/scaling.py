@@ -44,11 +44,11 @@ def measure(progress, quick: bool = False) -> dict:
         times["FD articulated"].append(loops.per_call(
             loops.forward_dynamics_articulated, model, q, u, Q, g, free, ws, out, target=target))
         times["FD composite + Cholesky"].append(loops.per_call(
-            loops.forward_dynamics_composite, model, q, u, Q, g, free, ws, out, h, rhs, M, L, z, e,
-            col, target=target))
+            loops.forward_dynamics_cholesky, model, q, u, Q, g, free, ws, out, h, rhs, M, L, z, e,
+            col, False, target=target))
         times["FD by columns + Cholesky"].append(loops.per_call(
-            loops.forward_dynamics_by_columns, model, q, u, Q, g, free, ws, out, h, rhs, M, L, z, e,
-            col, target=target))
+            loops.forward_dynamics_cholesky, model, q, u, Q, g, free, ws, out, h, rhs, M, L, z, e,
+            col, True, target=target))
         progress(f"scaling n = {n}: " + ", ".join(f"{name} {times[name][-1] * 1e6:.2f} µs" for name in SERIES))
     return times
 
