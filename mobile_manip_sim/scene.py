@@ -63,8 +63,8 @@ EFFECT_NAMES = ("gravity", "stroke_limits", "wheel_inertia", "joint_damping", "w
 
 @dataclass(frozen=True)
 class IntegratorSettings:
-    """`method` from METHODS; `dt` (s) for fixed-step methods (and the first/max step of
-    adaptive ones when set); `rtol`, `atol` for the adaptive ones."""
+    """`method` from METHODS; `dt` (s), the step of the fixed-step methods (the adaptive ones
+    ignore it); `rtol`, `atol` for the adaptive ones."""
 
     method: str = "dop853"
     dt: float = 1e-3
