@@ -16,6 +16,7 @@ import math
 
 from ..dynamics import kernels
 from ..dynamics.jit import jit
+from . import layout
 from .stops import crossing_in_step, release_wanted
 from .system import derivative
 
@@ -36,11 +37,10 @@ def step(method, system, s, h, out, stages):
         for i in range(s.shape[0]):
             out[i] = s[i] + h * k1[i]
     elif method == SEMI_IMPLICIT_EULER:
-        nu = system[4].shape[0]
-        nq = nu + 3
+        nq, nu = layout.sizes(system)
         for i in range(nq, s.shape[0]):
             out[i] = s[i] + h * k1[i]
-        kernels.configuration_rate(system[0], s[:nq], out[nq:nq + nu], k2[:nq])
+        kernels.configuration_rate(system.model, s[:nq], out[nq:nq + nu], k2[:nq])
         for i in range(nq):
             out[i] = s[i] + h * k2[i]
     else:

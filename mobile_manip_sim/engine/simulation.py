@@ -21,10 +21,13 @@ from ..errors import UserError
 from ..scene import IntegratorSettings, Scene
 from . import fixed_step
 from .stops import Impact, apply_impact, crossing_in_step, hermite_turns, locate, release_wanted
-from .system import RHS_EVALS, System
+from . import layout
+from .system import (KI, KP, RHS_EVALS, TARGET_L, TARGET_R, TORQUE_LIMIT, VELOCITY_MODE, System,
+                     wheel_speed_torques)
 
 ADAPTIVE = {"rk45": integrate.RK45, "dop853": integrate.DOP853, "radau": integrate.Radau,
             "bdf": integrate.BDF}
+DEFAULT_WHEEL_SPEED_GAINS = (0.5, 5.0)   # kp N·m·s/rad, ki N·m/rad (see set_wheel_speed_gains)
 MAX_IMPACTS_PER_STEP = 64   # a guard against Zeno: beyond it the rod is held at rest
 
 
@@ -47,10 +50,12 @@ class Simulation:
         self.watched = np.full(n if self.stop_law else 0, True)
         self.resting = np.zeros(n, dtype=np.int64)
         self.stroke = np.array(model.stroke)
-        self._out = np.zeros(self.nq + self.nu + 1)
-        self._stages = np.zeros((4, self.nq + self.nu + 1))
-        self._forces = np.zeros(self.nu)
+        size = layout.state_size(self.nu)
+        self._out = np.zeros(size)
+        self._stages = np.zeros((4, size))
+        self._forces = np.zeros(size)
         self._method = fixed_step.METHOD_IDS.get(self.settings.method)
+        self.set_wheel_speed_gains(*DEFAULT_WHEEL_SPEED_GAINS)
         self.reset()
 
     # --- state ---------------------------------------------------------------------------
@@ -58,7 +63,8 @@ class Simulation:
         """Back to the scene's initial state at t = 0, with the scene's efforts."""
         u0 = np.array(self.scene.initial_u, dtype=float)
         u0[list(self.system.permanently_locked)] = 0.0
-        self.s = np.concatenate([self.scene.initial_q, u0, [0.0]])
+        self.s = np.concatenate([self.scene.initial_q, u0, [0.0, 0.0], [0.0]])
+        self.system.control[VELOCITY_MODE] = 0.0
         self._t0, self._k = 0.0, 0
         self.resting[:] = 0
         self.watched[:] = True
@@ -110,6 +116,7 @@ class Simulation:
         limits = self.scene.effects.effort_limits or {}
         if wheels is not None:
             self.wheel_efforts = _command(wheels, 2, "wheels", limits.get("wheels"))
+            self._wheel_mode(velocity=False)
         if joints is not None:
             self.joint_efforts = _command(joints, self.nu - 2, "joints", limits.get("joints"))
         Q = self.system.Q_cmd
@@ -121,6 +128,49 @@ class Simulation:
         if self.resting.any() and release_wanted(self.system.tuple, self.s, self.resting,
                                                  self._out, self._forces):
             self._release()
+
+    def set_base_velocity(self, v: float, omega: float) -> None:
+        """Drive the base at forward speed v (m/s) and yaw rate ω (rad/s) from now on: the wheel
+        torques come from the wheel-speed PI loop (`set_wheel_speed_gains`) inside the simulated
+        system, recomputed at every evaluation of the right-hand side and clipped to the wheel
+        effort limits. `set_efforts(wheels=...)` returns the wheels to torque commands."""
+        target = _command([v, omega], 2, "cmd_vel", None)
+        r, b = self.model.base.wheel_radius, self.model.base.half_track
+        control = self.system.control
+        control[TARGET_R] = (target[0] + b * target[1]) / r
+        control[TARGET_L] = (target[0] - b * target[1]) / r
+        self._wheel_mode(velocity=True)
+
+    def set_wheel_speed_gains(self, kp: float, ki: float, torque_limit: float = math.inf) -> None:
+        """Gains of the wheel-speed PI loop: kp (N·m·s/rad) on the speed error, ki (N·m/rad) on
+        its integral; torques within ±torque_limit (N·m) and the scene's wheel effort limits."""
+        for name, value in (("kp", kp), ("ki", ki)):
+            if not (math.isfinite(value) and value >= 0.0):
+                raise UserError(f"wheel_speed.{name}", f"must be a finite number ≥ 0, got {value!r}")
+        if not torque_limit > 0.0:
+            raise UserError("wheel_speed.torque_limit", f"must be positive, got {torque_limit!r}")
+        limits = (self.scene.effects.effort_limits or {}).get("wheels")
+        if limits is not None:
+            torque_limit = min(torque_limit, float(np.min(limits)))
+        control = self.system.control
+        control[KP], control[KI], control[TORQUE_LIMIT] = kp, ki, torque_limit
+
+    def _wheel_mode(self, velocity: bool) -> None:
+        control = self.system.control
+        if velocity and not control[VELOCITY_MODE]:
+            e = layout.controller(self.nq, self.nu)
+            self.s[e:e + 2] = 0.0   # a fresh loop: no integral carried over from an earlier one
+        control[VELOCITY_MODE] = 1.0 if velocity else 0.0
+
+    def wheel_torques(self) -> np.ndarray:
+        """(τ_R, τ_L) acting now, N·m: the commanded ones, or the PI loop's in velocity mode."""
+        if not self.velocity_mode:
+            return np.array(self.wheel_efforts, dtype=float)
+        return np.array(wheel_speed_torques(self.system.data, self.s))
+
+    @property
+    def velocity_mode(self) -> bool:
+        return bool(self.system.control[VELOCITY_MODE])
 
     # --- stepping ------------------------------------------------------------------------
     def advance_to(self, t_end: float) -> None:
@@ -274,7 +324,7 @@ class Simulation:
     def _holding_margin(self, state) -> float:
         """min over resting rods of the force the stop pushes with (> 0: all still held)."""
         forces = self.system.constraint_forces(state)
-        return min(-self.resting[k] * forces[2 * (k + 1) + 1] for k in np.flatnonzero(self.resting))
+        return min(-self.resting[k] * forces[layout.u_l(k + 1)] for k in np.flatnonzero(self.resting))
 
     def _locate_release(self, state_at, h: float):
         """The instant in (0, h] at which a resting rod's stop would start to pull, found like an
@@ -284,7 +334,7 @@ class Simulation:
         state = state_at(h_release)
         forces = self.system.constraint_forces(state)
         for k in np.flatnonzero(self.resting):
-            if self.resting[k] * forces[2 * (k + 1) + 1] >= 0.0:
+            if self.resting[k] * forces[layout.u_l(k + 1)] >= 0.0:
                 self.resting[k] = 0
                 self.watched[k] = True
         self._relock()
@@ -294,7 +344,7 @@ class Simulation:
         """Free every resting rod that its stop would have to pull."""
         release_wanted(self.system.tuple, self.s, self.resting, self._out, self._forces)
         for k in np.flatnonzero(self.resting):
-            if self.resting[k] * self._forces[2 * (k + 1) + 1] > 0.0:
+            if self.resting[k] * self._forces[layout.u_l(k + 1)] > 0.0:
                 self.resting[k] = 0
                 self.watched[k] = True
         self._relock()

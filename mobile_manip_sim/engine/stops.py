@@ -25,7 +25,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..dynamics.jit import jit
-from .system import CROSSING_CHECKS, constraint_forces, derivative
+from . import layout
+from .system import CROSSING_CHECKS, derivative, holding_forces
 
 
 @jit
@@ -67,13 +68,13 @@ def hermite_extrema(l0, d0, l1, d1, h):
 @jit
 def crossing_in_step(s0, s1, h, system, watched, stroke, scratch_a, scratch_b):
     """True when a watched rod leaves its stroke during the step s0 → s1 (see module doc)."""
-    nq = system[4].shape[0] + 3
-    system[7][CROSSING_CHECKS] += 1
+    nq, _ = layout.sizes(system)
+    system.counters[CROSSING_CHECKS] += 1
     for k in range(1, watched.shape[0] + 1):
         if not watched[k - 1]:
             continue
         lo, hi = stroke[k - 1, 0], stroke[k - 1, 1]
-        i_l, i_ld = 4 + 2 * k, nq + 2 * k + 1
+        i_l, i_ld = layout.l(k), layout.ld(nq, k)
         if s1[i_l] < lo or s1[i_l] > hi:
             return True
         low, high = hermite_extrema(s0[i_l], s0[i_ld], s1[i_l], s1[i_ld], h)
@@ -86,11 +87,11 @@ def crossing_in_step(s0, s1, h, system, watched, stroke, scratch_a, scratch_b):
 def release_wanted(system, s, resting, ds, forces):
     """True when a rod resting at a stop would need the stop to pull to stay there."""
     derivative(system, s, ds)
-    constraint_forces(system, s, forces)
+    holding_forces(system, s, ds, forces)
     for k in range(1, resting.shape[0] + 1):
         side = resting[k - 1]
         # The stop pushes outward only: +l at the lower stop (side −1), −l at the upper (+1).
-        if side != 0 and side * forces[2 * k + 1] > 0.0:
+        if side != 0 and side * forces[layout.u_l(k)] > 0.0:
             return True
     return False
 
