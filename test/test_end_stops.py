@@ -25,21 +25,13 @@ SCIPY = {"rk45": integrate.RK45, "dop853": integrate.DOP853, "radau": integrate.
 
 
 class ImpactProbe(Simulation):
-    """A Simulation that also keeps (q, u⁻, u⁺, free DOFs, held) of every recorded impact;
-    `held`: stopped dead by a Zeno guard rather than by the impact law."""
+    """A Simulation whose recorded impacts come with (q, u⁻, u⁺, free DOFs, held) each, from the
+    engine's own impact log (`Simulation.impact_details`); `held`: stopped dead by a Zeno guard
+    rather than by the impact law."""
 
-    def reset(self):
-        self.probed = []
-        super().reset()
-
-    def _impact(self, k, side, t, hold=False):
-        q, u_before = self.q.copy(), self.u.copy()
-        free = [int(i) for i in self.system.free if i >= 0]
-        count = len(self.impacts)
-        super()._impact(k, side, t, hold=hold)
-        if len(self.impacts) > count:
-            held = hold or side * u_before[2 * k + 1] <= 0.0
-            self.probed.append((q, u_before, self.u.copy(), free, held))
+    @property
+    def probed(self):
+        return [tuple(detail) for detail in self.impact_details]
 
 
 def probe(doc, method, **settings) -> ImpactProbe:
