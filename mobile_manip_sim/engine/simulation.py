@@ -245,6 +245,10 @@ class Simulation:
         self._collect_impacts()
         if status == stepping.NOT_FINITE:
             self._fail(self._scratch.out)
+        if status == stepping.CHATTER:
+            raise SimulationError(f"t = {self.t:.9g} s: end stops chatter beyond what one step can "
+                                  f"resolve (rods released and hitting again without end); "
+                                  f"try a smaller dt or a larger effects.stroke_limits.rest_speed")
 
     def _collect_impacts(self) -> None:
         """Move the compiled stop log into `impacts` (and `impact_details`)."""

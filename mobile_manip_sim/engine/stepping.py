@@ -20,7 +20,7 @@ from .fixed_step import step
 from .stops import any_resting, impact, release_at_root
 
 # why `advance` returned
-DONE, BUDGET, LOG_FULL, NOT_FINITE = 0, 1, 2, 3
+DONE, BUDGET, LOG_FULL, NOT_FINITE, CHATTER = 0, 1, 2, 3, 4
 # clock[...] entries
 T0, DT, K, STEPS, LOST = range(5)
 
@@ -68,6 +68,10 @@ def step_with_events(method, system, stops, scr, s, h, t, clock):
     dt = clock[DT]
     while True:
         k, side = 0, 0
+        # Each round ends with a rod held at its stop; a step that needs more rounds than the
+        # log has room for (rods released and hitting again without end) is reported, not run on.
+        if stops.count[0] + MAX_IMPACTS_PER_STEP + 2 > stops.log.shape[0]:
+            return CHATTER
         for _ in range(MAX_IMPACTS_PER_STEP):
             step(method, system, s, h, scr.out, scr.stages)
             if not finite(scr.out):
@@ -131,7 +135,7 @@ def advance(method, system, stops, scr, s, clock, t_end, max_steps):
     dt = clock[DT]
     steps = (t_end - clock[T0]) / dt
     whole = math.floor(steps + 1e-9)
-    room = stops.log.shape[0] - 2 * MAX_IMPACTS_PER_STEP - 2
+    room = stops.log.shape[0] // 2
     taken = 0
     k1_ready = False
     while clock[K] < whole:

@@ -1,7 +1,8 @@
 """Stroke end stops, compiled: the impact law, resting at a stop and leaving it.
 
-- Impact (`impact`): MODEL.md's generalized impulse along e_k (with the degrees of freedom that
-  are locked at that instant removed), or the paper's `reflect` law; the record of every impact
+- Impact (`impact`): MODEL.md's unilateral impact law — one solve for every stop in contact at
+  that instant, the one hit and those resting, each stop only pushing (`contact_impulses`,
+  `solve_contacts`) — or the paper's `reflect` law; the record of every impact
   goes to the stop log (`StopsData.log`), from which `Simulation` builds its `Impact` list.
 - Resting: a rod whose rebound speed is below ``rest_speed`` is held at the stop (its l̇ degree
   of freedom is locked, not stiffly pushed back), and so is a rod whose rebounds are too small
@@ -20,7 +21,7 @@ import numpy as np
 from ..dynamics import kernels
 from ..dynamics.jit import jit
 from . import layout
-from .events import holding_margin
+from .events import MAX_IMPACTS_PER_STEP, holding_margin
 from .system import derivative, holding_forces
 
 IMPULSE, REFLECT = 0, 1
@@ -49,8 +50,9 @@ ImpactScratch = namedtuple("ImpactScratch", [
 ])
 
 
-def make_stops(model, law, restitution, rest_speed, permanently_locked, capacity=1024) -> StopsData:
+def make_stops(model, law, restitution, rest_speed, permanently_locked) -> StopsData:
     n, nq, nu = model.n_links, model.n_q, model.n_u
+    capacity = 4 * MAX_IMPACTS_PER_STEP * (n + 2)   # half of it is room for one step's impacts
     permanent = np.zeros(nu, dtype=np.bool_)
     permanent[list(permanently_locked)] = True
     return StopsData(np.zeros(n, dtype=np.bool_), np.zeros(n, dtype=np.int64),
@@ -127,32 +129,153 @@ def kinetic_energy(system, s):
 
 
 @jit
-def impulse(system, s, j, restitution, scratch):
-    """MODEL.md's law on rod pseudo-velocity j with the free DOFs of `system.free`:
-    u⁺ = u⁻ − (1 + e) (e_jᵀ u⁻ / (e_jᵀ M⁻¹ e_j)) M⁻¹ e_j, in place on s."""
+def solve_contacts(W, q, bilateral, active, P, w, scratch):
+    """The impact LCP of MODEL.md, exactly: P ≥ 0, w = W P + q ≥ 0, Pᵀw = 0 (W m×m symmetric
+    positive definite, so the solution is unique), by Murty's least-index principal pivoting:
+    solve on the active set, toggle the first contact that is wrong (a negative impulse, or an
+    inactive one moving into its stop), repeat — finite for a P-matrix. A ``bilateral`` contact
+    is always active with an impulse of either sign (a rod held by a Zeno guard). ``scratch`` is
+    (m, m + 1). Returns the pivots taken."""
+    m = q.shape[0]
+    for i in range(m):
+        active[i] = bilateral[i]
+    scale = 0.0
+    for i in range(m):
+        scale = max(scale, abs(q[i]))
+    tol = 1e-13 * scale
+    for pivots in range(1 << min(m + 4, 30)):
+        # P_A = −W_AA⁻¹ q_A by Cholesky on the active rows, zero elsewhere
+        L = scratch
+        idx = np.empty(m, dtype=np.int64)
+        n = 0
+        for i in range(m):
+            if active[i]:
+                idx[n] = i
+                n += 1
+        for a in range(n):
+            for c in range(a + 1):
+                s = W[idx[a], idx[c]]
+                for k in range(c):
+                    s -= L[a, k] * L[c, k]
+                if a == c:
+                    L[a, a] = math.sqrt(s) if s > 0.0 else math.nan
+                else:
+                    L[a, c] = s / L[c, c]
+        y = L[:, m]
+        for a in range(n):
+            s = -q[idx[a]]
+            for k in range(a):
+                s -= L[a, k] * y[k]
+            y[a] = s / L[a, a]
+        for a in range(n - 1, -1, -1):
+            s = y[a]
+            for k in range(a + 1, n):
+                s -= L[k, a] * y[k]
+            y[a] = s / L[a, a]
+        for i in range(m):
+            P[i] = 0.0
+        for a in range(n):
+            P[idx[a]] = y[a]
+        for i in range(m):
+            s = q[i]
+            for j in range(m):
+                s += W[i, j] * P[j]
+            w[i] = s
+        wrong = -1
+        for i in range(m):
+            if bilateral[i]:
+                continue
+            if active[i] and P[i] < -tol or not active[i] and w[i] < -tol:
+                wrong = i
+                break
+        if wrong < 0:
+            for i in range(m):
+                if not active[i]:
+                    P[i] = 0.0
+            return pivots
+        active[wrong] = not active[wrong]
+    return -1
+
+
+@jit
+def contact_impulses(system, stops, s, k_hit, side_hit, restitution, settling, scratch):
+    """One impact with every stop in contact at this instant: the one rod k_hit meets (Newton
+    restitution e) and those resting (e = 0), each stop only pushing (MODEL.md "Several stops at
+    once"): u⁺ = u⁻ + M⁻¹ E P, in place on s. Rods are unlocked for the impulse; afterwards a
+    resting rod whose stop gave no impulse and that moves away leaves it (resting → 0).
+
+    ``settling``: the rod arrives slower than the rest speed (or a Zeno guard holds it): every
+    contact is then held (bilateral, c⁺ = 0) — below the rest speed, rods touching their stops are
+    in persistent contact, and the holding forces decide when each leaves (`release`). Solving
+    such an impact unilaterally instead would throw a pressed neighbour off with a speed below
+    the rest speed, to land again at once: two rods trading impacts without end (Zeno)."""
     nq, nu = layout.sizes(system)
+    n = stops.resting.shape[0]
     q = s[:nq]
-    zeros, unit, column, w = scratch.vectors[0], scratch.vectors[1], scratch.vectors[2], scratch.vectors[3]
+    # contacts: the rod hit first, then the resting ones; σ = +1 at a lower stop (away = +l)
+    rods = np.empty(n, dtype=np.int64)
+    sigma = np.empty(n)
+    e = np.zeros(n)
+    m = 0
+    rods[0], sigma[0], e[0] = k_hit, -float(side_hit), restitution
+    m = 1
+    for k in range(1, n + 1):
+        if k != k_hit and stops.resting[k - 1] != 0:
+            rods[m], sigma[m] = k, -float(stops.resting[k - 1])
+            m += 1
+    # free DOFs for the impulse: all but the scene's locked ones
+    free = np.full(nu, -1, dtype=np.int64)
+    n_free = 0
+    for j in range(nu):
+        if not stops.permanent[j]:
+            free[n_free] = j
+            n_free += 1
+    zeros, unit, column = scratch.vectors[0], scratch.vectors[1], scratch.vectors[2]
     kernels.frames(system.model, q, system.ws)
     for i in range(nu):
         zeros[i] = 0.0
     kernels.mass_matrix(system.model, q, system.ws, zeros, unit, column, scratch.M)
-    n_free = 0
-    a_j = -1
-    for a in range(nu):
-        i = system.free[a]
-        if i < 0:
-            break
-        unit[i] = 1.0 if i == j else 0.0
-        if i == j:
-            a_j = a
-        n_free += 1
-    kernels.cholesky_solve(scratch.M, unit, system.free, n_free, scratch.L, w)
-    u_j = s[nq + j]
-    scale = (1.0 + restitution) * u_j / w[a_j]
-    for a in range(n_free):
-        s[nq + system.free[a]] -= scale * w[a]
-    s[nq + j] = -restitution * u_j   # exact, free of round-off
+    # M⁻¹ E, one column per contact (over the free DOFs, in free order)
+    MinvE = np.zeros((m, nu))
+    for c in range(m):
+        j = layout.u_l(rods[c])
+        for i in range(nu):
+            unit[i] = 0.0
+        unit[j] = sigma[c]
+        kernels.cholesky_solve(scratch.M, unit, free, n_free, scratch.L, MinvE[c])
+    W = np.empty((m, m))
+    c_minus = np.empty(m)
+    for a in range(m):
+        c_minus[a] = sigma[a] * s[nq + layout.u_l(rods[a])]
+        for b in range(m):
+            # W_ab = E_aᵀ M⁻¹ E_b: row a of E picks DOF j_a, which sits at position pos in free
+            j = layout.u_l(rods[a])
+            pos = 0
+            while free[pos] != j:
+                pos += 1
+            W[a, b] = sigma[a] * MinvE[b, pos]
+    qv = np.empty(m)
+    for a in range(m):
+        qv[a] = (1.0 + e[a]) * c_minus[a]
+    bilateral = np.zeros(m, dtype=np.bool_)
+    if settling:
+        bilateral[:] = True
+    active = np.zeros(m, dtype=np.bool_)
+    P = np.zeros(m)
+    w = np.zeros(m)
+    solve_contacts(W, qv, bilateral, active, P, w, np.zeros((m, m + 1)))
+    for c in range(m):
+        if P[c] != 0.0:
+            for a in range(n_free):
+                s[nq + free[a]] += P[c] * MinvE[c, a]
+    for c in range(m):
+        j = nq + layout.u_l(rods[c])
+        if active[c]:
+            s[j] = -e[c] * c_minus[c] * sigma[c]   # exact: c⁺ = −e c⁻ on an active contact
+        elif c > 0 and stops.resting[rods[c] - 1] != 0:
+            stops.resting[rods[c] - 1] = 0          # its stop would have had to pull: it leaves
+            stops.watched[rods[c] - 1] = True
+    relock(system, stops)
 
 
 @jit
@@ -184,7 +307,7 @@ def impact(system, stops, s, k, side, t, hold, scratch, ds, forces):
     if law == REFLECT:
         s[nq + j] = -e * u_before
     else:
-        impulse(system, s, j, e, scratch)
+        contact_impulses(system, stops, s, k, side, e, held or abs(u_before) < rest_speed, scratch)
     resting = held or abs(s[nq + j]) < rest_speed
     if resting:
         s[nq + j] = 0.0
