@@ -79,8 +79,9 @@ def rod_inertial(length: float, mass_per_length: float, J, tip_mass: float = 0.0
 
 
 def mjcf(robot_model, gravity: float = 0.0, tip_mass: float = 0.0, wheel_inertia: bool = True,
-         integrator: str = "RK4", dt: float = 1e-3) -> str:
-    """The MJCF text of the equivalent unconstrained model (see the module docstring)."""
+         integrator: str = "RK4", dt: float = 1e-3, energy: bool = False) -> str:
+    """The MJCF text of the equivalent unconstrained model (see the module docstring); `energy`
+    turns on MuJoCo's per-step energy computation (off for timing)."""
     base, n = robot_model.base, robot_model.n_links
     I_w = base.wheel_inertia if wheel_inertia else 0.0
     M, d, b = base.mass, base.com_offset, base.half_track
@@ -95,7 +96,8 @@ def mjcf(robot_model, gravity: float = 0.0, tip_mass: float = 0.0, wheel_inertia
              '  <compiler angle="radian" inertiafromgeom="false" autolimits="false"/>',
              f'  <option timestep="{_num(dt)}" integrator="{integrator}" gravity="0 0 {_num(-gravity)}">',
              '    <flag contact="disable" constraint="disable" limit="disable" equality="disable"'
-             ' frictionloss="disable" energy="enable" warmstart="disable"/>',
+             ' frictionloss="disable" warmstart="disable"'
+             f' energy="{"enable" if energy else "disable"}"/>',
              '  </option>',
              '  <worldbody>',
              '    <body name="base">',
@@ -140,10 +142,11 @@ class MujocoPeer:
     """
 
     def __init__(self, robot_model, gravity: float = 0.0, tip_mass: float = 0.0,
-                 wheel_inertia: bool = True, integrator: str = "RK4", dt: float = 1e-3):
+                 wheel_inertia: bool = True, integrator: str = "RK4", dt: float = 1e-3,
+                 energy: bool = False):
         self.robot_model = robot_model
         self.wheels = wheel_inertia and robot_model.base.wheel_inertia > 0.0
-        self.xml = mjcf(robot_model, gravity, tip_mass, wheel_inertia, integrator, dt)
+        self.xml = mjcf(robot_model, gravity, tip_mass, wheel_inertia, integrator, dt, energy)
         self.model = mujoco.MjModel.from_xml_string(self.xml)
         self.data = mujoco.MjData(self.model)
         n = robot_model.n_links
@@ -183,8 +186,10 @@ class MujocoPeer:
         return S.T @ self.full_mass_matrix(q) @ S
 
     def energy(self, q, u) -> tuple[float, float]:
-        """(kinetic, potential) in J as MuJoCo computes them (flag energy on)."""
+        """(kinetic, potential) in J as MuJoCo computes them."""
         self.set_state(q, u)
+        mujoco.mj_energyPos(self.model, self.data)
+        mujoco.mj_energyVel(self.model, self.data)
         return float(self.data.energy[1]), float(self.data.energy[0])
 
     def control(self, wheels, joints) -> np.ndarray:
