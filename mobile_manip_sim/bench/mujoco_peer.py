@@ -9,6 +9,8 @@ The same bodies as MODEL.md's robot, built as an ordinary MuJoCo tree (issue 10 
   wheel gets WHEEL_MASS_FRACTION of M_pw at its axle, taken back out of the base body with its
   first and second moments: the base + wheels keep mass M_pw, centre G and yaw inertia I_pw about
   G, which is all planar motion sees. Without wheel inertia the wheels are left out.
+  With a fixed base (``base_pose`` = x, y, yaw) the base is welded there: no base joints, no wheels,
+  and MuJoCo's robot is then exactly ours (v = ω = 0 leaves nothing to constrain).
 - per arm link k one body with two joints, composed in order: a hinge about z of the joint frame
   (the body's frame: R0_k, at the mount for k = 1 and at the distal end of rod k−1 for k > 1),
   then a slide along the rotated x. The body's frame moves with the slide to η = l_k, the rod's
@@ -79,11 +81,11 @@ def rod_inertial(length: float, mass_per_length: float, J, tip_mass: float = 0.0
 
 
 def mjcf(robot_model, gravity: float = 0.0, tip_mass: float = 0.0, wheel_inertia: bool = True,
-         integrator: str = "RK4", dt: float = 1e-3, energy: bool = False) -> str:
+         integrator: str = "RK4", dt: float = 1e-3, energy: bool = False, base_pose=None) -> str:
     """The MJCF text of the equivalent unconstrained model (see the module docstring); `energy`
     turns on MuJoCo's per-step energy computation (off for timing)."""
     base, n = robot_model.base, robot_model.n_links
-    I_w = base.wheel_inertia if wheel_inertia else 0.0
+    I_w = base.wheel_inertia if wheel_inertia and base_pose is None else 0.0
     M, d, b = base.mass, base.com_offset, base.half_track
     m_w = WHEEL_MASS_FRACTION * M if I_w > 0.0 else 0.0
     body_mass = M - 2 * m_w
@@ -100,11 +102,14 @@ def mjcf(robot_model, gravity: float = 0.0, tip_mass: float = 0.0, wheel_inertia
              f' energy="{"enable" if energy else "disable"}"/>',
              '  </option>',
              '  <worldbody>',
-             '    <body name="base">',
-             '      <joint name="x" type="slide" axis="1 0 0"/>',
-             '      <joint name="y" type="slide" axis="0 1 0"/>',
-             '      <joint name="yaw" type="hinge" axis="0 0 1"/>',
-             '      ' + _inertial(body_mass, (body_x, 0.0, 0.0), np.diag([yaw, yaw, yaw]))]
+             '    <body name="base">' if base_pose is None else
+             f'    <body name="base" pos="{_num(base_pose[0])} {_num(base_pose[1])} 0" '
+             f'quat="{_vec((np.cos(base_pose[2] / 2), 0.0, 0.0, np.sin(base_pose[2] / 2)))}">']
+    if base_pose is None:
+        lines += ['      <joint name="x" type="slide" axis="1 0 0"/>',
+                  '      <joint name="y" type="slide" axis="0 1 0"/>',
+                  '      <joint name="yaw" type="hinge" axis="0 0 1"/>']
+    lines += ['      ' + _inertial(body_mass, (body_x, 0.0, 0.0), np.diag([yaw, yaw, yaw]))]
     if I_w > 0.0:
         for name, side in (("right_wheel", -1.0), ("left_wheel", 1.0)):
             lines += [f'      <body name="{name}" pos="0 {_num(side * base.half_track)} 0">',
@@ -137,36 +142,37 @@ class MujocoPeer:
     """The compiled MuJoCo model of a robot plus the map S(yaw) from our u to MuJoCo's qvel.
 
     qpos = (x, y, yaw, θ_R, θ_L, q_1, l_1, …) is our q (without the wheel angles when the wheels
-    are left out); qvel = S(yaw) u with ẋ = v cos yaw, ẏ = v sin yaw, yaw rate ω, wheel rates
+    are left out, only the arm's with a fixed base); qvel = S(yaw) u with ẋ = v cos yaw, ẏ = v sin yaw, yaw rate ω, wheel rates
     (v ± bω)/r, then the joint rates.
     """
 
     def __init__(self, robot_model, gravity: float = 0.0, tip_mass: float = 0.0,
                  wheel_inertia: bool = True, integrator: str = "RK4", dt: float = 1e-3,
-                 energy: bool = False):
+                 energy: bool = False, base_pose=None):
         self.robot_model = robot_model
-        self.wheels = wheel_inertia and robot_model.base.wheel_inertia > 0.0
-        self.xml = mjcf(robot_model, gravity, tip_mass, wheel_inertia, integrator, dt, energy)
+        self.fixed_base = base_pose is not None
+        self.wheels = wheel_inertia and robot_model.base.wheel_inertia > 0.0 and not self.fixed_base
+        self.xml = mjcf(robot_model, gravity, tip_mass, wheel_inertia, integrator, dt, energy, base_pose)
         self.model = mujoco.MjModel.from_xml_string(self.xml)
         self.data = mujoco.MjData(self.model)
         n = robot_model.n_links
-        assert self.model.nv == (5 if self.wheels else 3) + 2 * n
+        self.arm = 0 if self.fixed_base else 5 if self.wheels else 3   # first arm index in qpos
+        assert self.model.nv == self.arm + 2 * n
 
     def qpos(self, q) -> np.ndarray:
         q = np.asarray(q, dtype=float)
-        return q if self.wheels else np.concatenate([q[:3], q[5:]])
+        return q[5:] if self.fixed_base else q if self.wheels else np.concatenate([q[:3], q[5:]])
 
     def S(self, q) -> np.ndarray:
         base, n = self.robot_model.base, self.robot_model.n_links
         r, b, yaw = base.wheel_radius, base.half_track, float(q[2])
         S = np.zeros((self.model.nv, 2 + 2 * n))
-        S[0, 0], S[1, 0], S[2, 1] = np.cos(yaw), np.sin(yaw), 1.0
-        arm = 3
+        if not self.fixed_base:
+            S[0, 0], S[1, 0], S[2, 1] = np.cos(yaw), np.sin(yaw), 1.0
         if self.wheels:
             S[3, 0], S[3, 1] = 1.0 / r, b / r
             S[4, 0], S[4, 1] = 1.0 / r, -b / r
-            arm = 5
-        S[arm:, 2:] = np.eye(2 * n)
+        S[self.arm:, 2:] = np.eye(2 * n)
         return S
 
     def set_state(self, q, u) -> None:
@@ -201,4 +207,4 @@ def for_scene(scene, integrator: str = "RK4", dt: float = 1e-3) -> MujocoPeer:
     """The peer of a scene's robot with its gravity, payload and wheel-inertia flags."""
     effects = scene.effects
     return MujocoPeer(scene.robot, effects.gravity, effects.payload or 0.0, effects.wheel_inertia,
-                      integrator, dt)
+                      integrator, dt, base_pose=scene.initial_q[:3] if effects.fixed_base else None)

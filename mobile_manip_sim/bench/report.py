@@ -50,7 +50,7 @@ def _machine() -> str:
     except OSError:
         pass
     versions = []
-    for name in ("numpy", "scipy", "numba", "pinocchio", "matplotlib"):
+    for name in ("numpy", "scipy", "numba", "pinocchio", "mujoco", "matplotlib"):
         try:
             module = __import__(name)
             versions.append(f"{name} {module.__version__}")

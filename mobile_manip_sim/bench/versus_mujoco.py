@@ -20,9 +20,9 @@ import numpy as np
 
 from ..scene import load_scene, make_integrator, parse_scene
 from . import mujoco_peer
-from .runs import simulate
+from .runs import integrator, simulate
 from .scaling import growth_order
-from .scenes import random_robot_document
+from .scenes import random_arm_scene, random_robot_document
 
 ARM_LINKS = (8, 16, 32, 64)
 LONG_RUN = 6.0   # s of the paper scene: past ~0.8 s both rods rest at their stops
@@ -100,6 +100,70 @@ def mujoco_timings(scene, integrator: str, dt: float, duration: float, repeats: 
     return _best(batch, repeats), _best(loop, repeats)
 
 
+def trajectory(scene, integrator: str, dt: float, sample_rate: float = 100.0, repeats: int = 1):
+    """(CPU s best of `repeats`, samples) of MuJoCo's rollout of a fixed-base scene, the samples in
+    our layout (q, u) at the times `simulate` samples (t = 0 included)."""
+    from mujoco import rollout
+
+    mujoco = mujoco_peer.mujoco
+    if not scene.effects.fixed_base:
+        raise ValueError("MuJoCo's trajectory is ours only with a fixed base")
+    peer = mujoco_peer.for_scene(scene, integrator, dt)
+    model, data = peer.model, peer.data
+    peer.set_state(scene.initial_q, scene.initial_u)
+    data.ctrl[:] = peer.control(scene.wheel_efforts, scene.joint_efforts)
+    spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
+    initial = np.zeros(mujoco.mj_stateSize(model, spec))
+    mujoco.mj_getState(model, data, initial, spec)
+    nstep = int(round(scene.duration / dt))
+    per_sample = int(round(1.0 / (sample_rate * dt)))
+    if abs(per_sample * dt * sample_rate - 1.0) > 1e-9 or nstep % per_sample:
+        raise ValueError(f"dt {dt:g} does not divide the sample interval and the duration")
+    control = np.tile(np.array(data.ctrl), (1, nstep, 1))
+    state = np.zeros((1, nstep, initial.size))
+    timing = _best(lambda: rollout.rollout(model, data, initial[None, :], control, state=state), repeats)
+    sampled = np.vstack([initial[None, :], state[0, per_sample - 1::per_sample]])
+    assert np.allclose(sampled[:, 0], np.arange(len(sampled)) / sample_rate)   # column 0 is time
+    nq, n = scene.robot.n_q, model.nq
+    samples = np.zeros((len(sampled), nq + scene.robot.n_u))
+    samples[:, :nq] = scene.initial_q   # the welded base and still wheels; v = ω = 0
+    samples[:, 5:nq] = sampled[:, 1:1 + n]
+    samples[:, nq + 2:] = sampled[:, 1 + n:1 + 2 * n]
+    return timing.cpu, samples
+
+
+WP_SWEEPS = {"RK4": (1e-2, 5e-3, 2e-3, 1e-3, 5e-4, 2e-4, 1e-4),
+             "Euler": (1e-3, 5e-4, 2e-4, 1e-4, 5e-5, 2e-5, 1e-5)}
+
+
+OURS_WP = {"rk4": WP_SWEEPS["RK4"], "semi_implicit_euler": WP_SWEEPS["Euler"],
+           "dop853": (1e-4, 1e-6, 1e-8, 1e-10)}
+
+
+def work_precision(scene, progress, quick: bool = False) -> dict:
+    """On a fixed-base scene, MuJoCo's RK4 and Euler and our rk4, semi_implicit_euler and dop853
+    over sweeps, each against our DOP853 rtol 1e-13 reference:
+    {"scene", "mujoco": [(integrator, dt, CPU per simulated s, error)], "ours": [(method, setting, …)]}."""
+    reference = simulate(scene, make_integrator(scene.integrator, "dop853", rtol=1e-13, atol=1e-14))
+    repeats = 1 if quick else 2
+    ours = []
+    for method, values in OURS_WP.items():
+        for value in (values[::2] if quick else values):
+            run = simulate(scene, integrator(scene, method, value), repeats=repeats)
+            ours.append((method, run.setting, run.cpu_per_second, run.error_against(reference)))
+            progress(f"{scene.name}: ours {method} {run.setting}: {run.cpu_per_second * 1e3:.2f} ms CPU "
+                     f"per simulated s, error {ours[-1][3]:.1e}")
+    points = []
+    for mj_method, values in WP_SWEEPS.items():
+        for dt in (values[::2] if quick else values):
+            cpu, samples = trajectory(scene, mj_method, dt, repeats=repeats)
+            error = float(np.abs(samples - reference.samples[:len(samples)]).max())
+            points.append((mj_method, dt, cpu / scene.duration, error))
+            progress(f"{scene.name}: MuJoCo {mj_method} dt={dt:.0e}: {cpu / scene.duration * 1e3:.2f} ms CPU "
+                     f"per simulated s, error {error:.1e}")
+    return {"scene": scene.name, "mujoco": points, "ours": ours}
+
+
 def _ours(scene, method: str, dt: float, duration: float, repeats: int) -> Timing:
     run = simulate(scene, make_integrator(scene.integrator, method, dt=dt), duration=duration,
                    repeats=repeats, record=False)
@@ -145,7 +209,8 @@ def measure(progress, quick: bool = False) -> dict:
              "MuJoCo rollout": growth_order([p.rollout.cpu for p in arms], ARM_LINKS, smallest=8),
              "MuJoCo mj_step loop": growth_order([p.python_loop.cpu for p in arms], ARM_LINKS, smallest=8)}
     progress("whole-run cost order 8 … 64 links: " + ", ".join(f"{k} {v:.2f}" for k, v in order.items()))
-    return {"paper": paper, "long": long, "arms": arms, "order": order}
+    wp = work_precision(random_arm_scene(), progress, quick=quick)
+    return {"paper": paper, "long": long, "arms": arms, "order": order, "wp": wp}
 
 
 def _verdict(misses) -> str:
@@ -204,6 +269,7 @@ def section(result, number: int = 7) -> str:
                   (f"whole-run cost order ≤ 1.2 from {ARM_LINKS[0]} to {ARM_LINKS[-1]} links",
                    f"ours {order['ours']:.2f} (MuJoCo rollout {order['MuJoCo rollout']:.2f})",
                    _verdict([("order", order["ours"] / 1.2)]))]), ""]
+    parts += _work_precision_section(result["wp"], number)
     rows = [(p.scene, p.method, f"{p.duration:g} s", seconds(p.ours.cpu), seconds(p.ours.wall),
              f"{p.factor(p.ours):.0f}×", seconds(p.rollout.cpu), seconds(p.rollout.wall),
              f"{p.factor(p.rollout):.0f}×", seconds(p.python_loop.cpu), f"{p.ratio:.2f}")
@@ -215,3 +281,30 @@ def section(result, number: int = 7) -> str:
               ", ".join(f"{k} {v:.2f}" for k, v in order.items()) + ". A miss is measured as the "
               "factor by which the figure falls short of its target.", ""]
     return "\n".join(parts)
+
+
+
+def _work_precision_section(wp, number: int) -> list:
+    from .report import sci, seconds, table
+    from .work_precision import TARGETS
+    parts = [f"### {number}.4 Work–precision beside MuJoCo: {wp['scene']} (base fixed)", "",
+             "With the base welded in place nothing is constrained, so MuJoCo steps exactly our system "
+             "(20 random links, gravity, no stops, 0.5 s). Error: largest |state − reference| over the "
+             "100 Hz samples, reference ours DOP853 rtol 1e-13. CPU per simulated second.", ""]
+    rows = []
+    for target in TARGETS:
+        cells = [f"≤ {target:g}"]
+        for entries, label in ((wp["ours"], "ours"), (wp["mujoco"], "MuJoCo")):
+            good = [e for e in entries if e[3] <= target]
+            best = min(good, key=lambda e: e[2]) if good else None
+            setting = (f"{best[0]} {best[1]}" if label == "ours" else f"{best[0]} dt={best[1]:.0e}") if best else "—"
+            cells += [setting, seconds(best[2]) if best else "not reached"]
+        rows.append(cells)
+    parts += ["Cheapest run within each accuracy:", "",
+              table(("accuracy", "ours: setting", "ours: CPU / sim s", "MuJoCo: setting", "MuJoCo: CPU / sim s"), rows), "",
+              "<details><summary>every run</summary>", "",
+              table(("who", "setting", "CPU / sim s", "largest state error"),
+                    [("ours", f"{m} {setting}", seconds(cpu), sci(err)) for m, setting, cpu, err in wp["ours"]] +
+                    [("MuJoCo", f"{m} dt={dt:.0e}", seconds(cpu), sci(err)) for m, dt, cpu, err in wp["mujoco"]]),
+              "", "</details>", ""]
+    return parts
