@@ -64,11 +64,8 @@ def _best(run, repeats: int) -> Timing:
     return Timing(cpu, wall)
 
 
-def mujoco_timings(scene, integrator: str, dt: float, duration: float, repeats: int,
-                   sample_rate: float = 100.0) -> tuple[Timing, Timing]:
-    """(rollout, Python mj_step loop) for `duration` s of the scene's peer with its efforts."""
-    from mujoco import rollout
-
+def _rollout_inputs(scene, integrator: str, dt: float, duration: float):
+    """(model, data, initial full-physics state, constant controls, state output) of the scene's peer."""
     mujoco = mujoco_peer.mujoco
     peer = mujoco_peer.for_scene(scene, integrator, dt)
     model, data = peer.model, peer.data
@@ -79,7 +76,17 @@ def mujoco_timings(scene, integrator: str, dt: float, duration: float, repeats: 
     mujoco.mj_getState(model, data, initial, spec)
     nstep = int(round(duration / dt))
     control = np.tile(np.array(data.ctrl), (1, nstep, 1))
-    state = np.zeros((1, nstep, initial.size))
+    return model, data, initial, control, np.zeros((1, nstep, initial.size))
+
+
+def mujoco_timings(scene, integrator: str, dt: float, duration: float, repeats: int,
+                   sample_rate: float = 100.0) -> tuple[Timing, Timing]:
+    """(rollout, Python mj_step loop) for `duration` s of the scene's peer with its efforts."""
+    from mujoco import rollout
+
+    mujoco = mujoco_peer.mujoco
+    model, data, initial, control, state = _rollout_inputs(scene, integrator, dt, duration)
+    spec, nstep = mujoco.mjtState.mjSTATE_FULLPHYSICS, state.shape[1]
     sensordata = np.zeros((1, nstep, model.nsensordata))
 
     def batch():
@@ -105,22 +112,13 @@ def trajectory(scene, integrator: str, dt: float, sample_rate: float = 100.0, re
     our layout (q, u) at the times `simulate` samples (t = 0 included)."""
     from mujoco import rollout
 
-    mujoco = mujoco_peer.mujoco
     if not scene.effects.fixed_base:
         raise ValueError("MuJoCo's trajectory is ours only with a fixed base")
-    peer = mujoco_peer.for_scene(scene, integrator, dt)
-    model, data = peer.model, peer.data
-    peer.set_state(scene.initial_q, scene.initial_u)
-    data.ctrl[:] = peer.control(scene.wheel_efforts, scene.joint_efforts)
-    spec = mujoco.mjtState.mjSTATE_FULLPHYSICS
-    initial = np.zeros(mujoco.mj_stateSize(model, spec))
-    mujoco.mj_getState(model, data, initial, spec)
-    nstep = int(round(scene.duration / dt))
+    model, data, initial, control, state = _rollout_inputs(scene, integrator, dt, scene.duration)
+    nstep = state.shape[1]
     per_sample = int(round(1.0 / (sample_rate * dt)))
     if abs(per_sample * dt * sample_rate - 1.0) > 1e-9 or nstep % per_sample:
         raise ValueError(f"dt {dt:g} does not divide the sample interval and the duration")
-    control = np.tile(np.array(data.ctrl), (1, nstep, 1))
-    state = np.zeros((1, nstep, initial.size))
     timing = _best(lambda: rollout.rollout(model, data, initial[None, :], control, state=state), repeats)
     sampled = np.vstack([initial[None, :], state[0, per_sample - 1::per_sample]])
     assert np.allclose(sampled[:, 0], np.arange(len(sampled)) / sample_rate)   # column 0 is time
