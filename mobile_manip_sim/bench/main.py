@@ -61,7 +61,7 @@ def _main(argv) -> int:
     progress.section("warming up the compiled kernels")
     versus.realtime(lambda _line: None, quick=True)
 
-    progress.section("work–precision: paper scene and hard scene")
+    progress.section("work–precision: paper scene, hard scene, 20-link random arm")
     results["wp"] = []
     for scene in (load_scene(), scene_file("hard_impacts.yaml"), random_arm_scene()):
         wp = work_precision.sweep(scene, progress, quick=args.quick)
