@@ -234,9 +234,10 @@ def number(value, path, *, lo=None, hi=None, positive=False, nonnegative=False,
     if nonnegative and value < 0:
         raise UserError(path, f"must not be negative, got {value:.6g}")
     if lo is not None and value < lo or hi is not None and value > hi:
-        low = "-∞" if lo is None else f"{lo:g}"
+        low = "[" + (f"{lo:g}" if lo is not None else "(0" if positive else "-∞")
+        low = low[1:] if low.startswith("[(") else low
         high = "∞" if hi is None else f"{hi:g}"
-        raise UserError(path, f"must be in [{low}, {high}]{unit}, got {value:.6g}")
+        raise UserError(path, f"must be in {low}, {high}]{unit}, got {value:.6g}")
     return value
 
 
