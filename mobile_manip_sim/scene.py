@@ -98,7 +98,8 @@ class Scene:
 
 MAX_LINKS = 64                     # arm links (the dynamics is O(n) per step, the checks O(n²))
 MASS = (1e-6, 1e6)                 # kg, base mass
-LENGTH = (1e-6, 1e3)               # m: rod lengths, half track, wheel radius, offsets
+LENGTH = (1e-6, 1e3)               # m: rod lengths, half track, offsets
+RADIUS = (1e-4, 1e2)               # m, wheel radius
 DENSITY = (1e-9, 1e6)              # kg/m, rod mass per length
 INERTIA = (0.0, 1e6)               # kg·m² (per length for rods: kg·m)
 ANGLE = 1e6                        # rad, |initial angles|
@@ -143,7 +144,7 @@ def _base(doc) -> Base:
     doc = _mapping(doc, path)
     keys = ("mass", "yaw_inertia", "com_offset", "wheel_radius", "half_track", "wheel_inertia")
     _keys(doc, path, required=keys)
-    bounds = {"mass": MASS, "yaw_inertia": (1e-12, INERTIA[1]), "wheel_radius": LENGTH,
+    bounds = {"mass": MASS, "yaw_inertia": (1e-12, INERTIA[1]), "wheel_radius": RADIUS,
               "half_track": LENGTH, "wheel_inertia": INERTIA}
     values = {k: _number(doc[k], f"{path}.{k}", lo=bounds[k][0], hi=bounds[k][1])
               for k in bounds}
@@ -381,4 +382,6 @@ def scene_from_text(text: str, name: str = "scene") -> Scene:
     doc = schema.load_yaml(text, what=name)
     if doc is None:
         raise UserError(name, "the scene file is empty")
+    if not isinstance(doc, dict):
+        raise UserError(name, f"expected a mapping of scene keys, got {schema.short(doc)}")
     return parse_scene(doc, name)

@@ -200,8 +200,9 @@ def load_yaml(source, what: str = "input"):
         source = read_text_file(source, what)
     if len(source) > MAX_FILE_BYTES:
         raise UserError(what, f"larger than {MAX_FILE_BYTES} bytes")
-    loader = _Loader(source, what)
+    loader = None
     try:
+        loader = _Loader(source, what)
         return loader.get_single_data()
     except yaml.YAMLError as error:
         mark = getattr(error, "problem_mark", None)
@@ -211,7 +212,8 @@ def load_yaml(source, what: str = "input"):
     except RecursionError:
         raise UserError(what, "nested too deeply") from None
     finally:
-        loader.dispose()
+        if loader is not None:
+            loader.dispose()
 
 
 # --- validators -----------------------------------------------------------------------------
@@ -298,3 +300,29 @@ def string_map(value, path, *, max_entries=1000, max_length=10_000) -> dict[str,
         string(key, f"{path}", max_length=200)
         string(item, f"{path}.{key}", max_length=max_length)
     return value
+
+
+RUN_METADATA_KEYS = ("version", "integrator_method", "dt", "rtol", "atol", "scene_name", "source",
+                     "sample_rate", "publish_rate", "duration")
+RUN_METADATA_NUMBERS = {"dt": (1e-9, 1.0), "rtol": (1e-14, 1.0), "atol": (1e-20, 1.0),
+                        "sample_rate": (1e-6, 1e6), "publish_rate": (1e-6, 1e6),
+                        "duration": (1e-9, 1e6)}
+
+
+def run_metadata(value, path: str = "mobile_manip_sim") -> dict:
+    """A bag's ``mobile_manip_sim`` metadata map (strings, as MCAP stores them) checked and with
+    its numbers parsed (repr-exact floats), for a replay or re-run to trust."""
+    value = string_map(value, path, max_entries=len(RUN_METADATA_KEYS), max_length=200)
+    keys(value, path, required=("version", "integrator_method", "dt", "rtol", "atol", "source"),
+         optional=("scene_name", "sample_rate", "publish_rate", "duration"))
+    parsed = dict(value)
+    for key, (lo, hi) in RUN_METADATA_NUMBERS.items():
+        if key in value:
+            try:
+                number_value = float(value[key])
+            except ValueError:
+                raise UserError(f"{path}.{key}", f"expected a number, got {short(value[key])}") from None
+            parsed[key] = number(number_value, f"{path}.{key}", lo=lo, hi=hi)
+    if value["source"] not in ("node", "simulate"):
+        raise UserError(f"{path}.source", f"expected node or simulate, got {short(value['source'])}")
+    return parsed
