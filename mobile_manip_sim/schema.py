@@ -40,7 +40,7 @@ def short(value) -> str:
     """A repr of `value` of bounded length, whatever its size."""
     if isinstance(value, HugeNumber):
         return f"{value[:12]}…({len(value)} digits)"
-    return _short.repr(value)
+    return clip(_short.repr(value), 80)
 
 
 def clip(text: str, limit: int = 160) -> str:
@@ -93,7 +93,7 @@ class _Loader(yaml.SafeLoader):
                     raise UserError(self.what, f"a mapping key must be a scalar, got {short(key)} "
                                                f"(line {key_node.start_mark.line + 1})") from None
                 if duplicate:
-                    raise UserError(str(key)[:40], f"duplicate key (line {key_node.start_mark.line + 1})")
+                    raise UserError(clip(key, 40) if isinstance(key, str) and key.strip() else short(key), f"duplicate key (line {key_node.start_mark.line + 1})")
         return super().construct_mapping(node, deep=deep)
 
 
@@ -285,7 +285,8 @@ def keys(doc: dict, path: str, required=(), optional=()) -> None:
     allowed = list(required) + list(optional)
     for key in doc:
         if key not in allowed:
-            raise UserError(f"{prefix}{str(key)[:40]}", f"unknown key (allowed: {', '.join(allowed)})")
+            name = clip(key, 40) if isinstance(key, str) and key.strip() else short(key)
+            raise UserError(f"{prefix}{name}", f"unknown key (allowed: {', '.join(allowed)})")
     for key in required:
         if key not in doc:
             raise UserError(f"{prefix}{key}", "missing")
