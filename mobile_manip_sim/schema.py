@@ -49,6 +49,14 @@ def clip(text: str, limit: int = 160) -> str:
     return text if len(text) <= limit else f"{text[:limit // 2]}…{text[-limit // 2:]}"
 
 
+def label(key, limit: int = 40) -> str:
+    """A key (or a file name) as it can stand in a one-line message: itself when it is a short,
+    printable string, else its shortened repr."""
+    if isinstance(key, str) and not isinstance(key, HugeNumber) and key.strip() and key.isprintable():
+        return clip(key, limit)
+    return short(key)
+
+
 class HugeNumber(str):
     """An integer literal too long to be a quantity; `number` refuses it, naming the key."""
 
@@ -93,7 +101,7 @@ class _Loader(yaml.SafeLoader):
                     raise UserError(self.what, f"a mapping key must be a scalar, got {short(key)} "
                                                f"(line {key_node.start_mark.line + 1})") from None
                 if duplicate:
-                    raise UserError(clip(key, 40) if isinstance(key, str) and key.strip() else short(key), f"duplicate key (line {key_node.start_mark.line + 1})")
+                    raise UserError(label(key), f"duplicate key (line {key_node.start_mark.line + 1})")
         return super().construct_mapping(node, deep=deep)
 
 
@@ -170,7 +178,7 @@ _Loader.add_constructor("tag:yaml.org,2002:float", _float)
 def read_text_file(path, what: str | None = None, limit: int = MAX_FILE_BYTES) -> str:
     """The UTF-8 text of a regular file of at most `limit` bytes; anything else one UserError."""
     path = Path(path)
-    what = what or clip(str(path))
+    what = what or label(str(path), 160)
     try:
         fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
     except OSError as error:
@@ -285,8 +293,7 @@ def keys(doc: dict, path: str, required=(), optional=()) -> None:
     allowed = list(required) + list(optional)
     for key in doc:
         if key not in allowed:
-            name = clip(key, 40) if isinstance(key, str) and key.strip() else short(key)
-            raise UserError(f"{prefix}{name}", f"unknown key (allowed: {', '.join(allowed)})")
+            raise UserError(f"{prefix}{label(key)}", f"unknown key (allowed: {', '.join(allowed)})")
     for key in required:
         if key not in doc:
             raise UserError(f"{prefix}{key}", "missing")

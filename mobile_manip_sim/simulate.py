@@ -172,7 +172,7 @@ class CsvOutput:
         self.writer = csv.writer(self.handle, lineterminator="\n")
 
     def _error(self, error: OSError, path: Path | None = None) -> UserError:
-        return UserError(schema.clip(str(path or self.path)), f"cannot write ({error.strerror or error})")
+        return UserError(schema.label(str(path or self.path), 160), f"cannot write ({error.strerror or error})")
 
     def writerow(self, row) -> None:
         try:
