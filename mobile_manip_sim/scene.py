@@ -373,7 +373,7 @@ def load_scene(path: str | Path | None = None) -> Scene:
         name = Path(DEFAULT_SCENE).stem
     else:
         path = Path(path)
-        text = schema.read_text_file(path)
+        text = schema.read_text_file(path, kind="scene file")
         name = path.stem
     return scene_from_text(text, name)
 

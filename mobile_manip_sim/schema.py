@@ -175,14 +175,16 @@ _Loader.add_constructor("tag:yaml.org,2002:int", _int)
 _Loader.add_constructor("tag:yaml.org,2002:float", _float)
 
 
-def read_text_file(path, what: str | None = None, limit: int = MAX_FILE_BYTES) -> str:
-    """The UTF-8 text of a regular file of at most `limit` bytes; anything else one UserError."""
+def read_text_file(path, what: str | None = None, limit: int = MAX_FILE_BYTES,
+                   kind: str = "file") -> str:
+    """The UTF-8 text of a regular file of at most `limit` bytes; anything else one UserError
+    (``cannot read <kind> (reason)``)."""
     path = Path(path)
     what = what or label(str(path), 160)
     try:
         fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
     except OSError as error:
-        raise UserError(what, f"cannot read ({error.strerror})") from None
+        raise UserError(what, f"cannot read {kind} ({error.strerror})") from None
     info = os.fstat(fd)
     if not stat.S_ISREG(info.st_mode):
         os.close(fd)
@@ -193,7 +195,7 @@ def read_text_file(path, what: str | None = None, limit: int = MAX_FILE_BYTES) -
         try:
             data = handle.read(limit + 1)
         except OSError as error:
-            raise UserError(what, f"cannot read ({error.strerror})") from None
+            raise UserError(what, f"cannot read {kind} ({error.strerror})") from None
     if len(data) > limit:
         raise UserError(what, f"larger than {limit} bytes")
     try:
