@@ -306,7 +306,7 @@ def check_work(duration: float, settings: IntegratorSettings, duration_key: str,
                                 f"interval {1.0 / sample_rate:.6g} s ({rate_key})")
 
 
-MAX_SAMPLES = 10_000_000           # duration × sample rate
+MAX_SAMPLES = 1_000_000            # duration × sample rate (a CSV of ~200 MB for two links)
 
 
 def parse_scene(doc, name="scene") -> Scene:

@@ -308,7 +308,7 @@ def string_map(value, path, *, max_entries=1000, max_length=10_000) -> dict[str,
         raise UserError(path, f"at most {max_entries} entries, got {len(value)}")
     for key, item in value.items():
         string(key, f"{path}", max_length=200)
-        string(item, f"{path}.{key}", max_length=max_length)
+        string(item, f"{path}.{label(key)}", max_length=max_length)
     return value
 
 

@@ -133,13 +133,15 @@ def test_a_signal_stops_promptly_and_closes_the_bag(tmp_path, sig, status):
 
 
 def test_real_time_factor_leaves_out_start_up(tmp_path):
+    start = time.monotonic()
     result = simulate("--out", tmp_path / "run.csv", "--duration", "0.3")
+    elapsed = time.monotonic() - start
     assert result.returncode == 0, result.stderr
     wall = float(result.stdout.split(" s in ")[1].split(" s wall")[0])
     rtf = float(result.stdout.split("real-time factor ")[1].split(")")[0])
-    # The interpreter's start-up and imports alone take longer than the whole simulated 0.3 s.
-    assert rtf * wall < 0.3 + 1e-9
-    assert wall < 0.5
+    assert rtf * wall < 0.3 - 0.005          # the first sample interval (compiling) is left out
+    # The interpreter's start-up and imports (numpy, scipy, numba) take well over 0.3 s.
+    assert wall < elapsed - 0.3, (wall, elapsed)
 
 
 @pytest.mark.slow
