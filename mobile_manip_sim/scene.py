@@ -97,11 +97,11 @@ class Scene:
 # --- plausibility bounds (README, "Bad input"): outside them a value is a mistake, not physics
 
 MAX_LINKS = 64                     # arm links (the dynamics is O(n) per step, the checks O(n²))
-MASS = (1e-6, 1e6)                 # kg, base mass
+MASS = (1e-6, 1e15)                # kg, base mass and payload (1e15: an immovable base)
 LENGTH = (1e-6, 1e3)               # m: rod lengths, half track, offsets
 RADIUS = (1e-4, 1e2)               # m, wheel radius
 DENSITY = (1e-9, 1e6)              # kg/m, rod mass per length
-INERTIA = (0.0, 1e6)               # kg·m² (per length for rods: kg·m)
+INERTIA = (0.0, 1e15)              # kg·m² (per length for rods: kg·m)
 ANGLE = 1e6                        # rad, |initial angles|
 SPEED = 1e4                        # m/s or rad/s, |initial velocities|
 EFFORT = 1e6                       # N or N·m, |efforts| and effort limits
