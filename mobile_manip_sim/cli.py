@@ -2,7 +2,9 @@
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
+import threading
 from typing import Callable
 
 from .errors import EXIT_USER_ERROR, UserError
@@ -15,11 +17,30 @@ class ArgumentParser(argparse.ArgumentParser):
         raise UserError(self.prog, message)
 
 
-def run(main: Callable[[list[str] | None], int | None], argv: list[str] | None = None) -> int:
-    """Call ``main(argv)``; a `UserError` becomes ``<prog>: error: <key>: <problem>``, status 2."""
+class Terminated(BaseException):
+    """SIGTERM, raised in the main thread like KeyboardInterrupt so that `finally` blocks close
+    what is open (a bag, a CSV); the process then exits with 128 + SIGTERM."""
+
+
+EXIT_TERMINATED = 128 + signal.SIGTERM
+
+
+def _terminate(signum, frame):
+    raise Terminated()
+
+
+def run(main: Callable[[list[str] | None], int | None], argv: list[str] | None = None, *,
+        sigterm: bool = False) -> int:
+    """Call ``main(argv)``; a `UserError` becomes ``<prog>: error: <key>: <problem>``, status 2.
+    With `sigterm`, SIGTERM raises `Terminated` in the main thread (status 143)."""
     prog = sys.argv[0].rsplit("/", 1)[-1] if sys.argv else "mobile_manip_sim"
+    previous = None
+    if sigterm and threading.current_thread() is threading.main_thread():
+        previous = signal.signal(signal.SIGTERM, _terminate)
     try:
         return int(main(argv) or 0)
+    except Terminated:
+        return EXIT_TERMINATED
     except UserError as error:
         print(f"{prog}: error: {error}", file=sys.stderr)
         return EXIT_USER_ERROR
@@ -30,3 +51,6 @@ def run(main: Callable[[list[str] | None], int | None], argv: list[str] | None =
             raise
         print(f"{prog}: error: {error}", file=sys.stderr)
         return 1
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)

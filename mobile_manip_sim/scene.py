@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from . import schema
 from .errors import UserError
 from .model import Base, RobotModel
 
@@ -93,26 +94,33 @@ class Scene:
         return yaml.safe_dump(self.document, sort_keys=False)
 
 
-# --- small validators: each names the key path in its error --------------------------------
+# --- plausibility bounds (README, "Bad input"): outside them a value is a mistake, not physics
+
+MAX_LINKS = 64                     # arm links (the dynamics is O(n) per step, the checks O(n²))
+MASS = (1e-6, 1e15)                # kg, base mass and payload (1e15: an immovable base)
+LENGTH = (1e-6, 1e3)               # m: rod lengths, half track, offsets
+RADIUS = (1e-4, 1e2)               # m, wheel radius
+DENSITY = (1e-9, 1e6)              # kg/m, rod mass per length
+INERTIA = (0.0, 1e15)              # kg·m² (per length for rods: kg·m)
+ANGLE = 1e6                        # rad, |initial angles|
+SPEED = 1e4                        # m/s or rad/s, |initial velocities|
+EFFORT = 1e6                       # N or N·m, |efforts| and effort limits
+GRAVITY = (0.0, 100.0)             # m/s²
+DAMPING = (0.0, 1e6)               # N·m·s/rad, N·s/m
+DURATION = (0.0, 1e6)              # s (exclusive lower end)
+DT = (1e-9, 1.0)                   # s, the fixed step
+RTOL = (1e-14, 1.0)
+ATOL = (1e-20, 1.0)
+MAX_STEPS = 10_000_000             # duration / dt of a fixed-step run
+
 
 def _number(value, path, *, positive=False, nonnegative=False, lo=None, hi=None) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise UserError(path, f"expected a number, got {value!r}")
-    value = float(value)
-    if not math.isfinite(value):
-        raise UserError(path, f"must be finite, got {value}")
-    if positive and value <= 0:
-        raise UserError(path, f"must be positive, got {value}")
-    if nonnegative and value < 0:
-        raise UserError(path, f"must not be negative, got {value}")
-    if lo is not None and value < lo or hi is not None and value > hi:
-        raise UserError(path, f"must be in [{lo}, {hi}], got {value}")
-    return value
+    return schema.number(value, path, positive=positive, nonnegative=nonnegative, lo=lo, hi=hi)
 
 
 def _vector(value, length, path, **checks) -> np.ndarray:
     if not isinstance(value, (list, tuple)):
-        raise UserError(path, f"expected a list of {length} numbers, got {value!r}")
+        raise UserError(path, f"expected a list of {length} numbers, got {schema.short(value)}")
     if len(value) != length:
         raise UserError(path, f"expected {length} values, got {len(value)}")
     return np.array([_number(v, f"{path}[{i}]", **checks) for i, v in enumerate(value)])
@@ -124,27 +132,9 @@ def _vector_or_scalar(value, length, path, **checks) -> np.ndarray:
     return _vector(value, length, path, **checks)
 
 
-def _mapping(value, path) -> dict:
-    if not isinstance(value, dict):
-        raise UserError(path, f"expected a mapping, got {value!r}")
-    return value
-
-
-def _keys(mapping, path, required=(), optional=()) -> None:
-    prefix = f"{path}." if path else ""
-    for key in mapping:
-        if key not in required and key not in optional:
-            allowed = ", ".join(list(required) + list(optional))
-            raise UserError(f"{prefix}{key}", f"unknown key (allowed: {allowed})")
-    for key in required:
-        if key not in mapping:
-            raise UserError(f"{prefix}{key}", "missing")
-
-
-def _flag(value, path) -> bool:
-    if not isinstance(value, bool):
-        raise UserError(path, f"expected true or false, got {value!r}")
-    return value
+_mapping = schema.mapping
+_keys = schema.keys
+_flag = schema.flag
 
 
 # --- the sections ---------------------------------------------------------------------------
@@ -154,20 +144,22 @@ def _base(doc) -> Base:
     doc = _mapping(doc, path)
     keys = ("mass", "yaw_inertia", "com_offset", "wheel_radius", "half_track", "wheel_inertia")
     _keys(doc, path, required=keys)
-    positive = {"mass", "yaw_inertia", "wheel_radius", "half_track"}
-    values = {k: _number(doc[k], f"{path}.{k}", positive=k in positive, nonnegative=True)
-              for k in keys if k != "com_offset"}
-    values["com_offset"] = _number(doc["com_offset"], f"{path}.com_offset")
+    bounds = {"mass": MASS, "yaw_inertia": (1e-12, INERTIA[1]), "wheel_radius": RADIUS,
+              "half_track": LENGTH, "wheel_inertia": INERTIA}
+    values = {k: _number(doc[k], f"{path}.{k}", lo=bounds[k][0], hi=bounds[k][1])
+              for k in bounds}
+    values["com_offset"] = _number(doc["com_offset"], f"{path}.com_offset", lo=-LENGTH[1], hi=LENGTH[1])
     return Base(**values)
 
 
 def _inertia(value, path) -> np.ndarray:
     if isinstance(value, (list, tuple)) and len(value) == 3 and all(isinstance(r, (list, tuple)) for r in value):
-        J = np.array([_vector(r, 3, f"{path}[{i}]") for i, r in enumerate(value)])
+        J = np.array([_vector(r, 3, f"{path}[{i}]", lo=-INERTIA[1], hi=INERTIA[1])
+                      for i, r in enumerate(value)])
         if not np.allclose(J, J.T, rtol=0, atol=1e-12 * max(1.0, np.abs(J).max())):
             raise UserError(path, "3×3 inertia must be symmetric")
     else:
-        J = np.diag(_vector(value, 3, path, nonnegative=True))
+        J = np.diag(_vector(value, 3, path, lo=INERTIA[0], hi=INERTIA[1]))
     if np.linalg.eigvalsh(J).min() < 0:
         raise UserError(path, "inertia must be positive semi-definite")
     return J
@@ -177,13 +169,15 @@ def _link(doc, path) -> dict:
     doc = _mapping(doc, path)
     _keys(doc, path, required=("length", "mass_per_length"),
           optional=("inertia_per_length", "joint_rpy", "stroke"))
-    length = _number(doc["length"], f"{path}.length", positive=True)
+    length = _number(doc["length"], f"{path}.length", lo=LENGTH[0], hi=LENGTH[1])
     link = {
         "length": length,
-        "mass_per_length": _number(doc["mass_per_length"], f"{path}.mass_per_length", positive=True),
+        "mass_per_length": _number(doc["mass_per_length"], f"{path}.mass_per_length",
+                                   lo=DENSITY[0], hi=DENSITY[1]),
         "inertia_per_length": _inertia(doc.get("inertia_per_length", [0.0, 0.0, 0.0]),
                                        f"{path}.inertia_per_length"),
-        "joint_rpy": _vector(doc.get("joint_rpy", [0.0, 0.0, 0.0]), 3, f"{path}.joint_rpy"),
+        "joint_rpy": _vector(doc.get("joint_rpy", [0.0, 0.0, 0.0]), 3, f"{path}.joint_rpy",
+                             lo=-2 * math.pi, hi=2 * math.pi),
         "stroke": _vector(doc.get("stroke", [0.0, length]), 2, f"{path}.stroke",
                           lo=0.0, hi=length),
     }
@@ -197,12 +191,10 @@ def _robot(doc) -> RobotModel:
     _keys(doc, "robot", required=("base",), optional=("arm",))
     arm = _mapping(doc.get("arm", {}), "robot.arm")
     _keys(arm, "robot.arm", optional=("mount", "links"))
-    links = arm.get("links", [])
-    if not isinstance(links, list):
-        raise UserError("robot.arm.links", f"expected a list, got {links!r}")
+    links = schema.sequence(arm.get("links", []), "robot.arm.links", max_length=MAX_LINKS)
     return RobotModel.build(
         _base(doc["base"]),
-        _vector(arm.get("mount", [0.0, 0.0, 0.0]), 3, "robot.arm.mount"),
+        _vector(arm.get("mount", [0.0, 0.0, 0.0]), 3, "robot.arm.mount", lo=-LENGTH[1], hi=LENGTH[1]),
         [_link(link, f"robot.arm.links[{i}]") for i, link in enumerate(links)])
 
 
@@ -212,48 +204,51 @@ def _effects(doc, robot: RobotModel) -> Effects:
     n_arm = 2 * robot.n_links
     effects = {}
     if "gravity" in doc:
-        effects["gravity"] = _number(doc["gravity"], "effects.gravity", nonnegative=True)
+        effects["gravity"] = _number(doc["gravity"], "effects.gravity", lo=GRAVITY[0], hi=GRAVITY[1])
     if "stroke_limits" in doc:
         value = doc["stroke_limits"]
         if value is True or value == {}:
             value = {}
-        if value is not False and value is not None:
+        if value is None:
+            raise UserError("effects.stroke_limits", "expected true, false or a mapping, got null")
+        if value is not False:
             value = _mapping(value, "effects.stroke_limits")
             _keys(value, "effects.stroke_limits", optional=("restitution", "law", "rest_speed"))
             law = value.get("law", "impulse")
             if law not in IMPACT_LAWS:
                 raise UserError("effects.stroke_limits.law",
-                                f"unknown law {law!r} (choose one of: {', '.join(IMPACT_LAWS)})")
+                                f"unknown law {schema.short(law)} (choose one of: {', '.join(IMPACT_LAWS)})")
             effects["stroke_limits"] = StrokeLimits(
                 restitution=_number(value.get("restitution", 0.0), "effects.stroke_limits.restitution",
                                     lo=0.0, hi=1.0),
                 law=law,
                 rest_speed=_number(value.get("rest_speed", 1e-3), "effects.stroke_limits.rest_speed",
-                                   nonnegative=True))
+                                   lo=0.0, hi=SPEED))
     if "wheel_inertia" in doc:
         effects["wheel_inertia"] = _flag(doc["wheel_inertia"], "effects.wheel_inertia")
     if "joint_damping" in doc:
         effects["joint_damping"] = tuple(_vector_or_scalar(
-            doc["joint_damping"], n_arm, "effects.joint_damping", nonnegative=True))
+            doc["joint_damping"], n_arm, "effects.joint_damping", lo=DAMPING[0], hi=DAMPING[1]))
     if "wheel_damping" in doc:
         effects["wheel_damping"] = _number(doc["wheel_damping"], "effects.wheel_damping",
-                                           nonnegative=True)
+                                           lo=DAMPING[0], hi=DAMPING[1])
     if "effort_limits" in doc:
         value = _mapping(doc["effort_limits"], "effects.effort_limits")
         _keys(value, "effects.effort_limits", optional=("wheels", "joints"))
         effects["effort_limits"] = {
-            group: (_vector_or_scalar(value[group], size, f"effects.effort_limits.{group}", positive=True)
+            group: (_vector_or_scalar(value[group], size, f"effects.effort_limits.{group}",
+                                       positive=True, hi=EFFORT)
                     if group in value else None)
             for group, size in (("wheels", 2), ("joints", n_arm))}
     if "locked_joints" in doc:
         names = doc["locked_joints"]
         if not isinstance(names, list):
-            raise UserError("effects.locked_joints", f"expected a list of joint names, got {names!r}")
+            raise UserError("effects.locked_joints", f"expected a list of joint names, got {schema.short(names)}")
         arm_names = robot.joint_names()[2:]
         for i, name in enumerate(names):
             if name not in arm_names:
                 raise UserError(f"effects.locked_joints[{i}]",
-                                f"no arm joint named {name!r} (joints: {', '.join(arm_names) or 'none'})")
+                                f"no arm joint named {schema.short(name)} (joints: {', '.join(arm_names) or 'none'})")
         effects["locked_joints"] = tuple(names)
     if "fixed_base" in doc:
         effects["fixed_base"] = _flag(doc["fixed_base"], "effects.fixed_base")
@@ -262,7 +257,7 @@ def _effects(doc, robot: RobotModel) -> Effects:
         if isinstance(value, dict):
             _keys(value, "effects.payload", required=("mass",))
             value = value["mass"]
-        effects["payload"] = _number(value, "effects.payload", positive=True)
+        effects["payload"] = _number(value, "effects.payload", lo=MASS[0], hi=MASS[1])
         if robot.n_links == 0:
             raise UserError("effects.payload", "needs at least one arm link to carry it")
     return Effects(**effects)
@@ -271,6 +266,9 @@ def _effects(doc, robot: RobotModel) -> Effects:
 def _integrator(doc) -> IntegratorSettings:
     doc = _mapping(doc, "integrator")
     _keys(doc, "integrator", optional=("method", "dt", "rtol", "atol"))
+    for name, value in doc.items():
+        if value is None:
+            raise UserError(f"integrator.{name}", "expected a value, got null")
     return make_integrator(IntegratorSettings(), **doc)
 
 
@@ -281,13 +279,34 @@ def make_integrator(settings: IntegratorSettings, method=None, dt=None, rtol=Non
         return f"{prefix}{name}" if prefix.endswith("-") else f"{prefix}.{name}"
 
     method = settings.method if method is None else method
-    if method not in METHODS:
-        raise UserError(key("method"), f"unknown method {method!r} (choose one of: {', '.join(METHODS)})")
+    if not isinstance(method, str) or method not in METHODS:
+        raise UserError(key("method"), f"unknown method {schema.short(method)} (choose one of: {', '.join(METHODS)})")
     return IntegratorSettings(
         method=method,
-        dt=settings.dt if dt is None else _number(dt, key("dt"), positive=True),
-        rtol=settings.rtol if rtol is None else _number(rtol, key("rtol"), positive=True),
-        atol=settings.atol if atol is None else _number(atol, key("atol"), positive=True))
+        dt=settings.dt if dt is None else _number(dt, key("dt"), lo=DT[0], hi=DT[1]),
+        rtol=settings.rtol if rtol is None else _number(rtol, key("rtol"), lo=RTOL[0], hi=RTOL[1]),
+        atol=settings.atol if atol is None else _number(atol, key("atol"), lo=ATOL[0], hi=ATOL[1]))
+
+
+def check_work(duration: float, settings: IntegratorSettings, duration_key: str, dt_key: str,
+               sample_rate: float | None = None, rate_key: str = "--sample-rate") -> None:
+    """Refuse a run whose work is beyond the documented limits (README, "Bad input"): more than
+    MAX_STEPS fixed steps, more than MAX_SAMPLES samples, or a fixed step longer than the sample
+    interval (the samples would not be at the step's resolution)."""
+    if settings.fixed_step and duration / settings.dt > MAX_STEPS:
+        key = dt_key if settings.dt < 1e-6 else duration_key
+        raise UserError(key, f"{duration:.6g} s / dt {settings.dt:.6g} s is more than {MAX_STEPS} steps")
+    if sample_rate is None:
+        return
+    if duration * sample_rate > MAX_SAMPLES:
+        raise UserError(rate_key, f"{duration:.6g} s × {sample_rate:.6g} Hz is more than "
+                                  f"{MAX_SAMPLES} samples")
+    if settings.fixed_step and settings.dt > 1.0 / sample_rate * (1 + 1e-12):
+        raise UserError(dt_key, f"the fixed step {settings.dt:.6g} s is longer than the sample "
+                                f"interval {1.0 / sample_rate:.6g} s ({rate_key})")
+
+
+MAX_SAMPLES = 1_000_000            # duration × sample rate (a CSV of ~200 MB for two links)
 
 
 def parse_scene(doc, name="scene") -> Scene:
@@ -300,30 +319,36 @@ def parse_scene(doc, name="scene") -> Scene:
     initial = _mapping(doc.get("initial", {}), "initial")
     _keys(initial, "initial", optional=("pose", "wheels", "joints", "velocity"))
     default_joints = [value for i in range(n) for value in (0.0, float(robot.stroke[i][0]))]
-    pose = _vector(initial.get("pose", [0.0, 0.0, 0.0]), 3, "initial.pose")
-    wheels = _vector(initial.get("wheels", [0.0, 0.0]), 2, "initial.wheels")
-    joints = _vector(initial.get("joints", default_joints), 2 * n, "initial.joints")
+    pose = _vector(initial.get("pose", [0.0, 0.0, 0.0]), 3, "initial.pose", lo=-ANGLE, hi=ANGLE)
+    wheels = _vector(initial.get("wheels", [0.0, 0.0]), 2, "initial.wheels", lo=-ANGLE, hi=ANGLE)
+    if n == 0 and initial.get("joints"):
+        raise UserError("robot.arm", "missing: initial.joints gives arm joints but the robot has no arm")
+    joints = _vector(initial.get("joints", default_joints), 2 * n, "initial.joints", lo=-ANGLE, hi=ANGLE)
     for i in range(n):
         lo, hi = robot.stroke[i]
         if not lo <= joints[2 * i + 1] <= hi:
             raise UserError(f"initial.joints[{2 * i + 1}]",
                             f"l{i + 1} = {joints[2 * i + 1]} is outside its stroke [{lo}, {hi}]")
-    velocity = _vector(initial.get("velocity", [0.0] * robot.n_u), robot.n_u, "initial.velocity")
+    velocity = _vector(initial.get("velocity", [0.0] * robot.n_u), robot.n_u, "initial.velocity",
+                       lo=-SPEED, hi=SPEED)
     efforts = _mapping(doc.get("efforts", {}), "efforts")
     _keys(efforts, "efforts", optional=("wheels", "joints"))
+    if n == 0 and efforts.get("joints"):
+        raise UserError("robot.arm", "missing: efforts.joints gives arm efforts but the robot has no arm")
     effects = _effects(doc.get("effects", {}), robot)
     integrator = _integrator(doc.get("integrator", {}))
-    scene_name = doc.get("name", name)
-    if not isinstance(scene_name, str):
-        raise UserError("name", f"expected a string, got {scene_name!r}")
+    scene_name = schema.string(doc.get("name", name), "name")
     scene = Scene(
         name=scene_name, robot=robot,
         initial_q=np.concatenate([pose, wheels, joints]), initial_u=velocity,
-        wheel_efforts=_vector(efforts.get("wheels", [0.0, 0.0]), 2, "efforts.wheels"),
-        joint_efforts=_vector(efforts.get("joints", [0.0] * 2 * n), 2 * n, "efforts.joints"),
+        wheel_efforts=_vector(efforts.get("wheels", [0.0, 0.0]), 2, "efforts.wheels",
+                              lo=-EFFORT, hi=EFFORT),
+        joint_efforts=_vector(efforts.get("joints", [0.0] * 2 * n), 2 * n, "efforts.joints",
+                              lo=-EFFORT, hi=EFFORT),
         effects=effects, integrator=integrator,
-        duration=_number(doc.get("duration", 1.0), "duration", positive=True),
+        duration=_number(doc.get("duration", 1.0), "duration", positive=True, hi=DURATION[1]),
         document={})
+    check_work(scene.duration, integrator, "duration", "integrator.dt")
     object.__setattr__(scene, "document", _document(doc, scene))
     return scene
 
@@ -348,21 +373,15 @@ def load_scene(path: str | Path | None = None) -> Scene:
         name = Path(DEFAULT_SCENE).stem
     else:
         path = Path(path)
-        try:
-            text = path.read_text()
-        except (OSError, UnicodeDecodeError) as error:
-            raise UserError(str(path), f"cannot read scene file ({getattr(error, 'strerror', None) or error})") from None
+        text = schema.read_text_file(path, kind="scene file")
         name = path.stem
     return scene_from_text(text, name)
 
 
 def scene_from_text(text: str, name: str = "scene") -> Scene:
-    try:
-        doc = yaml.safe_load(text)
-    except yaml.YAMLError as error:
-        mark = getattr(error, "problem_mark", None)
-        where = f" at line {mark.line + 1}" if mark else ""
-        raise UserError(name, f"not valid YAML{where}: {getattr(error, 'problem', error)}") from None
+    doc = schema.load_yaml(text, what=name)
     if doc is None:
         raise UserError(name, "the scene file is empty")
+    if not isinstance(doc, dict):
+        raise UserError(name, f"expected a mapping of scene keys, got {schema.short(doc)}")
     return parse_scene(doc, name)

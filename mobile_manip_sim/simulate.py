@@ -4,20 +4,32 @@
              [--method NAME] [--dt S] [--rtol R] [--atol A] [--record DIR]
 
 Columns: t, x, y, yaw, theta_R, theta_L, q1, l1, …, qn, ln, v, omega, qd1, ld1, …, qdn, ldn,
-energy (T + V, J). Without --scene the embedded paper scene runs. End-stop impacts, if any,
-go to FILE.impacts.csv beside the output. The last line printed is the run's summary.
+energy (T + V, J); LF line ends. Without --scene the embedded paper scene runs. End-stop impacts,
+if any, go to FILE.impacts.csv beside the output, only when FILE is a regular file (``--out
+/dev/null`` writes nothing else). The last line printed is the run's summary; its real-time
+factor counts the simulation only (from the first sample that advanced time on: start-up and
+compiling are left out).
+
+Faults: a write error (disk full, ``/dev/full``) is one line, status 2, and the partial CSV is
+removed; SIGINT (status 130) and SIGTERM (status 143) stop the run, keep the rows written so far
+and close a ``--record`` bag.
 """
 from __future__ import annotations
 
 import csv
+import os
+import stat
 import sys
 import time
 from pathlib import Path
+from typing import Iterator
 
-from . import cli
+from . import cli, schema
 from .engine.simulation import Simulation
 from .errors import UserError
-from .scene import Scene, load_scene, make_integrator
+from .scene import DURATION, Scene, check_work, load_scene, make_integrator
+
+SAMPLE_RATE = (1e-6, 1e6)          # Hz, --sample-rate
 
 
 def csv_columns(n_links: int) -> list[str]:
@@ -26,13 +38,14 @@ def csv_columns(n_links: int) -> list[str]:
     return ["t", "x", "y", "yaw", "theta_R", "theta_L", *arm_q, "v", "omega", *arm_u, "energy"]
 
 
-def sample_times(duration: float, sample_rate: float) -> list[float]:
-    """k / rate for every k with k / rate ≤ duration, then duration itself if it is off the grid."""
+def sample_times(duration: float, sample_rate: float) -> Iterator[float]:
+    """k / rate for every k with k / rate ≤ duration, then duration itself if it is off the grid;
+    generated one at a time (a long run never holds them all)."""
     count = int(duration * sample_rate + 1e-9)
-    times = [k / sample_rate for k in range(count + 1)]
-    if duration - times[-1] > 1e-12 * max(1.0, duration):
-        times.append(duration)
-    return times
+    for k in range(count + 1):
+        yield k / sample_rate
+    if duration - count / sample_rate > 1e-12 * max(1.0, duration):
+        yield duration
 
 
 class Progress:
@@ -58,8 +71,10 @@ class Progress:
             self.stream.write("\n")
 
 
-def summary_line(sim: Simulation, wall: float) -> str:
-    rtf = sim.t / wall if wall > 0 else float("inf")
+def summary_line(sim: Simulation, wall: float, simulated: float | None = None) -> str:
+    """`wall` s of wall time spent on `simulated` s of simulated time (default: all of it)."""
+    simulated = sim.t if simulated is None else simulated
+    rtf = simulated / wall if wall > 0 else float("inf")
     return (f"simulated {sim.t:.6g} s in {wall:.3f} s wall (real-time factor {rtf:.1f}), "
             f"{sim.steps} steps, {sim.rhs_evaluations} rhs evaluations, {len(sim.impacts)} impacts, "
             f"energy error {sim.energy_error():.3e} J")
@@ -68,14 +83,21 @@ def summary_line(sim: Simulation, wall: float) -> str:
 def run(scene: Scene, duration: float, sample_rate: float, settings=None, on_sample=None,
         progress: Progress | None = None) -> Simulation:
     """Simulate `duration` s from the scene's initial state with its constant efforts, calling
-    ``on_sample(sim)`` at every sample time; returns the finished simulation."""
+    ``on_sample(sim)`` at every sample time; returns the finished simulation. Its ``timing`` is
+    (simulated s, wall s) from the end of the first sample that advanced time on, or None."""
     sim = Simulation(scene, settings)
+    timing_from = None
     for t in sample_times(duration, sample_rate):
         sim.advance_to(t)
+        if timing_from is None and sim.t > 0:
+            timing_from = (sim.t, time.perf_counter())
         if on_sample:
             on_sample(sim)
         if progress:
             progress.update(t)
+    sim.timing = None
+    if timing_from is not None and sim.t > timing_from[0]:
+        sim.timing = (sim.t - timing_from[0], time.perf_counter() - timing_from[1])
     return sim
 
 
@@ -94,55 +116,105 @@ def _main(argv) -> int:
     scene = load_scene(args.scene)
     settings = make_integrator(scene.integrator, args.method, args.dt, args.rtol, args.atol,
                                prefix="--")
-    duration = scene.duration if args.duration is None else args.duration
-    if not duration > 0:
-        raise UserError("--duration", f"must be positive, got {duration}")
-    if not args.sample_rate > 0:
-        raise UserError("--sample-rate", f"must be positive, got {args.sample_rate}")
+    if args.duration is None:
+        duration, duration_key = scene.duration, "duration"
+    else:
+        duration = schema.number(args.duration, "--duration", positive=True, hi=DURATION[1])
+        duration_key = "--duration"
+    rate = schema.number(args.sample_rate, "--sample-rate", lo=SAMPLE_RATE[0], hi=SAMPLE_RATE[1])
+    check_work(duration, settings, duration_key, "--dt" if args.dt is not None else "integrator.dt",
+               rate, "--sample-rate")
     out = Path(args.out)
-    recorder = None
-    if args.record:
-        from .recording.headless import HeadlessRecorder
-        recorder = HeadlessRecorder(args.record, scene, settings, args.sample_rate, duration)
-    try:
-        handle = out.open("w", newline="")
-    except OSError as error:
-        raise UserError(str(out), f"cannot write ({error.strerror})") from None
-    progress = Progress(duration)
-    start = time.perf_counter()
-    with handle:
-        writer = csv.writer(handle)
-        writer.writerow(csv_columns(scene.robot.n_links))
+    with CsvOutput(out) as output:
+        recorder = None
+        if args.record:
+            from .recording.headless import HeadlessRecorder
+            recorder = HeadlessRecorder(args.record, scene, settings, rate, duration)
+        output.writerow(csv_columns(scene.robot.n_links))
 
         def on_sample(sim):
-            writer.writerow([repr(sim.t), *map(repr, sim.q.tolist()), *map(repr, sim.u.tolist()),
+            output.writerow([repr(sim.t), *map(repr, sim.q.tolist()), *map(repr, sim.u.tolist()),
                              repr(sim.total_energy())])
             if recorder:
                 recorder.sample(sim)
 
+        start = time.perf_counter()
+        progress = Progress(duration)
         try:
-            sim = run(scene, duration, args.sample_rate, settings, on_sample, progress)
+            sim = run(scene, duration, rate, settings, on_sample, progress)
         finally:
             progress.close()
             if recorder:
                 recorder.close()
-    wall = time.perf_counter() - start
-    if sim.impacts:
-        _write_impacts(out.with_suffix(".impacts.csv"), sim.impacts)
-    print(summary_line(sim, wall))
+        wall = time.perf_counter() - start
+        if sim.impacts and output.regular:
+            output.write_impacts(out.with_suffix(".impacts.csv"), sim.impacts)
+    simulated, wall = sim.timing or (sim.t, wall)
+    print(summary_line(sim, wall, simulated))
     return 0
 
 
-def _write_impacts(path: Path, impacts) -> None:
-    with path.open("w", newline="") as handle:
-        writer = csv.DictWriter(handle, fieldnames=list(impacts[0].as_dict()))
-        writer.writeheader()
-        for impact in impacts:
-            writer.writerow(impact.as_dict())
+class CsvOutput:
+    """The CSV file (LF line ends) and its impacts file. A write error is a `UserError` naming
+    the file; after an error the files written so far are removed (regular files only); after a
+    signal (KeyboardInterrupt, `cli.Terminated`) they are closed with the rows written so far."""
+
+    def __init__(self, path: Path):
+        self.path = path
+        self.written: list[Path] = []
+        try:
+            self.handle = path.open("w", newline="")
+            self.regular = stat.S_ISREG(os.fstat(self.handle.fileno()).st_mode)
+        except OSError as error:
+            raise self._error(error) from None
+        if self.regular:
+            self.written.append(path)
+        self.writer = csv.writer(self.handle, lineterminator="\n")
+
+    def _error(self, error: OSError, path: Path | None = None) -> UserError:
+        return UserError(schema.label(str(path or self.path), 160), f"cannot write ({error.strerror or error})")
+
+    def writerow(self, row) -> None:
+        try:
+            self.writer.writerow(row)
+        except OSError as error:
+            raise self._error(error) from None
+
+    def write_impacts(self, path: Path, impacts) -> None:
+        try:
+            with path.open("w", newline="") as handle:
+                self.written.append(path)
+                writer = csv.DictWriter(handle, fieldnames=list(impacts[0].as_dict()),
+                                        lineterminator="\n")
+                writer.writeheader()
+                for impact in impacts:
+                    writer.writerow(impact.as_dict())
+        except OSError as error:
+            raise self._error(error, path) from None
+
+    def __enter__(self) -> "CsvOutput":
+        return self
+
+    def __exit__(self, kind, error, traceback) -> None:
+        try:
+            self.handle.close()
+        except OSError as close_error:
+            if kind is None:
+                self._remove()
+                raise self._error(close_error) from None
+        if kind is not None and not issubclass(kind, (KeyboardInterrupt, cli.Terminated)):
+            self._remove()
+
+    def _remove(self) -> None:
+        for path in self.written:
+            try:
+                path.unlink()
+            except OSError:
+                pass
 
 
 def main(argv=None) -> int:
-    return cli.run(_main, argv)
+    return cli.run(_main, argv, sigterm=True)
 
 
 if __name__ == "__main__":

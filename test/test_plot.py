@@ -22,6 +22,8 @@ from mobile_manip_sim.engine.simulation import Simulation
 from mobile_manip_sim.errors import EXIT_USER_ERROR
 from mobile_manip_sim.recording.bag_writer import BagWriter, qos_yaml
 from mobile_manip_sim.scene import load_scene, parse_scene
+from mobile_manip_sim.recording.headless import HeadlessRecorder
+from mobile_manip_sim.simulate import run as simulate_run
 from mobile_manip_sim.simulate import sample_times
 
 BIN = Path(sys.executable).parent
@@ -51,9 +53,21 @@ def _plain(value):
     return value.item()
 
 
+def record_bag(path: Path, scene, duration: float) -> Simulation:
+    """Record a run with the real recorder, as `simulate --record` does."""
+    recorder = HeadlessRecorder(path, scene, scene.integrator, SAMPLE_RATE, duration)
+    try:
+        sim = simulate_run(scene, duration, SAMPLE_RATE, on_sample=recorder.sample)
+    finally:
+        recorder.close()
+    return sim
+
+
 def write_bag(path: Path, scene, duration: float, joint_states=True) -> Simulation:
-    """Record a run as the simulator's recorder does: /clock, /joint_states (efforts included),
-    /odom (twist in base_link), the controllers' commands, scene.yaml and impacts.json."""
+    """Recorded by the real recorder; with joint_states=False a hand-built damaged bag (no
+    /joint_states), which the recorder never writes."""
+    if joint_states:
+        return record_bag(path, scene, duration)
     sim = Simulation(scene)
     names = scene.robot.joint_names()
     with BagWriter(path) as bag:

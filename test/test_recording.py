@@ -495,10 +495,9 @@ def test_replay_publishes_the_recorded_messages_in_order_at_the_recorded_rate(pr
 
 # --- crashes and failures ---------------------------------------------------------------------
 
-def resimulates_exactly(bag: Path) -> bool:
+def assert_resimulates_exactly(bag: Path) -> None:
     result = run_cli("replay", str(bag), "--resimulate")
     assert result.returncode == 0 and "IDENTICAL" in result.stdout, result.stdout + result.stderr
-    return True
 
 
 def test_reset_starts_a_new_bag_and_sigkill_leaves_complete_chunks_readable(probe, tmp_path):
@@ -521,7 +520,7 @@ def test_reset_starts_a_new_bag_and_sigkill_leaves_complete_chunks_readable(prob
     assert code == -signal.SIGKILL
     # The reset closed the first time line's bag: complete, and a run of its own.
     assert (bag / "metadata.yaml").exists() and not open_bag(bag).recovered
-    assert resimulates_exactly(bag)
+    assert_resimulates_exactly(bag)
 
     killed = tmp_path / "killed_1"
     assert not (killed / "metadata.yaml").exists()
@@ -540,7 +539,7 @@ def test_reset_starts_a_new_bag_and_sigkill_leaves_complete_chunks_readable(prob
                 theirs.append((channel.topic, message.log_time))
     assert sorted(theirs) == sorted((m.topic, m.log_time_ns) for m in ours)
     # What survived is a complete record of the run up to there: it re-simulates exactly.
-    assert resimulates_exactly(killed)
+    assert_resimulates_exactly(killed)
 
 
 def test_a_write_failure_stops_recording_but_not_the_simulation(probe, tmp_path):

@@ -32,12 +32,31 @@ except ImportError:  # pure-Python path
 
     jit_inline = jit
 else:
+    def _njit(function, **options):
+        """njit with an on-disk cache, or without one (one warning) where none can be written:
+        a read-only install with a read-only HOME."""
+        try:
+            return numba.njit(cache=True, fastmath=False, nogil=True, error_model="numpy",
+                              **options)(function)
+        except RuntimeError as error:  # numba: "cannot cache function …: no locator available"
+            if "cannot cache" not in str(error):
+                raise
+            global _warned
+            if not _warned:
+                _warned = True
+                import warnings
+                warnings.warn("numba cannot cache compiled kernels here (read-only install and "
+                              "HOME; set NUMBA_CACHE_DIR): compiling at every start", stacklevel=3)
+            return numba.njit(cache=False, fastmath=False, nogil=True, error_model="numpy",
+                              **options)(function)
+
+    _warned = False
+
     def jit(function):
-        return numba.njit(cache=True, fastmath=False, nogil=True, error_model="numpy")(function)
+        return _njit(function)
 
     def jit_inline(function):
-        return numba.njit(cache=True, fastmath=False, nogil=True, error_model="numpy",
-                          inline="always")(function)
+        return _njit(function, inline="always")
 
 
 def _drop_stale_caches() -> None:
