@@ -18,7 +18,6 @@ from pathlib import Path
 
 from .. import cli
 from ..errors import UserError
-from . import results, runner
 from .spec import Spec, load_spec
 
 
@@ -34,6 +33,7 @@ def _main(argv) -> int:
     if args.workers is not None and args.workers < 1:
         raise UserError("--workers", f"must be at least 1, got {args.workers}")
     spec = load_spec(args.spec)
+    from . import results, runner   # after the spec is checked: bad input is answered at once
     runs = spec.runs()
     varied = {path: [run[path] for run in runs] for path in spec.varied}
     columns = runner.state_columns(len(spec.document["robot"].get("arm", {}).get("links", [])))
@@ -90,7 +90,8 @@ def _connect(args):
         cluster = LocalCluster(n_workers=args.workers or os.cpu_count() or 1, threads_per_worker=1,
                                processes=True, dashboard_address=None, silence_logs=logging.ERROR)
         client = Client(cluster)
-    client.register_plugin(runner.WarmKernels())
+    from .runner import WarmKernels
+    client.register_plugin(WarmKernels())
     return client, cluster
 
 
@@ -103,6 +104,8 @@ def _where(args, workers: int) -> str:
 def _run(client, spec: Spec, runs: list, chunks: list, store, progress, out: str) -> None:
     from distributed import as_completed
     from distributed.scheduler import KilledWorker
+
+    from . import runner
     csv_dir = str(Path(out).resolve() / "runs") if spec.sample_rate else None
     futures = {}
     for ids in chunks:

@@ -64,7 +64,10 @@ def set_path(document: dict, path: str, value) -> None:
         elif not isinstance(node, dict):
             raise UserError(here, f"unknown key path: {_label(parts[:depth])} is a value, not a mapping")
         elif part not in node and not last:
-            node[part] = [] if isinstance(parts[depth + 1], int) else {}
+            if isinstance(parts[depth + 1], int):
+                raise UserError(here, f"unknown key path: the scene has no list {here} "
+                                "(an optional list must be set whole)")
+            node[part] = {}
         if last:
             node[part] = value
         else:
