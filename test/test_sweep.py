@@ -271,9 +271,7 @@ def test_a_run_past_its_time_limit_is_failed():
 
 
 def test_simulate_set_names_a_bad_key(tmp_path):
-    for setting, key in (("robot.arm.linkz=1", "robot.arm.linkz: unknown key"),
-                         ("robot.base.mass=-2", "robot.base.mass: must be positive")):
-        result = subprocess.run([executable("simulate"), "--set", setting, "--out", str(tmp_path / "x.csv")],
-                                capture_output=True, text=True, timeout=60)
-        assert result.returncode == EXIT_USER_ERROR
-        assert result.stderr.strip().startswith(f"simulate: error: {key}"), result.stderr
+    result = subprocess.run([executable("simulate"), "--set", "robot.arm.linkz=1", "--out", str(tmp_path / "x.csv")],
+                            capture_output=True, text=True, timeout=60)
+    assert result.returncode == EXIT_USER_ERROR
+    assert result.stderr.strip().startswith("simulate: error: robot.arm.linkz: unknown key"), result.stderr

@@ -96,7 +96,7 @@ class Store:
         ids = table.column("run").to_pylist()
         fresh = [i for i, run in enumerate(ids) if run not in self.done]
         if len(fresh) < len(ids):
-            table = table.take(fresh)
+            table = table.take(pa.array(fresh, type=pa.int64()))
         self.done.update(table.column("run").to_pylist())
         if table.num_rows:
             self.tables.append(table)
