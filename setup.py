@@ -19,6 +19,7 @@ setup(
     python_requires=">=3.10",
     install_requires=[
         "setuptools", "numpy", "scipy", "pyyaml", "mcap", "numba", "matplotlib",
+        "dask[distributed]", "pyarrow",
         # ROS 2 Jazzy from PyPI wheels; on a ROS install these are already there (colcon does
         # not pip-install them).
         "ros-jazzy-rclpy", "ros-jazzy-common-interfaces", "ros-jazzy-rosgraph-msgs",
@@ -43,6 +44,7 @@ setup(
             "plot = mobile_manip_sim.plot:main",
             "simulator = mobile_manip_sim.node:main",
             "replay = mobile_manip_sim.replay:main",
+            "sweep = mobile_manip_sim.sweep.cli:main",
         ],
     },
 )

@@ -1,7 +1,7 @@
 """`simulate`: a headless run of a scene, one CSV row per sample.
 
     simulate --scene FILE --duration S --sample-rate HZ --out FILE.csv
-             [--method NAME] [--dt S] [--rtol R] [--atol A] [--record DIR]
+             [--method NAME] [--dt S] [--rtol R] [--atol A] [--record DIR] [--set KEY=VALUE]…
 
 Columns: t, x, y, yaw, theta_R, theta_L, q1, l1, …, qn, ln, v, omega, qd1, ld1, …, qdn, ldn,
 energy (T + V, J); LF line ends. Without --scene the embedded paper scene runs. End-stop impacts,
@@ -28,6 +28,7 @@ from . import cli, schema
 from .engine.simulation import Simulation
 from .errors import UserError
 from .scene import DURATION, Scene, check_work, load_scene, make_integrator
+from .sweep.overrides import parse_assignments, scene_with
 
 SAMPLE_RATE = (1e-6, 1e6)          # Hz, --sample-rate
 
@@ -112,8 +113,13 @@ def _main(argv) -> int:
     parser.add_argument("--rtol", type=float, help="relative tolerance of adaptive methods")
     parser.add_argument("--atol", type=float, help="absolute tolerance of adaptive methods")
     parser.add_argument("--record", metavar="DIR", help="also record a rosbag2 (MCAP) bag to DIR")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                        help="set a scene key path, e.g. robot.arm.links[0].mass_per_length=1.2 "
+                             "(value read as YAML; repeatable)")
     args = parser.parse_args(argv)
     scene = load_scene(args.scene)
+    if args.set:
+        scene = scene_with(scene.document, parse_assignments(args.set), scene.name)
     settings = make_integrator(scene.integrator, args.method, args.dt, args.rtol, args.atol,
                                prefix="--")
     if args.duration is None:

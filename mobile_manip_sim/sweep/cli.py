@@ -1,0 +1,171 @@
+"""`sweep`: many runs of one scene on a Dask cluster, one row each in DIR/runs.parquet.
+
+    sweep SPEC.yaml --out DIR [--scheduler ADDRESS] [--workers N] [--connect-timeout S]
+
+Without --scheduler a LocalCluster of N worker processes (default: the cores) runs on this
+machine; with it the sweep goes to a running scheduler (`dask scheduler` and `dask worker` on
+other machines, or dask-jobqueue's SLURMCluster). Running the same command again on DIR runs
+only what is missing; Ctrl-C keeps every finished run.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import sys
+import time
+from pathlib import Path
+
+from .. import cli
+from ..errors import UserError
+from .spec import Spec, load_spec
+
+
+def _main(argv) -> int:
+    parser = cli.ArgumentParser(prog="sweep", description=__doc__.split("\n\n")[0])
+    parser.add_argument("spec", help="the sweep file (YAML)")
+    parser.add_argument("--out", required=True, metavar="DIR", help="directory for runs.parquet and REPORT.md")
+    parser.add_argument("--scheduler", metavar="ADDRESS", help="a running Dask scheduler (tcp://host:port)")
+    parser.add_argument("--workers", type=int, help="LocalCluster worker processes (default: the cores)")
+    parser.add_argument("--connect-timeout", type=float, default=10.0, metavar="S",
+                        help="seconds to wait for the scheduler (default 10)")
+    args = parser.parse_args(argv)
+    if args.workers is not None and args.workers < 1:
+        raise UserError("--workers", f"must be at least 1, got {args.workers}")
+    spec = load_spec(args.spec)
+    from . import results, runner   # after the spec is checked: bad input is answered at once
+    runs = spec.runs()
+    varied = {path: [run[path] for run in runs] for path in spec.varied}
+    columns = runner.state_columns(len(spec.document["robot"].get("arm", {}).get("links", [])))
+    store = results.Store(Path(args.out), results.schema(varied, columns), fingerprint(spec))
+    todo = [i for i in range(len(runs)) if i not in store.done]
+    client, cluster = _connect(args)
+    workers = max(1, len(client.scheduler_info()["workers"]) or (args.workers or 1))
+    chunk = spec.chunk or max(1, min(100, math.ceil(len(todo) / (8 * workers))))
+    chunks = [todo[i:i + chunk] for i in range(0, len(todo), chunk)]
+    print(f"sweep: {len(runs)} runs, {len(store.done)} already in {args.out}, {len(todo)} to do "
+          f"in {len(chunks)} chunks of ≤ {chunk} on {_where(args, workers)}", flush=True)
+    progress = Progress(len(runs), len(store.done))
+    start = time.perf_counter()
+    try:
+        _run(client, spec, runs, chunks, store, progress, args.out)
+    except KeyboardInterrupt:
+        store.flush()
+        progress.close()
+        print(f"sweep: interrupted; {len(store.done)} of {len(runs)} runs are in "
+              f"{args.out}/runs.parquet (run the same command to finish)", file=sys.stderr, flush=True)
+        return 130
+    finally:
+        _close(client, cluster)
+    store.flush(final=True)
+    progress.close()
+    table = store.table()
+    failed = table.column("status").to_pylist().count("failed")
+    from . import report
+    report.write(Path(args.out), table, spec)
+    print(f"sweep: {table.num_rows} runs, {table.num_rows - failed} ok, {failed} failed, "
+          f"{time.perf_counter() - start:.1f} s wall → {args.out}/runs.parquet, {args.out}/REPORT.md")
+    return 0
+
+
+def fingerprint(spec: Spec) -> str:
+    """What decides the runs and their numbers (not the time limit, chunking or cluster)."""
+    return json.dumps({"document": spec.document, "duration": spec.duration, "sample_rate": spec.sample_rate,
+                       "grid": spec.grid, "count": spec.count, "seed": spec.seed,
+                       "vary": spec.vary}, sort_keys=True, default=str)
+
+
+def _connect(args):
+    import logging
+
+    from distributed import Client, LocalCluster
+    if args.scheduler:
+        try:
+            client = Client(args.scheduler, timeout=f"{args.connect_timeout}s")
+        except (OSError, TimeoutError, ValueError) as error:
+            reason = str(error).splitlines()[0] if str(error) else type(error).__name__
+            raise UserError("--scheduler", f"cannot reach {args.scheduler} ({reason})") from None
+        cluster = None
+    else:
+        cluster = LocalCluster(n_workers=args.workers or os.cpu_count() or 1, threads_per_worker=1,
+                               processes=True, dashboard_address=None, silence_logs=logging.ERROR)
+        client = Client(cluster)
+    from .runner import WarmKernels
+    client.register_plugin(WarmKernels())
+    return client, cluster
+
+
+def _where(args, workers: int) -> str:
+    if args.scheduler:
+        return f"{args.scheduler} ({workers} workers now)"
+    return f"a LocalCluster of {workers} worker{'s' if workers > 1 else ''}"
+
+
+def _run(client, spec: Spec, runs: list, chunks: list, store, progress, out: str) -> None:
+    from distributed import as_completed
+    from distributed.scheduler import KilledWorker
+
+    from . import runner
+    csv_dir = str(Path(out).resolve() / "runs") if spec.sample_rate else None
+    futures = {}
+    for ids in chunks:
+        task = [(i, runs[i]) for i in ids]
+        future = client.submit(runner.run_chunk, spec.document, task, spec.duration, spec.sample_rate,
+                               spec.time_limit, csv_dir, pure=False, key=f"runs-{ids[0]}-{ids[-1]}")
+        futures[future] = ids
+    for future in as_completed(futures):
+        ids = futures[future]
+        try:
+            rows = future.result()
+        except KilledWorker as error:
+            rows = [{"run": i, "status": "failed", "error": f"KilledWorker: every worker that ran it died ({error})"}
+                    for i in ids]
+        except Exception as error:
+            rows = [{"run": i, "status": "failed", "error": f"{type(error).__name__}: {error}".splitlines()[0]}
+                    for i in ids]
+        store.add(rows, runs)
+        failed = sum(row["status"] == "failed" for row in rows)
+        progress.update(len(rows), failed)
+
+
+def _close(client, cluster) -> None:
+    try:
+        client.close(timeout=10)
+    finally:
+        if cluster is not None:
+            cluster.close(timeout=10)
+
+
+class Progress:
+    """Runs done, failures and time to go, on one line of stderr when it is a terminal."""
+
+    def __init__(self, total: int, done: int, stream=sys.stderr):
+        self.total, self.done, self.failed, self.stream = total, done, 0, stream
+        self.active = stream.isatty()
+        self.start, self.first = time.perf_counter(), done
+
+    def update(self, runs: int, failed: int) -> None:
+        self.done += runs
+        self.failed += failed
+        if not self.active:
+            return
+        fraction = self.done / self.total if self.total else 1.0
+        elapsed = time.perf_counter() - self.start
+        rate = (self.done - self.first) / elapsed if elapsed > 0 else 0.0
+        left = (self.total - self.done) / rate if rate > 0 else math.inf
+        bar = "#" * int(30 * fraction)
+        self.stream.write(f"\r[{bar:<30}] {self.done}/{self.total} runs, {self.failed} failed, "
+                          f"{rate:.0f} runs/s, {left:.0f} s left ")
+        self.stream.flush()
+
+    def close(self) -> None:
+        if self.active:
+            self.stream.write("\n")
+
+
+def main(argv=None) -> int:
+    return cli.run(_main, argv)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,145 @@
+"""One run of a sweep, as `simulate` runs it, and the Dask task that runs a chunk of them.
+
+A run is `simulate.run(scene, duration, sample_rate)` on the scene document with the run's
+overrides, parsed by the scene parser: the final state is bit for bit what
+``simulate --set PATH=VALUE …`` prints in its last CSV row. Any failure (a bad value, a
+non-finite state, the time limit) becomes the row's ``error``; the sweep goes on.
+"""
+from __future__ import annotations
+
+import csv
+import time
+from pathlib import Path
+
+import numpy as np
+from distributed import WorkerPlugin
+
+from .. import simulate
+from ..dynamics import constraint_residuals
+from ..errors import UserError
+from .overrides import scene_with
+
+DEFAULT_SAMPLE_RATE = 100.0   # Hz: simulate's default grid (the runs' numbers depend on it)
+
+
+class TimeLimit(Exception):
+    pass
+
+
+def state_columns(n_links: int) -> list[str]:
+    return simulate.csv_columns(n_links)
+
+
+def run_one(document: dict, overrides: dict, duration: float, sample_rate: float | None = None,
+            time_limit: float | None = None, csv_path: str | None = None) -> dict:
+    """The row of one run: status, error, final state (CSV names), checks and costs."""
+    n_links = len(document["robot"].get("arm", {}).get("links", []))
+    rate = sample_rate or DEFAULT_SAMPLE_RATE
+    row = {"status": "failed", "error": None}
+    samples, csv_rows = [], []
+    start_cpu, start_wall = time.thread_time(), time.perf_counter()
+
+    def on_sample(sim):
+        samples.append(sim.s.copy())
+        if csv_path:
+            csv_rows.append([sim.t, *sim.q.tolist(), *sim.u.tolist(), sim.total_energy()])
+        if time_limit is not None and time.perf_counter() - start_wall > time_limit:
+            raise TimeLimit(f"time_limit: stopped after {time_limit:g} s wall at t = {sim.t:.6g} s")
+
+    try:
+        scene = scene_with(document, overrides)
+        if scene.robot.n_links != n_links:
+            raise UserError("robot.arm.links", "a sweep cannot change the number of links")
+        sim = simulate.run(scene, duration, rate, None, on_sample)
+    except (UserError, TimeLimit) as error:
+        row["error"] = str(error)
+    except RuntimeError as error:   # SimulationError: the state went non-finite
+        row["error"] = f"{type(error).__name__}: {error}"
+    except Exception as error:      # anything else is recorded too: one line, the sweep goes on
+        row["error"] = f"{type(error).__name__}: {error}".splitlines()[0]
+    else:
+        row.update(_figures(sim, scene, np.array(samples)))
+        row["status"] = "ok"
+        if csv_path:
+            _write_csv(csv_path, state_columns(n_links), csv_rows)
+    row["cpu_s"] = time.thread_time() - start_cpu
+    return row
+
+
+def _figures(sim, scene, samples: np.ndarray) -> dict:
+    names = state_columns(scene.robot.n_links)
+    final = [sim.t, *sim.q.tolist(), *sim.u.tolist(), sim.total_energy()]
+    figures = dict(zip(names, map(float, final)))
+    nq, nu = sim.nq, sim.nu
+    residual = 0.0
+    for s in samples:
+        residual = max(residual, *map(abs, constraint_residuals(
+            sim.model, s[:nq], sim.dynamics.configuration_rate(s[:nq], s[nq:nq + nu]))))
+    stroke = np.array(scene.robot.stroke).reshape(-1, 2)
+    violation = 0.0
+    if scene.robot.n_links and scene.effects.stroke_limits is not None:
+        l = samples[:, 6:nq:2]
+        violation = max(0.0, float(np.max(np.maximum(stroke[:, 0] - l, l - stroke[:, 1]))))
+    figures.update(energy_error=float(sim.energy_error()), impacts=len(sim.impacts), steps=int(sim.steps),
+                   rhs_evaluations=int(sim.rhs_evaluations), stroke_violation=violation,
+                   constraint_residual=float(residual))
+    return figures
+
+
+def _write_csv(path: str, columns: list[str], rows: list) -> None:
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "w", newline="") as handle:
+        writer = csv.writer(handle)
+        writer.writerow(columns)
+        writer.writerows([map(repr, row) for row in rows])
+
+
+def run_chunk(document: dict, runs: list, duration: float, sample_rate: float | None,
+              time_limit: float | None, csv_dir: str | None) -> list[dict]:
+    """The Dask task: the rows of ``runs`` [(run id, overrides)], each tagged with its worker."""
+    warm_up(document)
+    worker = _worker_address()
+    rows = []
+    for run_id, overrides in runs:
+        csv_path = f"{csv_dir}/run-{run_id:06d}.csv" if csv_dir else None
+        row = run_one(document, overrides, duration, sample_rate, time_limit, csv_path)
+        rows.append({"run": run_id, **row, "worker": worker})
+    return rows
+
+
+_warm = False
+
+
+def warm_up(document: dict | None = None) -> None:
+    """Load (or compile) the kernels once per process, outside any run's clock."""
+    global _warm
+    if _warm:
+        return
+    from ..scene import load_scene
+    base = load_scene(None).document if document is None else document
+    for method in ("rk4", "dop853"):
+        try:
+            run_one(base, {"integrator.method": method}, 0.02)
+        except Exception:  # warming is best effort; the real runs report their own errors
+            pass
+    _warm = True
+
+
+def _worker_address() -> str:
+    try:
+        from distributed import get_worker
+        return get_worker().address
+    except (ImportError, ValueError):
+        return "local"
+
+
+class WarmKernels(WorkerPlugin):
+    """A Dask worker plugin: each worker loads the kernels when it starts, before any task."""
+
+    name = "mobile_manip_sim-warm-kernels"
+
+    def setup(self, worker):
+        warm_up()
+
+    def teardown(self, worker):
+        pass

@@ -1,0 +1,277 @@
+"""`sweep` on real Dask: a LocalCluster, and a real `dask scheduler` with two `dask worker`
+processes on loopback of which one is killed mid-sweep; failed runs recorded with the key;
+rows identical to what the `simulate` executable gives with the same overrides; resume after a
+SIGINT without redoing a run; bad specs as one line and status 2."""
+import csv
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pyarrow.parquet as pq
+import pytest
+
+from mobile_manip_sim.errors import EXIT_USER_ERROR
+from mobile_manip_sim.scene import load_scene
+from mobile_manip_sim.sweep.runner import run_one
+
+from executables import executable
+
+# 24 runs: a negative mass (8 runs fail, naming the key), two integrators, four random draws.
+SMALL = """\
+duration: 0.5
+chunk: 2
+grid:
+  robot.arm.links[0].mass_per_length: [-1.0, 0.9, 1.1]
+  integrator.method: [rk4, dop853]
+random:
+  count: 4
+  seed: 3
+  vary:
+    initial.velocity[2]: {normal: [0.0, 0.1]}
+"""
+# 40 runs of about 40 ms each, one per task: long enough to kill a worker or interrupt mid-sweep.
+LONG = """\
+duration: 1.0
+chunk: 1
+grid:
+  robot.arm.links[1].mass_per_length: [0.8, 1.2]
+random:
+  count: 20
+  seed: 11
+  vary:
+    initial.velocity[3]: {uniform: [-0.2, 0.2]}
+"""
+DETERMINISTIC = ["run", "status", "error", "t", "x", "y", "yaw", "q1", "l1", "q2", "l2", "v", "omega",
+                 "qd1", "ld1", "qd2", "ld2", "energy", "energy_error", "impacts", "steps", "rhs_evaluations"]
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def start(command, **kwargs) -> subprocess.Popen:
+    return subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True, **kwargs)
+
+
+def stop(process: subprocess.Popen) -> None:
+    """End a process this test started, and the children of its session (a LocalCluster)."""
+    if process.poll() is None:
+        process.terminate()
+        try:
+            process.wait(timeout=15)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait(timeout=15)
+    try:
+        os.killpg(process.pid, signal.SIGKILL)
+    except (ProcessLookupError, PermissionError):
+        pass
+
+
+def sweep(spec: Path, out: Path, *extra, timeout=120) -> subprocess.CompletedProcess:
+    return subprocess.run([executable("sweep"), str(spec), "--out", str(out), *extra],
+                          capture_output=True, text=True, timeout=timeout)
+
+
+def wait_for(condition, timeout: float, what: str):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        value = condition()
+        if value:
+            return value
+        time.sleep(0.01)
+    raise AssertionError(f"timed out after {timeout} s waiting for {what}")
+
+
+def parts(out: Path) -> list:
+    """Rows of the chunks written so far (each part file is renamed into place whole)."""
+    rows = []
+    for path in sorted((out / "parts").glob("part-*.parquet")):
+        try:
+            rows += pq.read_table(path).to_pylist()
+        except OSError:
+            pass
+    return rows
+
+
+def table(out: Path) -> list[dict]:
+    return pq.read_table(out / "runs.parquet").to_pylist()
+
+
+def deterministic(rows) -> list[tuple]:
+    return [tuple(row[name] for name in DETERMINISTIC) for row in rows]
+
+
+@pytest.fixture(scope="module")
+def small(tmp_path_factory):
+    directory = tmp_path_factory.mktemp("small")
+    spec = directory / "small.yaml"
+    spec.write_text(SMALL)
+    result = sweep(spec, directory / "out", "--workers", "1")
+    assert result.returncode == 0, result.stderr
+    return directory / "out", result
+
+
+@pytest.fixture(scope="module")
+def long_spec(tmp_path_factory):
+    spec = tmp_path_factory.mktemp("long") / "long.yaml"
+    spec.write_text(LONG)
+    return spec
+
+
+@pytest.fixture(scope="module")
+def killed_worker_table(long_spec, tmp_path_factory):
+    """LONG through a real scheduler and two workers; worker B is SIGKILLed once it has finished
+    a run and while runs remain."""
+    out = tmp_path_factory.mktemp("cluster") / "out"
+    port = free_port()
+    address = f"tcp://127.0.0.1:{port}"
+    processes = [start([executable("dask"), "scheduler", "--host", "127.0.0.1", "--port", str(port),
+                        "--no-dashboard"])]
+    try:
+        worker_ports = [free_port(), free_port()]
+        for worker_port in worker_ports:
+            processes.append(start([executable("dask"), "worker", address, "--nthreads", "1", "--no-nanny",
+                                    "--host", "127.0.0.1", "--worker-port", str(worker_port),
+                                    "--no-dashboard"]))
+        victim, victim_address = processes[2], f"tcp://127.0.0.1:{worker_ports[1]}"
+        driver = start([executable("sweep"), str(long_spec), "--out", str(out), "--scheduler", address])
+        processes.append(driver)
+        rows = wait_for(lambda: [r for r in parts(out) if r["worker"] == victim_address], 90,
+                        "a run finished by worker B")
+        assert len(parts(out)) < 40, "the sweep finished before the worker could be killed"
+        victim.send_signal(signal.SIGKILL)
+        victim.wait(timeout=10)
+        _, stderr = driver.communicate(timeout=90)
+        assert driver.returncode == 0, stderr
+        return table(out), len(rows), victim_address
+    finally:
+        for process in reversed(processes):
+            stop(process)
+
+
+def test_a_killed_worker_has_its_runs_redone_and_every_run_is_present_once(killed_worker_table):
+    rows, _, victim = killed_worker_table
+    assert [row["run"] for row in rows] == list(range(40))
+    assert all(row["status"] == "ok" for row in rows), [row["error"] for row in rows if row["error"]]
+    workers = {row["worker"] for row in rows}
+    assert victim in workers and len(workers) == 2
+
+
+def test_failed_runs_are_recorded_with_the_key_and_the_others_are_ok(small):
+    out, result = small
+    rows = table(out)
+    assert [row["run"] for row in rows] == list(range(24))
+    for row in rows:
+        if row["robot.arm.links[0].mass_per_length"] < 0:
+            assert row["status"] == "failed"
+            assert row["error"].startswith("robot.arm.links[0].mass_per_length: must be positive")
+            assert row["x"] is None
+        else:
+            assert row["status"] == "ok" and row["error"] is None
+            assert row["t"] == 0.5 and row["steps"] > 0 and abs(row["energy_error"]) < 1e-6
+    assert "24 runs, 16 ok, 8 failed" in result.stdout
+    report = (out / "REPORT.md").read_text()
+    for picture in ("atlas.png", "work_precision.png", "final_state.png"):
+        assert f"]({picture})" in report and (out / picture).stat().st_size > 1000
+
+
+def test_sweep_rows_are_bit_for_bit_what_simulate_gives(small, tmp_path):
+    out, _ = small
+    ok = [row for row in table(out) if row["status"] == "ok"]
+    chosen = [ok[0], ok[5], ok[-1]]
+    assert {row["integrator.method"] for row in chosen} == {"rk4", "dop853"}
+    varied = ["robot.arm.links[0].mass_per_length", "integrator.method", "initial.velocity[2]"]
+    processes = []
+    for row in chosen:
+        settings = [f"--set={path}={row[path]!r}" if isinstance(row[path], float) else f"--set={path}={row[path]}"
+                    for path in varied]
+        csv_path = tmp_path / f"run{row['run']}.csv"
+        processes.append((row, csv_path, start([executable("simulate"), "--duration", "0.5",
+                                                "--out", str(csv_path), *settings])))
+    try:
+        for row, csv_path, process in processes:
+            _, stderr = process.communicate(timeout=120)
+            assert process.returncode == 0, stderr
+            with csv_path.open() as handle:
+                last = list(csv.DictReader(handle))[-1]
+            assert {name: float(value) for name, value in last.items()} == \
+                {name: row[name] for name in last}, row["run"]
+    finally:
+        for _, _, process in processes:
+            stop(process)
+
+
+def test_resume_after_sigint_gives_the_same_table_without_redoing_a_run(long_spec, killed_worker_table, tmp_path):
+    out = tmp_path / "out"
+    driver = start([executable("sweep"), str(long_spec), "--out", str(out), "--workers", "1"])
+    try:
+        wait_for(lambda: parts(out), 90, "the first finished run")
+        driver.send_signal(signal.SIGINT)
+        _, stderr = driver.communicate(timeout=60)
+    finally:
+        stop(driver)
+    assert driver.returncode == 130, stderr
+    assert "interrupted" in stderr
+    before = {row["run"]: row for row in table(out)}
+    assert 0 < len(before) < 40
+    result = sweep(long_spec, out, "--workers", "1")
+    assert result.returncode == 0, result.stderr
+    assert f"40 runs, {len(before)} already in" in result.stdout
+    after = table(out)
+    assert deterministic(after) == deterministic(killed_worker_table[0])
+    for row in after:
+        if row["run"] in before:   # CPU time to the nanosecond: the very row of the first session
+            assert row["cpu_s"] == before[row["run"]]["cpu_s"]
+
+
+@pytest.mark.parametrize("text, key", [
+    ("grid:\n  robot.arm.linkz[0].mass: [1.0]\n", "grid.robot.arm.linkz[0].mass: unknown key path"),
+    ("grid:\n  robot.arm.links[0].mas: [1.0]\n", "grid.robot.arm.links[0].mas: unknown key"),
+    ("grid:\n  initial.velocity[9]: [1.0]\n", "grid.initial.velocity[9]: unknown key path"),
+    ("grid:\n  integrator.dt: []\n", "grid.integrator.dt: expected a non-empty list"),
+    ("random:\n  count: 3\n  vary:\n    initial.velocity[2]: {gauss: [0, 1]}\n",
+     "random.vary.initial.velocity[2]: unknown distribution 'gauss'"),
+    ("random:\n  count: 3\n  vary:\n    initial.velocity[2]: {uniform: [1.0]}\n",
+     "random.vary.initial.velocity[2].uniform: expected [low, high]"),
+    ("random:\n  count: 0\n  vary:\n    initial.velocity[2]: {normal: [0, 1]}\n",
+     "random.count: expected a whole number"),
+    ("duration: 1\n", "grid: nothing to sweep"),
+])
+def test_bad_specs_are_one_line_naming_the_key(tmp_path, text, key):
+    spec = tmp_path / "bad.yaml"
+    spec.write_text(text)
+    result = sweep(spec, tmp_path / "out", timeout=60)
+    assert result.returncode == EXIT_USER_ERROR
+    assert result.stderr.strip().startswith(f"sweep: error: {key}"), result.stderr
+    assert len(result.stderr.strip().splitlines()) == 1
+
+
+def test_an_unreachable_scheduler_is_one_line(tmp_path):
+    spec = tmp_path / "ok.yaml"
+    spec.write_text("duration: 0.1\ngrid: {integrator.method: [rk4]}\n")
+    address = f"tcp://127.0.0.1:{free_port()}"
+    result = sweep(spec, tmp_path / "out", "--scheduler", address, "--connect-timeout", "1", timeout=60)
+    assert result.returncode == EXIT_USER_ERROR
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"sweep: error: --scheduler: cannot reach {address}"), result.stderr
+
+
+def test_a_run_past_its_time_limit_is_failed():
+    document = load_scene(None).document
+    row = run_one(document, {"integrator.method": "dop853"}, 1.0, time_limit=1e-6)
+    assert row["status"] == "failed" and row["error"].startswith("time_limit: stopped after")
+
+
+def test_simulate_set_names_a_bad_key(tmp_path):
+    result = subprocess.run([executable("simulate"), "--set", "robot.arm.linkz=1", "--out", str(tmp_path / "x.csv")],
+                            capture_output=True, text=True, timeout=60)
+    assert result.returncode == EXIT_USER_ERROR
+    assert result.stderr.strip().startswith("simulate: error: robot.arm.linkz: unknown key"), result.stderr
