@@ -173,7 +173,10 @@ def test_cost_falls_as_rtol_loosens_and_error_follows_rtol(reference):
         evals.append(count)
         errors.append(np.max(np.abs(samples - reference)))
     assert evals[0] < evals[1] < evals[2]
-    # issue 10 asks for ≤ 1/4; SciPy's own DOP853 (same controller) reaches 0.29 here, see README
+    # Issue 10 targets ≤ 1/4. Measured 173/617 = 0.28, and SciPy's DOP853 (the same controller)
+    # 176/620: the order-8 asymptote 10^(−6/8) = 0.18 is diluted by costs that do not shrink
+    # with rtol (the step ramp-up from the initial guess, rejections, and 3 dense-output stages
+    # on each step, since at 100 Hz every step holds a sample). So the bound checked is 0.3.
     assert evals[0] <= 0.3 * evals[2]
     for rtol, error in zip((1e-4, 1e-7, 1e-10), errors):
         assert rtol / 30 < error < 30 * rtol
