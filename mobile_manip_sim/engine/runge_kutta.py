@@ -474,3 +474,27 @@ def integrate(method_id, system, s, t0, t1, rtol, atol, h0, sample_times, sample
             f0[i] = f1[i]
         t = t_new
     return steps, rejected, evals
+
+
+@jit
+def accepted_step(method_id, system, s, t, h_abs, t_bound, rtol, atol, work):
+    """Steps from (t, s) with f(s) in work[WORK_F0], shrinking h until one is accepted: the new
+    state and its f in work[WORK_Y1], work[WORK_F1], the stages in work[WORK_K…]. Returns (h
+    taken, next h to try); h taken = −1 when the step fell below 10 ulps of t (s unchanged)."""
+    K = work[WORK_K:WORK_K + MAX_STAGES]
+    f0, f1, y1 = work[WORK_F0], work[WORK_F1], work[WORK_Y1]
+    err = work[WORK_ERR:WORK_ERR + 2]
+    min_step = 10.0 * abs(np.nextafter(t, np.inf) - t)
+    retried = False
+    while True:
+        if h_abs < min_step:
+            return -1.0, h_abs
+        t_new = min(t + h_abs, t_bound)
+        h = t_new - t
+        rk_step(method_id, system, s, f0, h, y1, f1, K, err)
+        norm = error_norm(method_id, err, s, y1, rtol, atol)
+        h_next = next_step(method_id, norm, abs(h), retried)
+        if norm < 1.0:
+            return h, h_next
+        h_abs = h_next
+        retried = True

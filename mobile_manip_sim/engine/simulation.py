@@ -20,13 +20,15 @@ from ..dynamics import Dynamics
 from ..errors import UserError
 from ..scene import IntegratorSettings, Scene
 from . import fixed_step, layout, stepping
+from .adaptive import CompiledSolver
 from .events import MAX_IMPACTS_PER_STEP, N_SAMPLES, crossing_in_step, hermite_turns, holding_margin
 from .stops import (LOG_HELD, Impact, impact, make_impact_scratch, make_stops, relock, release,
                     release_at_root)
 from .system import (KI, KP, RHS_EVALS, TARGET_L, TARGET_R, TORQUE_LIMIT, VELOCITY_MODE, System,
                      wheel_speed_torques)
 
-SCIPY_SOLVERS = {"rk45": "RK45", "dop853": "DOP853", "radau": "Radau", "bdf": "BDF"}
+COMPILED_ADAPTIVE = ("rk45", "dop853")              # engine/adaptive.py
+SCIPY_SOLVERS = {"radau": "Radau", "bdf": "BDF"}
 
 
 def scipy_solver(method: str):
@@ -97,7 +99,7 @@ class Simulation:
     def t(self) -> float:
         if self.settings.fixed_step:
             return float(self._clock[stepping.T0] + self._clock[stepping.K] * self.settings.dt)
-        return self._t_adaptive
+        return float(self._t_adaptive)
 
     @property
     def steps(self) -> int:
@@ -303,10 +305,15 @@ class Simulation:
     def _take_adaptive_step(self) -> None:
         system = self.system
         if self._solver is None:
-            derivative = system.derivative
-            self._solver = scipy_solver(self.settings.method)(
-                lambda _t, y: derivative(y), self._t_adaptive, self.s.copy(), math.inf,
-                rtol=self.settings.rtol, atol=self.settings.atol, first_step=self._h_last)
+            settings = self.settings
+            if settings.method in COMPILED_ADAPTIVE:
+                self._solver = CompiledSolver(settings.method, system.data, self._t_adaptive,
+                                              self.s, settings.rtol, settings.atol, self._h_last)
+            else:
+                derivative = system.derivative
+                self._solver = scipy_solver(settings.method)(
+                    lambda _t, y: derivative(y), self._t_adaptive, self.s.copy(), math.inf,
+                    rtol=settings.rtol, atol=settings.atol, first_step=self._h_last)
         solver = self._solver
         s_before, t_before = solver.y.copy(), solver.t
         message = solver.step()
