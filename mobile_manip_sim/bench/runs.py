@@ -85,7 +85,7 @@ def simulate(scene: Scene, settings: IntegratorSettings, duration: float | None 
     """Run `scene` with `settings`; the first repeat records the figures, all are timed."""
     duration = scene.duration if duration is None else duration
     run = Run(scene.name, settings.method, settings_label(settings), duration)
-    times = sample_times(duration, sample_rate)
+    times = list(sample_times(duration, sample_rate))
     best_cpu = best_wall = math.inf
     for repeat in range(repeats):
         sim = Simulation(scene, settings)

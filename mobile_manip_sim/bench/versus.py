@@ -78,7 +78,7 @@ def whole_run(progress, quick: bool = False) -> dict:
     repeats = 1 if quick else 3
     reference = simulate(scene, make_integrator(scene.integrator, "dop853", rtol=1e-13, atol=1e-14))
     ref = reference.samples
-    times = np.array(sample_times(duration, 100.0))
+    times = np.array(list(sample_times(duration, 100.0)))
     sim = Simulation(scene)
     Q = sim.system.Q_cmd.copy()
     peer = peers.ProjectedPinocchio(scene.robot, scene.effects.gravity,
