@@ -77,7 +77,6 @@ from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, SetParam
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, String
@@ -86,9 +85,11 @@ from std_srvs.srv import SetBool, Trigger
 from . import cli
 from .engine.simulation import Simulation, SimulationError
 from .errors import UserError
-from .messages import ARM_TOPIC, NS, STATE_QOS_DEPTH, WHEEL_TOPIC, stamp_ns, state_messages
+from .messages import NS, stamp_ns, state_messages, transform
 from .recording.recorder import RunRecorder
 from .scene import METHODS, load_scene, make_integrator
+from .topics import (ARM_TOPIC, CLOCK_TOPIC, DESCRIPTION_TOPIC, JOINT_STATES_TOPIC, ODOM_TOPIC,
+                     TF_TOPIC, WHEEL_TOPIC, command_qos, latched_qos, relative, state_qos)
 from .urdf import robot_description
 
 NODE_NAME = "mobile_manip_sim"
@@ -96,6 +97,7 @@ WARN_EVERY = 5.0           # s of wall time between repeats of one kind of warni
 LAG_TOLERANCE = 0.1        # s behind the wall clock before the node says it cannot keep up
 BAG_FLUSH_INTERVAL = 1.0   # s of wall time: the most of a recording a SIGKILL may lose
 SHUTDOWN_POLL = 0.2        # s: how often the executor checks for an external shutdown
+STEP_TIMEOUT = 30.0        # s of wall time a ~/step call waits for its state
 
 
 def _float_range(low: float, high: float) -> list[FloatingPointRange]:
@@ -112,8 +114,12 @@ PARAMETERS = {
     "command_timeout": (0.5, "Seconds of SIMULATED time after the last command of a group "
                              "(wheels, arm) before its efforts fall to zero; 0 disables.",
                         _float_range(0.0, 1.0e6), True),
-    "odom_frame": ("odom", "frame_id of /odom.", None, False),
-    "base_frame": ("base_link", "child_frame_id of /odom.", None, False),
+    "odom_frame": ("odom", "frame_id of /odom and parent frame of /tf.", None, False),
+    "base_frame": ("base_footprint", "child_frame_id of /odom and /tf, and the URDF's root: the "
+                                     "frame on the ground under the axle midpoint (base_link "
+                                     "is fixed at wheel-radius height above it).", None, False),
+    "publish_tf": (True, "Publish odom_frame → base_frame on tf at the publication rate "
+                         "(needs tf2_msgs).", None, False),
     "record": ("", "Record a rosbag2 (MCAP) bag to this new directory; empty = off.", None,
                False),
     "integrator.method": ("", f"Integrator overriding the scene's ({', '.join(METHODS)}); "
@@ -179,6 +185,10 @@ class SimulatorNode(Node):
         self.real_time_factor = p["real_time_factor"]
         self.command_timeout_ns = round(p["command_timeout"] * NS)
         self.odom_frame, self.base_frame = p["odom_frame"], p["base_frame"]
+        for name in ("odom_frame", "base_frame"):
+            if not p[name] or p[name] == "base_link" or p["odom_frame"] == p["base_frame"]:
+                raise UserError(name, f"{p[name]!r}: frame names must be non-empty, distinct, "
+                                      f"and not base_link (the URDF's body frame)")
         self.record = p["record"]
         self._settings = settings
         self._recorder: RunRecorder | None = None
@@ -197,26 +207,29 @@ class SimulatorNode(Node):
         self._now_ns = 0             # its stamp: simulated time at the start of the open segment
         self._pending = None         # (k + 1, messages) computed, waiting for its wall time
         self._paused = False
+        self._steps = 0              # ~/step requests not yet published
         self._failed: str | None = None
         self._reset_requested = False
         self._stopping = False
         self._anchor = (time.monotonic(), 0)   # (wall s, simulated ns) pacing origin
         self._window = self._anchor            # start of the real-time-factor measurement
 
-        state_qos = QoSProfile(depth=STATE_QOS_DEPTH, reliability=ReliabilityPolicy.RELIABLE)
-        latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
-        self._joint_pub = self.create_publisher(JointState, "/joint_states", state_qos)
-        self._odom_pub = self.create_publisher(Odometry, "/odom", state_qos)
-        self._clock_pub = self.create_publisher(Clock, "/clock", state_qos)
-        self._description_pub = self.create_publisher(String, "/robot_description", latched)
-        self._description = robot_description(scene)
-        self.create_subscription(Float64MultiArray, WHEEL_TOPIC,
-                                 lambda msg: self._on_command(self._wheels, msg), 10)
-        self.create_subscription(Float64MultiArray, ARM_TOPIC,
-                                 lambda msg: self._on_command(self._arm, msg), 10)
+        # Relative names: a namespace (__ns:=/robot1) or a remap moves every topic.
+        self._state_pubs = {
+            topic: self.create_publisher(kind, relative(topic), state_qos())
+            for topic, kind in ((JOINT_STATES_TOPIC, JointState), (ODOM_TOPIC, Odometry),
+                                (CLOCK_TOPIC, Clock))}
+        self._tf_pub = self._tf_publisher() if p["publish_tf"] else None
+        self._description_pub = self.create_publisher(String, relative(DESCRIPTION_TOPIC),
+                                                      latched_qos())
+        self._description = robot_description(scene, root=self.base_frame)
+        self.create_subscription(Float64MultiArray, relative(WHEEL_TOPIC),
+                                 lambda msg: self._on_command(self._wheels, msg), command_qos())
+        self.create_subscription(Float64MultiArray, relative(ARM_TOPIC),
+                                 lambda msg: self._on_command(self._arm, msg), command_qos())
         self.create_service(Trigger, "~/reset", self._on_reset)
         self.create_service(SetBool, "~/pause", self._on_pause)
+        self.create_service(Trigger, "~/step", self._on_step)
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
 
@@ -242,8 +255,9 @@ class SimulatorNode(Node):
             try:
                 self.declare_parameter(name, default, descriptor)
             except InvalidParameterTypeException:
-                kind = "a floating-point number (write 1.0, not 1)" if isinstance(default, float) \
-                    else "a string"
+                kind = ("true or false" if isinstance(default, bool)
+                        else "a floating-point number (write 1.0, not 1)"
+                        if isinstance(default, float) else "a string")
                 raise UserError(name, f"expected {kind}") from None
             except InvalidParameterValueException:
                 override = self._parameter_overrides.get(name)
@@ -333,11 +347,42 @@ class SimulatorNode(Node):
                 response.message = f"{'resumed' if self._paused else 'running'} at t = {now} s"
                 if self._paused:
                     self._paused = False
+                    self._steps = 0
                     self._reanchor()
                 response.success = True
             self._cv.notify_all()
         self.get_logger().info(response.message)
         return response
+
+    def _on_step(self, request, response):
+        """While paused: publish the next state (one period on), then answer."""
+        with self._cv:
+            if not self._paused or self._failed:
+                response.success = False
+                response.message = (f"cannot step: the simulation failed ({self._failed}); call "
+                                    f"~/reset" if self._failed else
+                                    "not paused: call ~/pause (true) first, then ~/step")
+                return response
+            self._steps += 1
+            target = self._k + self._steps
+            self._cv.notify_all()
+            done = self._cv.wait_for(lambda: self._k >= target or self._failed or self._stopping
+                                     or self._reset_requested or not self._paused,
+                                     timeout=STEP_TIMEOUT)
+            response.success = bool(done) and self._k >= target
+            response.message = (f"stepped to t = {format_ns(self._now_ns)} s" if response.success
+                                else f"step not completed (t = {format_ns(self._now_ns)} s)")
+        return response
+
+    def _tf_publisher(self):
+        try:
+            from tf2_msgs.msg import TFMessage
+        except ImportError:
+            self.get_logger().warning(
+                "publish_tf: tf2_msgs does not import (source a ROS install, or build it with "
+                "tools/build_tf2_msgs.sh); no /tf")
+            return None
+        return self.create_publisher(TFMessage, relative(TF_TOPIC), state_qos())
 
     # --- stepping thread -------------------------------------------------------------------
     def start(self) -> None:
@@ -381,7 +426,7 @@ class SimulatorNode(Node):
                 self._publish_description()
                 self._publish(0, self._messages(0))
                 return True
-            if self._paused or self._failed:
+            if (self._paused and not self._steps) or self._failed:
                 self._cv.wait()
                 return True
             pending = self._pending
@@ -392,9 +437,16 @@ class SimulatorNode(Node):
                     self._pending = computed
             return True
         with self._cv:
-            if self._stopping or self._reset_requested or self._paused or self._failed:
+            if (self._stopping or self._reset_requested or self._failed
+                    or (self._paused and not self._steps)):
                 return True
             k, messages = pending
+            if self._paused:   # a ~/step: publish now, no pacing
+                self._steps -= 1
+                self._publish(k, messages)
+                self._pending = None
+                self._cv.notify_all()
+                return True
             paced = self.real_time_factor > 0
             delay = self._due(stamp_ns(k, self.rate)) - time.monotonic() if paced else 0.0
             if delay > 0:
@@ -459,6 +511,7 @@ class SimulatorNode(Node):
         self._k, self._now_ns, self._pending = 0, 0, None
         self._failed = None
         self._reset_requested = False
+        self._steps = 0
         self._reanchor()
 
     # --- messages --------------------------------------------------------------------------
@@ -470,10 +523,11 @@ class SimulatorNode(Node):
     def _publish(self, k: int, messages: dict) -> None:
         published = {}
         try:
-            for topic, publisher in (("/joint_states", self._joint_pub),
-                                     ("/odom", self._odom_pub), ("/clock", self._clock_pub)):
+            for topic, publisher in self._state_pubs.items():
                 publisher.publish(messages[topic])
                 published[topic] = messages[topic]
+            if self._tf_pub is not None:
+                self._tf_pub.publish(transform(messages[ODOM_TOPIC]))
         finally:
             # What went out is recorded, even when a shutdown fails the rest of the group.
             if published:

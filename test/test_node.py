@@ -251,7 +251,7 @@ def test_stamps_are_exact_multiples_of_the_period_with_no_gaps(fresh):
     assert names == ("right_wheel_joint", "left_wheel_joint", "arm_revolute_1",
                      "arm_prismatic_1", "arm_revolute_2", "arm_prismatic_2")
     odom = fresh.run("odom")[0][7]
-    assert (odom.header.frame_id, odom.child_frame_id) == ("odom", "base_link")
+    assert (odom.header.frame_id, odom.child_frame_id) == ("odom", "base_footprint")
     covariance = np.array(odom.pose.covariance).reshape(6, 6)
     assert np.array_equal(covariance, np.diag(np.diag(covariance))) and np.all(np.diag(covariance) > 0)
 
@@ -461,3 +461,77 @@ def test_robot_description_reaches_a_late_subscriber(probe, simulator):
         assert text.lstrip().startswith("<") and "<robot" in text and "right_wheel_joint" in text
     finally:
         probe.node.destroy_subscription(subscription)
+
+
+# --- ROS-native naming and stepping --------------------------------------------------------
+
+class NamespacedProbe:
+    """Counts odom, joint_states and clock in /robot1 and /robot2, and on the root topics."""
+
+    NAMESPACES = ("/robot1", "/robot2", "")
+    TOPICS = (("odom", Odometry), ("joint_states", JointState), ("clock", Clock))
+
+    def __init__(self, context: Context):
+        self.node = rclpy.create_node("namespace_probe", context=context)
+        self.lock = threading.Lock()
+        self.counts = {}
+        for namespace in self.NAMESPACES:
+            for topic, kind in self.TOPICS:
+                name = f"{namespace}/{topic}"
+                self.counts[name] = 0
+                self.node.create_subscription(kind, name, lambda msg, name=name: self._on(name),
+                                              RELIABLE)
+
+    def _on(self, name):
+        with self.lock:
+            self.counts[name] += 1
+
+    def snapshot(self) -> dict:
+        with self.lock:
+            return dict(self.counts)
+
+
+def test_two_simulators_in_two_namespaces_publish_only_there(probe, tmp_path):
+    """`__ns:=/robot1` moves every topic: each namespace gets its own odom, joint_states and
+    clock, and the root topics stay silent (any other node on the domain is paused)."""
+    probe.pause(True)
+    nodes = [SimulatorProcess(tmp_path, *FAST, "-r", f"__ns:={namespace}")
+             for namespace in ("/robot1", "/robot2")]
+    try:
+        with spinning(NamespacedProbe, DOMAIN_ID) as counter:
+            def all_arrived():
+                counts = counter.snapshot()
+                assert all(node.process.poll() is None for node in nodes), nodes[0].output()
+                return all(counts[f"{ns_}/{topic}"] >= 20 for ns_ in ("/robot1", "/robot2")
+                           for topic, _ in NamespacedProbe.TOPICS)
+            wait_for(all_arrived, "20 messages on every namespaced topic", STARTUP_TIMEOUT)
+            counts = counter.snapshot()
+            assert all(counts[f"/{topic}"] == 0 for topic, _ in NamespacedProbe.TOPICS), counts
+            names = dict(counter.node.get_service_names_and_types())
+            assert "/robot1/mobile_manip_sim/step" in names
+            assert "/robot2/mobile_manip_sim/reset" in names
+    finally:
+        for node in nodes:
+            assert node.stop() == 0, node.output()
+
+
+def test_ten_steps_while_paused_publish_ten_states_one_period_apart(fresh):
+    fresh.wait_run("joints", lambda run: len(run) >= 5, "5 segments")
+    client = fresh.node.create_client(Trigger, "/mobile_manip_sim/step")
+    try:
+        wait_for(client.service_is_ready, "the ~/step service")
+        assert not fresh.call(client, Trigger.Request()).success   # running: refused
+        stop = paused_at(fresh.pause(True))
+        wait_for(lambda: fresh.snapshot("clock")[-1] == stop, "/clock to reach the pause time")
+        before = len(fresh.snapshot("joints"))
+        for k in range(1, 11):
+            response = fresh.call(client, Trigger.Request())
+            assert response.success, response.message
+            assert paused_at(response) == stop + k * PERIOD_NS
+        wait_for(lambda: len(fresh.snapshot("joints")) >= before + 10, "ten stepped states")
+        time.sleep(0.3)   # paused: nothing more may come
+        stamps = [record[0] for record in fresh.snapshot("joints")[before:]]
+        assert stamps == [stop + k * PERIOD_NS for k in range(1, 11)]
+        assert fresh.snapshot("clock")[-10:] == stamps
+    finally:
+        fresh.node.destroy_client(client)
