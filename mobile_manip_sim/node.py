@@ -245,6 +245,10 @@ class SimulatorNode(Node):
             f"({'dt ' + str(settings.dt) if settings.fixed_step else f'rtol {settings.rtol}'}), "
             f"publishing at {float(self.rate):g} Hz of simulated time, real-time factor "
             f"{self.real_time_factor:g}{' (free-running)' if self.real_time_factor == 0 else ''}")
+        if p["publish_tf"] and self._tf_pub is None:
+            self.get_logger().warning(
+                "publish_tf: tf2_msgs does not import (source a ROS install, or build it with "
+                "tools/build_tf2_msgs.sh); no /tf")
 
     # --- parameters ------------------------------------------------------------------------
     def _declare_parameters(self) -> None:
@@ -378,10 +382,7 @@ class SimulatorNode(Node):
         try:
             from tf2_msgs.msg import TFMessage
         except ImportError:
-            self.get_logger().warning(
-                "publish_tf: tf2_msgs does not import (source a ROS install, or build it with "
-                "tools/build_tf2_msgs.sh); no /tf")
-            return None
+            return None   # said once the node has started (__init__'s last line)
         return self.create_publisher(TFMessage, relative(TF_TOPIC), state_qos())
 
     # --- stepping thread -------------------------------------------------------------------
