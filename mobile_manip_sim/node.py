@@ -98,6 +98,7 @@ LAG_TOLERANCE = 0.1        # s behind the wall clock before the node says it can
 BAG_FLUSH_INTERVAL = 1.0   # s of wall time: the most of a recording a SIGKILL may lose
 SHUTDOWN_POLL = 0.2        # s: how often the executor checks for an external shutdown
 STEP_TIMEOUT = 30.0        # s of wall time a ~/step call waits for its state
+PEER_POLL = 0.01           # s: synchronous start-up checks for peers this often
 
 
 def _float_range(low: float, high: float) -> list[FloatingPointRange]:
@@ -122,6 +123,12 @@ PARAMETERS = {
                          "(needs tf2_msgs).", None, False),
     "record": ("", "Record a rosbag2 (MCAP) bag to this new directory; empty = off.", None,
                False),
+    "synchronous": (False, "Lockstep: after publishing state k, compute segment k only once a "
+                           "new command has arrived (or sync_timeout has passed); the first "
+                           "state waits for a state subscriber and a command publisher.", None,
+                    False),
+    "sync_timeout": (1.0, "Synchronous mode: wall seconds to wait for a command before holding "
+                          "the last one (and saying so).", _float_range(0.001, 3600.0), False),
     "integrator.method": ("", f"Integrator overriding the scene's ({', '.join(METHODS)}); "
                               "empty = the scene's.", None, False),
     "integrator.dt": (0.0, "Fixed step (s) overriding the scene's; 0 = the scene's.",
@@ -190,6 +197,9 @@ class SimulatorNode(Node):
                 raise UserError(name, f"{p[name]!r}: frame names must be non-empty, distinct, "
                                       f"and not base_link (the URDF's body frame)")
         self.record = p["record"]
+        self.synchronous, self.sync_timeout = p["synchronous"], p["sync_timeout"]
+        self._command_seq = 0         # valid commands received so far (either group)
+        self._seq_published = 0       # _command_seq when the latest state went out
         self._settings = settings
         self._recorder: RunRecorder | None = None
         self._recorded_stamp: int | None = None   # last state stamp in the open bag
@@ -223,10 +233,11 @@ class SimulatorNode(Node):
         self._description_pub = self.create_publisher(String, relative(DESCRIPTION_TOPIC),
                                                       latched_qos())
         self._description = robot_description(scene, root=self.base_frame)
-        self.create_subscription(Float64MultiArray, relative(WHEEL_TOPIC),
-                                 lambda msg: self._on_command(self._wheels, msg), command_qos())
-        self.create_subscription(Float64MultiArray, relative(ARM_TOPIC),
-                                 lambda msg: self._on_command(self._arm, msg), command_qos())
+        self._command_subs = [
+            self.create_subscription(Float64MultiArray, relative(topic),
+                                     lambda msg, group=group: self._on_command(group, msg),
+                                     command_qos())
+            for topic, group in ((WHEEL_TOPIC, self._wheels), (ARM_TOPIC, self._arm))]
         self.create_service(Trigger, "~/reset", self._on_reset)
         self.create_service(SetBool, "~/pause", self._on_pause)
         self.create_service(Trigger, "~/step", self._on_step)
@@ -306,6 +317,10 @@ class SimulatorNode(Node):
             group.values = np.array(values, dtype=float)
             group.received_ns = self._now_ns
             group.timed_out = False
+            self._command_seq += 1
+        if self.synchronous:
+            with self._cv:
+                self._cv.notify_all()
 
     def _held_efforts(self, segment_start_ns: int) -> tuple[np.ndarray, np.ndarray]:
         """The efforts to hold from segment_start_ns on, after the command timeout."""
@@ -387,15 +402,48 @@ class SimulatorNode(Node):
 
     # --- stepping thread -------------------------------------------------------------------
     def start(self) -> None:
-        """Publish the description and the initial state, then start stepping."""
+        """Start the stepping thread: it publishes the description and the initial state (in
+        synchronous mode once a state subscriber and a command publisher are there), then
+        steps. Nothing is computed here, before the executor spins."""
+        self._thread.start()
+
+    def _begin(self) -> bool:
+        """The stepping thread's start; False when stopped before it began."""
+        if self.synchronous:
+            with self._cv:   # graph changes do not notify: poll, woken early by stop()
+                while not self._stopping and not self._peers_ready():
+                    self._cv.wait(PEER_POLL)
         with self._cv:
+            if self._stopping:
+                return False
             self._publish_description()
             self._publish(0, self._messages(0))
-        # The first segment loads the compiled kernels: compute it before the pacing starts.
-        self._pending = self._compute_next()
+        if not self.synchronous:
+            # The first segment loads the compiled kernels: compute it before pacing starts.
+            computed = self._compute_next()
+            with self._cv:
+                if not self._reset_requested:
+                    self._pending = computed
+                self._reanchor()
+        return True
+
+    def _peers_ready(self) -> bool:
+        """Synchronous mode's start condition: someone listens, someone commands."""
+        listening = any(pub.get_subscription_count() > 0 for pub in self._state_pubs.values())
+        commanding = any(sub.get_publisher_count() > 0 for sub in self._command_subs)
+        return listening and commanding
+
+    def _await_command(self) -> None:
+        """Synchronous mode, before computing a segment: wait (not holding _cv afterwards) for
+        a command newer than the latest published state, at most sync_timeout wall seconds."""
         with self._cv:
-            self._reanchor()
-        self._thread.start()
+            arrived = self._cv.wait_for(
+                lambda: self._command_seq != self._seq_published or self._stopping
+                or self._reset_requested or self._paused, timeout=self.sync_timeout)
+        if not arrived:
+            self._warn_throttled(("sync",), f"synchronous: no command within sync_timeout "
+                                            f"{self.sync_timeout:g} s after t = "
+                                            f"{format_ns(self._now_ns)} s; holding the last one")
 
     def stop(self) -> None:
         """Stop the stepping thread (idempotent); nothing is published afterwards."""
@@ -411,6 +459,8 @@ class SimulatorNode(Node):
         as one that compiles a kernel); a segment computed across a pause is kept for the
         resume, one computed across a reset is dropped."""
         try:
+            if not self._begin():
+                return
             while self._step():
                 pass
         except Exception:
@@ -432,6 +482,12 @@ class SimulatorNode(Node):
                 return True
             pending = self._pending
         if pending is None:
+            if self.synchronous:
+                self._await_command()
+                with self._cv:
+                    if self._stopping or self._reset_requested or (
+                            self._paused and not self._steps):
+                        return True
             computed = self._compute_next()   # outside the lock
             with self._cv:
                 if not self._reset_requested:
@@ -522,6 +578,8 @@ class SimulatorNode(Node):
                               self.odom_frame, self.base_frame)
 
     def _publish(self, k: int, messages: dict) -> None:
+        with self._command_lock:   # before publishing: a reply to this state counts as new
+            self._seq_published = self._command_seq
         published = {}
         try:
             for topic, publisher in self._state_pubs.items():
