@@ -165,6 +165,8 @@ class _CommandGroup:
 
     def __init__(self, topic: str, size: int, labels: str, what: str):
         self.topic, self.size, self.labels, self.what = topic, size, labels, what
+        self.seq = 0             # valid commands received, ever (synchronous mode)
+        self.seq_published = 0   # seq when the latest state went out
         self.clear()
 
     def clear(self) -> None:
@@ -198,8 +200,6 @@ class SimulatorNode(Node):
                                       f"and not base_link (the URDF's body frame)")
         self.record = p["record"]
         self.synchronous, self.sync_timeout = p["synchronous"], p["sync_timeout"]
-        self._command_seq = 0         # valid commands received so far (either group)
-        self._seq_published = 0       # _command_seq when the latest state went out
         self._settings = settings
         self._recorder: RunRecorder | None = None
         self._recorded_stamp: int | None = None   # last state stamp in the open bag
@@ -317,7 +317,7 @@ class SimulatorNode(Node):
             group.values = np.array(values, dtype=float)
             group.received_ns = self._now_ns
             group.timed_out = False
-            self._command_seq += 1
+            group.seq += 1
         if self.synchronous:
             with self._cv:
                 self._cv.notify_all()
@@ -435,11 +435,19 @@ class SimulatorNode(Node):
 
     def _await_command(self) -> None:
         """Synchronous mode, before computing a segment: wait (not holding _cv afterwards) for
-        a command newer than the latest published state, at most sync_timeout wall seconds."""
+        a command newer than the latest published state on every command topic that has a
+        publisher (so wheels and arm sent in reply to one state apply together), at most
+        sync_timeout wall seconds."""
+        def answered() -> bool:
+            with self._command_lock:
+                fresh = [group.seq != group.seq_published for group in (self._wheels, self._arm)]
+            commanding = [sub.get_publisher_count() > 0 for sub in self._command_subs]
+            return any(fresh) and all(f or not c for f, c in zip(fresh, commanding))
+
         with self._cv:
             arrived = self._cv.wait_for(
-                lambda: self._command_seq != self._seq_published or self._stopping
-                or self._reset_requested or self._paused, timeout=self.sync_timeout)
+                lambda: answered() or self._stopping or self._reset_requested or self._paused,
+                timeout=self.sync_timeout)
         if not arrived:
             self._warn_throttled(("sync",), f"synchronous: no command within sync_timeout "
                                             f"{self.sync_timeout:g} s after t = "
@@ -579,7 +587,8 @@ class SimulatorNode(Node):
 
     def _publish(self, k: int, messages: dict) -> None:
         with self._command_lock:   # before publishing: a reply to this state counts as new
-            self._seq_published = self._command_seq
+            for group in (self._wheels, self._arm):
+                group.seq_published = group.seq
         published = {}
         try:
             for topic, publisher in self._state_pubs.items():

@@ -535,3 +535,46 @@ def test_ten_steps_while_paused_publish_ten_states_one_period_apart(fresh):
         assert fresh.snapshot("clock")[-10:] == stamps
     finally:
         fresh.node.destroy_client(client)
+
+
+def lockstep_run(tmp_path, name: str, states: int):
+    """A synchronous node at real_time_factor 0 and the PD controller process on a domain of
+    their own; the node's bag as (topic, stamp, raw bytes), and the node's output."""
+    from rosbags.rosbag2 import Reader
+    env = ros_child_env(DOMAIN_ID + 1 if DOMAIN_ID < 199 else 1)   # not the probe's
+    bag = tmp_path / name
+    node = subprocess.Popen([SIMULATOR, "--ros-args", "-p", "integrator.method:=rk4",
+                             "-p", "integrator.dt:=0.001", "-p", "real_time_factor:=0.0",
+                             "-p", "synchronous:=true", "-p", "sync_timeout:=5.0",
+                             "-p", "command_timeout:=0.0", "-p", f"record:={bag}"],
+                            env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        time.sleep(0.5)   # the controller starts after the node
+        controller = subprocess.run(
+            [os.sys.executable, os.path.join(os.path.dirname(__file__), "pd_controller.py"),
+             str(states)], env=env, timeout=STARTUP_TIMEOUT + 60, capture_output=True, text=True)
+        assert controller.returncode == 0, controller.stderr
+    finally:
+        node.send_signal(signal.SIGTERM)
+        output = node.communicate(timeout=30)[0]
+    assert node.returncode == 0, output
+    with Reader(bag) as reader:
+        records = [(connection.topic, stamp, bytes(data))
+                   for connection, stamp, data in reader.messages()]
+    return records, output
+
+
+def test_a_pd_controller_in_lockstep_gives_the_same_bag_every_time(tmp_path):
+    """Closed loop over DDS, synchronous, as fast as the two processes go: every state from
+    t = 0 on, none skipped or repeated, each segment under the reply to its state — twice the
+    same run, byte for byte."""
+    states = 150
+    first, output = lockstep_run(tmp_path, "first", states)
+    assert "sync_timeout" not in output, output
+    stamps = [stamp for topic, stamp, _ in first if topic == "/joint_states"]
+    assert stamps == [k * PERIOD_NS for k in range(states + 1)]
+    wheels = [data for topic, stamp, data in first if topic == "/wheel_effort_controller/commands"]
+    assert len(wheels) >= 2       # the controller's replies changed the efforts
+    second, output = lockstep_run(tmp_path, "second", states)
+    assert "sync_timeout" not in output, output
+    assert second == first

