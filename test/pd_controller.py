@@ -7,6 +7,7 @@ alone; on the state stamped STATES periods it pauses the simulator and exits.
 import sys
 
 import rclpy
+from ros_helpers import spin_until
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
@@ -44,11 +45,7 @@ def main() -> int:
     while not (wheels.get_subscription_count() and arm.get_subscription_count()):
         rclpy.spin_once(node, timeout_sec=0.01)
     node.create_subscription(JointState, "joint_states", on_state, qos)
-    while not (done and done[0].done()):
-        rclpy.spin_once(node, timeout_sec=0.1)
-    node.destroy_node()
-    rclpy.shutdown()
-    return 0
+    return spin_until(node, lambda: bool(done) and done[0].done())
 
 
 if __name__ == "__main__":

@@ -2,6 +2,7 @@
 import sys
 
 import rclpy
+from ros_helpers import spin_until
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from tf2_msgs.msg import TFMessage
 
@@ -22,11 +23,7 @@ def main() -> int:
 
     node.create_subscription(TFMessage, "/tf",
                              on_tf, QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE))
-    while len(seen) < wanted:
-        rclpy.spin_once(node, timeout_sec=0.1)
-    node.destroy_node()
-    rclpy.shutdown()
-    return 0
+    return spin_until(node, lambda: len(seen) >= wanted)
 
 
 if __name__ == "__main__":
