@@ -65,6 +65,8 @@ matrices invertible for filters (robot_localization rejects all-zero covariances
 from __future__ import annotations
 
 import math
+import re
+import sys
 import threading
 import time
 from fractions import Fraction
@@ -98,6 +100,8 @@ LAG_TOLERANCE = 0.1        # s behind the wall clock before the node says it can
 BAG_FLUSH_INTERVAL = 1.0   # s of wall time: the most of a recording a SIGKILL may lose
 SHUTDOWN_POLL = 0.2        # s: how often the executor checks for an external shutdown
 STEP_TIMEOUT = 30.0        # s of wall time a ~/step call waits for its state
+STOP_TIMEOUT = 2.0         # s of wall time shutdown waits for the stepping thread
+MAX_PARAMS_FILE = 1 << 20  # bytes: a parameters file larger than this is refused
 PEER_POLL = 0.01           # s: synchronous start-up checks for peers this often
 
 
@@ -181,6 +185,7 @@ class SimulatorNode(Node):
     def __init__(self, **node_options):
         super().__init__(NODE_NAME, **node_options)
         self._declare_parameters()
+        self._reject_unknown_parameters()
         p = self._read_parameters()
         scene = load_scene(p["scene"] or None)
         settings = make_integrator(scene.integrator, p["integrator.method"] or None,
@@ -279,6 +284,14 @@ class SimulatorNode(Node):
                 value = override.value if override is not None else default
                 raise UserError(name, f"{value} is outside [{floats[0].from_value:g}, "
                                       f"{floats[0].to_value:g}]") from None
+
+    def _reject_unknown_parameters(self) -> None:
+        """A parameter given for this node that it does not declare is a mistake (a typo such
+        as real_time_facter would otherwise be silently ignored)."""
+        unknown = sorted(set(self._parameter_overrides) - set(self._parameters))
+        if unknown:
+            raise UserError(unknown[0], f"unknown parameter of {NODE_NAME} (known: "
+                                        f"{', '.join(PARAMETERS)})")
 
     def _read_parameters(self) -> dict:
         values = {name: self.get_parameter(name).value for name in PARAMETERS}
@@ -459,7 +472,10 @@ class SimulatorNode(Node):
             self._stopping = True
             self._cv.notify_all()
         if self._thread.is_alive():
-            self._thread.join()
+            self._thread.join(timeout=STOP_TIMEOUT)
+        if self._thread.is_alive():   # inside a long segment: the bag is closed regardless
+            rclpy.logging.get_logger(NODE_NAME).warning(
+                f"the stepping thread did not stop within {STOP_TIMEOUT:g} s; exiting anyway")
 
     def _run(self) -> None:
         """The engine's only user once started. _cv guards the flags and every publication, and
@@ -684,8 +700,42 @@ class SimulatorNode(Node):
                                                 f"goes on without it")
 
 
+def _check_params_files(argv) -> None:
+    """Each --params-file a readable, regular YAML file: said in one line here, before rcl
+    logs its own error and raises."""
+    import os
+
+    import yaml
+    args = list(sys.argv[1:] if argv is None else argv)
+    for flag, path in zip(args, args[1:]):
+        if flag != "--params-file":
+            continue
+        if not os.path.isfile(path):
+            raise UserError("--params-file", f"{path}: not a regular file")
+        try:
+            with open(path, "rb") as stream:
+                yaml.safe_load(stream.read(MAX_PARAMS_FILE + 1)[:MAX_PARAMS_FILE].decode())
+        except (OSError, UnicodeDecodeError, yaml.YAMLError) as error:
+            reason = getattr(error, "strerror", None) or type(error).__name__
+            raise UserError("--params-file", f"{path}: not a readable YAML file ({reason})") \
+                from None
+        if os.path.getsize(path) > MAX_PARAMS_FILE:
+            raise UserError("--params-file", f"{path}: larger than {MAX_PARAMS_FILE} bytes")
+
+
+def _init(argv) -> None:
+    """rclpy.init; bad --ros-args (a missing or unparsable --params-file, ...) is a UserError."""
+    _check_params_files(argv)
+    try:
+        rclpy.init(args=argv)
+    except Exception as error:   # RCLError, whose text names rcl's source lines
+        text = re.sub(r",? at /\S+:\d+", "", str(error)).replace("failed to initialize rcl: ", "")
+        key = "--params-file" if "params file" in text else "--ros-args"
+        raise UserError(key, text.strip()) from None
+
+
 def _main(argv) -> int:
-    rclpy.init(args=argv)
+    _init(argv)
     node = None
     try:
         node = SimulatorNode()

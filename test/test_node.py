@@ -578,3 +578,33 @@ def test_a_pd_controller_in_lockstep_gives_the_same_bag_every_time(tmp_path):
     second, output = lockstep_run(tmp_path, "second", states)
     assert "sync_timeout" not in output, output
     assert second == first
+
+
+@pytest.mark.parametrize("case", ["missing params file", "binary params file",
+                                  "unknown parameter"])
+def test_bad_ros_arguments_exit_2_with_one_line_naming_the_cause(tmp_path, case):
+    binary = tmp_path / "binary.yaml"
+    binary.write_bytes(bytes(range(256)))
+    args, key = {"missing params file": (["--params-file", str(tmp_path / "none.yaml")],
+                                         "--params-file"),
+                 "binary params file": (["--params-file", str(binary)], "--params-file"),
+                 "unknown parameter": (["-p", "real_time_facter:=0.0"], "real_time_facter")}[case]
+    result = subprocess.run([SIMULATOR, "--ros-args", *args], env=child_env(),
+                            capture_output=True, text=True, timeout=60)
+    assert result.returncode == 2, result.stderr
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"simulator: error: {key}: "), result.stderr
+    assert "Traceback" not in result.stdout + result.stderr
+
+
+def test_the_shipped_params_file_applies_under_another_node_name(tmp_path):
+    """Keyed /**: a renamed node still takes it (a wrong type in it would be refused)."""
+    import shutil
+    params = tmp_path / "params.yaml"
+    shutil.copy(os.path.join(os.path.dirname(__file__), "..", "config", "simulator.params.yaml"),
+                params)
+    params.write_text(params.read_text().replace("publish_rate: 100.0", "publish_rate: 100"))
+    result = subprocess.run([SIMULATOR, "--ros-args", "--params-file", str(params),
+                             "-r", "__node:=renamed"], env=child_env(), capture_output=True,
+                            text=True, timeout=60)
+    assert result.returncode == 2 and "publish_rate" in result.stderr, result.stderr
