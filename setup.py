@@ -25,7 +25,7 @@ setup(
         "ros-jazzy-std-srvs", "ros-jazzy-rmw-fastrtps-cpp",
     ],
     extras_require={"test": [
-        "pytest", "pin", "rosbags", "mcap-ros2-support", "ros-jazzy-ament-package",
+        "pytest", "pin", "mujoco", "rosbags", "mcap-ros2-support", "ros-jazzy-ament-package",
         "colcon-core", "colcon-ros", "colcon-python-setup-py", "colcon-package-information",
         "colcon-package-selection",
     ]},

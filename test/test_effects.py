@@ -148,12 +148,13 @@ def test_joint_damping_changes_only_the_viscous_force():
     plain = simulation(free_arm_doc(), "rk4")
     c = np.array([0.0, 0.0, *JOINT_DAMPING])
     for q, u in random_states(plain, 5, seed=4):
-        s = np.concatenate([q, u, [0.0]])
+        s = plain.system.state(q, u)
         d1, d0 = damped.system.derivative(s), plain.system.derivative(s)
         nq = plain.nq
         assert np.array_equal(d1[:nq], d0[:nq])
         M = plain.dynamics.mass_matrix(q)
-        assert np.allclose(d1[nq:-1] - d0[nq:-1], np.linalg.solve(M, -c * u), rtol=1e-10, atol=1e-12)
+        nu = plain.nu
+        assert np.allclose(d1[nq:nq + nu] - d0[nq:nq + nu], np.linalg.solve(M, -c * u), rtol=1e-10, atol=1e-12)
         assert d1[-1] - d0[-1] == pytest.approx(-(c * u * u).sum(), rel=1e-12)
 
 
@@ -285,8 +286,8 @@ def test_fixed_base_holds_the_base_and_leaves_the_arm_alone_dynamics():
     Q = np.array(sim.system.Q_cmd)
     for q, u in random_states(sim, 5, seed=5):
         u[:2] = 0.0
-        s = np.concatenate([q, u, [0.0]])
-        ud = sim.system.derivative(s)[sim.nq:-1]
+        s = sim.system.state(q, u)
+        ud = sim.system.derivative(s)[sim.nq:sim.nq + sim.nu]
         M, h = ref.mass_matrix(q), ref.bias(q, u)
         expected = np.linalg.solve(M[2:, 2:], (Q - h)[2:])
         assert np.all(ud[:2] == 0.0)

@@ -140,4 +140,4 @@ def test_repeating_the_simulate_cli_gives_identical_bytes(tmp_path):
         assert len(result.stdout.strip().splitlines()) == 1   # the summary line
         outputs.append((out.read_bytes(), out.with_suffix(".impacts.csv").read_bytes()))
     assert outputs[0] == outputs[1]
-    assert outputs[0][0].count(b"\n") == 202 and outputs[0][1].count(b"\n") == 3
+    assert outputs[0][0].count(b"\n") == 202 and outputs[0][1].count(b"\n") == 4   # header + 3 impacts in 1 s

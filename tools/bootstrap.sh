@@ -8,3 +8,6 @@ if [ ! -x .venv/bin/python ]; then
 fi
 .venv/bin/python -m pip install --quiet --upgrade pip
 .venv/bin/python -m pip install --quiet -e '.[test]'
+# Compile every numba kernel now (about a minute), so that no run — the node above all —
+# compiles at run time.
+.venv/bin/python -m mobile_manip_sim.warmup

@@ -111,7 +111,10 @@ def pressed_rod(method: str = "dop853", value: float = 1e-10) -> CaseResult:
                          "resting at the upper stop after 1 s (1 = yes)": resting_after_press,
                          "l2 after 1 s, m": l_pressed,
                          "l2 0.05 s after the force reversed, m": left_after})
-    case.checks["impacts while pressed (no Zeno)"] = (impacts_pressing, 64)
+    # Both rods end pressed into their stops; under the unilateral law each one's last small
+    # bounces kick the other off its stop (its stop cannot pull), so they settle together:
+    # a finite exchange, bounded here at twice the Zeno guard of one rod.
+    case.checks["impacts while pressed (no Zeno)"] = (impacts_pressing, 128)
     case.checks["not resting at the upper stop after 1 s (0 = resting)"] = (1 - resting_after_press, 0)
     case.checks["l2 not at the stop after 1 s, m"] = (abs(l_pressed - 1.0), 0.0)
     case.checks["rod 2 still at the stop 0.05 s after the pull, (0 = left)"] = (float(left_after > 1.0 - 1e-4), 0.0)

@@ -3,6 +3,7 @@ and how the hard cases behave; write ``REPORT.md`` and PNG plots.
 
     bench --out bench/            # the full run, about 10 minutes
     bench --out /tmp/b --quick    # a smoke run: short sweeps, one repeat
+    bench --out /tmp/m --only mujoco --quick   # the MuJoCo section alone, under a minute
 """
 from __future__ import annotations
 
@@ -38,6 +39,7 @@ def _main(argv) -> int:
     parser = cli.ArgumentParser(prog="bench", description=__doc__.split("\n\n")[0])
     parser.add_argument("--out", default="bench", help="directory for REPORT.md and the plots (default bench)")
     parser.add_argument("--quick", action="store_true", help="a smoke run: short sweeps, one repeat")
+    parser.add_argument("--only", choices=("mujoco",), help="run one section alone (REPORT.md holds only it)")
     args = parser.parse_args(argv)
     out = Path(args.out)
     try:
@@ -45,19 +47,23 @@ def _main(argv) -> int:
     except OSError as error:
         raise UserError("--out", f"cannot create {out} ({error.strerror})") from None
 
-    from . import effects, hard_cases, report, scaling, versus, work_precision
-    from .scenes import paper_document, scene_file
+    from . import effects, hard_cases, report, scaling, versus, versus_mujoco, work_precision
+    from .scenes import paper_document, random_arm_scene, scene_file
     from ..scene import load_scene
 
-    progress = Progress(7)
-    results = {"quick": args.quick, "started": time.time()}
+    results = {"quick": args.quick, "started": time.time(), "only": args.only}
+    if args.only == "mujoco":
+        progress = Progress(1)
+        _mujoco_section(versus_mujoco, results, progress, args.quick)
+        return _write(report, results, out, progress)
+    progress = Progress(8)
 
     progress.section("warming up the compiled kernels")
     versus.realtime(lambda _line: None, quick=True)
 
-    progress.section("work–precision: paper scene and hard scene")
+    progress.section("work–precision: paper scene, hard scene, 20-link random arm")
     results["wp"] = []
-    for scene in (load_scene(), scene_file("hard_impacts.yaml")):
+    for scene in (load_scene(), scene_file("hard_impacts.yaml"), random_arm_scene()):
         wp = work_precision.sweep(scene, progress, quick=args.quick)
         work_precision.plot(wp, out / f"work_precision_{scene.name}.png")
         results["wp"].append(wp)
@@ -79,6 +85,8 @@ def _main(argv) -> int:
     progress.section("fixed-step 1 kHz real-time factor")
     results["realtime"] = versus.realtime(progress, quick=args.quick)
 
+    _mujoco_section(versus_mujoco, results, progress, args.quick)
+
     progress.section("hard cases")
     results["hard"] = []
     for name, case in hard_cases.all_cases(quick=args.quick):
@@ -88,6 +96,18 @@ def _main(argv) -> int:
         progress(f"{result.name}: {'within bounds' if result.passed else 'OUT OF BOUNDS'} "
                  f"({time.perf_counter() - start:.1f} s)")
 
+    return _write(report, results, out, progress)
+
+
+def _mujoco_section(versus_mujoco, results, progress, quick: bool) -> None:
+    progress.section("against MuJoCo (equivalent unconstrained model)")
+    if versus_mujoco.mujoco_peer.available():
+        results["mujoco"] = versus_mujoco.measure(progress, quick=quick)
+    else:
+        progress("mujoco is not installed: MuJoCo comparison skipped")
+
+
+def _write(report, results, out, progress) -> int:
     results["finished"] = time.time()
     path = report.write(results, out)
     progress(f"wrote {path}")

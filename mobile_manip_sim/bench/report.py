@@ -50,7 +50,7 @@ def _machine() -> str:
     except OSError:
         pass
     versions = []
-    for name in ("numpy", "scipy", "numba", "pinocchio", "matplotlib"):
+    for name in ("numpy", "scipy", "numba", "pinocchio", "mujoco", "matplotlib"):
         try:
             module = __import__(name)
             versions.append(f"{name} {module.__version__}")
@@ -170,6 +170,8 @@ def write(results, out: Path) -> Path:
              "Times are CPU time of the one thread doing the work (`time.thread_time`), best of several "
              "repeats, with the BLAS thread pools pinned to one thread: on a shared machine they are "
              "what one core costs; wall times are listed beside them where they differ.", ""]
+    if results.get("only") == "mujoco":   # `bench --only mujoco`: that section alone
+        return _write_parts(parts + [_mujoco_section(results)], out)
     targets, _ = _targets(results)
     parts += ["## Speed targets (issue 6)", "", targets, "",
               "Ratios are between runs of this same bench invocation. Where a target is missed, the "
@@ -279,6 +281,19 @@ def write(results, out: Path) -> Path:
                          "yes" if case.passed else "**no**"))
     parts += [table(("case", "setting", "CPU", "steps (bound)", "impacts", "energy error, J (promise)",
                      "outside stroke, m", "figures", "within bounds"), rows), ""]
+    if results.get("mujoco"):
+        parts.append(_mujoco_section(results))
+    return _write_parts(parts, out)
+
+
+def _mujoco_section(results) -> str:
+    if not results.get("mujoco"):
+        return "## 7. Against MuJoCo\n\nmujoco is not installed: skipped.\n"
+    from .versus_mujoco import section
+    return section(results["mujoco"], number=7)
+
+
+def _write_parts(parts, out: Path) -> Path:
     path = out / "REPORT.md"
     path.write_text("\n".join(parts) + "\n")
     return path

@@ -45,16 +45,23 @@ def without_stroke_limits(scene: Scene) -> Scene:
     return parse_scene(doc, doc["name"])
 
 
-def random_robot_document(n_links: int, seed: int, gravity: float = 10.0) -> dict:
+def random_robot_document(n_links: int, seed: int, gravity: float = 10.0, physical: bool = False) -> dict:
     """A random robot of n links: joint rotations, lengths, masses, inertias, base; a random
-    initial state inside the strokes; no efforts."""
+    initial state inside the strokes; no efforts.
+
+    ``physical``: each cross-section inertia J = tr(B)·1 − B from the same random second moment
+    B, so that it is one a mass distribution can have (A + B ≥ C, as MuJoCo requires); the rest
+    of the document is the same as without it."""
     rng = np.random.default_rng(seed)
     links = []
     for _ in range(n_links):
         length = float(rng.uniform(0.3, 1.2))
         A = rng.normal(size=(3, 3)) * 0.01
+        J = A @ A.T + 1e-4 * np.eye(3)
+        if physical:
+            J = np.trace(J) * np.eye(3) - J
         links.append({"length": length, "mass_per_length": float(rng.uniform(0.3, 3.0)),
-                      "inertia_per_length": (A @ A.T + 1e-4 * np.eye(3)).tolist(),
+                      "inertia_per_length": J.tolist(),
                       "joint_rpy": rng.uniform(-np.pi, np.pi, 3).tolist(),
                       "stroke": [0.0, length]})
     return {
@@ -68,3 +75,13 @@ def random_robot_document(n_links: int, seed: int, gravity: float = 10.0) -> dic
                     "velocity": (0.3 * rng.normal(size=2 + 2 * n_links)).tolist()},
         "effects": {"gravity": gravity, "wheel_inertia": True},
     }
+
+
+def random_arm_scene(n_links: int = 20, seed: int = 20, duration: float = 0.5) -> Scene:
+    """The random arm of the work–precision study (issue 10 item 6): `n_links` links with physical
+    inertias (MuJoCo can build it), gravity, no efforts, no end stops, the base fixed: MuJoCo's
+    peer of it is then the same system, so its errors against our reference are errors."""
+    doc = random_robot_document(n_links, seed=seed, physical=True)
+    doc["duration"] = duration
+    doc["effects"]["fixed_base"] = True
+    return parse_scene(doc, doc["name"])

@@ -39,7 +39,7 @@ def per_evaluation(progress, quick: bool = False) -> dict:
     Q = sim.system.Q_cmd.copy()
     target = 0.02 if quick else 0.1
     nu = scene.robot.n_u
-    s = np.concatenate([q, u, [0.0]])
+    s = sim.system.state(q, u)
     ds = np.empty_like(s)
     out = {
         "Pinocchio: crba + rnea + projection + solve, from Python":
@@ -94,7 +94,7 @@ def whole_run(progress, quick: bool = False) -> dict:
     rows = {"Pinocchio + SciPy DOP853": [], "ours + SciPy DOP853": [], "ours, Simulation": []}
     f_peer = peer.rhs(Q)
     derivative = sim.system.derivative
-    s0 = np.concatenate([y0, [0.0]])
+    s0 = sim.system.state(scene.initial_q, scene.initial_u)
 
     def f_ours(_t, y):
         return derivative(y)

@@ -1,98 +1,332 @@
-"""Stroke end stops: finding a crossing inside a step, the impact law, resting and leaving.
+"""Stroke end stops, compiled: the impact law, resting at a stop and leaving it.
 
-A rod k (1-based) has ``l_k = s[4 + 2k]`` and ``l̇_k = s[n_q + 2k + 1]`` in the state vector.
-
-- Detection: after every step, each watched rod's path over the step is the cubic Hermite
-  interpolant of (l, l̇) at both ends; a crossing is flagged when the end value *or* the
-  interpolant's extremum leaves the stroke — so a fast rod that crosses and comes back within
-  one step is not missed (SciPy's sign-change detection misses it, scipy #9228).
-- Location (`locate`): the root in h' of l(step(s, h')) − stop, by the Illinois method on the
-  real integrator step, so the overshoot is at round-off, not at the interpolant's error. It is
-  bracketed by samples of the step that include the interpolant's turning points
-  (`hermite_turns`), where a rod that only grazes past its stop is out of the stroke.
-- Impact (`impact`): MODEL.md's generalized impulse along e_k, or the paper's `reflect` law.
+- Impact (`impact`): MODEL.md's unilateral impact law — one solve for every stop in contact at
+  that instant, the one hit and those resting, each stop only pushing (`contact_impulses`,
+  `solve_contacts`) — or the paper's `reflect` law; the record of every impact
+  goes to the stop log (`StopsData.log`), from which `Simulation` builds its `Impact` list.
 - Resting: a rod whose rebound speed is below ``rest_speed`` is held at the stop (its l̇ degree
   of freedom is locked, not stiffly pushed back), and so is a rod whose rebounds are too small
-  to resolve (the Zeno guards in `simulation.py`). It leaves when the stop would have to pull to
-  hold it (`release_wanted`: the constraint force changes sign), checked after every step and
-  whenever the command changes.
+  to resolve (the Zeno guards). It leaves when the stop would have to pull to hold it
+  (`release`: the holding force changes sign), located inside the step like an impact
+  (`events.py`) and checked whenever the command changes.
 """
 from __future__ import annotations
 
 import math
+from collections import namedtuple
 from dataclasses import dataclass
 
 import numpy as np
 
+from ..dynamics import kernels
 from ..dynamics.jit import jit
-from .system import CROSSING_CHECKS, constraint_forces, derivative
+from . import layout
+from .events import MAX_IMPACTS_PER_STEP, holding_margin
+from .system import derivative, holding_forces
+
+IMPULSE, REFLECT = 0, 1
+LAW_IDS = {"impulse": IMPULSE, "reflect": REFLECT}
+# log[i, ...] columns
+LOG_TIME, LOG_LINK, LOG_SIDE, LOG_LD_BEFORE, LOG_LD_AFTER, LOG_LOST, LOG_RESTING, LOG_HELD = range(8)
+LOG_COLUMNS = 8
+
+StopsData = namedtuple("StopsData", [
+    "watched",    # (n,) bool: rod k's stops are checked for crossings (not while it rests)
+    "resting",    # (n,) int64: −1 / +1 rod held at its lower / upper stop, 0 free
+    "stroke",     # (n, 2) [min, max] of each l_k, m
+    "permanent",  # (n_u,) bool: locked by the scene (locked joints, fixed base)
+    "law",        # (3,) law id, restitution e, rest speed (m/s)
+    "log",        # (capacity, LOG_COLUMNS) one row per impact
+    "log_q",      # (capacity, n_q) configuration at each impact
+    "log_u",      # (capacity, 2, n_u) u⁻ and u⁺ of each impact
+    "log_free",   # (capacity, n_u) bool: the pseudo-velocities free at each impact
+    "count",      # (1,) int64: rows of the log in use
+])
+
+ImpactScratch = namedtuple("ImpactScratch", [
+    "M",        # (n_u, n_u) mass matrix
+    "L",        # (n_u, n_u) its Cholesky factor
+    "vectors",  # (4, n_u) scratch for the mass-matrix kernel and the solve
+])
+
+
+def make_stops(model, law, restitution, rest_speed, permanently_locked) -> StopsData:
+    n, nq, nu = model.n_links, model.n_q, model.n_u
+    capacity = 4 * MAX_IMPACTS_PER_STEP * (n + 2)   # half of it is room for one step's impacts
+    permanent = np.zeros(nu, dtype=np.bool_)
+    permanent[list(permanently_locked)] = True
+    return StopsData(np.zeros(n, dtype=np.bool_), np.zeros(n, dtype=np.int64),
+                     np.array(model.stroke, dtype=float), permanent,
+                     np.array([LAW_IDS.get(law, IMPULSE), restitution, rest_speed]),
+                     np.zeros((capacity, LOG_COLUMNS)), np.zeros((capacity, nq)),
+                     np.zeros((capacity, 2, nu)), np.zeros((capacity, nu), dtype=np.bool_),
+                     np.zeros(1, dtype=np.int64))
+
+
+def make_impact_scratch(nu: int) -> ImpactScratch:
+    return ImpactScratch(np.zeros((nu, nu)), np.zeros((nu, nu)), np.zeros((4, nu)))
 
 
 @jit
-def hermite_turns(l0, d0, l1, d1, h):
-    """((τ₁, τ₂), c2, c3): where the cubic Hermite with values l0, l1 and slopes d0, d1 over
-    [0, h] has zero slope (−1 for a missing root; roots may lie outside (0, h)), and its
-    coefficients p(τ) = l0 + d0 τ + c2 τ² + c3 τ³."""
-    c2 = (3.0 * (l1 - l0) / h - 2.0 * d0 - d1) / h
-    c3 = (d0 + d1 - 2.0 * (l1 - l0) / h) / (h * h)
-    a, b, c = 3.0 * c3, 2.0 * c2, d0
-    roots = (-1.0, -1.0)
-    if a == 0.0:
-        if b != 0.0:
-            roots = (-c / b, -1.0)
-    else:
-        disc = b * b - 4.0 * a * c
-        if disc >= 0.0:
-            # The cancellation-free form: a path that is nearly a parabola (a rod under a constant
-            # force) has a ≈ 0 from round-off, and (−b ± √disc)/2a would lose its turning point.
-            w = -0.5 * (b + math.copysign(disc ** 0.5, b))
-            roots = (w / a, c / w if w != 0.0 else -1.0)
-    return roots, c2, c3
+def relock(system, stops):
+    """system.free = the pseudo-velocities neither locked by the scene nor held at a stop."""
+    nu = system.free.shape[0]
+    m = 0
+    for j in range(nu):
+        locked = stops.permanent[j]
+        if j >= 2 and j % 2 == 1 and stops.resting[(j - 1) // 2 - 1] != 0:
+            locked = True
+        if not locked:
+            system.free[m] = j
+            m += 1
+    for j in range(m, nu):
+        system.free[j] = -1
 
 
 @jit
-def hermite_extrema(l0, d0, l1, d1, h):
-    """(min, max) over [0, h] of the cubic Hermite with values l0, l1 and slopes d0, d1."""
-    lo = min(l0, l1)
-    hi = max(l0, l1)
-    roots, c2, c3 = hermite_turns(l0, d0, l1, d1, h)
-    for tau in roots:
-        if 0.0 < tau < h:
-            p = l0 + tau * (d0 + tau * (c2 + tau * c3))
-            lo = min(lo, p)
-            hi = max(hi, p)
-    return lo, hi
-
-
-@jit
-def crossing_in_step(s0, s1, h, system, watched, stroke, scratch_a, scratch_b):
-    """True when a watched rod leaves its stroke during the step s0 → s1 (see module doc)."""
-    nq = system[4].shape[0] + 3
-    system[7][CROSSING_CHECKS] += 1
-    for k in range(1, watched.shape[0] + 1):
-        if not watched[k - 1]:
-            continue
-        lo, hi = stroke[k - 1, 0], stroke[k - 1, 1]
-        i_l, i_ld = 4 + 2 * k, nq + 2 * k + 1
-        if s1[i_l] < lo or s1[i_l] > hi:
-            return True
-        low, high = hermite_extrema(s0[i_l], s0[i_ld], s1[i_l], s1[i_ld], h)
-        if low < lo or high > hi:
-            return True
-    return False
-
-
-@jit
-def release_wanted(system, s, resting, ds, forces):
-    """True when a rod resting at a stop would need the stop to pull to stay there."""
+def release(system, stops, s, ds, forces):
+    """Free every resting rod that its stop would have to pull at s. Returns how many."""
     derivative(system, s, ds)
-    constraint_forces(system, s, forces)
-    for k in range(1, resting.shape[0] + 1):
-        side = resting[k - 1]
-        # The stop pushes outward only: +l at the lower stop (side −1), −l at the upper (+1).
-        if side != 0 and side * forces[2 * k + 1] > 0.0:
+    holding_forces(system, s, ds, forces)
+    freed = 0
+    for k in range(1, stops.resting.shape[0] + 1):
+        side = stops.resting[k - 1]
+        if side != 0 and side * forces[layout.u_l(k)] > 0.0:
+            stops.resting[k - 1] = 0
+            stops.watched[k - 1] = True
+            freed += 1
+    if freed:
+        relock(system, stops)
+    return freed
+
+
+@jit
+def release_at_root(system, stops, s, ds, forces):
+    """At a located release instant: free every resting rod whose stop no longer pushes (≥ 0)."""
+    derivative(system, s, ds)
+    holding_forces(system, s, ds, forces)
+    for k in range(1, stops.resting.shape[0] + 1):
+        side = stops.resting[k - 1]
+        if side != 0 and side * forces[layout.u_l(k)] >= 0.0:
+            stops.resting[k - 1] = 0
+            stops.watched[k - 1] = True
+    relock(system, stops)
+
+
+@jit
+def any_resting(stops):
+    for k in range(stops.resting.shape[0]):
+        if stops.resting[k] != 0:
             return True
     return False
+
+
+@jit
+def kinetic_energy(system, s):
+    nq, nu = layout.sizes(system)
+    kernels.frames(system.model, s[:nq], system.ws)
+    return kernels.kinetic_energy(system.model, s[:nq], s[nq:nq + nu], system.ws)
+
+
+@jit
+def solve_contacts(W, q, bilateral, active, P, w, scratch):
+    """The impact LCP of MODEL.md, exactly: P ≥ 0, w = W P + q ≥ 0, Pᵀw = 0 (W m×m symmetric
+    positive definite, so the solution is unique), by Murty's least-index principal pivoting:
+    solve on the active set, toggle the first contact that is wrong (a negative impulse, or an
+    inactive one moving into its stop), repeat — finite for a P-matrix. A ``bilateral`` contact
+    is always active with an impulse of either sign (a rod held by a Zeno guard). ``scratch`` is
+    (m, m + 1). Returns the pivots taken."""
+    m = q.shape[0]
+    for i in range(m):
+        active[i] = bilateral[i]
+    scale = 0.0
+    for i in range(m):
+        scale = max(scale, abs(q[i]))
+    tol = 1e-13 * scale
+    for pivots in range(1 << min(m + 4, 30)):
+        # P_A = −W_AA⁻¹ q_A by Cholesky on the active rows, zero elsewhere
+        L = scratch
+        idx = np.empty(m, dtype=np.int64)
+        n = 0
+        for i in range(m):
+            if active[i]:
+                idx[n] = i
+                n += 1
+        for a in range(n):
+            for c in range(a + 1):
+                s = W[idx[a], idx[c]]
+                for k in range(c):
+                    s -= L[a, k] * L[c, k]
+                if a == c:
+                    L[a, a] = math.sqrt(s) if s > 0.0 else math.nan
+                else:
+                    L[a, c] = s / L[c, c]
+        y = L[:, m]
+        for a in range(n):
+            s = -q[idx[a]]
+            for k in range(a):
+                s -= L[a, k] * y[k]
+            y[a] = s / L[a, a]
+        for a in range(n - 1, -1, -1):
+            s = y[a]
+            for k in range(a + 1, n):
+                s -= L[k, a] * y[k]
+            y[a] = s / L[a, a]
+        for i in range(m):
+            P[i] = 0.0
+        for a in range(n):
+            P[idx[a]] = y[a]
+        for i in range(m):
+            s = q[i]
+            for j in range(m):
+                s += W[i, j] * P[j]
+            w[i] = s
+        wrong = -1
+        for i in range(m):
+            if bilateral[i]:
+                continue
+            if active[i] and P[i] < -tol or not active[i] and w[i] < -tol:
+                wrong = i
+                break
+        if wrong < 0:
+            for i in range(m):
+                if not active[i]:
+                    P[i] = 0.0
+            return pivots
+        active[wrong] = not active[wrong]
+    return -1
+
+
+@jit
+def contact_impulses(system, stops, s, k_hit, side_hit, restitution, settling, scratch):
+    """One impact with every stop in contact at this instant: the one rod k_hit meets (Newton
+    restitution e) and those resting (e = 0), each stop only pushing (MODEL.md "Several stops at
+    once"): u⁺ = u⁻ + M⁻¹ E P, in place on s. Rods are unlocked for the impulse; afterwards a
+    resting rod whose stop gave no impulse and that moves away leaves it (resting → 0).
+
+    ``settling``: the rod arrives slower than the rest speed (or a Zeno guard holds it): every
+    contact is then held (bilateral, c⁺ = 0) — below the rest speed, rods touching their stops are
+    in persistent contact, and the holding forces decide when each leaves (`release`). Solving
+    such an impact unilaterally instead would throw a pressed neighbour off with a speed below
+    the rest speed, to land again at once: two rods trading impacts without end (Zeno)."""
+    nq, nu = layout.sizes(system)
+    n = stops.resting.shape[0]
+    q = s[:nq]
+    # contacts: the rod hit first, then the resting ones; σ = +1 at a lower stop (away = +l)
+    rods = np.empty(n, dtype=np.int64)
+    sigma = np.empty(n)
+    e = np.zeros(n)
+    m = 0
+    rods[0], sigma[0], e[0] = k_hit, -float(side_hit), restitution
+    m = 1
+    for k in range(1, n + 1):
+        if k != k_hit and stops.resting[k - 1] != 0:
+            rods[m], sigma[m] = k, -float(stops.resting[k - 1])
+            m += 1
+    # free DOFs for the impulse: all but the scene's locked ones
+    free = np.full(nu, -1, dtype=np.int64)
+    n_free = 0
+    for j in range(nu):
+        if not stops.permanent[j]:
+            free[n_free] = j
+            n_free += 1
+    zeros, unit, column = scratch.vectors[0], scratch.vectors[1], scratch.vectors[2]
+    kernels.frames(system.model, q, system.ws)
+    for i in range(nu):
+        zeros[i] = 0.0
+    kernels.mass_matrix(system.model, q, system.ws, zeros, unit, column, scratch.M)
+    # M⁻¹ E, one column per contact (over the free DOFs, in free order)
+    MinvE = np.zeros((m, nu))
+    for c in range(m):
+        j = layout.u_l(rods[c])
+        for i in range(nu):
+            unit[i] = 0.0
+        unit[j] = sigma[c]
+        kernels.cholesky_solve(scratch.M, unit, free, n_free, scratch.L, MinvE[c])
+    W = np.empty((m, m))
+    c_minus = np.empty(m)
+    for a in range(m):
+        c_minus[a] = sigma[a] * s[nq + layout.u_l(rods[a])]
+        for b in range(m):
+            # W_ab = E_aᵀ M⁻¹ E_b: row a of E picks DOF j_a, which sits at position pos in free
+            j = layout.u_l(rods[a])
+            pos = 0
+            while free[pos] != j:
+                pos += 1
+            W[a, b] = sigma[a] * MinvE[b, pos]
+    qv = np.empty(m)
+    for a in range(m):
+        qv[a] = (1.0 + e[a]) * c_minus[a]
+    bilateral = np.zeros(m, dtype=np.bool_)
+    if settling:
+        bilateral[:] = True
+    active = np.zeros(m, dtype=np.bool_)
+    P = np.zeros(m)
+    w = np.zeros(m)
+    solve_contacts(W, qv, bilateral, active, P, w, np.zeros((m, m + 1)))
+    for c in range(m):
+        if P[c] != 0.0:
+            for a in range(n_free):
+                s[nq + free[a]] += P[c] * MinvE[c, a]
+    for c in range(m):
+        j = nq + layout.u_l(rods[c])
+        if active[c]:
+            s[j] = -e[c] * c_minus[c] * sigma[c]   # exact: c⁺ = −e c⁻ on an active contact
+        elif c > 0 and stops.resting[rods[c] - 1] != 0:
+            stops.resting[rods[c] - 1] = 0          # its stop would have had to pull: it leaves
+            stops.watched[rods[c] - 1] = True
+    relock(system, stops)
+
+
+@jit
+def impact(system, stops, s, k, side, t, hold, scratch, ds, forces):
+    """Rod k (1-based) meets its lower (side −1) or upper (+1) stop at time t (s): the impact
+    law, then a rebound or rest, logged. ``hold`` stops it at rest whatever its speed."""
+    nq, nu = layout.sizes(system)
+    j = layout.u_l(k)
+    law, restitution, rest_speed = stops.law[0], stops.law[1], stops.law[2]
+    u_before = s[nq + j]
+    row = stops.count[0]
+    held = hold or side * u_before <= 0.0
+    # A crossing located with the rod at the stop but not moving into it is found at the very
+    # instant the rod left: its rebound is too small to resolve in time, i.e. the rod is
+    # pressed against the stop. Hold it there; ignoring the crossing would restart the event
+    # loop at this same instant forever (a Zeno stall, e.g. with rest_speed 0).
+    for i in range(nq):
+        stops.log_q[row, i] = s[i]
+    for i in range(nu):
+        stops.log_u[row, 0, i] = s[nq + i]
+        stops.log_free[row, i] = False
+    for a in range(nu):
+        if system.free[a] >= 0:
+            stops.log_free[row, system.free[a]] = True
+    T_before = kinetic_energy(system, s)
+    e = restitution
+    if held or law == IMPULSE and abs(restitution * u_before) < rest_speed:
+        e = 0.0
+    if law == REFLECT:
+        s[nq + j] = -e * u_before
+    else:
+        contact_impulses(system, stops, s, k, side, e, held or abs(u_before) < rest_speed, scratch)
+    resting = held or abs(s[nq + j]) < rest_speed
+    if resting:
+        s[nq + j] = 0.0
+    T_after = kinetic_energy(system, s)
+    for i in range(nu):
+        stops.log_u[row, 1, i] = s[nq + i]
+    log = stops.log[row]
+    log[LOG_TIME], log[LOG_LINK], log[LOG_SIDE] = t, k, side
+    log[LOG_LD_BEFORE], log[LOG_LD_AFTER], log[LOG_LOST] = u_before, s[nq + j], T_before - T_after
+    log[LOG_RESTING] = 1.0 if resting else 0.0
+    log[LOG_HELD] = 1.0 if held else 0.0
+    stops.count[0] = row + 1
+    if resting:
+        stops.resting[k - 1] = side
+        stops.watched[k - 1] = False
+        relock(system, stops)
+        if holding_margin(system, s, stops.resting, ds, forces) < 0.0:
+            release(system, stops, s, ds, forces)
+    return T_before - T_after
 
 
 @dataclass(frozen=True)
@@ -110,14 +344,18 @@ class Impact:
     def as_dict(self) -> dict:
         return dict(self.__dict__)
 
+    @staticmethod
+    def from_log(row) -> "Impact":
+        # Plain Python numbers (not numpy scalars), so records serialise anywhere (CSV, YAML, bags).
+        return Impact(float(row[LOG_TIME]), int(row[LOG_LINK]),
+                      "lower" if row[LOG_SIDE] < 0 else "upper", float(row[LOG_LD_BEFORE]),
+                      float(row[LOG_LD_AFTER]), float(row[LOG_LOST]), bool(row[LOG_RESTING]))
+
 
 def apply_impact(dynamics, free: list[int], q, u, k: int, restitution: float, law: str) -> np.ndarray:
-    """u⁺ after rod k (1-based) hits a stop: MODEL.md's impulse law, or ``reflect``.
-
-    impulse: u⁺ = u⁻ − (1 + e) (e_kᵀ u⁻ / (e_kᵀ M⁻¹ e_k)) M⁻¹ e_k, with M restricted to the
-    free (unlocked) degrees of freedom; reflect (the paper): l̇_k⁺ = −e l̇_k⁻, nothing else.
-    """
-    j = 2 * k + 1
+    """u⁺ after rod k (1-based) hits a stop, in plain numpy (a reference for tests): MODEL.md's
+    impulse law with M restricted to the free DOFs, or ``reflect``: l̇_k⁺ = −e l̇_k⁻ alone."""
+    j = layout.u_l(k)
     u_after = np.array(u, dtype=float)
     if law == "reflect":
         u_after[j] = -restitution * u[j]
@@ -127,37 +365,5 @@ def apply_impact(dynamics, free: list[int], q, u, k: int, restitution: float, la
     e_k[free.index(j)] = 1.0
     w = np.linalg.solve(M, e_k)
     u_after[free] -= (1.0 + restitution) * (u[j] / w[free.index(j)]) * w
-    u_after[j] = -restitution * u[j]  # exact, free of round-off
+    u_after[j] = -restitution * u[j]
     return u_after
-
-
-def locate(g, a: float, b: float, tol: float = 1e-13) -> float:
-    """The root of g in (a, b] with g(a) ≥ 0 > g(b), by the Illinois method.
-
-    Returns the h' with g(h') ≤ 0 closest to the root (the state just reached the stop).
-    """
-    h = b - a
-    ga, gb = g(a), g(b)
-    g_root = gb  # g at b itself: the Illinois steps halve gb, which must not pass for convergence
-    side = 0
-    for _ in range(200):
-        # With g(a) = 0 (a rod starting exactly at its stop, as after every impact) the secant
-        # lands on a itself, or a round-off above it where g may read ≤ 0: a false root at
-        # h' ≈ 0. Bisect until g(a) > 0.
-        c = b - gb * (b - a) / (gb - ga) if gb != ga and ga != 0.0 else 0.5 * (a + b)
-        if not a < c < b:
-            c = 0.5 * (a + b)
-        gc = g(c)
-        if gc <= 0.0:
-            b, gb, g_root = c, gc, gc
-            if side == -1:
-                ga *= 0.5
-            side = -1
-        else:
-            a, ga = c, gc
-            if side == 1:
-                gb *= 0.5
-            side = 1
-        if -tol <= g_root <= 0.0 or b - a <= 1e-15 * h:
-            break
-    return b

@@ -1,95 +1,133 @@
 """The right-hand side of the simulated ODE, assembled from the effects a scene turns on.
 
-State vector ``s = (q, u, W)``: configuration (n_q), pseudo-velocities (n_u) and W, the work done
-on the robot so far by commanded efforts and dissipation (J), so that the energy balance
-``T + V − W = const`` (minus impact losses) can be checked on any run.
+State vector ``s = (q, u, e, W)`` (`layout.py`): configuration (n_q), pseudo-velocities (n_u),
+the wheel-speed controller's two error integrals e = (e_R, e_L) (rad; zero and constant while the
+wheels take torque commands), and W, the work done on the robot so far by the wheel and joint
+efforts and by dissipation (J), so that the energy balance ``T + V − W = const`` (minus impact
+losses) can be checked on any run.
 
 Generalized forces are kept by source, as in MODEL.md: ``Q_cmd`` (commanded efforts, already
-saturated by `effort_limits`), ``Q_damp = −c ⊙ u`` (joint and wheel damping), and ``h`` (velocity
-products, gravity). An effect that is off adds no stage: no damping pass, no payload term,
-no locked-joint bookkeeping. ``counters`` counts the stages actually run (tests use it to prove
-that an effect that is off costs nothing).
+saturated by `effort_limits`), the wheel-speed PI loop's wheel torques when the base takes a
+velocity command, ``Q_damp = −c ⊙ u`` (joint and wheel damping), and the velocity products and
+gravity inside the dynamics. u̇ comes from the articulated-body recursion, O(n)
+(`dynamics/articulated.py`); the mass matrix is never formed here. An effect that is off adds no
+stage: no damping pass, no controller, no locked-joint bookkeeping. ``counters`` counts the
+stages actually run (tests use it to prove that an effect that is off costs nothing).
 """
 from __future__ import annotations
+
+import math
+from collections import namedtuple
 
 import numpy as np
 
 from ..dynamics import kernels
+from ..dynamics.articulated import articulated_forward_dynamics
 from ..dynamics.jit import jit
+from . import layout
 
 # counters[...] indices
-RHS_EVALS, DAMPING_STAGE, REDUCED_SOLVE, CROSSING_CHECKS = 0, 1, 2, 3
-N_COUNTERS = 4
+RHS_EVALS, DAMPING_STAGE, REDUCED_SOLVE, CROSSING_CHECKS, CONTROL_STAGE = 0, 1, 2, 3, 4
+N_COUNTERS = 5
+
+# control[...] entries: the wheel-speed PI loop (`wheel_speed_torques`)
+VELOCITY_MODE, KP, KI, TORQUE_LIMIT, TARGET_R, TARGET_L = range(6)
+
+SystemData = namedtuple("SystemData", [
+    "model",     # the dynamics' model tuple (`Dynamics.model_arrays`)
+    "gravity",   # g, m/s² along −z
+    "damping",   # (n_u,) viscous coefficients on u, or (0,) when no damping effect is on
+    "free",      # (n_u,) indices of the free pseudo-velocities, padded with −1
+    "Q_cmd",     # (n_u,) commanded generalized forces (wheels' part unused in velocity mode)
+    "control",   # (6,) wheel-speed PI loop: mode (0 effort, 1 velocity), kp, ki, limit, targets
+    "ws",        # the dynamics workspace
+    "Q",         # (n_u,) scratch: applied generalized forces of the current evaluation
+    "counters",  # (N_COUNTERS,) stage counters
+])
+
+
+@jit
+def wheel_speed_torques(system, s):
+    """(τ_R, τ_L), N·m: the PI loop on wheel speeds, τ = kp (θ̇* − θ̇) + ki e, clipped to ±limit,
+    with θ̇_R/L = (v ± b ω)/r and e the integral of θ̇* − θ̇ held in the state."""
+    control, base = system.control, system.model[0]
+    r, b = base[3], base[4]
+    nq, nu = layout.sizes(system)
+    v, om = s[nq], s[nq + 1]
+    i_e = layout.controller(nq, nu)
+    kp, ki, limit = control[KP], control[KI], control[TORQUE_LIMIT]
+    tau_R = kp * (control[TARGET_R] - (v + b * om) / r) + ki * s[i_e]
+    tau_L = kp * (control[TARGET_L] - (v - b * om) / r) + ki * s[i_e + 1]
+    return min(max(tau_R, -limit), limit), min(max(tau_L, -limit), limit)
+
+
+@jit
+def applied_forces(system, s, ds):
+    """Q = commanded efforts (or the PI loop's wheel torques) + damping, into ``system.Q``; also
+    writes ė (the controller's error rates) into ds. Returns the power Q·u (W)."""
+    model, damping, Q_cmd, Q, control = system.model, system.damping, system.Q_cmd, system.Q, system.control
+    nq, nu = layout.sizes(system)
+    i_e = layout.controller(nq, nu)
+    for k in range(nu):
+        Q[k] = Q_cmd[k]
+    ds[i_e] = 0.0
+    ds[i_e + 1] = 0.0
+    if control[VELOCITY_MODE] != 0.0:
+        system.counters[CONTROL_STAGE] += 1
+        tau_R, tau_L = wheel_speed_torques(system, s)
+        r, b = model[0][3], model[0][4]
+        Q[0] = (tau_R + tau_L) / r
+        Q[1] = b * (tau_R - tau_L) / r
+        v, om = s[nq], s[nq + 1]
+        ds[i_e] = control[TARGET_R] - (v + b * om) / r
+        ds[i_e + 1] = control[TARGET_L] - (v - b * om) / r
+    power = 0.0
+    for k in range(nu):
+        power += Q[k] * s[nq + k]
+    if damping.shape[0] > 0:
+        system.counters[DAMPING_STAGE] += 1
+        for k in range(nu):
+            u_k = s[nq + k]
+            Q[k] -= damping[k] * u_k
+            power -= damping[k] * u_k * u_k
+    return power
 
 
 @jit
 def derivative(system, s, ds):
-    """ds/dt for s = (q, u, W): q̇ from the constraints, u̇ = M⁻¹(Q_cmd + Q_damp − h), Ẇ = (Q_cmd + Q_damp)·u."""
-    model, g, damping, free, Q_cmd, ws, scratch, counters = system
-    n_free = system_n_free(system)
-    nu = Q_cmd.shape[0]
-    nq = nu + 3
+    """ds/dt for s = (q, u, e, W): q̇ from the constraints, u̇ = M⁻¹(Q − h) by articulated bodies
+    (locked pseudo-velocities get u̇ = 0), ė from the wheel-speed loop, Ẇ = Q·u."""
+    nq, nu = layout.sizes(system)
+    system.counters[RHS_EVALS] += 1
     q = s[:nq]
     u = s[nq:nq + nu]
-    zeros, unit, column, h, rhs, ud, M, L = scratch
-    counters[RHS_EVALS] += 1
-    kernels.frames(model, q, ws)
-    kernels.configuration_rate(model, q, u, ds[:nq])
-    kernels.gibbs_appell(model, q, u, zeros, g, ws, h)
-    power = 0.0
-    for k in range(nu):
-        rhs[k] = Q_cmd[k] - h[k]
-        power += Q_cmd[k] * u[k]
-    if damping.shape[0] > 0:
-        counters[DAMPING_STAGE] += 1
-        for k in range(nu):
-            rhs[k] -= damping[k] * u[k]
-            power -= damping[k] * u[k] * u[k]
-    kernels.mass_matrix(model, q, ws, zeros, unit, column, M)
-    if n_free < nu:
-        counters[REDUCED_SOLVE] += 1
-    kernels.cholesky_solve(M, rhs, free, n_free, L, ud)
-    for k in range(nu):
-        ds[nq + k] = 0.0
-    for a in range(n_free):
-        ds[nq + free[a]] = ud[a]
-    ds[nq + nu] = power
+    kernels.frames(system.model, q, system.ws)
+    kernels.configuration_rate(system.model, q, u, ds[:nq])
+    power = applied_forces(system, s, ds)
+    if system.free[nu - 1] < 0:
+        system.counters[REDUCED_SOLVE] += 1
+    articulated_forward_dynamics(system.model, q, u, system.Q, system.gravity, system.free,
+                                 system.ws, ds[nq:nq + nu])
+    ds[layout.work(nq, nu)] = power
 
 
 @jit
-def system_n_free(system):
-    """How many pseudo-velocities are free: `free` is padded with −1 after the last free index."""
-    free = system[3]
-    n = 0
-    while n < free.shape[0] and free[n] >= 0:
-        n += 1
-    return n
-
-
-@jit
-def constraint_forces(system, s, out):
-    """Generalized force each locked pseudo-velocity needs to stay locked: M u̇ + h − Q (per DOF).
-
-    Call right after `derivative` at the same state (it reuses h, M and the solved u̇).
-    """
-    model, g, damping, free, Q_cmd, ws, scratch, counters = system
-    zeros, unit, column, h, rhs, ud, M, L = scratch
-    nu = Q_cmd.shape[0]
-    nq = nu + 3
-    u = s[nq:nq + nu]
+def holding_forces(system, s, ds, out):
+    """Generalized force each locked pseudo-velocity needs to stay locked, M u̇ + h − Q, at s with
+    ds = derivative(s) already computed (zero on the free ones up to round-off): one inverse
+    dynamics pass, O(n); the mass matrix is not needed."""
+    nq, nu = layout.sizes(system)
+    q = s[:nq]
+    kernels.frames(system.model, q, system.ws)
+    applied_forces(system, s, out)   # refreshes system.Q (out is scratch of the state's size)
+    kernels.gibbs_appell(system.model, q, s[nq:nq + nu], ds[nq:nq + nu], system.gravity,
+                         system.ws, out[:nu])
     for k in range(nu):
-        total = h[k] - Q_cmd[k]
-        if damping.shape[0] > 0:
-            total += damping[k] * u[k]
-        out[k] = total
-    n_free = system_n_free(system)
-    for k in range(nu):
-        for a in range(n_free):
-            out[k] += M[k, free[a]] * ud[a]
+        out[k] -= system.Q[k]
 
 
 class System:
-    """Holds the compiled system tuple and the Python-side view of the effects."""
+    """Holds the compiled `SystemData` record and the Python-side view of the effects."""
 
     def __init__(self, dynamics, damping: np.ndarray | None, locked: list[int]):
         self.dynamics = dynamics
@@ -98,11 +136,19 @@ class System:
         self.damping = np.zeros(0) if damping is None else np.asarray(damping, dtype=float)
         self.free = np.full(nu, -1, dtype=np.int64)
         self.counters = np.zeros(N_COUNTERS, dtype=np.int64)
-        self.scratch = (np.zeros(nu), np.zeros(nu), np.zeros(nu), np.zeros(nu), np.zeros(nu),
-                        np.zeros(nu), np.zeros((nu, nu)), np.zeros((nu, nu)))
+        self.control = np.zeros(6)
+        self.control[TORQUE_LIMIT] = math.inf
         self.permanently_locked = tuple(sorted(locked))
+        self.data = SystemData(dynamics.model_arrays, float(dynamics.gravity), self.damping,
+                               self.free, self.Q_cmd, self.control, dynamics.ws, np.zeros(nu),
+                               self.counters)
         self.set_locked(())
-        self.forces = np.zeros(nu)
+        self._scratch = np.zeros(layout.state_size(nu))
+
+    @property
+    def tuple(self):
+        """The record the compiled code takes (kept under its old name for callers)."""
+        return self.data
 
     def set_locked(self, extra: tuple) -> None:
         """Lock the scene's locked DOFs plus `extra` (rods resting at a stop)."""
@@ -111,17 +157,28 @@ class System:
         self.free[:] = -1
         self.free[:len(free)] = free
         self.locked = tuple(sorted(locked))
-        self.tuple = (self.dynamics.model_arrays, self.dynamics.gravity, self.damping, self.free,
-                      self.Q_cmd, self.dynamics.ws, self.scratch, self.counters)
+
+    def state(self, q, u) -> np.ndarray:
+        """The state vector s = (q, u, e = 0, W = 0) of a configuration and its pseudo-velocities."""
+        return np.concatenate([np.asarray(q, dtype=float), np.asarray(u, dtype=float), [0.0, 0.0, 0.0]])
+
+    def _check(self, s: np.ndarray) -> np.ndarray:
+        s = np.asarray(s, dtype=float)
+        if s.shape != self._scratch.shape:   # compiled code does not check bounds
+            raise ValueError(f"state vector of length {s.size}, expected {self._scratch.size} (layout.py)")
+        return s
 
     def derivative(self, s: np.ndarray) -> np.ndarray:
+        s = self._check(s)
         ds = np.empty_like(s)
-        derivative(self.tuple, s, ds)
+        derivative(self.data, s, ds)
         return ds
 
     def constraint_forces(self, s: np.ndarray) -> np.ndarray:
         """M u̇ + h − Q_cmd − Q_damp at s with the current locks (nonzero only on locked DOFs)."""
+        s = self._check(s)
         ds = np.empty_like(s)
-        derivative(self.tuple, s, ds)
-        constraint_forces(self.tuple, s, self.forces)
-        return self.forces.copy()
+        derivative(self.data, s, ds)
+        forces = np.empty_like(s)
+        holding_forces(self.data, s, ds, forces)
+        return forces[:len(self.Q_cmd)].copy()

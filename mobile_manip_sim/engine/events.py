@@ -1,0 +1,198 @@
+"""Events inside a step, compiled: a rod reaching an end stop, a resting rod pulled off its stop.
+
+Both are roots in h' ∈ (0, h] of an event function evaluated on the integrator's *own* step
+``step(s0, h')`` — so the state at the located instant is what the integrator itself would
+reach, with no interpolation error:
+
+- crossing of rod k at its stop (side −1 lower, +1 upper): ``g(h') = side · (stop − l_k(h'))``;
+  positive inside the stroke;
+- release: ``g(h') = min over resting rods of the force its stop pushes with`` (positive while
+  every stop still pushes; the rod leaves where it would have to pull).
+
+A crossing is flagged after a step when a rod's end value *or* the extremum of its cubic
+Hermite path over the step (values and slopes at both ends) leaves the stroke, so a fast rod that
+crosses and comes back within one step is not missed (SciPy's sign-change detection misses it,
+scipy #9228); the first crossing is bracketed between 16 samples of the step plus the path's
+turning points, then located by the Illinois method.
+
+`step_state(...)` is the one place that evaluates a trial step for every event function; the
+fixed-step methods take it from `fixed_step.step`, the adaptive ones from their dense output.
+"""
+import math
+
+from ..dynamics.jit import jit
+from . import layout
+from .fixed_step import step
+from .system import CROSSING_CHECKS, derivative, holding_forces
+
+CROSSING, RELEASE = 0, 1
+N_SAMPLES = 16
+MAX_IMPACTS_PER_STEP = 64   # the Zeno guard: beyond it the rod is held at rest
+
+
+@jit
+def hermite_turns(l0, d0, l1, d1, h):
+    """((τ₁, τ₂), c2, c3): where the cubic Hermite with values l0, l1 and slopes d0, d1 over
+    [0, h] has zero slope (−1 for a missing root; roots may lie outside (0, h)), and its
+    coefficients p(τ) = l0 + d0 τ + c2 τ² + c3 τ³."""
+    c2 = (3.0 * (l1 - l0) / h - 2.0 * d0 - d1) / h
+    c3 = (d0 + d1 - 2.0 * (l1 - l0) / h) / (h * h)
+    a, b, c = 3.0 * c3, 2.0 * c2, d0
+    roots = (-1.0, -1.0)
+    if a == 0.0:
+        if b != 0.0:
+            roots = (-c / b, -1.0)
+    else:
+        disc = b * b - 4.0 * a * c
+        if disc >= 0.0:
+            # The cancellation-free form: a path that is nearly a parabola (a rod under a constant
+            # force) has a ≈ 0 from round-off, and (−b ± √disc)/2a would lose its turning point.
+            w = -0.5 * (b + math.copysign(disc ** 0.5, b))
+            roots = (w / a, c / w if w != 0.0 else -1.0)
+    return roots, c2, c3
+
+
+@jit
+def hermite_extrema(l0, d0, l1, d1, h):
+    """(min, max) over [0, h] of the cubic Hermite with values l0, l1 and slopes d0, d1."""
+    lo = min(l0, l1)
+    hi = max(l0, l1)
+    roots, c2, c3 = hermite_turns(l0, d0, l1, d1, h)
+    for tau in roots:
+        if 0.0 < tau < h:
+            p = l0 + tau * (d0 + tau * (c2 + tau * c3))
+            lo = min(lo, p)
+            hi = max(hi, p)
+    return lo, hi
+
+
+@jit
+def crossing_in_step(s0, s1, h, system, watched, stroke):
+    """True when a watched rod leaves its stroke during the step s0 → s1 (see module doc)."""
+    nq, _ = layout.sizes(system)
+    system.counters[CROSSING_CHECKS] += 1
+    for k in range(1, watched.shape[0] + 1):
+        if not watched[k - 1]:
+            continue
+        lo, hi = stroke[k - 1, 0], stroke[k - 1, 1]
+        i_l, i_ld = layout.l(k), layout.ld(nq, k)
+        if s1[i_l] < lo or s1[i_l] > hi:
+            return True
+        low, high = hermite_extrema(s0[i_l], s0[i_ld], s1[i_l], s1[i_ld], h)
+        if low < lo or high > hi:
+            return True
+    return False
+
+
+@jit
+def holding_margin(system, s, resting, ds, forces):
+    """min over resting rods of the force (N) its stop pushes with: > 0 while all are held."""
+    derivative(system, s, ds)
+    holding_forces(system, s, ds, forces)
+    margin = math.inf
+    for k in range(1, resting.shape[0] + 1):
+        if resting[k - 1] != 0:
+            # The stop pushes outward only: +l at the lower stop (side −1), −l at the upper (+1).
+            margin = min(margin, -resting[k - 1] * forces[layout.u_l(k)])
+    return margin
+
+
+@jit
+def step_state(method, system, s0, h, out, stages):
+    """The state the integrator reaches from s0 in h (s0 itself for h ≤ 0), into out."""
+    if h > 0.0:
+        step(method, system, s0, h, out, stages)
+    else:
+        for i in range(s0.shape[0]):
+            out[i] = s0[i]
+
+
+@jit
+def event_value(kind, method, system, s0, h, i_l, side, stop, resting, trial, stages, forces):
+    """g(h') of the module doc for `kind` CROSSING (rod at index i_l, side, stop) or RELEASE."""
+    step_state(method, system, s0, h, trial, stages)
+    if kind == CROSSING:
+        return (stop - trial[i_l]) * side
+    return holding_margin(system, trial, resting, stages[3], forces)
+
+
+@jit
+def locate(kind, method, system, s0, a, b, i_l, side, stop, resting, trial, stages, forces):
+    """The root of g in (a, b] with g(a) ≥ 0 > g(b), by the Illinois method: the h' with
+    g(h') ≤ 0 closest to the root (the state has just reached the event)."""
+    h = b - a
+    ga = event_value(kind, method, system, s0, a, i_l, side, stop, resting, trial, stages, forces)
+    gb = event_value(kind, method, system, s0, b, i_l, side, stop, resting, trial, stages, forces)
+    g_root = gb  # g at b itself: the Illinois steps halve gb, which must not pass for convergence
+    last = 0
+    for _ in range(200):
+        # With g(a) = 0 (a rod starting exactly at its stop, as after every impact) the secant
+        # lands on a itself, or a round-off above it where g may read ≤ 0: a false root at
+        # h' ≈ 0. Bisect until g(a) > 0.
+        if gb != ga and ga != 0.0:
+            c = b - gb * (b - a) / (gb - ga)
+        else:
+            c = 0.5 * (a + b)
+        if not a < c < b:
+            c = 0.5 * (a + b)
+        gc = event_value(kind, method, system, s0, c, i_l, side, stop, resting, trial, stages, forces)
+        if gc <= 0.0:
+            b, gb, g_root = c, gc, gc
+            if last == -1:
+                ga *= 0.5
+            last = -1
+        else:
+            a, ga = c, gc
+            if last == 1:
+                gb *= 0.5
+            last = 1
+        if -1e-13 <= g_root <= 0.0 or b - a <= 1e-15 * h:
+            break
+    return b
+
+
+@jit
+def first_crossing(method, system, s0, h, watched, resting, stroke, samples, trial, stages, forces):
+    """Earliest (h', rod k, side) at which a watched rod meets a stop within the step s0 → h,
+    or (−1, 0, 0) when none does (the Hermite path dipped, the step itself did not)."""
+    nq, _ = layout.sizes(system)
+    n = watched.shape[0]
+    m = 0
+    for j in range(1, N_SAMPLES + 1):
+        samples[m] = h * j / N_SAMPLES
+        m += 1
+    # A rod that crosses and comes back between two samples would be missed: add the instants
+    # where each rod's Hermite path over the step (the one `crossing_in_step` flagged) turns.
+    step_state(method, system, s0, h, trial, stages)
+    for k in range(1, n + 1):
+        if watched[k - 1]:
+            i_l, i_ld = layout.l(k), layout.ld(nq, k)
+            turns, _, _ = hermite_turns(s0[i_l], s0[i_ld], trial[i_l], trial[i_ld], h)
+            for tau in turns:
+                if 0.0 < tau < h:
+                    samples[m] = tau
+                    m += 1
+    samples[:m].sort()
+    best_h, best_k, best_side = -1.0, 0, 0
+    for k in range(1, n + 1):
+        if not watched[k - 1]:
+            continue
+        i_l = layout.l(k)
+        for side in (-1, 1):
+            stop = stroke[k - 1, 0] if side < 0 else stroke[k - 1, 1]
+            # Bracket the first crossing between samples: an interpolant's round-off right
+            # after an impact must not pass for a new crossing at h' ≈ 0.
+            end = -1
+            for j in range(m):
+                if event_value(CROSSING, method, system, s0, samples[j], i_l, side, stop, resting,
+                               trial, stages, forces) < 0.0:
+                    end = j
+                    break
+            if end < 0:
+                continue
+            a = samples[end - 1] if end > 0 else 0.0
+            h_hit = locate(CROSSING, method, system, s0, a, samples[end], i_l, side, stop,
+                           resting, trial, stages, forces)
+            if best_k == 0 or h_hit < best_h:
+                best_h, best_k, best_side = h_hit, k, side
+    return best_h, best_k, best_side

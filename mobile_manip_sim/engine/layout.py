@@ -1,0 +1,50 @@
+"""Where each quantity sits in the state vector ``s = (q, u, e, W)`` — the one place that knows.
+
+``q = (x, y, yaw, θ_R, θ_L, q_1, l_1, …, q_n, l_n)`` (n_q = 2n + 5),
+``u = (v, ω, q̇_1, l̇_1, …, q̇_n, l̇_n)`` (n_u = 2n + 2), ``e = (e_R, e_L)`` the wheel-speed
+controller's error integrals, ``W`` the work of efforts and dissipation. Rods are 1-based (k = 1 … n)
+as in MODEL.md.
+"""
+from ..dynamics.jit import jit_inline
+
+
+@jit_inline
+def sizes(system):
+    """(n_q, n_u) of a system record."""
+    nu = system.Q_cmd.shape[0]
+    return nu + 3, nu
+
+
+@jit_inline
+def state_size(nu):
+    return 2 * nu + 6
+
+
+@jit_inline
+def l(k):
+    """Index of l_k in s (and in q)."""
+    return 4 + 2 * k
+
+
+@jit_inline
+def u_l(k):
+    """Index of l̇_k in u (add n_q for its index in s)."""
+    return 2 * k + 1
+
+
+@jit_inline
+def ld(nq, k):
+    """Index of l̇_k in s."""
+    return nq + 2 * k + 1
+
+
+@jit_inline
+def controller(nq, nu):
+    """Index of e_R in s (e_L follows)."""
+    return nq + nu
+
+
+@jit_inline
+def work(nq, nu):
+    """Index of W in s."""
+    return nq + nu + 2

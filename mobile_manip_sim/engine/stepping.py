@@ -1,0 +1,192 @@
+"""The fixed-step core, compiled end to end: one call advances to a target time (or fills a whole
+array of samples) with every step, crossing check, event location, impact, rest and release,
+and the Zeno guard inside compiled code. Python is entered once per call — and, so that signals,
+`~/pause` and `~/reset` act promptly, whenever a call has used its step budget.
+
+The time line: t = t0 + k·dt with an integer step count k (so that long runs land exactly on
+k·dt); a target off that grid ends in one shorter step, after which the grid restarts there.
+"""
+import math
+from collections import namedtuple
+
+import numpy as np
+
+from ..dynamics import kernels
+from ..dynamics.jit import jit
+from . import layout
+from .events import (CROSSING, MAX_IMPACTS_PER_STEP, N_SAMPLES, RELEASE, crossing_in_step,
+                     first_crossing, holding_margin, locate, step_state)
+from .fixed_step import step
+from .stops import any_resting, impact, release_at_root
+
+# why `advance` returned
+DONE, BUDGET, LOG_FULL, NOT_FINITE, CHATTER = 0, 1, 2, 3, 4
+# clock[...] entries
+T0, DT, K, STEPS, LOST = range(5)
+
+StepScratch = namedtuple("StepScratch", [
+    "out",      # (size,) the step's end state
+    "start",    # (size,) a step's start state, kept while events are located in it
+    "trial",    # (size,) trial steps of the event functions
+    "stages",   # (4, size) Runge–Kutta stages
+    "forces",   # (size,) holding forces (first n_u entries)
+    "samples",  # (N_SAMPLES + 2n,) instants bracketing a crossing
+    "impact",   # stops.ImpactScratch
+])
+
+
+def make_scratch(size: int, n_links: int, impact_scratch) -> StepScratch:
+    return StepScratch(np.zeros(size), np.zeros(size), np.zeros(size), np.zeros((4, size)),
+                       np.zeros(size), np.zeros(N_SAMPLES + 2 * n_links), impact_scratch)
+
+
+@jit
+def finite(s):
+    for i in range(s.shape[0]):
+        if not math.isfinite(s[i]):
+            return False
+    return True
+
+
+@jit
+def copy_into(source, target):
+    for i in range(source.shape[0]):
+        target[i] = source[i]
+
+
+@jit
+def any_watched(stops):
+    for k in range(stops.watched.shape[0]):
+        if stops.watched[k]:
+            return True
+    return False
+
+
+@jit
+def step_with_events(method, system, stops, scr, s, h, t, clock):
+    """One step of length h from time t in which end stops may be hit (and hit again)."""
+    dt = clock[DT]
+    while True:
+        k, side = 0, 0
+        # Each round ends with a rod held at its stop; a step that needs more rounds than the
+        # log has room for (rods released and hitting again without end) is reported, not run on.
+        if stops.count[0] + MAX_IMPACTS_PER_STEP + 2 > stops.log.shape[0]:
+            return CHATTER
+        for _ in range(MAX_IMPACTS_PER_STEP):
+            step(method, system, s, h, scr.out, scr.stages)
+            if not finite(scr.out):
+                return NOT_FINITE
+            if not crossing_in_step(s, scr.out, h, system, stops.watched, stops.stroke):
+                copy_into(scr.out, s)
+                return DONE
+            h_hit, k, side = first_crossing(method, system, s, h, stops.watched, stops.resting,
+                                            stops.stroke, scr.samples, scr.trial, scr.stages,
+                                            scr.forces)
+            if k == 0:   # the Hermite path dipped, the step itself did not
+                copy_into(scr.out, s)
+                return DONE
+            step_state(method, system, s, h_hit, scr.trial, scr.stages)
+            copy_into(scr.trial, s)
+            s[layout.l(k)] = stops.stroke[k - 1, 0] if side < 0 else stops.stroke[k - 1, 1]
+            h -= h_hit
+            t += h_hit
+            clock[LOST] += impact(system, stops, s, k, side, t, False, scr.impact, scr.stages[3],
+                                  scr.forces)
+            if h <= 1e-15 * dt:
+                return DONE
+        # Zeno guard: this many impacts in one step are a rod chattering against its stop with
+        # ever smaller rebounds. Hold it there (it leaves when the net force pulls it away) and
+        # finish the step with it held; stepping on regardless would carry it through the stop.
+        if stops.resting[k - 1] == 0:
+            clock[LOST] += impact(system, stops, s, k, side, t, True, scr.impact, scr.stages[3],
+                                  scr.forces)
+
+
+@jit
+def grid_step(method, system, stops, scr, s, clock, k1_ready):
+    """One whole step dt on the grid, events and releases included. Returns the status and
+    whether scr.stages[0] now holds f(s) for the next step (the release check computed it)."""
+    dt = clock[DT]
+    t = clock[T0] + clock[K] * dt
+    step(method, system, s, dt, scr.out, scr.stages, k1_ready)
+    if not finite(scr.out):
+        return NOT_FINITE, False
+    if any_watched(stops) and crossing_in_step(s, scr.out, dt, system, stops.watched, stops.stroke):
+        return step_with_events(method, system, stops, scr, s, dt, t, clock), False
+    # The holding forces need f(out), which is the next step's first stage: computed once.
+    if any_resting(stops) and holding_margin(system, scr.out, stops.resting, scr.stages[0],
+                                             scr.forces) < 0.0:
+        # A resting rod is pulled off its stop during the step: locate the instant like an
+        # impact; deciding at the end of the step would hold it up to a step too long.
+        copy_into(s, scr.start)
+        h = locate(RELEASE, method, system, scr.start, 0.0, dt, 0, 0, 0.0, stops.resting,
+                   scr.trial, scr.stages, scr.forces)
+        step_state(method, system, scr.start, h, s, scr.stages)
+        release_at_root(system, stops, s, scr.stages[3], scr.forces)
+        return step_with_events(method, system, stops, scr, s, dt - h, t + h, clock), False
+    copy_into(scr.out, s)
+    return DONE, any_resting(stops)
+
+
+@jit
+def advance(method, system, stops, scr, s, clock, t_end, max_steps):
+    """Advance s to exactly t_end (s). Returns DONE, or BUDGET after max_steps steps, LOG_FULL
+    when the impact log needs emptying, NOT_FINITE (s then holds the last finite state)."""
+    dt = clock[DT]
+    steps = (t_end - clock[T0]) / dt
+    whole = math.floor(steps + 1e-9)
+    room = stops.log.shape[0] // 2
+    taken = 0
+    k1_ready = False
+    while clock[K] < whole:
+        if taken >= max_steps:
+            return BUDGET
+        if stops.count[0] > room:
+            return LOG_FULL
+        status, k1_ready = grid_step(method, system, stops, scr, s, clock, k1_ready)
+        if status != DONE:
+            return status
+        clock[K] += 1.0
+        clock[STEPS] += 1.0
+        taken += 1
+    if steps - whole > 1e-9:  # t_end is off the grid: a last, shorter step
+        if stops.count[0] > room:
+            return LOG_FULL
+        t = clock[T0] + clock[K] * dt
+        status = step_with_events(method, system, stops, scr, s, t_end - t, t, clock)
+        if status != DONE:
+            return status
+        clock[STEPS] += 1.0
+        clock[T0], clock[K] = t_end, 0.0
+    return DONE
+
+
+@jit
+def total_energy(system, s):
+    """T + V (J) at s."""
+    nq, nu = layout.sizes(system)
+    kernels.frames(system.model, s[:nq], system.ws)
+    T = kernels.kinetic_energy(system.model, s[:nq], s[nq:nq + nu], system.ws)
+    return T + kernels.potential_energy(system.model, s[:nq], system.gravity, system.ws)
+
+
+@jit
+def advance_samples(method, system, stops, scr, s, clock, times, rows, first, max_steps):
+    """`advance` to each of times[first:], writing (s, T + V) into rows[i]; returns (status,
+    next sample index) — the caller calls again after BUDGET or LOG_FULL."""
+    size = s.shape[0]
+    i = first
+    budget = max_steps
+    while i < times.shape[0]:
+        before = clock[STEPS]
+        status = advance(method, system, stops, scr, s, clock, times[i], budget)
+        budget -= int(clock[STEPS] - before)
+        if status != DONE:
+            return status, i
+        for j in range(size):
+            rows[i, j] = s[j]
+        rows[i, size] = total_energy(system, s)
+        i += 1
+        if budget <= 0 and i < times.shape[0]:
+            return BUDGET, i
+    return DONE, i
