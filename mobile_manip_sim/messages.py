@@ -55,8 +55,10 @@ def quaternion_yaw(quaternion) -> float:
 
 
 def applied_efforts(state) -> list[float]:
-    """[τ_R, τ_L, τ_1, F_1, …]: the efforts the engine holds (after effort limits)."""
-    return state.wheel_efforts.tolist() + state.joint_efforts.tolist()
+    """[τ_R, τ_L, τ_1, F_1, …]: the efforts the engine holds (after effort limits); in
+    velocity mode the wheel torques the speed loop applies now."""
+    wheels = state.wheel_torques() if hasattr(state, "wheel_torques") else state.wheel_efforts
+    return list(map(float, wheels)) + state.joint_efforts.tolist()
 
 
 def joint_state(state, stamp: int, names, efforts=None) -> JointState:

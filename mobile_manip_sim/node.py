@@ -85,12 +85,12 @@ from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import SetBool, Trigger
 
 from . import cli
-from .engine.simulation import Simulation, SimulationError
+from .engine.simulation import DEFAULT_WHEEL_SPEED_GAINS, Simulation, SimulationError
 from .errors import UserError
 from .messages import NS, stamp_ns, state_messages, transform
 from .recording.recorder import RunRecorder
 from .scene import METHODS, load_scene, make_integrator
-from .topics import (ARM_TOPIC, CLOCK_TOPIC, DESCRIPTION_TOPIC, JOINT_STATES_TOPIC, ODOM_TOPIC,
+from .topics import (ARM_TOPIC, CLOCK_TOPIC, CMD_VEL_TOPIC, DESCRIPTION_TOPIC, JOINT_STATES_TOPIC, ODOM_TOPIC,
                      TF_TOPIC, WHEEL_TOPIC, command_qos, latched_qos, relative, state_qos)
 from .urdf import robot_description
 
@@ -131,6 +131,16 @@ PARAMETERS = {
                            "new command has arrived (or sync_timeout has passed); the first "
                            "state waits for a state subscriber and a command publisher.", None,
                     False),
+    "base_command": ("effort", "effort: the wheels take torques from wheel_effort_controller/"
+                               "commands; velocity: the base takes cmd_vel, turned into wheel "
+                               "torques by a wheel-speed PI loop inside the simulated system.",
+                     None, False),
+    "cmd_vel_stamped": (False, "Velocity mode: cmd_vel is geometry_msgs/TwistStamped (as Jazzy's "
+                               "diff_drive_controller takes it) rather than Twist.", None, False),
+    "wheel_speed.kp": (DEFAULT_WHEEL_SPEED_GAINS[0], "Velocity mode: proportional gain of the "
+                       "wheel-speed loop (N·m·s/rad).", _float_range(0.0, 1.0e6), False),
+    "wheel_speed.ki": (DEFAULT_WHEEL_SPEED_GAINS[1], "Velocity mode: integral gain of the "
+                       "wheel-speed loop (N·m/rad).", _float_range(0.0, 1.0e6), False),
     "sync_timeout": (1.0, "Synchronous mode: wall seconds to wait for a command before holding "
                           "the last one (and saying so).", _float_range(0.001, 3600.0), False),
     "integrator.method": ("", f"Integrator overriding the scene's ({', '.join(METHODS)}); "
@@ -205,6 +215,10 @@ class SimulatorNode(Node):
                                       f"and not base_link (the URDF's body frame)")
         self.record = p["record"]
         self.synchronous, self.sync_timeout = p["synchronous"], p["sync_timeout"]
+        if p["base_command"] not in ("effort", "velocity"):
+            raise UserError("base_command", f"{p['base_command']!r} is not effort or velocity")
+        self.velocity_mode = p["base_command"] == "velocity"
+        self.sim.set_wheel_speed_gains(p["wheel_speed.kp"], p["wheel_speed.ki"])
         self._settings = settings
         self._recorder: RunRecorder | None = None
         self._recorded_stamp: int | None = None   # last state stamp in the open bag
@@ -213,6 +227,7 @@ class SimulatorNode(Node):
         arm_labels = ", ".join(f"tau_{i}, F_{i}" for i in range(1, n_joints // 2 + 1)) or "none"
         self._wheels = _CommandGroup(WHEEL_TOPIC, 2, "tau_R, tau_L", "wheel")
         self._arm = _CommandGroup(ARM_TOPIC, n_joints, arm_labels, "arm")
+        self._cmd_vel = _CommandGroup(CMD_VEL_TOPIC, 2, "v, omega", "base velocity")
         self._command_lock = threading.Lock()      # guards the two _CommandGroup
         self._warned_at: dict[tuple, float] = {}    # throttle: (topic, kind) → wall time
 
@@ -242,7 +257,11 @@ class SimulatorNode(Node):
             self.create_subscription(Float64MultiArray, relative(topic),
                                      lambda msg, group=group: self._on_command(group, msg),
                                      command_qos())
-            for topic, group in ((WHEEL_TOPIC, self._wheels), (ARM_TOPIC, self._arm))]
+            for topic, group in ((WHEEL_TOPIC, self._wheels), (ARM_TOPIC, self._arm))
+            if not (self.velocity_mode and topic == WHEEL_TOPIC)]
+        if self.velocity_mode:
+            self._command_subs.insert(0, self._cmd_vel_subscription(p["cmd_vel_stamped"]))
+        # in _command_groups() order: answered() pairs them up
         self.create_service(Trigger, "~/reset", self._on_reset)
         self.create_service(SetBool, "~/pause", self._on_pause)
         self.create_service(Trigger, "~/step", self._on_step)
@@ -335,10 +354,26 @@ class SimulatorNode(Node):
             with self._cv:
                 self._cv.notify_all()
 
+    def _cmd_vel_subscription(self, stamped: bool):
+        from geometry_msgs.msg import Twist, TwistStamped
+
+        def on_twist(msg):
+            twist = msg.twist if stamped else msg
+            self._on_command(self._cmd_vel, Float64MultiArray(
+                data=[twist.linear.x, twist.angular.z]))
+        return self.create_subscription(TwistStamped if stamped else Twist,
+                                        relative(CMD_VEL_TOPIC), on_twist, command_qos())
+
+    def _command_groups(self) -> tuple:
+        """The groups that command the run: wheels or cmd_vel, then the arm."""
+        return (self._cmd_vel if self.velocity_mode else self._wheels, self._arm)
+
     def _held_efforts(self, segment_start_ns: int) -> tuple[np.ndarray, np.ndarray]:
-        """The efforts to hold from segment_start_ns on, after the command timeout."""
+        """The base command (wheel torques, or [v, ω] in velocity mode) and the arm efforts to
+        hold from segment_start_ns on, after the command timeout (a stale cmd_vel is zero
+        speed)."""
         with self._command_lock:
-            for group in (self._wheels, self._arm):
+            for group in self._command_groups():
                 stale = (self.command_timeout_ns > 0 and group.received_ns is not None
                          and not group.timed_out
                          and segment_start_ns - group.received_ns >= self.command_timeout_ns)
@@ -349,13 +384,14 @@ class SimulatorNode(Node):
                         f"{group.topic}: no command for {self.command_timeout_ns / NS:g} s of "
                         f"simulated time (command_timeout); {group.what} efforts set to zero "
                         f"until commands resume")
-            return self._wheels.values.copy(), self._arm.values.copy()
+            base, arm = self._command_groups()
+            return base.values.copy(), arm.values.copy()
 
     # --- services (executor thread): they set flags; the stepping thread acts on them --------
     def _on_reset(self, request, response):
         with self._command_lock:   # commands sent after this call are kept
-            self._wheels.clear()
-            self._arm.clear()
+            for group in (self._wheels, self._cmd_vel, self._arm):
+                group.clear()
         with self._cv:
             self._reset_requested = True
             self._cv.notify_all()
@@ -453,7 +489,7 @@ class SimulatorNode(Node):
         sync_timeout wall seconds."""
         def answered() -> bool:
             with self._command_lock:
-                fresh = [group.seq != group.seq_published for group in (self._wheels, self._arm)]
+                fresh = [group.seq != group.seq_published for group in self._command_groups()]
             commanding = [sub.get_publisher_count() > 0 for sub in self._command_subs]
             return any(fresh) and all(f or not c for f, c in zip(fresh, commanding))
 
@@ -543,9 +579,13 @@ class SimulatorNode(Node):
         """Advance the engine over segment k → k + 1; (k + 1, messages), or None on failure."""
         k = self._k
         start_ns = self._now_ns
-        wheels, joints = self._held_efforts(start_ns)
+        base, joints = self._held_efforts(start_ns)
         try:
-            self.sim.set_efforts(wheels, joints)
+            if self.velocity_mode:
+                self.sim.set_base_velocity(*base)
+                self.sim.set_efforts(joints=joints)
+            else:
+                self.sim.set_efforts(base, joints)
             self._on_command_applied(start_ns, self.sim.wheel_efforts, self.sim.joint_efforts)
             self.sim.advance_to((k + 1) / float(self.rate))
         except (SimulationError, UserError) as error:
@@ -586,7 +626,7 @@ class SimulatorNode(Node):
         self.sim.reset()
         self.sim.set_efforts(np.zeros(2), np.zeros(self.sim.nu - 2))
         with self._command_lock:
-            for group in (self._wheels, self._arm):
+            for group in (self._wheels, self._cmd_vel, self._arm):
                 if group.received_ns is not None:
                     group.received_ns = 0
         self._k, self._now_ns, self._pending = 0, 0, None
@@ -603,7 +643,7 @@ class SimulatorNode(Node):
 
     def _publish(self, k: int, messages: dict) -> None:
         with self._command_lock:   # before publishing: a reply to this state counts as new
-            for group in (self._wheels, self._arm):
+            for group in self._command_groups():
                 group.seq_published = group.seq
         published = {}
         try:

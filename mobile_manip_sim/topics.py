@@ -11,6 +11,7 @@ creates every topic under its RELATIVE name (``odom``), so ``__ns:=/robot1`` put
   robot_description                 std_msgs/msg/String             latched (transient local, 1)
   wheel_effort_controller/commands  std_msgs/msg/Float64MultiArray  command, depth 10
   arm_effort_controller/commands    std_msgs/msg/Float64MultiArray  command
+  cmd_vel                           geometry_msgs/msg/Twist (or TwistStamped)  command, velocity mode
 """
 from __future__ import annotations
 
@@ -20,6 +21,7 @@ CLOCK_TOPIC = "/clock"
 TF_TOPIC = "/tf"
 DESCRIPTION_TOPIC = "/robot_description"
 WHEEL_TOPIC = "/wheel_effort_controller/commands"
+CMD_VEL_TOPIC = "/cmd_vel"
 ARM_TOPIC = "/arm_effort_controller/commands"
 STATE_TOPICS = (JOINT_STATES_TOPIC, ODOM_TOPIC, CLOCK_TOPIC)
 COMMAND_TOPICS = (WHEEL_TOPIC, ARM_TOPIC)

@@ -608,3 +608,30 @@ def test_the_shipped_params_file_applies_under_another_node_name(tmp_path):
                              "-r", "__node:=renamed"], env=child_env(), capture_output=True,
                             text=True, timeout=60)
     assert result.returncode == 2 and "publish_rate" in result.stderr, result.stderr
+
+
+def test_cmd_vel_held_for_4_s_drives_the_base_at_that_twist(probe, simulator, tmp_path):
+    """base_command velocity: cmd_vel (0.3 m/s, 0.5 rad/s) for 4 s of simulated time; the
+    wheel-speed loop inside the simulation brings /odom's twist within 10 % of it."""
+    from geometry_msgs.msg import Twist
+    probe.pause(True)
+    node = start_simulator(probe, tmp_path, *FAST, "-p", "base_command:=velocity",
+                           "-p", "wheel_speed.kp:=5.0", "-p", "wheel_speed.ki:=50.0",
+                           "-r", "__node:=velocity_sim")
+    publisher = probe.node.create_publisher(Twist, "/cmd_vel", 10)
+    try:
+        wait_for(lambda: publisher.get_subscription_count() > 0, "the node's cmd_vel subscription")
+        twist = Twist()
+        twist.linear.x, twist.angular.z = 0.3, 0.5
+        start = probe.snapshot("odom")[-1][0]
+        while probe.snapshot("odom")[-1][0] < start + 4 * 10 ** 9:
+            assert node.process.poll() is None, node.output()
+            publisher.publish(twist)
+            time.sleep(0.02)
+        last = probe.snapshot("odom")[-1]
+        assert abs(last[5] - 0.3) <= 0.03 and abs(last[6] - 0.5) <= 0.05, last[:7]
+        efforts = probe.snapshot("joints")[-1][3]
+        assert efforts[0] != 0.0 and efforts[1] != 0.0   # the loop's torques, published
+    finally:
+        probe.node.destroy_publisher(publisher)
+        assert node.stop() == 0, node.output()

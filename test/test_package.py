@@ -16,6 +16,7 @@ ROSDEP_KEYS = {
     "numpy": "python3-numpy", "scipy": "python3-scipy", "yaml": "python3-yaml",
     "numba": "python3-numba", "matplotlib": "python3-matplotlib",
     "zstandard": "python3-zstandard", "mcap": "python3-mcap-pip", "pinocchio": "pinocchio",
+    "mujoco": "python3-mujoco-pip",
 }
 
 
