@@ -17,9 +17,18 @@ Publications, stamped with the simulated time of the state they carry
                        linear.y = 0); covariances: see messages.GROUND_TRUTH_VARIANCE
   /clock               rosgraph_msgs/Clock, for nodes running with use_sim_time
   /robot_description   std_msgs/String (URDF), transient local, depth 1: at start and on reset
+  /tf                  tf2_msgs/TFMessage: odom_frame → base_frame (base_footprint, on the
+                       ground under the axle midpoint) at every publication, when tf2_msgs imports
+Every topic name above is RELATIVE (topics.py): __ns:=/robot1 puts them all under /robot1.
+base_command velocity: /cmd_vel (geometry_msgs/Twist, or TwistStamped with cmd_vel_stamped)
+replaces the wheel topic; the engine's wheel-speed PI loop turns it into wheel torques.
 Services
   ~/reset  std_srvs/Trigger   back to the scene's initial state, t = 0, efforts zero
   ~/pause  std_srvs/SetBool   true: time and /clock stand still; false: resume
+  ~/step   std_srvs/Trigger   while paused: compute and publish the next state, then answer
+Synchronous mode (parameter synchronous): the first state waits for a state subscriber and a
+command publisher; segment k is computed only once a new command has arrived on every command
+topic with a publisher after state k went out (or sync_timeout wall seconds passed).
 
 Timing. Publication k carries the state at simulated time t_k = k / publish_rate; its stamp is
 computed from the integer k in integer nanoseconds (exactly k·10⁹/rate when that is an integer,
