@@ -192,10 +192,12 @@ def start_simulator(probe, tmp_path, *args) -> SimulatorProcess:
     arrived since the start (other nodes on the domain must be paused); the first messages may
     have gone out before discovery, so the run need not begin at t = 0."""
     marks = probe.marks()
+    arm_readers = probe.arm.get_subscription_count()   # another node's count for nothing here
     simulator = SimulatorProcess(tmp_path, *args)
     try:
         wait_for(lambda: simulator.process.poll() is not None or (
-            probe.connected() and all(len(probe.snapshot(name)) > mark for name, mark in marks.items())),
+            probe.connected() and probe.arm.get_subscription_count() > arm_readers
+            and all(len(probe.snapshot(name)) > mark for name, mark in marks.items())),
             "the simulator's topics, services and first messages", STARTUP_TIMEOUT)
         assert simulator.process.poll() is None, simulator.output()
     except BaseException:
