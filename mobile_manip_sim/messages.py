@@ -1,12 +1,7 @@
 """The one place where simulator state becomes ROS messages (the node publishes them, the
 recorder stores them, replay rebuilds them to compare): equal states give equal messages.
 
-Topics and types (see node.py for their meaning):
-  /joint_states                      sensor_msgs/msg/JointState
-  /odom                              nav_msgs/msg/Odometry
-  /clock                             rosgraph_msgs/msg/Clock
-  /wheel_effort_controller/commands  std_msgs/msg/Float64MultiArray
-  /arm_effort_controller/commands    std_msgs/msg/Float64MultiArray
+Topics, types and QoS: topics.py (meaning: node.py).
 
 Stamps are integer nanoseconds of simulated time. ``state`` is anything with the engine's state
 interface (``q``, ``u``, ``qdot()``, ``wheel_efforts``, ``joint_efforts``): a ``Simulation``.
@@ -24,24 +19,10 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
 NS = 10 ** 9
-JOINT_STATES_TOPIC = "/joint_states"
-ODOM_TOPIC = "/odom"
-CLOCK_TOPIC = "/clock"
-WHEEL_TOPIC = "/wheel_effort_controller/commands"
-ARM_TOPIC = "/arm_effort_controller/commands"
-STATE_TOPICS = (JOINT_STATES_TOPIC, ODOM_TOPIC, CLOCK_TOPIC)
-COMMAND_TOPICS = (WHEEL_TOPIC, ARM_TOPIC)
-
-# Topic → message type name, as bags and `ros2 topic` spell it.
-TOPIC_TYPES = {
-    JOINT_STATES_TOPIC: "sensor_msgs/msg/JointState",
-    ODOM_TOPIC: "nav_msgs/msg/Odometry",
-    CLOCK_TOPIC: "rosgraph_msgs/msg/Clock",
-    WHEEL_TOPIC: "std_msgs/msg/Float64MultiArray",
-    ARM_TOPIC: "std_msgs/msg/Float64MultiArray",
-}
-STATE_QOS_DEPTH = 100      # the node's state publishers: room for slow subscribers
-COMMAND_QOS_DEPTH = 10     # rclpy's default publisher depth, what command senders use
+# Topic names, types and QoS live in topics.py; re-exported here for the message builders' users.
+from .topics import (ARM_TOPIC, CLOCK_TOPIC, COMMAND_QOS_DEPTH, COMMAND_TOPICS,  # noqa: F401
+                     JOINT_STATES_TOPIC, ODOM_TOPIC, STATE_QOS_DEPTH, STATE_TOPICS, TOPIC_TYPES,
+                     WHEEL_TOPIC)
 
 # Ground truth: every one of the six pose/twist dimensions is known (see node.py).
 GROUND_TRUTH_VARIANCE = 1e-9
@@ -74,8 +55,10 @@ def quaternion_yaw(quaternion) -> float:
 
 
 def applied_efforts(state) -> list[float]:
-    """[τ_R, τ_L, τ_1, F_1, …]: the efforts the engine holds (after effort limits)."""
-    return state.wheel_efforts.tolist() + state.joint_efforts.tolist()
+    """[τ_R, τ_L, τ_1, F_1, …]: the efforts the engine holds (after effort limits); in
+    velocity mode the wheel torques the speed loop applies now."""
+    wheels = state.wheel_torques() if hasattr(state, "wheel_torques") else state.wheel_efforts
+    return list(map(float, wheels)) + state.joint_efforts.tolist()
 
 
 def joint_state(state, stamp: int, names, efforts=None) -> JointState:
@@ -91,7 +74,7 @@ def joint_state(state, stamp: int, names, efforts=None) -> JointState:
 
 
 def odometry(state, stamp: int, odom_frame: str = "odom",
-             base_frame: str = "base_link") -> Odometry:
+             base_frame: str = "base_footprint") -> Odometry:
     """Pose of ``base_frame`` (x, y, yaw) in ``odom_frame``; twist in ``base_frame``
     (linear.x = v, angular.z = ω)."""
     q, u = state.q, state.u
@@ -118,8 +101,24 @@ def float64_array(values) -> Float64MultiArray:
     return Float64MultiArray(data=[float(v) for v in values])
 
 
+def transform(odom: Odometry):
+    """The /tf message (tf2_msgs/TFMessage) of ``odom``'s pose: odom_frame → base_frame at the
+    same stamp. Imports tf2_msgs, which only a ROS install (or tools/build_tf2_msgs.sh) has."""
+    from geometry_msgs.msg import TransformStamped
+    from tf2_msgs.msg import TFMessage
+    pose = odom.pose.pose
+    message = TransformStamped()
+    message.header = odom.header
+    message.child_frame_id = odom.child_frame_id
+    message.transform.translation.x = pose.position.x
+    message.transform.translation.y = pose.position.y
+    message.transform.translation.z = pose.position.z
+    message.transform.rotation = pose.orientation
+    return TFMessage(transforms=[message])
+
+
 def state_messages(state, stamp: int, names, odom_frame: str = "odom",
-                   base_frame: str = "base_link") -> dict:
+                   base_frame: str = "base_footprint") -> dict:
     """Topic → message for /joint_states, /odom and /clock, all stamped ``stamp``."""
     return {JOINT_STATES_TOPIC: joint_state(state, stamp, names),
             ODOM_TOPIC: odometry(state, stamp, odom_frame, base_frame),

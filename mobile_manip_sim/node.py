@@ -17,9 +17,18 @@ Publications, stamped with the simulated time of the state they carry
                        linear.y = 0); covariances: see messages.GROUND_TRUTH_VARIANCE
   /clock               rosgraph_msgs/Clock, for nodes running with use_sim_time
   /robot_description   std_msgs/String (URDF), transient local, depth 1: at start and on reset
+  /tf                  tf2_msgs/TFMessage: odom_frame → base_frame (base_footprint, on the
+                       ground under the axle midpoint) at every publication, when tf2_msgs imports
+Every topic name above is RELATIVE (topics.py): __ns:=/robot1 puts them all under /robot1.
+base_command velocity: /cmd_vel (geometry_msgs/Twist, or TwistStamped with cmd_vel_stamped)
+replaces the wheel topic; the engine's wheel-speed PI loop turns it into wheel torques.
 Services
   ~/reset  std_srvs/Trigger   back to the scene's initial state, t = 0, efforts zero
   ~/pause  std_srvs/SetBool   true: time and /clock stand still; false: resume
+  ~/step   std_srvs/Trigger   while paused: compute and publish the next state, then answer
+Synchronous mode (parameter synchronous): the first state waits for a state subscriber and a
+command publisher; segment k is computed only once a new command has arrived on every command
+topic with a publisher after state k went out (or sync_timeout wall seconds passed).
 
 Timing. Publication k carries the state at simulated time t_k = k / publish_rate; its stamp is
 computed from the integer k in integer nanoseconds (exactly k·10⁹/rate when that is an integer,
@@ -65,6 +74,8 @@ matrices invertible for filters (robot_localization rejects all-zero covariances
 from __future__ import annotations
 
 import math
+import re
+import sys
 import threading
 import time
 from fractions import Fraction
@@ -77,18 +88,19 @@ from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, SetParam
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
-from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import SetBool, Trigger
 
 from . import cli
-from .engine.simulation import Simulation, SimulationError
+from .engine.simulation import DEFAULT_WHEEL_SPEED_GAINS, Simulation, SimulationError
 from .errors import UserError
-from .messages import ARM_TOPIC, NS, STATE_QOS_DEPTH, WHEEL_TOPIC, stamp_ns, state_messages
+from .messages import NS, stamp_ns, state_messages, transform
 from .recording.recorder import RunRecorder
 from .scene import METHODS, load_scene, make_integrator
+from .topics import (ARM_TOPIC, CLOCK_TOPIC, CMD_VEL_TOPIC, DESCRIPTION_TOPIC, JOINT_STATES_TOPIC, ODOM_TOPIC,
+                     TF_TOPIC, WHEEL_TOPIC, command_qos, latched_qos, relative, state_qos)
 from .urdf import robot_description
 
 NODE_NAME = "mobile_manip_sim"
@@ -96,6 +108,10 @@ WARN_EVERY = 5.0           # s of wall time between repeats of one kind of warni
 LAG_TOLERANCE = 0.1        # s behind the wall clock before the node says it cannot keep up
 BAG_FLUSH_INTERVAL = 1.0   # s of wall time: the most of a recording a SIGKILL may lose
 SHUTDOWN_POLL = 0.2        # s: how often the executor checks for an external shutdown
+STEP_TIMEOUT = 30.0        # s of wall time a ~/step call waits for its state
+STOP_TIMEOUT = 2.0         # s of wall time shutdown waits for the stepping thread
+MAX_PARAMS_FILE = 1 << 20  # bytes: a parameters file larger than this is refused
+PEER_POLL = 0.01           # s: synchronous start-up checks for peers this often
 
 
 def _float_range(low: float, high: float) -> list[FloatingPointRange]:
@@ -112,10 +128,30 @@ PARAMETERS = {
     "command_timeout": (0.5, "Seconds of SIMULATED time after the last command of a group "
                              "(wheels, arm) before its efforts fall to zero; 0 disables.",
                         _float_range(0.0, 1.0e6), True),
-    "odom_frame": ("odom", "frame_id of /odom.", None, False),
-    "base_frame": ("base_link", "child_frame_id of /odom.", None, False),
+    "odom_frame": ("odom", "frame_id of /odom and parent frame of /tf.", None, False),
+    "base_frame": ("base_footprint", "child_frame_id of /odom and /tf, and the URDF's root: the "
+                                     "frame on the ground under the axle midpoint (base_link "
+                                     "is fixed at wheel-radius height above it).", None, False),
+    "publish_tf": (True, "Publish odom_frame → base_frame on tf at the publication rate "
+                         "(needs tf2_msgs).", None, False),
     "record": ("", "Record a rosbag2 (MCAP) bag to this new directory; empty = off.", None,
                False),
+    "synchronous": (False, "Lockstep: after publishing state k, compute segment k only once a "
+                           "new command has arrived (or sync_timeout has passed); the first "
+                           "state waits for a state subscriber and a command publisher.", None,
+                    False),
+    "base_command": ("effort", "effort: the wheels take torques from wheel_effort_controller/"
+                               "commands; velocity: the base takes cmd_vel, turned into wheel "
+                               "torques by a wheel-speed PI loop inside the simulated system.",
+                     None, False),
+    "cmd_vel_stamped": (False, "Velocity mode: cmd_vel is geometry_msgs/TwistStamped (as Jazzy's "
+                               "diff_drive_controller takes it) rather than Twist.", None, False),
+    "wheel_speed.kp": (DEFAULT_WHEEL_SPEED_GAINS[0], "Velocity mode: proportional gain of the "
+                       "wheel-speed loop (N·m·s/rad).", _float_range(0.0, 1.0e6), False),
+    "wheel_speed.ki": (DEFAULT_WHEEL_SPEED_GAINS[1], "Velocity mode: integral gain of the "
+                       "wheel-speed loop (N·m/rad).", _float_range(0.0, 1.0e6), False),
+    "sync_timeout": (1.0, "Synchronous mode: wall seconds to wait for a command before holding "
+                          "the last one (and saying so).", _float_range(0.001, 3600.0), False),
     "integrator.method": ("", f"Integrator overriding the scene's ({', '.join(METHODS)}); "
                               "empty = the scene's.", None, False),
     "integrator.dt": (0.0, "Fixed step (s) overriding the scene's; 0 = the scene's.",
@@ -152,6 +188,8 @@ class _CommandGroup:
 
     def __init__(self, topic: str, size: int, labels: str, what: str):
         self.topic, self.size, self.labels, self.what = topic, size, labels, what
+        self.seq = 0             # valid commands received, ever (synchronous mode)
+        self.seq_published = 0   # seq when the latest state went out
         self.clear()
 
     def clear(self) -> None:
@@ -166,6 +204,7 @@ class SimulatorNode(Node):
     def __init__(self, **node_options):
         super().__init__(NODE_NAME, **node_options)
         self._declare_parameters()
+        self._reject_unknown_parameters()
         p = self._read_parameters()
         scene = load_scene(p["scene"] or None)
         settings = make_integrator(scene.integrator, p["integrator.method"] or None,
@@ -179,7 +218,16 @@ class SimulatorNode(Node):
         self.real_time_factor = p["real_time_factor"]
         self.command_timeout_ns = round(p["command_timeout"] * NS)
         self.odom_frame, self.base_frame = p["odom_frame"], p["base_frame"]
+        for name in ("odom_frame", "base_frame"):
+            if not p[name] or p[name] == "base_link" or p["odom_frame"] == p["base_frame"]:
+                raise UserError(name, f"{p[name]!r}: frame names must be non-empty, distinct, "
+                                      f"and not base_link (the URDF's body frame)")
         self.record = p["record"]
+        self.synchronous, self.sync_timeout = p["synchronous"], p["sync_timeout"]
+        if p["base_command"] not in ("effort", "velocity"):
+            raise UserError("base_command", f"{p['base_command']!r} is not effort or velocity")
+        self.velocity_mode = p["base_command"] == "velocity"
+        self.sim.set_wheel_speed_gains(p["wheel_speed.kp"], p["wheel_speed.ki"])
         self._settings = settings
         self._recorder: RunRecorder | None = None
         self._recorded_stamp: int | None = None   # last state stamp in the open bag
@@ -188,6 +236,7 @@ class SimulatorNode(Node):
         arm_labels = ", ".join(f"tau_{i}, F_{i}" for i in range(1, n_joints // 2 + 1)) or "none"
         self._wheels = _CommandGroup(WHEEL_TOPIC, 2, "tau_R, tau_L", "wheel")
         self._arm = _CommandGroup(ARM_TOPIC, n_joints, arm_labels, "arm")
+        self._cmd_vel = _CommandGroup(CMD_VEL_TOPIC, 2, "v, omega", "base velocity")
         self._command_lock = threading.Lock()      # guards the two _CommandGroup
         self._warned_at: dict[tuple, float] = {}    # throttle: (topic, kind) → wall time
 
@@ -197,26 +246,34 @@ class SimulatorNode(Node):
         self._now_ns = 0             # its stamp: simulated time at the start of the open segment
         self._pending = None         # (k + 1, messages) computed, waiting for its wall time
         self._paused = False
+        self._steps = 0              # ~/step requests not yet published
         self._failed: str | None = None
         self._reset_requested = False
         self._stopping = False
         self._anchor = (time.monotonic(), 0)   # (wall s, simulated ns) pacing origin
         self._window = self._anchor            # start of the real-time-factor measurement
 
-        state_qos = QoSProfile(depth=STATE_QOS_DEPTH, reliability=ReliabilityPolicy.RELIABLE)
-        latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
-                             durability=DurabilityPolicy.TRANSIENT_LOCAL)
-        self._joint_pub = self.create_publisher(JointState, "/joint_states", state_qos)
-        self._odom_pub = self.create_publisher(Odometry, "/odom", state_qos)
-        self._clock_pub = self.create_publisher(Clock, "/clock", state_qos)
-        self._description_pub = self.create_publisher(String, "/robot_description", latched)
-        self._description = robot_description(scene)
-        self.create_subscription(Float64MultiArray, WHEEL_TOPIC,
-                                 lambda msg: self._on_command(self._wheels, msg), 10)
-        self.create_subscription(Float64MultiArray, ARM_TOPIC,
-                                 lambda msg: self._on_command(self._arm, msg), 10)
+        # Relative names: a namespace (__ns:=/robot1) or a remap moves every topic.
+        self._state_pubs = {
+            topic: self.create_publisher(kind, relative(topic), state_qos())
+            for topic, kind in ((JOINT_STATES_TOPIC, JointState), (ODOM_TOPIC, Odometry),
+                                (CLOCK_TOPIC, Clock))}
+        self._tf_pub = self._tf_publisher() if p["publish_tf"] else None
+        self._description_pub = self.create_publisher(String, relative(DESCRIPTION_TOPIC),
+                                                      latched_qos())
+        self._description = robot_description(scene, root=self.base_frame)
+        self._command_subs = [
+            self.create_subscription(Float64MultiArray, relative(topic),
+                                     lambda msg, group=group: self._on_command(group, msg),
+                                     command_qos())
+            for topic, group in ((WHEEL_TOPIC, self._wheels), (ARM_TOPIC, self._arm))
+            if not (self.velocity_mode and topic == WHEEL_TOPIC)]
+        if self.velocity_mode:
+            self._command_subs.insert(0, self._cmd_vel_subscription(p["cmd_vel_stamped"]))
+        # in _command_groups() order: answered() pairs them up
         self.create_service(Trigger, "~/reset", self._on_reset)
         self.create_service(SetBool, "~/pause", self._on_pause)
+        self.create_service(Trigger, "~/step", self._on_step)
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
 
@@ -232,6 +289,10 @@ class SimulatorNode(Node):
             f"({'dt ' + str(settings.dt) if settings.fixed_step else f'rtol {settings.rtol}'}), "
             f"publishing at {float(self.rate):g} Hz of simulated time, real-time factor "
             f"{self.real_time_factor:g}{' (free-running)' if self.real_time_factor == 0 else ''}")
+        if p["publish_tf"] and self._tf_pub is None:
+            self.get_logger().warning(
+                "publish_tf: tf2_msgs does not import (source a ROS install, or build it with "
+                "tools/build_tf2_msgs.sh); no /tf")
 
     # --- parameters ------------------------------------------------------------------------
     def _declare_parameters(self) -> None:
@@ -242,14 +303,23 @@ class SimulatorNode(Node):
             try:
                 self.declare_parameter(name, default, descriptor)
             except InvalidParameterTypeException:
-                kind = "a floating-point number (write 1.0, not 1)" if isinstance(default, float) \
-                    else "a string"
+                kind = ("true or false" if isinstance(default, bool)
+                        else "a floating-point number (write 1.0, not 1)"
+                        if isinstance(default, float) else "a string")
                 raise UserError(name, f"expected {kind}") from None
             except InvalidParameterValueException:
                 override = self._parameter_overrides.get(name)
                 value = override.value if override is not None else default
                 raise UserError(name, f"{value} is outside [{floats[0].from_value:g}, "
                                       f"{floats[0].to_value:g}]") from None
+
+    def _reject_unknown_parameters(self) -> None:
+        """A parameter given for this node that it does not declare is a mistake (a typo such
+        as real_time_facter would otherwise be silently ignored)."""
+        unknown = sorted(set(self._parameter_overrides) - set(self._parameters))
+        if unknown:
+            raise UserError(unknown[0], f"unknown parameter of {NODE_NAME} (known: "
+                                        f"{', '.join(PARAMETERS)})")
 
     def _read_parameters(self) -> dict:
         values = {name: self.get_parameter(name).value for name in PARAMETERS}
@@ -288,11 +358,31 @@ class SimulatorNode(Node):
             group.values = np.array(values, dtype=float)
             group.received_ns = self._now_ns
             group.timed_out = False
+            group.seq += 1
+        if self.synchronous:
+            with self._cv:
+                self._cv.notify_all()
+
+    def _cmd_vel_subscription(self, stamped: bool):
+        from geometry_msgs.msg import Twist, TwistStamped
+
+        def on_twist(msg):
+            twist = msg.twist if stamped else msg
+            self._on_command(self._cmd_vel, Float64MultiArray(
+                data=[twist.linear.x, twist.angular.z]))
+        return self.create_subscription(TwistStamped if stamped else Twist,
+                                        relative(CMD_VEL_TOPIC), on_twist, command_qos())
+
+    def _command_groups(self) -> tuple:
+        """The groups that command the run: wheels or cmd_vel, then the arm."""
+        return (self._cmd_vel if self.velocity_mode else self._wheels, self._arm)
 
     def _held_efforts(self, segment_start_ns: int) -> tuple[np.ndarray, np.ndarray]:
-        """The efforts to hold from segment_start_ns on, after the command timeout."""
+        """The base command (wheel torques, or [v, ω] in velocity mode) and the arm efforts to
+        hold from segment_start_ns on, after the command timeout (a stale cmd_vel is zero
+        speed)."""
         with self._command_lock:
-            for group in (self._wheels, self._arm):
+            for group in self._command_groups():
                 stale = (self.command_timeout_ns > 0 and group.received_ns is not None
                          and not group.timed_out
                          and segment_start_ns - group.received_ns >= self.command_timeout_ns)
@@ -303,13 +393,14 @@ class SimulatorNode(Node):
                         f"{group.topic}: no command for {self.command_timeout_ns / NS:g} s of "
                         f"simulated time (command_timeout); {group.what} efforts set to zero "
                         f"until commands resume")
-            return self._wheels.values.copy(), self._arm.values.copy()
+            base, arm = self._command_groups()
+            return base.values.copy(), arm.values.copy()
 
     # --- services (executor thread): they set flags; the stepping thread acts on them --------
     def _on_reset(self, request, response):
         with self._command_lock:   # commands sent after this call are kept
-            self._wheels.clear()
-            self._arm.clear()
+            for group in (self._wheels, self._cmd_vel, self._arm):
+                group.clear()
         with self._cv:
             self._reset_requested = True
             self._cv.notify_all()
@@ -333,23 +424,92 @@ class SimulatorNode(Node):
                 response.message = f"{'resumed' if self._paused else 'running'} at t = {now} s"
                 if self._paused:
                     self._paused = False
+                    self._steps = 0
                     self._reanchor()
                 response.success = True
             self._cv.notify_all()
         self.get_logger().info(response.message)
         return response
 
+    def _on_step(self, request, response):
+        """While paused: publish the next state (one period on), then answer."""
+        with self._cv:
+            if not self._paused or self._failed:
+                response.success = False
+                response.message = (f"cannot step: the simulation failed ({self._failed}); call "
+                                    f"~/reset" if self._failed else
+                                    "not paused: call ~/pause (true) first, then ~/step")
+                return response
+            self._steps += 1
+            target = self._k + self._steps
+            self._cv.notify_all()
+            done = self._cv.wait_for(lambda: self._k >= target or self._failed or self._stopping
+                                     or self._reset_requested or not self._paused,
+                                     timeout=STEP_TIMEOUT)
+            response.success = bool(done) and self._k >= target
+            response.message = (f"stepped to t = {format_ns(self._now_ns)} s" if response.success
+                                else f"step not completed (t = {format_ns(self._now_ns)} s)")
+        return response
+
+    def _tf_publisher(self):
+        try:
+            from tf2_msgs.msg import TFMessage
+        except ImportError:
+            return None   # said once the node has started (__init__'s last line)
+        return self.create_publisher(TFMessage, relative(TF_TOPIC), state_qos())
+
     # --- stepping thread -------------------------------------------------------------------
     def start(self) -> None:
-        """Publish the description and the initial state, then start stepping."""
+        """Start the stepping thread: it publishes the description and the initial state (in
+        synchronous mode once a state subscriber and a command publisher are there), then
+        steps. Nothing is computed here, before the executor spins."""
+        self._thread.start()
+
+    def _begin(self) -> bool:
+        """The stepping thread's start; False when stopped before it began."""
+        if self.synchronous:
+            with self._cv:   # graph changes do not notify: poll, woken early by stop()
+                while not self._stopping and not self._peers_ready():
+                    self._cv.wait(PEER_POLL)
         with self._cv:
+            if self._stopping:
+                return False
             self._publish_description()
             self._publish(0, self._messages(0))
-        # The first segment loads the compiled kernels: compute it before the pacing starts.
-        self._pending = self._compute_next()
+        if not self.synchronous:
+            # The first segment loads the compiled kernels: compute it before pacing starts.
+            computed = self._compute_next()
+            with self._cv:
+                if not self._reset_requested:
+                    self._pending = computed
+                self._reanchor()
+        return True
+
+    def _peers_ready(self) -> bool:
+        """Synchronous mode's start condition: someone listens, someone commands."""
+        listening = any(pub.get_subscription_count() > 0 for pub in self._state_pubs.values())
+        commanding = any(sub.get_publisher_count() > 0 for sub in self._command_subs)
+        return listening and commanding
+
+    def _await_command(self) -> None:
+        """Synchronous mode, before computing a segment: wait (not holding _cv afterwards) for
+        a command newer than the latest published state on every command topic that has a
+        publisher (so wheels and arm sent in reply to one state apply together), at most
+        sync_timeout wall seconds."""
+        def answered() -> bool:
+            with self._command_lock:
+                fresh = [group.seq != group.seq_published for group in self._command_groups()]
+            commanding = [sub.get_publisher_count() > 0 for sub in self._command_subs]
+            return any(fresh) and all(f or not c for f, c in zip(fresh, commanding))
+
         with self._cv:
-            self._reanchor()
-        self._thread.start()
+            arrived = self._cv.wait_for(
+                lambda: answered() or self._stopping or self._reset_requested or self._paused,
+                timeout=self.sync_timeout)
+        if not arrived:
+            self._warn_throttled(("sync",), f"synchronous: no command within sync_timeout "
+                                            f"{self.sync_timeout:g} s after t = "
+                                            f"{format_ns(self._now_ns)} s; holding the last one")
 
     def stop(self) -> None:
         """Stop the stepping thread (idempotent); nothing is published afterwards."""
@@ -357,7 +517,10 @@ class SimulatorNode(Node):
             self._stopping = True
             self._cv.notify_all()
         if self._thread.is_alive():
-            self._thread.join()
+            self._thread.join(timeout=STOP_TIMEOUT)
+        if self._thread.is_alive():   # inside a long segment: the bag is closed regardless
+            rclpy.logging.get_logger(NODE_NAME).warning(
+                f"the stepping thread did not stop within {STOP_TIMEOUT:g} s; exiting anyway")
 
     def _run(self) -> None:
         """The engine's only user once started. _cv guards the flags and every publication, and
@@ -365,6 +528,8 @@ class SimulatorNode(Node):
         as one that compiles a kernel); a segment computed across a pause is kept for the
         resume, one computed across a reset is dropped."""
         try:
+            if not self._begin():
+                return
             while self._step():
                 pass
         except Exception:
@@ -381,20 +546,33 @@ class SimulatorNode(Node):
                 self._publish_description()
                 self._publish(0, self._messages(0))
                 return True
-            if self._paused or self._failed:
+            if (self._paused and not self._steps) or self._failed:
                 self._cv.wait()
                 return True
             pending = self._pending
         if pending is None:
+            if self.synchronous:
+                self._await_command()
+                with self._cv:
+                    if self._stopping or self._reset_requested or (
+                            self._paused and not self._steps):
+                        return True
             computed = self._compute_next()   # outside the lock
             with self._cv:
                 if not self._reset_requested:
                     self._pending = computed
             return True
         with self._cv:
-            if self._stopping or self._reset_requested or self._paused or self._failed:
+            if (self._stopping or self._reset_requested or self._failed
+                    or (self._paused and not self._steps)):
                 return True
             k, messages = pending
+            if self._paused:   # a ~/step: publish now, no pacing
+                self._steps -= 1
+                self._publish(k, messages)
+                self._pending = None
+                self._cv.notify_all()
+                return True
             paced = self.real_time_factor > 0
             delay = self._due(stamp_ns(k, self.rate)) - time.monotonic() if paced else 0.0
             if delay > 0:
@@ -410,9 +588,13 @@ class SimulatorNode(Node):
         """Advance the engine over segment k → k + 1; (k + 1, messages), or None on failure."""
         k = self._k
         start_ns = self._now_ns
-        wheels, joints = self._held_efforts(start_ns)
+        base, joints = self._held_efforts(start_ns)
         try:
-            self.sim.set_efforts(wheels, joints)
+            if self.velocity_mode:
+                self.sim.set_base_velocity(*base)
+                self.sim.set_efforts(joints=joints)
+            else:
+                self.sim.set_efforts(base, joints)
             self._on_command_applied(start_ns, self.sim.wheel_efforts, self.sim.joint_efforts)
             self.sim.advance_to((k + 1) / float(self.rate))
         except (SimulationError, UserError) as error:
@@ -453,12 +635,13 @@ class SimulatorNode(Node):
         self.sim.reset()
         self.sim.set_efforts(np.zeros(2), np.zeros(self.sim.nu - 2))
         with self._command_lock:
-            for group in (self._wheels, self._arm):
+            for group in (self._wheels, self._cmd_vel, self._arm):
                 if group.received_ns is not None:
                     group.received_ns = 0
         self._k, self._now_ns, self._pending = 0, 0, None
         self._failed = None
         self._reset_requested = False
+        self._steps = 0
         self._reanchor()
 
     # --- messages --------------------------------------------------------------------------
@@ -468,12 +651,16 @@ class SimulatorNode(Node):
                               self.odom_frame, self.base_frame)
 
     def _publish(self, k: int, messages: dict) -> None:
+        with self._command_lock:   # before publishing: a reply to this state counts as new
+            for group in self._command_groups():
+                group.seq_published = group.seq
         published = {}
         try:
-            for topic, publisher in (("/joint_states", self._joint_pub),
-                                     ("/odom", self._odom_pub), ("/clock", self._clock_pub)):
+            for topic, publisher in self._state_pubs.items():
                 publisher.publish(messages[topic])
                 published[topic] = messages[topic]
+            if self._tf_pub is not None:
+                self._tf_pub.publish(transform(messages[ODOM_TOPIC]))
         finally:
             # What went out is recorded, even when a shutdown fails the rest of the group.
             if published:
@@ -562,8 +749,42 @@ class SimulatorNode(Node):
                                                 f"goes on without it")
 
 
+def _check_params_files(argv) -> None:
+    """Each --params-file a readable, regular YAML file: said in one line here, before rcl
+    logs its own error and raises."""
+    import os
+
+    import yaml
+    args = list(sys.argv[1:] if argv is None else argv)
+    for flag, path in zip(args, args[1:]):
+        if flag != "--params-file":
+            continue
+        if not os.path.isfile(path):
+            raise UserError("--params-file", f"{path}: not a regular file")
+        try:
+            with open(path, "rb") as stream:
+                yaml.safe_load(stream.read(MAX_PARAMS_FILE + 1)[:MAX_PARAMS_FILE].decode())
+        except (OSError, UnicodeDecodeError, yaml.YAMLError) as error:
+            reason = getattr(error, "strerror", None) or type(error).__name__
+            raise UserError("--params-file", f"{path}: not a readable YAML file ({reason})") \
+                from None
+        if os.path.getsize(path) > MAX_PARAMS_FILE:
+            raise UserError("--params-file", f"{path}: larger than {MAX_PARAMS_FILE} bytes")
+
+
+def _init(argv) -> None:
+    """rclpy.init; bad --ros-args (a missing or unparsable --params-file, ...) is a UserError."""
+    _check_params_files(argv)
+    try:
+        rclpy.init(args=argv)
+    except Exception as error:   # RCLError, whose text names rcl's source lines
+        text = re.sub(r",? at /\S+:\d+", "", str(error)).replace("failed to initialize rcl: ", "")
+        key = "--params-file" if "params file" in text else "--ros-args"
+        raise UserError(key, text.strip()) from None
+
+
 def _main(argv) -> int:
-    rclpy.init(args=argv)
+    _init(argv)
     node = None
     try:
         node = SimulatorNode()

@@ -38,16 +38,15 @@ from .dynamics import Dynamics, constraint_residuals
 from .errors import UserError
 from .scene import Scene, load_scene, scene_from_text
 from .simulate import csv_columns
+from .topics import ARM_TOPIC as ARM_COMMANDS
+from .topics import JOINT_STATES_TOPIC as JOINT_STATES
+from .topics import ODOM_TOPIC as ODOM
+from .topics import WHEEL_TOPIC as WHEEL_COMMANDS
 
 RESIDUAL_FLOOR = 1e-17      # |residual| plotted at least this, so exact zeros show on a log axis
 HEADING_MARKS = 12          # about this many heading arrows along the base's path
 FIGURE_SIZE = (8.0, 4.8)    # inches
 DPI = 120
-
-JOINT_STATES = "/joint_states"
-ODOM = "/odom"
-WHEEL_COMMANDS = "/wheel_effort_controller/commands"
-ARM_COMMANDS = "/arm_effort_controller/commands"
 
 
 # --- the run table ----------------------------------------------------------------------------

@@ -4,6 +4,8 @@ The URDF describes the same multibody the simulator integrates (MODEL.md), so Pi
 parser with a planar root joint at ``base_link`` gives the core's mass matrix
 (``M = Sᵀ M_full S``, see test/test_urdf.py). Tree and names:
 
+    base_footprint                  on the ground under A; the root (the node's ``base_frame``)
+    └─ base_footprint_joint (fixed, z = wheel radius r)
     base_link                       origin A (axle midpoint); x forward, y left, z up
     ├─ right_wheel_joint  (continuous, axis +y, at y = −b)  → right_wheel
     ├─ left_wheel_joint   (continuous, axis +y, at y = +b)  → left_wheel
@@ -29,9 +31,10 @@ parser with a planar root joint at ``base_link`` gives the core's mass matrix
   links then have no ``<inertial>`` at all — the URDF is always the simulated model, never more.
 - ``base_link``'s ixx and iyy are set equal to the yaw inertia I_pw so that the inertia is valid
   for tools that want one; the planar model never uses them (the base cannot roll or pitch).
-- ``base_link`` is the root and has an inertial; KDL (robot_state_publisher) prints a warning
-  about root inertias and otherwise ignores it — harmless, and the TF tree stays
-  ``odom → base_link → …`` as the simulator publishes it.
+- ``base_footprint`` is the massless root, on the floor (z = 0) under the axle midpoint, so the
+  wheels touch the ground in a viewer; ``base_link`` sits r above it. The TF tree is
+  ``odom → base_footprint`` (the simulator's /tf) ``→ base_link → …`` (robot_state_publisher).
+  The core's heights are measured from the axle: a URDF point is the core's point + r·z.
 
 Joint names equal `RobotModel.joint_names()`, i.e. the names in /joint_states.
 """
@@ -106,9 +109,13 @@ def _damping(joint: ET.Element, damping) -> None:
         ET.SubElement(joint, "dynamics", damping=_num(damping))
 
 
-def robot_description(scene: Scene) -> str:
+FOOTPRINT = "base_footprint"
+
+
+def robot_description(scene: Scene, root: str = FOOTPRINT) -> str:
     """The URDF (XML text) of `scene`'s robot with the scene's effects (payload, wheel inertia,
-    damping, effort limits) applied as the simulator applies them."""
+    damping, effort limits) applied as the simulator applies them; `root` names the link on the
+    ground under the axle midpoint."""
     model, effects = scene.robot, scene.effects
     base = model.base
     n = model.n_links
@@ -126,7 +133,9 @@ def robot_description(scene: Scene) -> str:
 
     # Base: body = base + wheels, mass M_pw at G = (d, 0, 0), yaw inertia I_pw about G.
     wheel_width = min(0.5 * r, b)
+    ET.SubElement(robot, "link", name=root)
     base_link = ET.SubElement(robot, "link", name="base_link")
+    _joint(robot, "base_footprint_joint", "fixed", root, "base_link", xyz=(0.0, 0.0, r))
     _visual(base_link, "box", "chassis", xyz=(d, 0.0, 0.0),
             size=(2.0 * (abs(d) + r), 2.0 * b - wheel_width, r))
     _inertial(base_link, base.mass, (d, 0.0, 0.0), base.yaw_inertia * np.eye(3))

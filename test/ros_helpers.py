@@ -33,3 +33,12 @@ def child_env(domain_id: int) -> dict:
                RCUTILS_COLORIZED_OUTPUT="0", PYTHONUNBUFFERED="1")
     env.pop("ROS_LOCALHOST_ONLY", None)
     return env
+
+
+def spin_until(node, done) -> int:
+    """For a test's helper process: spin `node` until ``done()``, then shut down; exit status."""
+    while not done():
+        rclpy.spin_once(node, timeout_sec=0.1)
+    node.destroy_node()
+    rclpy.shutdown()
+    return 0

@@ -192,10 +192,12 @@ def start_simulator(probe, tmp_path, *args) -> SimulatorProcess:
     arrived since the start (other nodes on the domain must be paused); the first messages may
     have gone out before discovery, so the run need not begin at t = 0."""
     marks = probe.marks()
+    arm_readers = probe.arm.get_subscription_count()   # another node's count for nothing here
     simulator = SimulatorProcess(tmp_path, *args)
     try:
         wait_for(lambda: simulator.process.poll() is not None or (
-            probe.connected() and all(len(probe.snapshot(name)) > mark for name, mark in marks.items())),
+            probe.connected() and probe.arm.get_subscription_count() > arm_readers
+            and all(len(probe.snapshot(name)) > mark for name, mark in marks.items())),
             "the simulator's topics, services and first messages", STARTUP_TIMEOUT)
         assert simulator.process.poll() is None, simulator.output()
     except BaseException:
@@ -251,7 +253,7 @@ def test_stamps_are_exact_multiples_of_the_period_with_no_gaps(fresh):
     assert names == ("right_wheel_joint", "left_wheel_joint", "arm_revolute_1",
                      "arm_prismatic_1", "arm_revolute_2", "arm_prismatic_2")
     odom = fresh.run("odom")[0][7]
-    assert (odom.header.frame_id, odom.child_frame_id) == ("odom", "base_link")
+    assert (odom.header.frame_id, odom.child_frame_id) == ("odom", "base_footprint")
     covariance = np.array(odom.pose.covariance).reshape(6, 6)
     assert np.array_equal(covariance, np.diag(np.diag(covariance))) and np.all(np.diag(covariance) > 0)
 
@@ -461,3 +463,177 @@ def test_robot_description_reaches_a_late_subscriber(probe, simulator):
         assert text.lstrip().startswith("<") and "<robot" in text and "right_wheel_joint" in text
     finally:
         probe.node.destroy_subscription(subscription)
+
+
+# --- ROS-native naming and stepping --------------------------------------------------------
+
+class NamespacedProbe:
+    """Counts odom, joint_states and clock in /robot1 and /robot2, and on the root topics."""
+
+    NAMESPACES = ("/robot1", "/robot2", "")
+    TOPICS = (("odom", Odometry), ("joint_states", JointState), ("clock", Clock))
+
+    def __init__(self, context: Context):
+        self.node = rclpy.create_node("namespace_probe", context=context)
+        self.lock = threading.Lock()
+        self.counts = {}
+        for namespace in self.NAMESPACES:
+            for topic, kind in self.TOPICS:
+                name = f"{namespace}/{topic}"
+                self.counts[name] = 0
+                self.node.create_subscription(kind, name, lambda msg, name=name: self._on(name),
+                                              RELIABLE)
+
+    def _on(self, name):
+        with self.lock:
+            self.counts[name] += 1
+
+    def snapshot(self) -> dict:
+        with self.lock:
+            return dict(self.counts)
+
+
+def test_two_simulators_in_two_namespaces_publish_only_there(probe, tmp_path):
+    """`__ns:=/robot1` moves every topic: each namespace gets its own odom, joint_states and
+    clock, and the root topics stay silent (any other node on the domain is paused)."""
+    probe.pause(True)
+    nodes = [SimulatorProcess(tmp_path, *FAST, "-r", f"__ns:={namespace}")
+             for namespace in ("/robot1", "/robot2")]
+    try:
+        with spinning(NamespacedProbe, DOMAIN_ID) as counter:
+            def all_arrived():
+                counts = counter.snapshot()
+                assert all(node.process.poll() is None for node in nodes), nodes[0].output()
+                return all(counts[f"{ns_}/{topic}"] >= 20 for ns_ in ("/robot1", "/robot2")
+                           for topic, _ in NamespacedProbe.TOPICS)
+            wait_for(all_arrived, "20 messages on every namespaced topic", STARTUP_TIMEOUT)
+            counts = counter.snapshot()
+            assert all(counts[f"/{topic}"] == 0 for topic, _ in NamespacedProbe.TOPICS), counts
+            names = dict(counter.node.get_service_names_and_types())
+            assert "/robot1/mobile_manip_sim/step" in names
+            assert "/robot2/mobile_manip_sim/reset" in names
+    finally:
+        for node in nodes:
+            assert node.stop() == 0, node.output()
+
+
+def test_ten_steps_while_paused_publish_ten_states_one_period_apart(fresh):
+    fresh.wait_run("joints", lambda run: len(run) >= 5, "5 segments")
+    client = fresh.node.create_client(Trigger, "/mobile_manip_sim/step")
+    try:
+        wait_for(client.service_is_ready, "the ~/step service")
+        assert not fresh.call(client, Trigger.Request()).success   # running: refused
+        stop = paused_at(fresh.pause(True))
+        wait_for(lambda: fresh.snapshot("clock")[-1] == stop, "/clock to reach the pause time")
+        before = len(fresh.snapshot("joints"))
+        for k in range(1, 11):
+            response = fresh.call(client, Trigger.Request())
+            assert response.success, response.message
+            assert paused_at(response) == stop + k * PERIOD_NS
+        wait_for(lambda: len(fresh.snapshot("joints")) >= before + 10, "ten stepped states")
+        time.sleep(0.3)   # paused: nothing more may come
+        stamps = [record[0] for record in fresh.snapshot("joints")[before:]]
+        assert stamps == [stop + k * PERIOD_NS for k in range(1, 11)]
+        assert fresh.snapshot("clock")[-10:] == stamps
+    finally:
+        fresh.node.destroy_client(client)
+
+
+def lockstep_run(tmp_path, name: str, states: int):
+    """A synchronous node at real_time_factor 0 and the PD controller process on a domain of
+    their own; the node's bag as (topic, stamp, raw bytes), and the node's output."""
+    from rosbags.rosbag2 import Reader
+    env = ros_child_env(DOMAIN_ID + 1 if DOMAIN_ID < 199 else 1)   # not the probe's
+    bag = tmp_path / name
+    node = subprocess.Popen([SIMULATOR, "--ros-args", "-p", "integrator.method:=rk4",
+                             "-p", "integrator.dt:=0.001", "-p", "real_time_factor:=0.0",
+                             "-p", "synchronous:=true", "-p", "sync_timeout:=5.0",
+                             "-p", "command_timeout:=0.0", "-p", f"record:={bag}"],
+                            env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        time.sleep(0.5)   # the controller starts after the node
+        controller = subprocess.run(
+            [os.sys.executable, os.path.join(os.path.dirname(__file__), "pd_controller.py"),
+             str(states)], env=env, timeout=STARTUP_TIMEOUT + 60, capture_output=True, text=True)
+        assert controller.returncode == 0, controller.stderr
+    finally:
+        node.send_signal(signal.SIGTERM)
+        output = node.communicate(timeout=30)[0]
+    assert node.returncode == 0, output
+    with Reader(bag) as reader:
+        records = [(connection.topic, stamp, bytes(data))
+                   for connection, stamp, data in reader.messages()]
+    return records, output
+
+
+def test_a_pd_controller_in_lockstep_gives_the_same_bag_every_time(tmp_path):
+    """Closed loop over DDS, synchronous, as fast as the two processes go: every state from
+    t = 0 on, none skipped or repeated, each segment under the reply to its state — twice the
+    same run, byte for byte."""
+    states = 150
+    first, output = lockstep_run(tmp_path, "first", states)
+    assert "sync_timeout" not in output, output
+    stamps = [stamp for topic, stamp, _ in first if topic == "/joint_states"]
+    assert stamps == [k * PERIOD_NS for k in range(states + 1)]
+    wheels = [data for topic, stamp, data in first if topic == "/wheel_effort_controller/commands"]
+    assert len(wheels) >= 2       # the controller's replies changed the efforts
+    second, output = lockstep_run(tmp_path, "second", states)
+    assert "sync_timeout" not in output, output
+    assert second == first
+
+
+@pytest.mark.parametrize("case", ["missing params file", "binary params file",
+                                  "unknown parameter"])
+def test_bad_ros_arguments_exit_2_with_one_line_naming_the_cause(tmp_path, case):
+    binary = tmp_path / "binary.yaml"
+    binary.write_bytes(bytes(range(256)))
+    args, key = {"missing params file": (["--params-file", str(tmp_path / "none.yaml")],
+                                         "--params-file"),
+                 "binary params file": (["--params-file", str(binary)], "--params-file"),
+                 "unknown parameter": (["-p", "real_time_facter:=0.0"], "real_time_facter")}[case]
+    result = subprocess.run([SIMULATOR, "--ros-args", *args], env=child_env(),
+                            capture_output=True, text=True, timeout=60)
+    assert result.returncode == 2, result.stderr
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"simulator: error: {key}: "), result.stderr
+    assert "Traceback" not in result.stdout + result.stderr
+
+
+def test_the_shipped_params_file_applies_under_another_node_name(tmp_path):
+    """Keyed /**: a renamed node still takes it (a wrong type in it would be refused)."""
+    import shutil
+    params = tmp_path / "params.yaml"
+    shutil.copy(os.path.join(os.path.dirname(__file__), "..", "config", "simulator.params.yaml"),
+                params)
+    params.write_text(params.read_text().replace("publish_rate: 100.0", "publish_rate: 100"))
+    result = subprocess.run([SIMULATOR, "--ros-args", "--params-file", str(params),
+                             "-r", "__node:=renamed"], env=child_env(), capture_output=True,
+                            text=True, timeout=60)
+    assert result.returncode == 2 and "publish_rate" in result.stderr, result.stderr
+
+
+def test_cmd_vel_held_for_4_s_drives_the_base_at_that_twist(probe, simulator, tmp_path):
+    """base_command velocity: cmd_vel (0.3 m/s, 0.5 rad/s) for 4 s of simulated time; the
+    wheel-speed loop inside the simulation brings /odom's twist within 10 % of it."""
+    from geometry_msgs.msg import Twist
+    probe.pause(True)
+    node = start_simulator(probe, tmp_path, *FAST, "-p", "base_command:=velocity",
+                           "-p", "wheel_speed.kp:=5.0", "-p", "wheel_speed.ki:=50.0",
+                           "-r", "__node:=velocity_sim")
+    publisher = probe.node.create_publisher(Twist, "/cmd_vel", 10)
+    try:
+        wait_for(lambda: publisher.get_subscription_count() > 0, "the node's cmd_vel subscription")
+        twist = Twist()
+        twist.linear.x, twist.angular.z = 0.3, 0.5
+        start = probe.snapshot("odom")[-1][0]
+        while probe.snapshot("odom")[-1][0] < start + 4 * 10 ** 9:
+            assert node.process.poll() is None, node.output()
+            publisher.publish(twist)
+            time.sleep(0.02)
+        last = probe.snapshot("odom")[-1]
+        assert abs(last[5] - 0.3) <= 0.03 and abs(last[6] - 0.5) <= 0.05, last[:7]
+        efforts = probe.snapshot("joints")[-1][3]
+        assert efforts[0] != 0.0 and efforts[1] != 0.0   # the loop's torques, published
+    finally:
+        probe.node.destroy_publisher(publisher)
+        assert node.stop() == 0, node.output()

@@ -615,3 +615,41 @@ def test_replay_rejects_a_bag_from_another_robot(headless_bags, tmp_path):
     for mode in (["--resimulate"], ["--topics", "/odom"]):
         line = one_error_line(run_cli("replay", str(other), *mode), "replay")
         assert "a bag from another robot" in line, line
+
+
+def rclpy_type_hashes() -> dict:
+    """Type name → the RIHS01 hash rclpy reports for a live publisher of that type."""
+    import importlib
+    context = Context()
+    rclpy.init(context=context, domain_id=DOMAIN_ID)
+    try:
+        node = rclpy.create_node("type_hash_probe", context=context)
+        hashes = {}
+        for index, type_name in enumerate(sorted(set(TOPIC_TYPES.values()))):
+            package, _, name = type_name.partition("/msg/")
+            kind = getattr(importlib.import_module(f"{package}.msg"), name)
+            node.create_publisher(kind, f"/type_hash_{index}", 1)
+            info = node.get_publishers_info_by_topic(f"/type_hash_{index}")
+            hashes[type_name] = str(info[0].topic_type_hash)
+        node.destroy_node()
+    finally:
+        rclpy.shutdown(context=context)
+    return hashes
+
+
+def test_a_node_bag_carries_rclpys_type_hashes(node_run):
+    """RIHS01 hashes in metadata.yaml and in each channel's metadata, as Jazzy's `ros2 bag
+    record` writes them: equal to what rclpy reports for each type (and to rosbags' own)."""
+    bag, _, _ = node_run
+    expected = rclpy_type_hashes()
+    typestore = get_typestore(Stores.ROS2_JAZZY)
+    assert all(re.fullmatch(r"RIHS01_[0-9a-f]{64}", h) for h in expected.values()), expected
+    assert all(typestore.hash_rihs01(name) == h for name, h in expected.items())
+    info = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    topics = [entry["topic_metadata"] for entry in info["topics_with_message_count"]]
+    assert {t["name"] for t in topics} == set(TOPIC_TYPES)
+    assert all(t["type_description_hash"] == expected[t["type"]] for t in topics), topics
+    with open(bag_file(bag), "rb") as stream:
+        channels = make_reader(stream).get_summary().channels.values()
+        assert {c.topic: c.metadata["topic_type_hash"] for c in channels} == {
+            topic: expected[type_name] for topic, type_name in TOPIC_TYPES.items()}

@@ -159,7 +159,10 @@ def test_urdf_frames_are_the_core_frames(name):
         u = rng.normal(size=scene.robot.n_u)
         pin.forwardKinematics(model, data, urdf.full_configuration(q), urdf.S @ u)
         pin.updateFramePlacements(model, data)
-        origins, rotations = dyn.joint_origins(q), dyn.link_rotations(q)
+        # The URDF's root is base_footprint, on the ground: the core's points are r lower.
+        lift = np.array([0.0, 0.0, scene.robot.base.wheel_radius])
+        origins = [origin + lift for origin in dyn.joint_origins(q)]
+        rotations = dyn.link_rotations(q)
         base = data.oMi[1]
         assert np.allclose(base.translation, [q[0], q[1], 0.0], atol=1e-12)
         assert np.allclose(base.rotation, rotations[0], atol=1e-12)
@@ -171,6 +174,27 @@ def test_urdf_frames_are_the_core_frames(name):
             assert np.allclose(frame.rotation, rotations[k + 1], atol=1e-12)
         tip = data.oMf[model.getFrameId("tip")]
         assert np.allclose(tip.translation, origins[-1], atol=1e-12)
+
+
+@pytest.mark.parametrize("name", SCENES)
+def test_urdf_stands_on_the_floor_with_the_axle_at_the_wheel_radius(name):
+    """Rooted at base_footprint (z = 0, the floor): both wheel axes, and base_link, are r above
+    it, so every wheel's lowest point touches the ground, whatever the pose."""
+    scene = SCENES[name]
+    urdf = UrdfModel(scene)
+    model, data = urdf.model, urdf.data
+    r, b = scene.robot.base.wheel_radius, scene.robot.base.half_track
+    assert model.frames[model.getFrameId("base_footprint")].parentJoint == 1
+    q = random_configuration(np.random.default_rng(3), scene.robot)
+    pin.forwardKinematics(model, data, urdf.full_configuration(q))
+    pin.updateFramePlacements(model, data)
+    footprint = data.oMf[model.getFrameId("base_footprint")]
+    assert np.allclose(footprint.translation, [q[0], q[1], 0.0], atol=1e-12)
+    assert np.allclose(data.oMf[model.getFrameId("base_link")].translation, [q[0], q[1], r],
+                       atol=1e-12)
+    for side, sign in (("right", -1.0), ("left", 1.0)):
+        axle = footprint.actInv(data.oMi[model.getJointId(f"{side}_wheel_joint")]).translation
+        assert np.allclose(axle, [0.0, sign * b, r], atol=1e-12)
 
 
 @pytest.mark.parametrize("name", SCENES)
@@ -196,7 +220,8 @@ def test_urdf_joint_names_and_types_match_joint_states(name):
     for k in range(robot.n_links):
         limit = root.find(f"joint[@name='arm_prismatic_{k + 1}']/limit")
         assert [float(limit.get("lower")), float(limit.get("upper"))] == list(robot.stroke[k])
-    assert [j.get("name") for j in joints if j.get("type") == "fixed"] == ["tip_joint"]
+    assert [j.get("name") for j in joints if j.get("type") == "fixed"] == [
+        "base_footprint_joint", "tip_joint"]
     tip = root.find("link[@name='tip']")
     if scene.effects.payload:
         assert float(tip.find("inertial/mass").get("value")) == scene.effects.payload

@@ -25,7 +25,8 @@ from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, IndexType, Writer
 
 from mobile_manip_sim import __version__
 from mobile_manip_sim.errors import UserError
-from mobile_manip_sim.recording.message_definitions import definition_text, split_type_name
+from mobile_manip_sim.recording.message_definitions import (definition_text, split_type_name,
+                                                           type_hash)
 
 # At ~300 messages/s of 200-500 bytes (60-150 KB/s) a 64 KiB chunk holds 0.4-1 s of data, the
 # most a SIGKILL may lose. It must stay larger than any single message: files whose messages
@@ -178,8 +179,10 @@ class BagWriter:
         schema_id = self._schema_id(type_name)
         with self._io("cannot register topic"):
             before = self._file.bytes_written
-            channel_id = self._mcap.register_channel(name, "cdr", schema_id,
-                                                     {"offered_qos_profiles": qos})
+            metadata = {"offered_qos_profiles": qos}
+            if type_hash(type_name):
+                metadata["topic_type_hash"] = type_hash(type_name)
+            channel_id = self._mcap.register_channel(name, "cdr", schema_id, metadata)
             self._account(before, _REGISTRATION_RECORD_OVERHEAD + len(name) + len(qos))
         self._topics[name] = _Topic(channel_id, type_name, qos)
 
@@ -272,7 +275,7 @@ class BagWriter:
                 {"topic_metadata": {"name": name, "type": topic.type_name,
                                     "serialization_format": "cdr",
                                     "offered_qos_profiles": topic.qos,
-                                    "type_description_hash": ""},
+                                    "type_description_hash": type_hash(topic.type_name)},
                  "message_count": topic.message_count}
                 for name, topic in self._topics.items()],
             "compression_format": "",

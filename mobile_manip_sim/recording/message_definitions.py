@@ -92,3 +92,21 @@ def _share_directory(package: str, type_name: str) -> Path:
     if candidate.is_dir():
         return candidate
     raise UserError(type_name, f"unknown message type (package {package!r} not installed)")
+
+
+@functools.lru_cache(maxsize=None)
+def type_hash(type_name: str) -> str:
+    """The ``RIHS01_<64 hex>`` type hash of ``pkg/msg/Type``, as rosidl computed it at the
+    package's build (``share/<pkg>/msg/<Type>.json``, what rclpy reports for an endpoint and
+    `ros2 bag record` stores); "" when the package ships no type description (pre-Jazzy)."""
+    import json
+
+    package, name = split_type_name(type_name)
+    full_name = f"{package}/msg/{name}"
+    path = _share_directory(package, full_name) / "msg" / f"{name}.json"
+    try:
+        hashes = json.loads(path.read_text(encoding="utf-8")).get("type_hashes", [])
+    except (OSError, ValueError):
+        return ""
+    return next((entry.get("hash_string", "") for entry in hashes
+                 if entry.get("type_name") == full_name), "")

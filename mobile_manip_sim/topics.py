@@ -1,0 +1,59 @@
+"""The one place that names the simulator's topics, their message types and their QoS.
+
+In a bag a topic carries its canonical name (``/odom``): a bag holds one robot's run. The node
+creates every topic under its RELATIVE name (``odom``), so ``__ns:=/robot1`` puts it at
+``/robot1/odom`` and a remap (``-r odom:=ground_truth``) works as in any ROS node.
+
+  joint_states                      sensor_msgs/msg/JointState      state, reliable, depth 100
+  odom                              nav_msgs/msg/Odometry           state
+  clock                             rosgraph_msgs/msg/Clock         state
+  tf                                tf2_msgs/msg/TFMessage          state (when tf2_msgs imports)
+  robot_description                 std_msgs/msg/String             latched (transient local, 1)
+  wheel_effort_controller/commands  std_msgs/msg/Float64MultiArray  command, depth 10
+  arm_effort_controller/commands    std_msgs/msg/Float64MultiArray  command
+  cmd_vel                           geometry_msgs/msg/Twist (or TwistStamped)  command, velocity mode
+"""
+from __future__ import annotations
+
+JOINT_STATES_TOPIC = "/joint_states"
+ODOM_TOPIC = "/odom"
+CLOCK_TOPIC = "/clock"
+TF_TOPIC = "/tf"
+DESCRIPTION_TOPIC = "/robot_description"
+WHEEL_TOPIC = "/wheel_effort_controller/commands"
+CMD_VEL_TOPIC = "/cmd_vel"
+ARM_TOPIC = "/arm_effort_controller/commands"
+STATE_TOPICS = (JOINT_STATES_TOPIC, ODOM_TOPIC, CLOCK_TOPIC)
+COMMAND_TOPICS = (WHEEL_TOPIC, ARM_TOPIC)
+
+# Topic → message type name, as bags and `ros2 topic` spell it (the topics a bag records).
+TOPIC_TYPES = {
+    JOINT_STATES_TOPIC: "sensor_msgs/msg/JointState",
+    ODOM_TOPIC: "nav_msgs/msg/Odometry",
+    CLOCK_TOPIC: "rosgraph_msgs/msg/Clock",
+    WHEEL_TOPIC: "std_msgs/msg/Float64MultiArray",
+    ARM_TOPIC: "std_msgs/msg/Float64MultiArray",
+}
+STATE_QOS_DEPTH = 100      # the node's state publishers: room for slow subscribers
+COMMAND_QOS_DEPTH = 10     # rclpy's default publisher depth, what command senders use
+
+
+def relative(topic: str) -> str:
+    """The name the node gives ``topic``: relative, so namespaces and remaps apply."""
+    return topic.lstrip("/")
+
+
+def state_qos():
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    return QoSProfile(depth=STATE_QOS_DEPTH, reliability=ReliabilityPolicy.RELIABLE)
+
+
+def latched_qos():
+    from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
+    return QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
+                      durability=DurabilityPolicy.TRANSIENT_LOCAL)
+
+
+def command_qos():
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    return QoSProfile(depth=COMMAND_QOS_DEPTH, reliability=ReliabilityPolicy.RELIABLE)
