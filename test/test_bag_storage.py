@@ -1,6 +1,7 @@
 """Bag storage: bags we write are read back by independent readers (rosbags, mcap + mcap_ros2),
 and our reader survives truncation, SIGKILL and damaged files with one-line errors."""
 
+import re
 import errno
 import os
 import random
@@ -173,7 +174,7 @@ def test_metadata_yaml_has_every_rosbag2_field(bag, records):
     for entry in info["topics_with_message_count"]:
         topic = entry["topic_metadata"]
         assert topic["type"] == TOPICS[topic["name"]] and topic["serialization_format"] == "cdr"
-        assert topic["type_description_hash"] == ""
+        assert re.fullmatch(r"RIHS01_[0-9a-f]{64}", topic["type_description_hash"])
         # rosbag2 Jazzy decodes this field as a string holding YAML
         assert isinstance(topic["offered_qos_profiles"], str)
         assert yaml.safe_load(topic["offered_qos_profiles"])[0]["history"] == "keep_last"
@@ -483,7 +484,7 @@ def test_open_chunk_stays_bounded_over_a_long_run(tmp_path):
         writer.write("/clock", data, step)
         largest = max(largest, writer.buffered_bytes)
     writer.close()
-    assert chunk_size <= largest <= chunk_size + 31 + len(data)
+    assert chunk_size - 31 - len(data) <= largest <= chunk_size + 31 + len(data)
     with open(tmp_path / "long" / "long_0.mcap", "rb") as stream:
         summary = make_reader(stream).get_summary()
     assert summary.statistics.message_count == 200_000

@@ -16,7 +16,8 @@ ROSDEP_KEYS = {
     "numpy": "python3-numpy", "scipy": "python3-scipy", "yaml": "python3-yaml",
     "numba": "python3-numba", "matplotlib": "python3-matplotlib",
     "zstandard": "python3-zstandard", "mcap": "python3-mcap-pip", "pinocchio": "pinocchio",
-    "mujoco": "python3-mujoco-pip",
+    "mujoco": "python3-mujoco-pip", "distributed": "python3-dask-distributed-pip",
+    "dask": "python3-dask-distributed-pip", "pyarrow": "python3-pyarrow-pip",
 }
 
 
