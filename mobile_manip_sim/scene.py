@@ -15,13 +15,14 @@ import numpy as np
 import yaml
 
 from . import schema
+from . import methods
 from .errors import UserError
 from .model import Base, RobotModel
 
 DEFAULT_SCENE = "paper_two_link.yaml"
 
-METHODS = ("euler", "semi_implicit_euler", "rk4", "rk45", "dop853", "radau", "bdf")
-FIXED_STEP_METHODS = ("euler", "semi_implicit_euler", "rk4")
+METHODS = methods.NAMES                     # the registry: mobile_manip_sim/methods.py
+FIXED_STEP_METHODS = methods.FIXED_STEP_NAMES
 IMPACT_LAWS = ("impulse", "reflect")
 
 

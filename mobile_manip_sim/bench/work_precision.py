@@ -11,18 +11,11 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+from ..methods import METHODS
 from ..scene import make_integrator
 from .runs import Run, integrator, simulate
 
-SWEEPS = {
-    "euler": [1e-3, 3e-4, 1e-4, 3e-5, 1e-5],
-    "semi_implicit_euler": [1e-3, 3e-4, 1e-4, 3e-5, 1e-5],
-    "rk4": [1e-2, 3e-3, 1e-3, 3e-4, 1e-4],
-    "rk45": [1e-3, 1e-5, 1e-7, 1e-9, 1e-11],
-    "dop853": [1e-3, 1e-5, 1e-7, 1e-9, 1e-11],
-    "radau": [1e-3, 1e-5, 1e-7, 1e-9],
-    "bdf": [1e-3, 1e-5, 1e-7, 1e-9],
-}
+SWEEPS = {name: list(method.sweep) for name, method in METHODS.items()}
 QUICK_SWEEPS = {method: values[::2] for method, values in SWEEPS.items()}
 TARGETS = (1e-3, 1e-6, 1e-9)
 

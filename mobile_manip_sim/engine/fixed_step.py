@@ -17,7 +17,6 @@ from .system import derivative
 
 EULER, SEMI_IMPLICIT_EULER, RK4 = 0, 1, 2
 METHOD_IDS = {"euler": EULER, "semi_implicit_euler": SEMI_IMPLICIT_EULER, "rk4": RK4}
-ORDER = {"euler": 1, "semi_implicit_euler": 1, "rk4": 4}
 
 
 @jit

@@ -17,6 +17,7 @@ from collections import namedtuple
 import numpy as np
 
 from ..dynamics import Dynamics
+from ..methods import METHODS
 from ..errors import UserError
 from ..scene import IntegratorSettings, Scene
 from . import fixed_step, layout, stepping
@@ -27,14 +28,10 @@ from .stops import (LOG_HELD, Impact, impact, make_impact_scratch, make_stops, r
 from .system import (KI, KP, RHS_EVALS, TARGET_L, TARGET_R, TORQUE_LIMIT, VELOCITY_MODE, System,
                      wheel_speed_torques)
 
-COMPILED_ADAPTIVE = ("rk45", "dop853")              # engine/adaptive.py
-SCIPY_SOLVERS = {"radau": "Radau", "bdf": "BDF"}
-
-
 def scipy_solver(method: str):
     """SciPy's solver class for an adaptive method, imported only when one is used (~56 MB)."""
     from scipy import integrate
-    return getattr(integrate, SCIPY_SOLVERS[method])
+    return getattr(integrate, METHODS[method].stepper.split(":")[1])
 DEFAULT_WHEEL_SPEED_GAINS = (0.5, 5.0)   # kp N·m·s/rad, ki N·m/rad (see set_wheel_speed_gains)
 
 
@@ -306,7 +303,7 @@ class Simulation:
         system = self.system
         if self._solver is None:
             settings = self.settings
-            if settings.method in COMPILED_ADAPTIVE:
+            if METHODS[settings.method].stepper == "runge_kutta":
                 self._solver = CompiledSolver(settings.method, system.data, self._t_adaptive,
                                               self.s, settings.rtol, settings.atol, self._h_last)
             else:
