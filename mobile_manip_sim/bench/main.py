@@ -47,7 +47,8 @@ def _main(argv) -> int:
     except OSError as error:
         raise UserError("--out", f"cannot create {out} ({error.strerror})") from None
 
-    from . import effects, hard_cases, report, scaling, versus, versus_mujoco, work_precision
+    from . import (effects, engine_targets, hard_cases, report, scaling, versus, versus_mujoco,
+                   work_precision)
     from .scenes import paper_document, random_arm_scene, scene_file
     from ..scene import load_scene
 
@@ -56,7 +57,7 @@ def _main(argv) -> int:
         progress = Progress(1)
         _mujoco_section(versus_mujoco, results, progress, args.quick)
         return _write(report, results, out, progress)
-    progress = Progress(8)
+    progress = Progress(9)
 
     progress.section("warming up the compiled kernels")
     versus.realtime(lambda _line: None, quick=True)
@@ -86,6 +87,8 @@ def _main(argv) -> int:
     results["realtime"] = versus.realtime(progress, quick=args.quick)
 
     _mujoco_section(versus_mujoco, results, progress, args.quick)
+    paper = next((wp for wp in results["wp"] if wp.scene == "paper_two_link"), None)
+    results["engine"] = engine_targets.measure(progress, paper)
 
     progress.section("hard cases")
     results["hard"] = []

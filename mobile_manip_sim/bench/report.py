@@ -177,6 +177,14 @@ def write(results, out: Path) -> Path:
               "Ratios are between runs of this same bench invocation. Where a target is missed, the "
               "section it comes from says why (§5 for the real-time factor).", ""]
 
+    if results.get("engine"):
+        from .engine_targets import rows as engine_rows
+        parts += ["## Engine targets (issue 10)", "",
+                  table(("target", "measured in this run", "verdict"),
+                        engine_rows(results["engine"], verdict, seconds)), "",
+                  "The MuJoCo targets (1 kHz rk4 and semi-implicit Euler on the paper scene, 64 "
+                  "links, cost order) are in §7; the node's memory in bench/NODE.md.", ""]
+
     parts += ["## 1. Work–precision", "",
               "Every integrator over a sweep of `dt` (fixed step) or `rtol` (adaptive, atol = rtol/100), "
               "advanced to 100 Hz samples as `simulate` does. Error: largest |state − reference| over "

@@ -1,0 +1,62 @@
+"""Issue 10's targets that the other sections do not measure: what dop853's cost does as the
+tolerance loosens, the paper scene with its stops at error ≤ 1e-6, and a warm `simulate`.
+(The MuJoCo targets are in §7; the node's memory in bench/NODE.md.)"""
+from __future__ import annotations
+
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from ..scene import load_scene, make_integrator
+from .runs import simulate
+from .scenes import without_stroke_limits
+
+
+def measure(progress, paper_wp) -> dict:
+    smooth = without_stroke_limits(load_scene())
+    rhs = {}
+    for rtol in (1e-4, 1e-10):
+        run = simulate(smooth, make_integrator(smooth.integrator, "dop853", rtol=rtol, atol=rtol / 100))
+        rhs[rtol] = run.rhs_evaluations
+        progress(f"dop853 rtol {rtol:g}, paper robot without stops: {run.rhs_evaluations} rhs")
+    stops = [p for p in (paper_wp.points if paper_wp else [])
+             if p.method == "dop853" and p.run.ok and p.error <= 1e-6]
+    best = min(stops, key=lambda p: p.run.cpu, default=None)
+    with tempfile.TemporaryDirectory() as tmp:
+        command = [str(Path(sys.executable).with_name("simulate")), "--out", f"{tmp}/run.csv"]
+        subprocess.run(command, capture_output=True, check=True, timeout=600)   # warm the caches
+        start = time.perf_counter()
+        subprocess.run(command, capture_output=True, check=True, timeout=600)
+        warm = time.perf_counter() - start
+    progress(f"warm simulate of the default scene: {warm:.2f} s wall")
+    return {"rhs": rhs, "stops_best": best, "warm_simulate": warm}
+
+
+def rows(measured, verdict, seconds) -> list:
+    out = []
+    rhs = measured["rhs"]
+    ratio = rhs[1e-4] / rhs[1e-10]
+    out.append(("dop853, paper robot without stops, 100 Hz samples: rhs at rtol 1e-4 ≤ ¼ of those at 1e-10",
+                f"{rhs[1e-4]} vs {rhs[1e-10]}: ratio {ratio:.2f}",
+                verdict(ratio <= 0.25, f"{0.25 / ratio:.2f}× inside" if ratio <= 0.25 else
+                        f"missed by {ratio / 0.25:.2f}×: 10 steps at rtol 1e-4, of which the first "
+                        "(a starting guess), the last (cut at the end) and 3 dense-output stages per "
+                        "sampled step do not shrink with rtol; SciPy's DOP853 gives the same ratio")))
+    best = measured["stops_best"]
+    if best is None:
+        out.append(("dop853, paper scene with its stops, largest state error ≤ 1e-6 in ≤ 2 ms CPU",
+                    "no dop853 setting reached 1e-6", "**MISS**"))
+    else:
+        cpu = best.run.cpu
+        out.append(("dop853, paper scene with its stops, largest state error ≤ 1e-6 in ≤ 2 ms CPU",
+                    f"rtol {best.value:g}: {seconds(cpu)} (error {best.error:.1e}, {best.run.impacts} impacts)",
+                    verdict(cpu <= 2e-3, f"{2e-3 / cpu:.1f}× inside" if cpu <= 2e-3 else
+                            f"missed by {cpu / 2e-3:.1f}×: each step that may hold a crossing locates "
+                            "it on the dense output from Python (engine/simulation.py), ~5 µs a call")))
+    warm = measured["warm_simulate"]
+    out.append(("warm `simulate` of the default scene ≤ 1 s wall", f"{warm:.2f} s",
+                verdict(warm <= 1.0, f"{1.0 / warm:.1f}× inside" if warm <= 1.0 else
+                        f"missed by {warm / 1.0:.1f}×: importing numpy/numba and loading the cached kernels")))
+    return out
