@@ -76,7 +76,7 @@ def summary_line(sim: Simulation, wall: float, simulated: float | None = None) -
     """`wall` s of wall time spent on `simulated` s of simulated time (default: all of it)."""
     simulated = sim.t if simulated is None else simulated
     rtf = simulated / wall if wall > 0 else float("inf")
-    return (f"simulated {sim.t:.6g} s in {wall:.3f} s wall (real-time factor {rtf:.1f}), "
+    return (f"simulated {sim.t:.6g} s in {wall:.4g} s wall (real-time factor {rtf:.1f}), "
             f"{sim.steps} steps, {sim.rhs_evaluations} rhs evaluations, {len(sim.impacts)} impacts, "
             f"energy error {sim.energy_error():.3e} J")
 
