@@ -128,6 +128,18 @@ def check_metadata_yaml(text):
     outcome(lambda: schema.run_metadata(schema.load_yaml(text, what="metadata.yaml")))
 
 
+def fuzz(settings, check, strategy) -> int:
+    """Run `check` on hypothesis examples of `strategy` (each check asserts through `outcome`);
+    returns how many examples it saw."""
+    seen = []
+
+    def counted(value):
+        seen.append(None)
+        check(value)
+    settings(given(strategy)(counted))()
+    return len(seen)
+
+
 CHECKS = [
     (check_mutated_scene, mutations), (check_scene_text, st.text(max_size=200)),
     (check_yaml_of_values, values), (check_spliced_text, splices), (check_metadata, metadata),
@@ -137,13 +149,13 @@ CHECKS = [
 
 @pytest.mark.parametrize("check, strategy", CHECKS, ids=[c.__name__ for c, _ in CHECKS])
 def test_fuzz_fixed_seed(check, strategy):
-    FAST(given(strategy)(check))()
+    assert fuzz(FAST, check, strategy) >= 100   # the examples really ran (each one checked)
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("check, strategy", CHECKS, ids=[c.__name__ for c, _ in CHECKS])
 def test_fuzz_long(check, strategy):
-    LONG(given(strategy)(check))()
+    assert fuzz(LONG, check, strategy) >= 1000
 
 
 def test_the_fuzzer_can_fail():

@@ -31,6 +31,7 @@ from std_srvs.srv import Trigger
 from executables import executable
 from ros_helpers import child_env as ros_child_env
 from ros_helpers import spinning
+import waiting
 from mobile_manip_sim import __version__
 from mobile_manip_sim.engine.simulation import Simulation
 from mobile_manip_sim.messages import TOPIC_TYPES, float64_array
@@ -59,13 +60,7 @@ def child_env() -> dict:
 
 
 def wait_for(predicate, what: str, timeout: float = TIMEOUT):
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        value = predicate()
-        if value:
-            return value
-        time.sleep(0.005)
-    pytest.fail(f"timed out after {timeout} s waiting for {what}")
+    return waiting.wait_for(predicate, what, timeout)
 
 
 def ns(stamp) -> int:

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import pyarrow.parquet as pq
 import pytest
+from waiting import wait_for
 
 from mobile_manip_sim.errors import EXIT_USER_ERROR
 from mobile_manip_sim.scene import load_scene
@@ -80,14 +81,6 @@ def sweep(spec: Path, out: Path, *extra, timeout=120) -> subprocess.CompletedPro
                           capture_output=True, text=True, timeout=timeout)
 
 
-def wait_for(condition, timeout: float, what: str):
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        value = condition()
-        if value:
-            return value
-        time.sleep(0.01)
-    raise AssertionError(f"timed out after {timeout} s waiting for {what}")
 
 
 def parts(out: Path) -> list:
@@ -144,8 +137,8 @@ def killed_worker_table(long_spec, tmp_path_factory):
         victim, victim_address = processes[2], f"tcp://127.0.0.1:{worker_ports[1]}"
         driver = start([executable("sweep"), str(long_spec), "--out", str(out), "--scheduler", address])
         processes.append(driver)
-        rows = wait_for(lambda: [r for r in parts(out) if r["worker"] == victim_address], 90,
-                        "a run finished by worker B")
+        rows = wait_for(lambda: [r for r in parts(out) if r["worker"] == victim_address],
+                        "a run finished by worker B", 90)
         assert len(parts(out)) < 40, "the sweep finished before the worker could be killed"
         victim.send_signal(signal.SIGKILL)
         victim.wait(timeout=10)
@@ -213,7 +206,7 @@ def test_resume_after_sigint_gives_the_same_table_without_redoing_a_run(long_spe
     out = tmp_path / "out"
     driver = start([executable("sweep"), str(long_spec), "--out", str(out), "--workers", "1"])
     try:
-        wait_for(lambda: parts(out), 90, "the first finished run")
+        wait_for(lambda: parts(out), "the first finished run", 90)
         driver.send_signal(signal.SIGINT)
         _, stderr = driver.communicate(timeout=60)
     finally:
