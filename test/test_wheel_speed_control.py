@@ -68,3 +68,26 @@ def test_bad_gains_are_one_line_errors():
         sim.set_wheel_speed_gains(float("nan"), 1.0)
     with pytest.raises(UserError, match="cmd_vel"):
         sim.set_base_velocity(float("inf"), 0.0)
+
+
+def test_holding_forces_are_what_the_mass_matrix_says():
+    """The force a locked pseudo-velocity needs (`System.constraint_forces`, one inverse-dynamics
+    pass) equals (M u̇ + h − Q) from the composite-rigid-body mass matrix and the bias, with u̇
+    from the articulated pass zero on the locked DOFs; zero on the free ones."""
+    sim = paper(locked=False, gravity=10.0)
+    rng = np.random.default_rng(3)
+    sim.system.set_locked((3, 5))            # both rods held, as at their stops
+    for _ in range(5):
+        q = np.array(sim.q) + rng.normal(0.0, 0.3, sim.nq)
+        u = rng.normal(0.0, 1.0, sim.nu)
+        u[[3, 5]] = 0.0
+        s = sim.system.state(q, u)
+        ud = sim.system.derivative(s)[sim.nq:sim.nq + sim.nu]
+        assert ud[3] == 0.0 and ud[5] == 0.0
+        M, h = sim.dynamics.mass_matrix(q), sim.dynamics.bias(q, u)
+        expected = M @ ud + h - sim.system.Q_cmd
+        forces = sim.system.constraint_forces(s)
+        scale = 1.0 + np.abs(expected).max()
+        assert np.allclose(forces, expected, atol=1e-10 * scale)
+        assert np.abs(forces[[0, 1, 2, 4]]).max() < 1e-10 * scale   # free DOFs need no force
+        assert np.abs(forces[[3, 5]]).min() > 1e-3                   # the held ones do

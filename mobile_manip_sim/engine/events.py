@@ -15,8 +15,9 @@ crosses and comes back within one step is not missed (SciPy's sign-change detect
 scipy #9228); the first crossing is bracketed between 16 samples of the step plus the path's
 turning points, then located by the Illinois method.
 
-`step_state(...)` is the one place that evaluates a trial step for every event function; the
-fixed-step methods take it from `fixed_step.step`, the adaptive ones from their dense output.
+`step_state(...)` is the one place that evaluates a trial step for the event functions of the
+fixed-step methods; the adaptive ones evaluate theirs on the dense output
+(`Simulation._first_crossing`, `locate_python`: the same Illinois method over a Python callable).
 """
 import math
 

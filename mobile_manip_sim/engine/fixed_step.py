@@ -1,6 +1,6 @@
 """Fixed-step integrators, compiled, and the loop that runs them between events.
 
-All three advance ``s = (q, u, W)`` by one step of length h (s):
+All three advance ``s = (q, u, e, W)`` (`layout.py`) by one step of length h (s):
 
 - ``euler``: explicit Euler, order 1: s⁺ = s + h f(s).
 - ``semi_implicit_euler``: symplectic Euler, order 1: u⁺ = u + h u̇(q, u), then

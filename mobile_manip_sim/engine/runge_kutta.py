@@ -10,7 +10,7 @@ Two methods, both with local extrapolation (the step is taken with the higher-or
   Hairer's code does (`error_norm`). Dense output: the 7th-order interpolant, which costs 3 more
   stages per step that needs it (`dense_prepare`).
 
-The right-hand side is `engine.system.derivative(system, s, ds)` of the state s = (q, u, W)
+The right-hand side is `engine.system.derivative(system, s, ds)` of the state s = (q, u, e, W)
 (n = n_q + n_u + 1 entries; autonomous: efforts are held between calls, so no t argument).
 Time is in seconds, h is the step (s); tolerances are per component of s, in its own units.
 

@@ -350,20 +350,3 @@ class Impact:
         return Impact(float(row[LOG_TIME]), int(row[LOG_LINK]),
                       "lower" if row[LOG_SIDE] < 0 else "upper", float(row[LOG_LD_BEFORE]),
                       float(row[LOG_LD_AFTER]), float(row[LOG_LOST]), bool(row[LOG_RESTING]))
-
-
-def apply_impact(dynamics, free: list[int], q, u, k: int, restitution: float, law: str) -> np.ndarray:
-    """u⁺ after rod k (1-based) hits a stop, in plain numpy (a reference for tests): MODEL.md's
-    impulse law with M restricted to the free DOFs, or ``reflect``: l̇_k⁺ = −e l̇_k⁻ alone."""
-    j = layout.u_l(k)
-    u_after = np.array(u, dtype=float)
-    if law == "reflect":
-        u_after[j] = -restitution * u[j]
-        return u_after
-    M = dynamics.mass_matrix(q)[np.ix_(free, free)]
-    e_k = np.zeros(len(free))
-    e_k[free.index(j)] = 1.0
-    w = np.linalg.solve(M, e_k)
-    u_after[free] -= (1.0 + restitution) * (u[j] / w[free.index(j)]) * w
-    u_after[j] = -restitution * u[j]
-    return u_after

@@ -113,13 +113,12 @@ def derivative(system, s, ds):
 
 @jit
 def holding_forces(system, s, ds, out):
-    """Generalized force each locked pseudo-velocity needs to stay locked, M u̇ + h − Q, at s with
-    ds = derivative(s) already computed (zero on the free ones up to round-off): one inverse
-    dynamics pass, O(n); the mass matrix is not needed."""
+    """Generalized force each locked pseudo-velocity needs to stay locked, M u̇ + h − Q, at s right
+    after ds = derivative(s) (which left the frames of s in the workspace and Q in system.Q), into
+    out[:n_u] (zero on the free ones up to round-off): one inverse-dynamics pass, O(n); the mass
+    matrix is not needed."""
     nq, nu = layout.sizes(system)
     q = s[:nq]
-    kernels.frames(system.model, q, system.ws)
-    applied_forces(system, s, out)   # refreshes system.Q (out is scratch of the state's size)
     kernels.gibbs_appell(system.model, q, s[nq:nq + nu], ds[nq:nq + nu], system.gravity,
                          system.ws, out[:nu])
     for k in range(nu):
