@@ -153,6 +153,18 @@ def locate(kind, method, system, s0, a, b, i_l, side, stop, resting, trial, stag
 
 
 @jit
+def insert_sorted(a, m, x):
+    """Insert x into the sorted a[:m] (a has room for it); returns m + 1. (The kernels run
+    without numba's reference counting, so numpy's sort, which returns its array, is out.)"""
+    j = m
+    while j > 0 and a[j - 1] > x:
+        a[j] = a[j - 1]
+        j -= 1
+    a[j] = x
+    return m + 1
+
+
+@jit
 def first_crossing(method, system, s0, h, watched, resting, stroke, samples, trial, stages, forces):
     """Earliest (h', rod k, side) at which a watched rod meets a stop within the step s0 → h,
     or (−1, 0, 0) when none does (the Hermite path dipped, the step itself did not)."""
@@ -171,9 +183,7 @@ def first_crossing(method, system, s0, h, watched, resting, stroke, samples, tri
             turns, _, _ = hermite_turns(s0[i_l], s0[i_ld], trial[i_l], trial[i_ld], h)
             for tau in turns:
                 if 0.0 < tau < h:
-                    samples[m] = tau
-                    m += 1
-    samples[:m].sort()
+                    m = insert_sorted(samples, m, tau)
     best_h, best_k, best_side = -1.0, 0, 0
     for k in range(1, n + 1):
         if not watched[k - 1]:

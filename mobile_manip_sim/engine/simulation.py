@@ -58,7 +58,7 @@ class Simulation:
                                 law.rest_speed if law else 0.0, self.system.permanently_locked)
         self.watched, self.resting, self.stroke = self.stops.watched, self.stops.resting, self.stops.stroke
         size = layout.state_size(self.nu)
-        self._scratch = stepping.make_scratch(size, model.n_links, make_impact_scratch(self.nu))
+        self._scratch = stepping.make_scratch(size, model.n_links, make_impact_scratch(self.nu, model.n_links))
         self._clock = np.zeros(5)
         self._clock[stepping.DT] = self.settings.dt
         self._method = fixed_step.METHOD_IDS.get(self.settings.method)
