@@ -21,7 +21,7 @@ fixed-step methods; the adaptive ones evaluate theirs on the dense output
 """
 import math
 
-from ..dynamics.jit import jit
+from ..dynamics.jit import jit, jit_inline
 from . import layout
 from .fixed_step import step
 from .system import CROSSING_CHECKS, derivative, holding_forces
@@ -31,7 +31,7 @@ N_SAMPLES = 16
 MAX_IMPACTS_PER_STEP = 64   # the Zeno guard: beyond it the rod is held at rest
 
 
-@jit
+@jit_inline
 def hermite_turns(l0, d0, l1, d1, h):
     """((τ₁, τ₂), c2, c3): where the cubic Hermite with values l0, l1 and slopes d0, d1 over
     [0, h] has zero slope (−1 for a missing root; roots may lie outside (0, h)), and its
@@ -53,7 +53,7 @@ def hermite_turns(l0, d0, l1, d1, h):
     return roots, c2, c3
 
 
-@jit
+@jit_inline
 def hermite_extrema(l0, d0, l1, d1, h):
     """(min, max) over [0, h] of the cubic Hermite with values l0, l1 and slopes d0, d1."""
     lo = min(l0, l1)
@@ -67,7 +67,7 @@ def hermite_extrema(l0, d0, l1, d1, h):
     return lo, hi
 
 
-@jit
+@jit_inline
 def crossing_in_step(s0, s1, h, system, watched, stroke):
     """True when a watched rod leaves its stroke during the step s0 → s1 (see module doc)."""
     nq, _ = layout.sizes(system)

@@ -17,6 +17,7 @@ from collections import namedtuple
 import numpy as np
 
 from ..dynamics import Dynamics
+from ..dynamics.jit import Bound
 from ..methods import METHODS
 from ..errors import UserError
 from ..scene import IntegratorSettings, Scene
@@ -64,6 +65,10 @@ class Simulation:
         self._method = fixed_step.METHOD_IDS.get(self.settings.method)
         # Steps per compiled call: about 20 ms of work, so signals, pause and reset act promptly.
         self._step_budget = max(1, int(40_000 / (model.n_links + 2)))
+        # the compiled calls of every sample, bound to this simulation's argument types
+        self._advance = Bound(stepping.advance)
+        self._advance_samples = Bound(stepping.advance_samples)
+        self._total_energy = Bound(stepping.total_energy)
         self.set_wheel_speed_gains(*DEFAULT_WHEEL_SPEED_GAINS)
         self.reset()
 
@@ -120,7 +125,7 @@ class Simulation:
         return float(self.s[layout.work(self.nq, self.nu)])
 
     def total_energy(self) -> float:
-        return float(stepping.total_energy(self.system.data, self.s))
+        return float(self._total_energy(self.system.data, self.s))
 
     def energy_error(self) -> float:
         """(T + V)(t) − (T + V)(0) − W(t) + impact losses: zero for exact physics (J)."""
@@ -215,7 +220,7 @@ class Simulation:
     def sample(self, times) -> np.ndarray:
         """Advance through the increasing sample times (s); row i = (s, T + V) at times[i]. One
         compiled call for fixed-step methods (Python is entered only per step budget)."""
-        times = np.asarray(times, dtype=float)
+        times = np.ascontiguousarray(times, dtype=float)
         rows = np.empty((times.size, self.s.size + 1))
         if times.size and times[0] < self.t:
             raise UserError("t_end", f"{times[0]} is before the current time {self.t}")
@@ -226,16 +231,16 @@ class Simulation:
             return rows
         i = 0
         while i < times.size:
-            status, i = stepping.advance_samples(self._method, self.system.data, self.stops,
-                                                 self._scratch, self.s, self._clock, times, rows, i,
-                                                 self._step_budget)
+            status, i = self._advance_samples(self._method, self.system.data, self.stops,
+                                              self._scratch, self.s, self._clock, times, rows, i,
+                                              self._step_budget)
             self._after_compiled(status)
         return rows
 
     def _advance_fixed(self, t_end: float) -> None:
         while True:
-            status = stepping.advance(self._method, self.system.data, self.stops, self._scratch,
-                                      self.s, self._clock, t_end, self._step_budget)
+            status = self._advance(self._method, self.system.data, self.stops, self._scratch,
+                                   self.s, self._clock, float(t_end), self._step_budget)
             self._after_compiled(status)
             if status == stepping.DONE:
                 return

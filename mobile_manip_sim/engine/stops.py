@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..dynamics import kernels
-from ..dynamics.jit import jit
+from ..dynamics.jit import jit, jit_inline
 from . import layout
 from .events import MAX_IMPACTS_PER_STEP, holding_margin
 from .system import derivative, holding_forces
@@ -126,7 +126,7 @@ def release_at_root(system, stops, s, ds, forces):
     relock(system, stops)
 
 
-@jit
+@jit_inline
 def any_resting(stops):
     for k in range(stops.resting.shape[0]):
         if stops.resting[k] != 0:
