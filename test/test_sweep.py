@@ -121,28 +121,52 @@ def long_spec(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def killed_worker_table(long_spec, tmp_path_factory):
-    """LONG through a real scheduler and two workers; worker B is SIGKILLed once it has finished
-    a run and while runs remain."""
+    """LONG through a real scheduler and two workers, worker B SIGKILLed after it has finished a
+    run and while runs remain. Nothing is left to timing: the sweep starts once the scheduler has
+    both workers and worker A's one thread is held by a task of this test (waiting on a Dask
+    Event), so only B can finish a run, and the sweep task queued behind the held one on A (work
+    stealing is off) cannot finish before A is released, after B is dead."""
+    from distributed import Client, Event
+
     out = tmp_path_factory.mktemp("cluster") / "out"
     port = free_port()
     address = f"tcp://127.0.0.1:{port}"
+    env = {**os.environ, "DASK_DISTRIBUTED__SCHEDULER__WORK_STEALING": "False"}
     processes = [start([executable("dask"), "scheduler", "--host", "127.0.0.1", "--port", str(port),
-                        "--no-dashboard"])]
+                        "--no-dashboard"], env=env)]
     try:
-        worker_ports = [free_port(), free_port()]
-        for worker_port in worker_ports:
+        workers = []
+        for _ in range(2):
+            worker_port = free_port()
+            workers.append(f"tcp://127.0.0.1:{worker_port}")
             processes.append(start([executable("dask"), "worker", address, "--nthreads", "1", "--no-nanny",
                                     "--host", "127.0.0.1", "--worker-port", str(worker_port),
                                     "--no-dashboard"]))
-        victim, victim_address = processes[2], f"tcp://127.0.0.1:{worker_ports[1]}"
-        driver = start([executable("sweep"), str(long_spec), "--out", str(out), "--scheduler", address])
-        processes.append(driver)
-        rows = wait_for(lambda: [r for r in parts(out) if r["worker"] == victim_address],
-                        "a run finished by worker B", 90)
-        assert len(parts(out)) < 40, "the sweep finished before the worker could be killed"
-        victim.send_signal(signal.SIGKILL)
-        victim.wait(timeout=10)
-        _, stderr = driver.communicate(timeout=90)
+        worker_a, victim, victim_address = workers[0], processes[2], workers[1]
+        with Client(address, timeout=90) as client:
+            client.wait_for_workers(2, timeout=90)
+            assert set(client.scheduler_info()["workers"]) == set(workers)
+            release = Event("release-worker-a", client=client)
+
+            def hold_worker_a():   # nested: pickled by value, the workers cannot import this file
+                Event("release-worker-a").wait(timeout=300)
+
+            held = client.submit(hold_worker_a, workers=[worker_a], pure=False, key="hold-worker-a")
+            wait_for(lambda: client.processing([worker_a])[worker_a], "worker A to hold its task", 90)
+            driver = start([executable("sweep"), str(long_spec), "--out", str(out), "--scheduler", address])
+            processes.append(driver)
+
+            def sweep_task_on_a():
+                return any(str(key).startswith("runs-") for key in client.processing([worker_a])[worker_a])
+            wait_for(sweep_task_on_a, "a sweep task queued on worker A", 90)
+            rows = wait_for(lambda: [r for r in parts(out) if r["worker"] == victim_address],
+                            "a run finished by worker B", 90)
+            assert len(parts(out)) < 40
+            victim.send_signal(signal.SIGKILL)
+            victim.wait(timeout=10)
+            release.set()
+            held.result(timeout=90)
+            _, stderr = driver.communicate(timeout=90)
         assert driver.returncode == 0, stderr
         return table(out), len(rows), victim_address
     finally:
