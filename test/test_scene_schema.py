@@ -274,7 +274,8 @@ def test_not_utf8_is_one_line(tmp_path):
 
 def test_run_metadata_is_checked_and_parsed():
     good = {"version": "0.1.0", "integrator_method": "rk4", "dt": "0.001", "rtol": "1e-09",
-            "atol": "1e-12", "scene_name": "x", "source": "simulate", "sample_rate": "20.0"}
+            "atol": "1e-12", "scene_name": "x", "source": "simulate", "sample_rate": "20.0",
+            "duration": "2.0"}
     assert schema.run_metadata(good)["dt"] == 0.001
     for key, value in (("dt", "1e308"), ("dt", "nan"), ("sample_rate", "1e999"), ("rtol", "x"),
                        ("source", "elsewhere"), ("colour", "red")):
