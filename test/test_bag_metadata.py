@@ -14,6 +14,7 @@ import pytest
 import yaml
 
 from bag_rewrite import rewrite_bag
+from hostile_yaml import ALIAS_BOMB
 from mobile_manip_sim import plot, replay, schema
 from mobile_manip_sim.errors import EXIT_USER_ERROR, UserError
 from mobile_manip_sim.recording.headless import HeadlessRecorder
@@ -23,9 +24,6 @@ from mobile_manip_sim.simulate import run as simulate_run
 RATE, DURATION = 20.0, 0.2
 BOUND_S = 5.0       # wall seconds a refusal may take (the good bag re-simulates in well under 1 s)
 ROOT = "rosbag2_bagfile_information"
-BOMB = "a: &a [x, x, x, x, x, x, x, x, x]\n" + "".join(
-    f"{chr(98 + i)}: &{chr(98 + i)} [*{chr(97 + i)}, *{chr(97 + i)}, *{chr(97 + i)}, *{chr(97 + i)}, "
-    f"*{chr(97 + i)}, *{chr(97 + i)}, *{chr(97 + i)}, *{chr(97 + i)}, *{chr(97 + i)}]\n" for i in range(8))
 
 
 @pytest.fixture(scope="module")
@@ -165,7 +163,7 @@ METADATA_YAML = [  # (case id, damage: text → text, key after "metadata.yaml: 
     ("root a list", lambda text: f"{ROOT}: [1]\n", ROOT, "expected a mapping"),
     ("root twice", lambda text: text + text.splitlines()[0] + "\n", ROOT, "duplicate key"),
     ("duplicate inner key", lambda text: text.replace("  version: 9\n", "  version: 9\n  version: 9\n"), "version", "duplicate key"),
-    ("alias bomb", lambda text: BOMB, "metadata.yaml", "expands to more than"),
+    ("alias bomb", lambda text: ALIAS_BOMB, "metadata.yaml", "expands to more than"),
     ("recursive alias", lambda text: "a: &a [*a]\n", "metadata.yaml", "recursive alias"),
     ("nesting 3000", lambda text: "[" * 3000 + "]" * 3000, "metadata.yaml", "nested deeper than"),
     ("huge integer", lambda text: text.replace("  version: 9", "  version: " + "9" * 5000), keyed("version"), "expected an integer"),
@@ -283,7 +281,7 @@ def test_run_metadata_missing_entirely_is_one_line(good_bag, tmp_path, capsys):
 
 SCENE_TEXT = load_scene().to_yaml()
 SCENE = [  # (case id, scene.yaml bytes, problem)
-    ("alias bomb", BOMB.encode(), "expands to more than"),
+    ("alias bomb", ALIAS_BOMB.encode(), "expands to more than"),
     ("duplicate key", (SCENE_TEXT + "duration: 2.0\n").encode(), "duration: duplicate key"),
     ("nesting 3000", ("robot: " + "[" * 3000 + "]" * 3000).encode(), "nested deeper than"),
     ("not UTF-8", b"name: caf\xe9\n", "not UTF-8"),
@@ -361,7 +359,7 @@ def test_damaged_impacts_are_one_line_naming_the_record(good_bag, tmp_path, caps
 # --- the recorded QoS (what playback offers its subscribers) ----------------------------------
 
 QOS = [  # (offered_qos_profiles text, key, problem)
-    (BOMB, "/odom: offered_qos_profiles", "expands to more than"),
+    (ALIAS_BOMB, "/odom: offered_qos_profiles", "expands to more than"),
     ("- depth: 1\n  depth: 2\n", "depth", "duplicate key"),
     ("- {depth: -1}\n", "/odom: offered_qos_profiles[0].depth", "must be in"),
     ("- {depth: 1.5}\n", "/odom: offered_qos_profiles[0].depth", "expected an integer"),

@@ -23,6 +23,7 @@ from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import SetBool, Trigger
 
 from executables import executable
+from hostile_yaml import ALIAS_BOMB
 from ros_helpers import child_env as ros_child_env
 from ros_helpers import spinning
 from mobile_manip_sim.engine.simulation import Simulation
@@ -582,21 +583,46 @@ def test_a_pd_controller_in_lockstep_gives_the_same_bag_every_time(tmp_path):
     assert second == first
 
 
-@pytest.mark.parametrize("case", ["missing params file", "binary params file",
-                                  "unknown parameter"])
+PARAMS_FILES = {  # case: (file content, or a special file's kind; what the one line says)
+    "binary params file": (bytes(range(256)), "not UTF-8"),
+    "alias bomb params file": (ALIAS_BOMB, "expands to more than 100000 YAML nodes"),
+    "duplicate key params file": ("/**:\n  ros__parameters:\n    publish_rate: 50.0\n"
+                                  "    publish_rate: 100.0\n", "publish_rate: duplicate key (line 4)"),
+    "nested params file": ("[" * 3000 + "]" * 3000, "nested deeper than"),
+    "huge params file": ("#" * (2 << 20), "larger than"),
+    "fifo params file": ("fifo", "not a regular file"),
+    "directory params file": ("directory", "not a regular file"),
+    "missing params file": ("missing", "cannot read parameters file"),
+}
+
+
+def params_file(tmp_path, content):
+    path = tmp_path / "params.yaml"
+    if content == "fifo":
+        os.mkfifo(path)    # rcl would block reading it, for good
+    elif content == "directory":
+        path.mkdir()
+    elif content != "missing":
+        (path.write_bytes if isinstance(content, bytes) else path.write_text)(content)
+    return path
+
+
+@pytest.mark.parametrize("case", [*PARAMS_FILES, "unknown parameter"])
 def test_bad_ros_arguments_exit_2_with_one_line_naming_the_cause(tmp_path, case):
-    binary = tmp_path / "binary.yaml"
-    binary.write_bytes(bytes(range(256)))
-    args, key = {"missing params file": (["--params-file", str(tmp_path / "none.yaml")],
-                                         "--params-file"),
-                 "binary params file": (["--params-file", str(binary)], "--params-file"),
-                 "unknown parameter": (["-p", "real_time_facter:=0.0"], "real_time_facter")}[case]
+    if case in PARAMS_FILES:
+        content, problem = PARAMS_FILES[case]
+        args, key = ["--params-file", str(params_file(tmp_path, content))], "--params-file"
+    else:
+        args, key, problem = ["-p", "real_time_facter:=0.0"], "real_time_facter", "unknown"
+    start = time.monotonic()
     result = subprocess.run([SIMULATOR, "--ros-args", *args], env=child_env(),
                             capture_output=True, text=True, timeout=60)
     assert result.returncode == 2, result.stderr
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith(f"simulator: error: {key}: "), result.stderr
+    assert problem in lines[0], lines[0]
     assert "Traceback" not in result.stdout + result.stderr
+    assert time.monotonic() - start < 30   # refused at start-up, nothing read without end
 
 
 def test_the_shipped_params_file_applies_under_another_node_name(tmp_path):

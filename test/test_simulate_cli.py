@@ -14,6 +14,7 @@ import pytest
 from rosbags.rosbag2 import Reader as RosbagsReader
 
 from executables import executable
+from hostile_yaml import ALIAS_BOMB
 
 SIMULATE = executable("simulate")
 CONFIG = Path(__file__).resolve().parents[1] / "config"
@@ -60,9 +61,7 @@ def test_special_files_as_a_scene_are_one_line_without_reading(tmp_path):
 
 def test_the_alias_bomb_scene_is_refused_fast(tmp_path):
     bomb = tmp_path / "bomb.yaml"
-    bomb.write_text("a: &a [x,x,x,x,x,x,x,x,x]\n" + "".join(
-        f"{chr(98 + i)}: &{chr(98 + i)} [" + ",".join([f"*{chr(97 + i)}"] * 9) + "]\n"
-        for i in range(8)))
+    bomb.write_text(ALIAS_BOMB)
     assert bomb.stat().st_size < 600
     result = simulate("--scene", bomb, "--out", tmp_path / "run.csv", timeout=30)
     assert_one_line(result, "bomb")
