@@ -439,6 +439,41 @@ def test_a_non_finite_state_pauses_the_node_until_reset(fresh, simulator):
     assert simulator.process.poll() is None
 
 
+@pytest.mark.parametrize("method", ["radau", "bdf"])
+def test_a_crawling_implicit_solver_pauses_the_node_until_reset(probe, simulator, tmp_path, method):
+    """radau/bdf and a wheel command of 1e30 right after ~/reset: the solver used to shrink its
+    step towards ulp(0) for good (/clock stuck, services dead, signals ignored). Its step floor
+    ends the segment in one error line naming the tolerance; the node pauses, ~/reset recovers."""
+    probe.pause(True)
+    name = f"{method}_sim"
+    node = start_simulator(probe, tmp_path, "-p", f"integrator.method:={method}",
+                           "-p", "real_time_factor:=5.0", "-r", f"__node:={name}")
+    reset = probe.node.create_client(Trigger, f"/{name}/reset")
+    pause = probe.node.create_client(SetBool, f"/{name}/pause")
+    try:
+        wait_for(lambda: reset.service_is_ready() and pause.service_is_ready(), "its services")
+        assert probe.call(pause, SetBool.Request(data=True)).success
+        assert probe.call(reset, Trigger.Request()).success
+        probe.send(wheels=[1e30, 1e30])
+        assert probe.call(pause, SetBool.Request(data=False)).success
+        failed = wait_for(lambda: [line for line in node.output().splitlines()
+                                   if "simulation failed" in line], "the engine's error in the log")
+        assert len(failed) == 1 and "integrator.rtol: " in failed[0], failed
+        assert "cannot follow the solution" in failed[0], failed[0]
+        response = probe.call(pause, SetBool.Request(data=False))
+        assert not response.success and "call ~/reset" in response.message
+        marks = probe.marks()
+        probe.send(wheels=[0.0, 0.0])
+        assert probe.call(reset, Trigger.Request()).success
+        assert probe.call(pause, SetBool.Request(data=False)).success
+        wait_for(lambda: len(probe.snapshot("joints")) >= marks["joints"] + 20, "publishing after the reset")
+        assert node.process.poll() is None
+    finally:
+        probe.node.destroy_client(reset)
+        probe.node.destroy_client(pause)
+        assert node.stop() == 0, node.output()
+
+
 # --- start-up ---------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("content", [None, "robot: [1, 2\n", "robot: {base: {mass: -1}}\n"])
