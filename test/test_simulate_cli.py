@@ -113,9 +113,10 @@ def _started(tmp_path, *extra):
     return process
 
 
-@pytest.mark.parametrize("sig, status", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
-def test_a_signal_stops_promptly_and_closes_the_bag(tmp_path, sig, status):
-    process = _started(tmp_path, "--record", tmp_path / "bag")
+@pytest.mark.parametrize("sig, status, method", [(signal.SIGINT, 130, []), (signal.SIGTERM, 143, []),
+                                                 (signal.SIGINT, 130, ["--method", "radau"])])
+def test_a_signal_stops_promptly_and_closes_the_bag(tmp_path, sig, status, method):
+    process = _started(tmp_path, "--record", tmp_path / "bag", *method)
     sent = time.monotonic()
     process.send_signal(sig)
     _, stderr = process.communicate(timeout=30)
