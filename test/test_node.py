@@ -642,13 +642,21 @@ def params_file(tmp_path, content):
     return path
 
 
-@pytest.mark.parametrize("case", [*PARAMS_FILES, "unknown parameter"])
+PARAMETERS = {  # case: (arguments, the key named, what the one line says)
+    "unknown parameter": (["-p", "real_time_facter:=0.0"], "real_time_facter", "unknown"),
+    # in the declared range [0, 1], but a step of 1e-10 s would take 1e8 steps per publication
+    "dt 1e-10": (["-p", "integrator.method:=rk4", "-p", "integrator.dt:=1e-10"], "integrator.dt",
+                 "must be in [1e-09, 1]"),
+}
+
+
+@pytest.mark.parametrize("case", [*PARAMS_FILES, *PARAMETERS])
 def test_bad_ros_arguments_exit_2_with_one_line_naming_the_cause(tmp_path, case):
     if case in PARAMS_FILES:
         content, problem = PARAMS_FILES[case]
         args, key = ["--params-file", str(params_file(tmp_path, content))], "--params-file"
     else:
-        args, key, problem = ["-p", "real_time_facter:=0.0"], "real_time_facter", "unknown"
+        args, key, problem = PARAMETERS[case]
     start = time.monotonic()
     result = subprocess.run([SIMULATOR, "--ros-args", *args], env=child_env(),
                             capture_output=True, text=True, timeout=60)

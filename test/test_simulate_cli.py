@@ -73,6 +73,18 @@ def test_dev_full_is_one_line():
     assert "No space left" in result.stderr
 
 
+def test_a_failed_out_leaves_the_recorded_bag_closed_and_whole(tmp_path):
+    """The CSV fails (/dev/full), the bag beside it is closed, not left half-written: its summary
+    and metadata.yaml are there and it re-simulates bit for bit up to the failure."""
+    result = simulate("--out", "/dev/full", "--duration", "0.2", "--record", tmp_path / "bag")
+    assert_one_line(result, "/dev/full")
+    assert (tmp_path / "bag" / "metadata.yaml").is_file()
+    replayed = subprocess.run([executable("replay"), str(tmp_path / "bag"), "--resimulate"],
+                              capture_output=True, text=True, timeout=120)
+    assert replayed.returncode == 0 and "IDENTICAL" in replayed.stdout, replayed.stdout + replayed.stderr
+    assert "no summary" not in replayed.stderr
+
+
 def test_dev_null_gets_no_impacts_file_beside_it_and_rows_end_in_lf(tmp_path):
     scene = CONFIG / "hard_impacts.yaml"
     result = simulate("--scene", scene, "--out", "/dev/null", "--duration", "0.5")
