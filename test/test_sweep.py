@@ -15,11 +15,13 @@ import pyarrow.parquet as pq
 import pytest
 from waiting import wait_for
 
-from mobile_manip_sim.errors import EXIT_USER_ERROR
+from mobile_manip_sim.errors import EXIT_USER_ERROR, UserError
 from mobile_manip_sim.scene import load_scene
+from mobile_manip_sim.sweep.overrides import parse_assignments
 from mobile_manip_sim.sweep.runner import run_one
 
 from executables import executable
+from hostile_yaml import ALIAS_BOMB
 
 # 24 runs: a negative mass (8 runs fail, naming the key), two integrators, four random draws.
 SMALL = """\
@@ -269,6 +271,39 @@ def test_bad_specs_are_one_line_naming_the_key(tmp_path, text, key):
     assert result.returncode == EXIT_USER_ERROR
     assert result.stderr.strip().startswith(f"sweep: error: {key}"), result.stderr
     assert len(result.stderr.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize("content, problem", [
+    (ALIAS_BOMB, "expands to more than 100000 YAML nodes"),
+    ("grid: {integrator.method: [rk4]}\ngrid: {integrator.method: [euler]}\n", "grid: duplicate key"),
+    ("grid: " + "[" * 3000 + "]" * 3000, "nested deeper than 64 levels"),
+    (b"grid: \xff\n", "not UTF-8"), ("#" * (2 << 20), "larger than"),
+    ("fifo", "not a regular file"), ("/dev/zero", "not a regular file"),
+    ("grid: !!python/object:os.system {}\n", "not valid YAML"),
+])
+def test_hostile_spec_files_are_one_line_without_reading_on(tmp_path, content, problem):
+    """Spec files go through the scene's loader: its limits, refused in one line at once."""
+    from mobile_manip_sim.sweep.spec import load_spec
+
+    path = tmp_path / "spec.yaml"
+    if content == "fifo":
+        os.mkfifo(path)
+    elif content == "/dev/zero":
+        path = Path(content)
+    else:
+        (path.write_bytes if isinstance(content, bytes) else path.write_text)(content)
+    start = time.monotonic()
+    with pytest.raises(UserError) as caught:
+        load_spec(str(path))
+    assert problem in str(caught.value) and "\n" not in str(caught.value)
+    assert time.monotonic() - start < 2.0
+
+
+def test_simulate_set_values_are_read_by_the_same_loader():
+    with pytest.raises(UserError) as caught:
+        parse_assignments(["robot.base.mass=[*a]"])
+    assert str(caught.value).startswith("--set robot.base.mass: not valid YAML")
+    assert parse_assignments(["integrator.rtol=1e-10", "name=yes"]) == {"integrator.rtol": 1e-10, "name": "yes"}
 
 
 def test_an_unreachable_scheduler_is_one_line(tmp_path):
