@@ -476,7 +476,7 @@ def test_a_crawling_implicit_solver_pauses_the_node_until_reset(probe, simulator
 
 # --- start-up ---------------------------------------------------------------------------------
 
-@pytest.mark.parametrize("content", [None, "robot: [1, 2\n", "robot: {base: {mass: -1}}\n"])
+@pytest.mark.parametrize("content", [None, "robot: [1, 2\n", "robot: {base: {mass: -1}}\n", ALIAS_BOMB])
 def test_a_missing_or_invalid_scene_exits_2_with_one_line(tmp_path, content):
     path = tmp_path / "scene.yaml"
     if content is not None:
