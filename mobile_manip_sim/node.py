@@ -750,26 +750,23 @@ class SimulatorNode(Node):
 
 
 def _check_params_files(argv) -> None:
-    """Each --params-file a readable, regular YAML file: said in one line here, before rcl
-    logs its own error and raises."""
-    import os
+    """Each --params-file read first by the schema's YAML loader (a regular UTF-8 file within its
+    size, nesting, alias-expansion and duplicate-key limits) and refused here in one line: rcl
+    would block on a FIFO, expand an alias bomb without end, silently take the last of two
+    duplicate keys, or fail with its own multi-line error."""
+    from . import schema
 
-    import yaml
     args = list(sys.argv[1:] if argv is None else argv)
     for flag, path in zip(args, args[1:]):
         if flag != "--params-file":
             continue
-        if not os.path.isfile(path):
-            raise UserError("--params-file", f"{path}: not a regular file")
+        what = schema.label(path, 160)
         try:
-            with open(path, "rb") as stream:
-                yaml.safe_load(stream.read(MAX_PARAMS_FILE + 1)[:MAX_PARAMS_FILE].decode())
-        except (OSError, UnicodeDecodeError, yaml.YAMLError) as error:
-            reason = getattr(error, "strerror", None) or type(error).__name__
-            raise UserError("--params-file", f"{path}: not a readable YAML file ({reason})") \
-                from None
-        if os.path.getsize(path) > MAX_PARAMS_FILE:
-            raise UserError("--params-file", f"{path}: larger than {MAX_PARAMS_FILE} bytes")
+            text = schema.read_text_file(path, what, limit=MAX_PARAMS_FILE, kind="parameters file")
+            schema.load_yaml(text, what=what)
+        except UserError as error:
+            text = str(error) if error.key == what else f"{what}: {error}"
+            raise UserError("--params-file", text) from None
 
 
 def _init(argv) -> None:

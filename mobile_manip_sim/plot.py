@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import csv
 import html
-import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -33,7 +32,7 @@ from typing import Callable
 import numpy as np
 from matplotlib.figure import Figure
 
-from . import cli
+from . import cli, schema
 from .dynamics import Dynamics, constraint_residuals
 from .errors import UserError
 from .scene import Scene, load_scene, scene_from_text
@@ -144,7 +143,7 @@ def load_csv(path, scene_path=None) -> Run:
     efforts = np.tile(scene_efforts(scene), (len(q), 1))
     return Run(source=path, kind="csv", scene=scene, t=columns["t"], q=q, u=u, qdot=qdot,
                energy=columns["energy"], efforts=efforts,
-               effort_source="the scene's constant efforts", impacts=_read_impacts_csv(path))
+               effort_source="the scene's constant efforts", impacts=_read_impacts_csv(path, scene.robot.n_links))
 
 
 def _read_csv(path: Path) -> tuple[list[str], list[list[str]]]:
@@ -182,7 +181,7 @@ def _numbers(path: Path, header: list[str], rows: list[list[str]]) -> np.ndarray
 IMPACT_FIELDS = ("time", "link", "stop", "ld_before", "ld_after", "energy_lost", "resting")
 
 
-def _read_impacts_csv(run_path: Path) -> list[dict]:
+def _read_impacts_csv(run_path: Path, n_links: int) -> list[dict]:
     """``RUN.impacts.csv`` as `simulate` writes it; a run without impacts has no such file."""
     path = run_path.with_suffix(".impacts.csv")
     if not path.exists():
@@ -192,25 +191,41 @@ def _read_impacts_csv(run_path: Path) -> list[dict]:
     if missing:
         raise UserError(str(path), f"missing column{'s' if len(missing) > 1 else ''} "
                                    f"{', '.join(missing)}")
-    return [_impact({name: row[header.index(name)] for name in IMPACT_FIELDS}, str(path), i + 2)
-            for i, row in enumerate(rows)]
+    return [_impact({name: row[header.index(name)] for name in IMPACT_FIELDS}, str(path), i + 2,
+                    n_links) for i, row in enumerate(rows)]
 
 
-def _impact(record: dict, where: str, line) -> dict:
-    """One impact record (CSV strings or JSON values) → typed dict."""
-    try:
-        resting = record["resting"]
-        if isinstance(resting, str):
-            resting = resting.strip().lower() in ("true", "1", "yes")
-        impact = {"time": float(record["time"]), "link": int(record["link"]),
-                  "stop": str(record["stop"]), "ld_before": float(record["ld_before"]),
-                  "ld_after": float(record["ld_after"]),
-                  "energy_lost": float(record["energy_lost"]), "resting": bool(resting)}
-    except (KeyError, TypeError, ValueError, IndexError) as error:
-        raise UserError(where, f"impact {line}: unreadable ({type(error).__name__}: {error})") \
-            from None
+def _impact(record, where: str, line, n_links: int) -> dict:
+    """One impact record (CSV strings or JSON values) → typed dict; a damaged one (a missing
+    field, a non-number, a link the scene does not have) is one UserError naming it."""
+    key = f"{where}: impact {line}"
+    record = schema.mapping(record, key)
+    missing = [name for name in IMPACT_FIELDS if name not in record]
+    if missing:
+        raise UserError(key, f"missing {', '.join(missing)}")
+
+    def number(name):
+        value = record[name]
+        if isinstance(value, str):   # a CSV cell
+            try:
+                value = float(value)
+            except ValueError:
+                raise UserError(f"{key}.{name}", f"expected a number, got {schema.short(value)}") \
+                    from None
+        return schema.number(value, f"{key}.{name}")
+
+    link = record["link"]
+    if isinstance(link, str) and link.strip().isdigit() and len(link) <= schema.MAX_INT_DIGITS:
+        link = int(link)
+    resting = record["resting"]
+    if isinstance(resting, str):
+        resting = resting.strip().lower() in ("true", "1", "yes")
+    impact = {"time": number("time"), "link": schema.integer(link, f"{key}.link", lo=1, hi=n_links),
+              "stop": record["stop"], "ld_before": number("ld_before"),
+              "ld_after": number("ld_after"), "energy_lost": number("energy_lost"),
+              "resting": schema.flag(resting, f"{key}.resting")}
     if impact["stop"] not in ("lower", "upper"):
-        raise UserError(where, f"impact {line}: stop {impact['stop']!r} is not lower or upper")
+        raise UserError(f"{key}.stop", f"expected lower or upper, got {schema.short(impact['stop'])}")
     return impact
 
 
@@ -235,8 +250,11 @@ def load_bag(path, scene_path=None) -> Run:
     if scene_path is not None:
         scene = load_scene(scene_path)
     elif "scene.yaml" in attachments:
-        scene = scene_from_text(attachments["scene.yaml"].decode("utf-8", "replace"),
-                                f"{path}: scene.yaml")
+        try:
+            text = attachments["scene.yaml"].decode("utf-8")
+        except UnicodeDecodeError as error:
+            raise UserError(f"{path}: scene.yaml", f"not UTF-8 text (byte {error.start})") from None
+        scene = scene_from_text(text, f"{path}: scene.yaml")
     else:
         raise UserError(str(path), "no scene.yaml attachment (not recorded by mobile_manip_sim?); "
                                    "pass the run's scene with --scene")
@@ -305,13 +323,9 @@ def load_bag(path, scene_path=None) -> Run:
     energy = np.array([sum(dynamics.energy(q_k, u_k)) for q_k, u_k in zip(q, u)])
     impacts = []
     if "impacts.json" in attachments:
-        try:
-            records = json.loads(attachments["impacts.json"])
-        except (ValueError, UnicodeDecodeError) as error:
-            raise UserError(f"{path}: impacts.json", f"not valid JSON ({error})") from None
-        if not isinstance(records, list):
-            raise UserError(f"{path}: impacts.json", "expected a list of impacts")
-        impacts = [_impact(record, f"{path}: impacts.json", i + 1)
+        where = f"{path}: impacts.json"
+        records = schema.sequence(schema.load_json(attachments["impacts.json"], where), where)
+        impacts = [_impact(record, where, i + 1, scene.robot.n_links)
                    for i, record in enumerate(records)]
     return Run(source=path, kind="bag", scene=scene, t=t, q=q, u=u, qdot=qdot, energy=energy,
                efforts=effort_values, effort_source=effort_source, impacts=impacts)

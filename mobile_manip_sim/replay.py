@@ -31,9 +31,8 @@ import time
 from fractions import Fraction
 
 import numpy as np
-import yaml
 
-from . import __version__, cli
+from . import __version__, cli, schema
 from .errors import UserError
 from .messages import (ARM_TOPIC, CLOCK_TOPIC, JOINT_STATES_TOPIC, NS, ODOM_TOPIC, TOPIC_TYPES,
                        WHEEL_TOPIC, clock, joint_state, odometry, quaternion_yaw, stamp_ns)
@@ -42,6 +41,8 @@ from .recording.recorder import METADATA_NAME, SCENE_ATTACHMENT
 
 ACK_TIMEOUT = 2.0          # s: how long to wait at the end for reliable subscribers to ack
 SLEEP_SLICE = 0.05         # s: longest sleep between checks for a shutdown
+MAX_QOS_PROFILES = 100     # recorded publishers of one topic
+MAX_QOS_DEPTH = 100_000    # history depth: a deeper one is damage, and would be allocated
 
 
 def main(argv=None) -> int:
@@ -120,39 +121,27 @@ class RecordedRun:
             raise UserError(str(bag.path), "not recorded by mobile_manip_sim (no scene.yaml "
                                            "attachment or mobile_manip_sim metadata): cannot "
                                            "resimulate")
-        from .scene import make_integrator, scene_from_text
+        from .scene import check_work, make_integrator, scene_from_text
 
         try:
             text = attachments[SCENE_ATTACHMENT].decode()
         except UnicodeDecodeError:
             raise UserError(SCENE_ATTACHMENT, "attachment is not UTF-8 text") from None
         self.scene = scene_from_text(text, f"{SCENE_ATTACHMENT} in {bag.path}")
-        self.metadata = metadata
-        self.source = self._field("source")
-        if self.source not in ("node", "simulate"):
-            raise UserError(f"{METADATA_NAME}.source", f"unknown source {self.source!r}")
-        self.settings = make_integrator(self.scene.integrator, self._field("integrator_method"),
-                                        self._number("dt"), self._number("rtol"),
-                                        self._number("atol"), prefix=f"{METADATA_NAME}")
-        self.rate = self._number("publish_rate" if self.source == "node" else "sample_rate")
-        self.duration = self._number("duration") if "duration" in metadata else None
+        # The metadata is checked by the schema (keys, types, ranges) and the run's work by the
+        # limits `simulate` applies: a crafted bag cannot ask for a billion sample times.
+        self.metadata = metadata = schema.run_metadata(metadata, METADATA_NAME)
+        self.source = metadata["source"]
+        self.settings = make_integrator(self.scene.integrator, metadata["integrator_method"],
+                                        metadata["dt"], metadata["rtol"], metadata["atol"],
+                                        prefix=f"{METADATA_NAME}")
+        self.rate = metadata[schema.RUN_METADATA_RATE[self.source]]
+        self.duration = metadata.get("duration")
+        if self.source == "simulate":
+            check_work(self.duration, self.settings, f"{METADATA_NAME}.duration",
+                       f"{METADATA_NAME}.dt", self.rate, f"{METADATA_NAME}.sample_rate")
         self.names = self.scene.robot.joint_names()
         self._samples = None
-
-    def _field(self, key: str) -> str:
-        if key not in self.metadata:
-            raise UserError(f"{METADATA_NAME}.{key}", "missing from the bag's metadata")
-        return self.metadata[key]
-
-    def _number(self, key: str) -> float:
-        text = self._field(key)
-        try:
-            value = float(text)
-        except ValueError:
-            raise UserError(f"{METADATA_NAME}.{key}", f"not a number: {text!r}") from None
-        if not (math.isfinite(value) and value > 0):
-            raise UserError(f"{METADATA_NAME}.{key}", f"must be positive, got {text!r}")
-        return value
 
     def check_robot(self) -> None:
         """The recorded topics fit this scene's robot: types, joint names, command lengths."""
@@ -191,8 +180,6 @@ class RecordedRun:
             if self._samples is None:
                 from .recording.headless import sample_stamps
 
-                if self.duration is None:
-                    raise UserError(f"{METADATA_NAME}.duration", "missing from the bag's metadata")
                 self._samples = sample_stamps(self.rate, self.duration)
                 self._sample_index = {stamp: i for i, (stamp, _) in enumerate(self._samples)}
             if end not in self._sample_index or start not in self._sample_index:
@@ -369,18 +356,21 @@ def _report(run, bag, differences: Differences, compared: dict, first: int, last
 
 # --- playback ------------------------------------------------------------------------------
 
-def qos_profile(offered: str | None):
+def qos_profile(offered: str | None, topic: str = "topic"):
     """A subscriber-compatible QoS for a topic from its ``offered_qos_profiles`` YAML: reliable
-    only if every recorded publisher was, transient local likewise, the deepest history."""
+    only if every recorded publisher was, transient local likewise, the deepest history. None
+    recorded: reliable, depth 10. A damaged entry is one `UserError` naming the topic."""
     from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy)
 
-    try:
-        profiles = yaml.safe_load(offered) if offered else None
-    except yaml.YAMLError:
-        profiles = None
-    if not isinstance(profiles, list) or not profiles or \
-            not all(isinstance(profile, dict) for profile in profiles):
+    where = f"{topic}: offered_qos_profiles"
+    profiles = schema.load_yaml(offered, what=where) if offered else None
+    if not profiles:
         return QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+    profiles = schema.sequence(profiles, where, max_length=MAX_QOS_PROFILES)
+    for i, profile in enumerate(profiles):
+        schema.mapping(profile, f"{where}[{i}]")
+        if profile.get("depth") is not None:
+            schema.integer(profile["depth"], f"{where}[{i}].depth", lo=0, hi=MAX_QOS_DEPTH)
 
     def policy(profile, key, names):
         value = profile.get(key)
@@ -429,7 +419,7 @@ def play(bag, args) -> int:
     try:
         metadata = bag.channel_metadata()
         publishers = {topic: node.create_publisher(
-            classes[topic], topic, qos_profile(metadata.get(topic, {}).get("offered_qos_profiles")))
+            classes[topic], topic, qos_profile(metadata.get(topic, {}).get("offered_qos_profiles"), topic))
             for topic in selected}
         clock_publisher = None
         if CLOCK_TOPIC not in topics:

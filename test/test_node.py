@@ -23,6 +23,7 @@ from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import SetBool, Trigger
 
 from executables import executable
+from hostile_yaml import ALIAS_BOMB
 from ros_helpers import child_env as ros_child_env
 from ros_helpers import spinning
 from mobile_manip_sim.engine.simulation import Simulation
@@ -438,9 +439,44 @@ def test_a_non_finite_state_pauses_the_node_until_reset(fresh, simulator):
     assert simulator.process.poll() is None
 
 
+@pytest.mark.parametrize("method", ["radau", "bdf"])
+def test_a_crawling_implicit_solver_pauses_the_node_until_reset(probe, simulator, tmp_path, method):
+    """radau/bdf and a wheel command of 1e30 right after ~/reset: the solver used to shrink its
+    step towards ulp(0) for good (/clock stuck, services dead, signals ignored). Its step floor
+    ends the segment in one error line naming the tolerance; the node pauses, ~/reset recovers."""
+    probe.pause(True)
+    name = f"{method}_sim"
+    node = start_simulator(probe, tmp_path, "-p", f"integrator.method:={method}",
+                           "-p", "real_time_factor:=5.0", "-r", f"__node:={name}")
+    reset = probe.node.create_client(Trigger, f"/{name}/reset")
+    pause = probe.node.create_client(SetBool, f"/{name}/pause")
+    try:
+        wait_for(lambda: reset.service_is_ready() and pause.service_is_ready(), "its services")
+        assert probe.call(pause, SetBool.Request(data=True)).success
+        assert probe.call(reset, Trigger.Request()).success
+        probe.send(wheels=[1e30, 1e30])
+        assert probe.call(pause, SetBool.Request(data=False)).success
+        failed = wait_for(lambda: [line for line in node.output().splitlines()
+                                   if "simulation failed" in line], "the engine's error in the log")
+        assert len(failed) == 1 and "integrator.rtol: " in failed[0], failed
+        assert "cannot follow the solution" in failed[0], failed[0]
+        response = probe.call(pause, SetBool.Request(data=False))
+        assert not response.success and "call ~/reset" in response.message
+        marks = probe.marks()
+        probe.send(wheels=[0.0, 0.0])
+        assert probe.call(reset, Trigger.Request()).success
+        assert probe.call(pause, SetBool.Request(data=False)).success
+        wait_for(lambda: len(probe.snapshot("joints")) >= marks["joints"] + 20, "publishing after the reset")
+        assert node.process.poll() is None
+    finally:
+        probe.node.destroy_client(reset)
+        probe.node.destroy_client(pause)
+        assert node.stop() == 0, node.output()
+
+
 # --- start-up ---------------------------------------------------------------------------------
 
-@pytest.mark.parametrize("content", [None, "robot: [1, 2\n", "robot: {base: {mass: -1}}\n"])
+@pytest.mark.parametrize("content", [None, "robot: [1, 2\n", "robot: {base: {mass: -1}}\n", ALIAS_BOMB])
 def test_a_missing_or_invalid_scene_exits_2_with_one_line(tmp_path, content):
     path = tmp_path / "scene.yaml"
     if content is not None:
@@ -582,21 +618,54 @@ def test_a_pd_controller_in_lockstep_gives_the_same_bag_every_time(tmp_path):
     assert second == first
 
 
-@pytest.mark.parametrize("case", ["missing params file", "binary params file",
-                                  "unknown parameter"])
+PARAMS_FILES = {  # case: (file content, or a special file's kind; what the one line says)
+    "binary params file": (bytes(range(256)), "not UTF-8"),
+    "alias bomb params file": (ALIAS_BOMB, "expands to more than 100000 YAML nodes"),
+    "duplicate key params file": ("/**:\n  ros__parameters:\n    publish_rate: 50.0\n"
+                                  "    publish_rate: 100.0\n", "publish_rate: duplicate key (line 4)"),
+    "nested params file": ("[" * 3000 + "]" * 3000, "nested deeper than"),
+    "huge params file": ("#" * (2 << 20), "larger than"),
+    "fifo params file": ("fifo", "not a regular file"),
+    "directory params file": ("directory", "not a regular file"),
+    "missing params file": ("missing", "cannot read parameters file"),
+}
+
+
+def params_file(tmp_path, content):
+    path = tmp_path / "params.yaml"
+    if content == "fifo":
+        os.mkfifo(path)    # rcl would block reading it, for good
+    elif content == "directory":
+        path.mkdir()
+    elif content != "missing":
+        (path.write_bytes if isinstance(content, bytes) else path.write_text)(content)
+    return path
+
+
+PARAMETERS = {  # case: (arguments, the key named, what the one line says)
+    "unknown parameter": (["-p", "real_time_facter:=0.0"], "real_time_facter", "unknown"),
+    # in the declared range [0, 1], but a step of 1e-10 s would take 1e8 steps per publication
+    "dt 1e-10": (["-p", "integrator.method:=rk4", "-p", "integrator.dt:=1e-10"], "integrator.dt",
+                 "must be in [1e-09, 1]"),
+}
+
+
+@pytest.mark.parametrize("case", [*PARAMS_FILES, *PARAMETERS])
 def test_bad_ros_arguments_exit_2_with_one_line_naming_the_cause(tmp_path, case):
-    binary = tmp_path / "binary.yaml"
-    binary.write_bytes(bytes(range(256)))
-    args, key = {"missing params file": (["--params-file", str(tmp_path / "none.yaml")],
-                                         "--params-file"),
-                 "binary params file": (["--params-file", str(binary)], "--params-file"),
-                 "unknown parameter": (["-p", "real_time_facter:=0.0"], "real_time_facter")}[case]
+    if case in PARAMS_FILES:
+        content, problem = PARAMS_FILES[case]
+        args, key = ["--params-file", str(params_file(tmp_path, content))], "--params-file"
+    else:
+        args, key, problem = PARAMETERS[case]
+    start = time.monotonic()
     result = subprocess.run([SIMULATOR, "--ros-args", *args], env=child_env(),
                             capture_output=True, text=True, timeout=60)
     assert result.returncode == 2, result.stderr
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith(f"simulator: error: {key}: "), result.stderr
+    assert problem in lines[0], lines[0]
     assert "Traceback" not in result.stdout + result.stderr
+    assert time.monotonic() - start < 30   # refused at start-up, nothing read without end
 
 
 def test_the_shipped_params_file_applies_under_another_node_name(tmp_path):

@@ -28,6 +28,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
 
+from bag_rewrite import rewrite_bag
 from executables import executable
 from ros_helpers import child_env as ros_child_env
 from ros_helpers import spinning
@@ -36,7 +37,7 @@ from mobile_manip_sim import __version__
 from mobile_manip_sim.engine.simulation import Simulation
 from mobile_manip_sim.messages import TOPIC_TYPES, float64_array
 from mobile_manip_sim.recording.bag_reader import open_bag
-from mobile_manip_sim.recording.bag_writer import DEFAULT_CHUNK_SIZE, BagWriter
+from mobile_manip_sim.recording.bag_writer import DEFAULT_CHUNK_SIZE
 from mobile_manip_sim.recording.cdr import exact_cdr
 from mobile_manip_sim.recording.headless import HeadlessRecorder
 from mobile_manip_sim.scene import load_scene, make_integrator
@@ -345,25 +346,6 @@ def test_resimulate_reproduces_the_node_run_bit_for_bit(node_run):
     for quantity in ("x", "y", "yaw", "v", "omega", "arm_prismatic_2 position",
                      "right_wheel_joint velocity"):
         assert re.search(rf"^{re.escape(quantity)}\s+0\s+-$", result.stdout, re.M), result.stdout
-
-
-def rewrite_bag(source: Path, target: Path, transform) -> None:
-    """Copy a bag with BagWriter, passing each message through transform(topic, data, index)."""
-    bag = open_bag(source)
-    qos = bag.channel_metadata()
-    counts = {}
-    with BagWriter(target) as writer:
-        for topic, type_name in bag.topics().items():
-            writer.add_topic(topic, type_name, qos[topic]["offered_qos_profiles"])
-        for name, data in bag.attachments().items():
-            writer.add_attachment(name, "application/octet-stream", data)
-        for name, data in bag.metadata().items():
-            if name != "rosbag2":
-                writer.add_metadata(name, data)
-        for message in bag.messages():
-            index = counts[message.topic] = counts.get(message.topic, -1) + 1
-            writer.write(message.topic, transform(message.topic, message.data, index),
-                         message.log_time_ns, message.publish_time_ns)
 
 
 def test_resimulate_reports_an_altered_command(node_run, tmp_path):

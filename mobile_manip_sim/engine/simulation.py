@@ -23,6 +23,7 @@ from ..errors import UserError
 from ..scene import IntegratorSettings, Scene
 from . import fixed_step, layout, stepping
 from .adaptive import CompiledSolver
+from .step_watch import StepWatch
 from .events import MAX_IMPACTS_PER_STEP, N_SAMPLES, crossing_in_step, hermite_turns, holding_margin
 from .stops import (LOG_HELD, Impact, impact, make_impact_scratch, make_stops, relock, release,
                     release_at_root)
@@ -34,10 +35,20 @@ def scipy_solver(method: str):
     from scipy import integrate
     return getattr(integrate, METHODS[method].stepper.split(":")[1])
 DEFAULT_WHEEL_SPEED_GAINS = (0.5, 5.0)   # kp N·m·s/rad, ki N·m/rad (see set_wheel_speed_gains)
+SCIPY_MIN_RTOL = 100 * np.finfo(float).eps   # SciPy's own floor; passed as is, it warns on stderr
 
 
 class SimulationError(RuntimeError):
     """The numbers went bad (NaN/Inf): says when and which quantity."""
+
+
+class StepLimitError(SimulationError):
+    """radau/bdf cannot follow the solution (`step_watch`): the settings named by `key` and the
+    efforts are to blame, so adapters treat it like a user error (status 2)."""
+
+    def __init__(self, key: str, problem: str):
+        super().__init__(f"{key}: {problem}")
+        self.key, self.problem = key, problem
 
 
 ImpactDetail = namedtuple("ImpactDetail", "q u_before u_after free held")
@@ -93,6 +104,7 @@ class Simulation:
         self._h_last = None
         self._solver = None
         self._current = None
+        self._step_watch = StepWatch()
         self.wheel_efforts = self.joint_efforts = None
         self.set_efforts(self.scene.wheel_efforts, self.scene.joint_efforts)
         self.energy0 = self.total_energy()
@@ -315,10 +327,13 @@ class Simulation:
                 derivative = system.derivative
                 self._solver = scipy_solver(settings.method)(
                     lambda _t, y: derivative(y), self._t_adaptive, self.s.copy(), math.inf,
-                    rtol=settings.rtol, atol=settings.atol, first_step=self._h_last)
+                    rtol=max(settings.rtol, SCIPY_MIN_RTOL), atol=settings.atol,
+                    first_step=self._h_last)
         solver = self._solver
         s_before, t_before = solver.y.copy(), solver.t
         message = solver.step()
+        if not isinstance(solver, CompiledSolver):
+            self._check_scipy_step(solver, t_before, message)
         if solver.status == "failed":
             raise SimulationError(f"t = {t_before:.9g} s: {self.settings.method} failed: {message}")
         self._clock[stepping.STEPS] += 1
@@ -341,6 +356,18 @@ class Simulation:
             event = (t_before + h_release, "release", dense(t_before + h_release), h)
         # the step's end state, kept exactly (dense(t_after) may differ from it by round-off)
         self._current = (t_before, solver.t, dense, solver.y.copy(), event)
+
+    def _check_scipy_step(self, solver, t_before: float, message) -> None:
+        """radau/bdf: a failed step (below ten spacings of t) or a crawl (`step_watch`) is one
+        StepLimitError naming the tolerances, instead of steps of 1e-18 s for ever."""
+        problem = message if solver.status == "failed" else \
+            self._step_watch.problem(t_before, solver.t - t_before)
+        if problem:
+            s = self.settings
+            raise StepLimitError("integrator.rtol", f"t = {t_before:.9g} s: {s.method} cannot "
+                                 f"follow the solution: {problem.rstrip('.')}; check the efforts and "
+                                 f"the scene, or loosen integrator.rtol ({s.rtol:g}) and "
+                                 f"integrator.atol ({s.atol:g})")
 
     def _apply_event(self, event) -> None:
         t_event, kind, detail, h = event
