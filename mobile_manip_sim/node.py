@@ -30,20 +30,22 @@ Synchronous mode (parameter synchronous): the first state waits for a state subs
 command publisher; segment k is computed only once a new command has arrived on every command
 topic with a publisher after state k went out (or sync_timeout wall seconds passed).
 
-Timing. Publication k carries the state at simulated time t_k = k / publish_rate; its stamp is
-computed from the integer k in integer nanoseconds (exactly k·10⁹/rate when that is an integer,
-otherwise rounded to the nearest ns without accumulating), so stamps never drift, skip or repeat.
-One stepping thread owns the engine: for each k it takes the latest valid commands (zero-order
-hold: a command that arrives during a segment takes effect at the start of the next one),
-advances the engine to t_{k+1}, waits until the wall clock reaches
-start_wall + t_{k+1} / real_time_factor, then publishes. Computing before waiting keeps the
-compute time out of the publication jitter. The first publication (k = 0) is the initial state.
-If the node falls behind the wall clock it says so (throttled, with the measured real-time
-factor) and re-anchors its pacing instead of bursting to catch up. The executor (subscriptions,
-services, parameters) runs in the main thread and never waits for the engine: ~/pause and
+Timing: the run's time line is timeline.py's (the grid of publications, exact integer-ns
+stamps, when a command takes effect, the node's start), the pacing pacing.py's; this module only
+wires them to ROS. One stepping thread owns the engine: for each k it takes the latest valid
+commands (zero-order hold: a command that arrives during a segment takes effect at the start of
+the next one), advances the engine to t_{k+1}, waits until the wall clock reaches the pacer's
+due time, then publishes. Computing before waiting keeps the compute time out of the
+publication jitter. The first publication (k = 0) is the initial state. If the node falls
+behind the wall clock it says so (throttled, with the measured real-time factor) and paces on
+from there instead of bursting to catch up. Commands are not callbacks: the stepping thread
+takes them from the subscriptions when it needs them, latest first, so a flood costs the
+middleware (whose keep-last history drops the surplus), not the executor. The executor
+(services, parameters) runs in the main thread and never waits for the engine: ~/pause and
 ~/reset set flags under a lock that also guards every publication, so once they have answered
 nothing more of the old time line goes out (a segment computed across a pause is published after
-the resume; one computed across a reset is dropped). State topics are reliable, depth 100.
+the resume; one computed across a reset is dropped). Recording happens outside that lock, so a
+bag rotation never delays a service. State topics are reliable, depth 100.
 `real_time_factor` and `command_timeout` can be changed while running; the others are read-only.
 
 The node starts with ZERO efforts, not the scene's `efforts:` (those are for headless runs): a
@@ -56,10 +58,11 @@ engine's state becomes non-finite the node logs the error and pauses; ~/reset re
 or invalid scene or parameter at start-up is one line on stderr and exit status 2.
 
 Recording (parameter `record` = a new bag directory): a rosbag2 MCAP bag of /joint_states, /odom
-and /clock as published and of both command topics as applied (the efforts held from a segment
-start on, after timeout and limits: at t = 0 and whenever they change), every record stamped
-with its simulated time; plus the scene, the integrator settings and the impact log
-(recording/recorder.py). SIGINT/SIGTERM close it (summary, metadata.yaml); a SIGKILL loses at
+and /clock as published and of the command topics as applied (arm efforts, and wheel torques or
+in velocity mode cmd_vel as a Twist: held from a segment start on, after timeout and limits, at
+t = 0 and whenever they change), every record stamped with its simulated time; plus the scene,
+the integrator settings, the base command mode and wheel-speed gains, and the impact log
+(recording/recorder.py, rotation.py), so `replay --resimulate` reproduces the run bit for bit. SIGINT/SIGTERM close it (summary, metadata.yaml); a SIGKILL loses at
 most the open chunk, about a second of wall time. A bag holds one time line: after ~/reset it
 is closed and recording goes on in `<record>_1`, `<record>_2`, ... An unusable `record` path at
 start-up is a one-line error and exit status 2; a write failure while running (a full disk) is
