@@ -87,9 +87,10 @@ class Grid:
     def index(self, stamp: int) -> int | None:
         """k of the point stamped ``stamp`` ns, or None when no point has that stamp."""
         k = round(Fraction(stamp) * self.rate / NS)
-        if self.count is not None and k >= self.on_grid:
-            k = self.count - 1
-        return k if k >= 0 and self.stamp(k) == stamp else None
+        if 0 <= k and (self.count is None or k < self.on_grid) and self.stamp(k) == stamp:
+            return k
+        last = None if self.count is None else self.count - 1
+        return last if last is not None and self.stamp(last) == stamp else None
 
     def segments(self, start: int, end: int) -> Iterator[tuple[int, float]]:
         """(segment start stamp, time the engine advances to) for every segment from the point

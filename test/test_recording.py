@@ -328,7 +328,8 @@ def test_a_node_bag_reads_back_with_mcap_and_is_complete(node_run):
     assert run == {"version": __version__, "integrator_method": "rk4", "dt": "0.001",
                    "rtol": repr(load_scene(None).integrator.rtol),
                    "atol": repr(load_scene(None).integrator.atol),
-                   "scene_name": "paper_two_link", "source": "node", "publish_rate": "100.0"}
+                   "scene_name": "paper_two_link", "source": "node", "publish_rate": "100.0",
+                   "base_command": "effort"}
     assert "rosbag2" in metadata
     for channel in summary.channels.values():
         qos = yaml.safe_load(channel.metadata["offered_qos_profiles"])
@@ -486,6 +487,24 @@ def test_replay_publishes_the_recorded_messages_in_order_at_the_recorded_rate(pr
     gaps = sorted(b - a for a, b in zip(arrivals, arrivals[1:]))
     assert abs(gaps[len(gaps) // 2] - 0.05 / rate) < 0.01   # median spacing: 50 ms / rate
     assert f"played {sum(len(v) for v in recorded.values())} messages" in result.stdout
+
+
+def test_replay_without_waiting_still_reaches_a_subscriber_that_already_runs(probe,
+                                                                           headless_bags):
+    """No --wait-for-subscribers: discovery of the running probe is still awaited (bounded),
+    so its first message is the bag's first (it lost ~0.4 s of the bag before)."""
+    bag = headless_bags[0]
+    probe.clear()
+    start = time.monotonic()
+    result = run_cli("replay", str(bag), "--topics", "/joint_states", timeout=60)
+    wall = time.monotonic() - start
+    assert result.returncode == 0, result.stderr
+    recorded = [deserialize_message(m.data, JointState)
+                for m in open_bag(bag).messages("/joint_states")]
+    wait_for(lambda: len(probe.messages("/joint_states")) >= len(recorded),
+             "every replayed /joint_states")
+    assert probe.messages("/joint_states") == recorded
+    assert wall < 30, f"replay took {wall:.1f} s"
 
 
 # --- crashes and failures ---------------------------------------------------------------------

@@ -29,6 +29,8 @@ def test_index_finds_points_and_only_points():
     assert [grid.index(grid.stamp(k)) for k in range(5)] == list(range(5))
     assert grid.index(5_000_000) is None and grid.index(40_000_000) is None
     assert Grid(100.0).index(10 ** 9) == 100
+    off = Grid(20.0, 2.005)   # the last point is nearer to k = 40 than to 41
+    assert off.index(2_005_000_000) == 41 and off.index(2_000_000_000) == 40
 
 
 def test_segments_advance_to_the_next_point():
