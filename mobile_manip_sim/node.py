@@ -213,8 +213,9 @@ class _CommandInput:
         self.slot = CommandSlot(size)
         self.subscription = None
 
-    def take(self) -> list:
-        """The messages waiting, oldest first (at most MAX_TAKEN: a flood cannot hold us)."""
+    def take(self, since_ns: int) -> list:
+        """The messages waiting that arrived at or after ``since_ns`` (wall clock, ns), oldest
+        first; at most MAX_TAKEN: a flood cannot hold us."""
         taken = []
         subscription = self.subscription
         with subscription.handle:
@@ -222,7 +223,8 @@ class _CommandInput:
                 message = subscription.handle.take_message(subscription.msg_type, False)
                 if message is None:
                     break
-                taken.append(message[0])
+                if message[1]["received_timestamp"] >= since_ns:
+                    taken.append(message[0])
         return taken
 
 
@@ -268,6 +270,9 @@ class SimulatorNode(Node):
         self._arm = _CommandInput(ARM_TOPIC, n_joints, arm_labels, "arm")
         self._inputs = (self._base, self._arm)
         self._command_lock = threading.Lock()      # guards the command slots
+        # Wall time (ns, the middleware's reception clock) of the latest ~/reset: commands
+        # received before it are dropped.
+        self._commands_since = 0
         self._warned_at: dict[tuple, float] = {}    # throttle: (topic, kind) → wall time
 
         # Stepping state: the stepping thread owns the engine; services only set flags (_cv).
@@ -387,7 +392,7 @@ class SimulatorNode(Node):
         the problem; without a valid one the last valid command stays."""
         for command in self._inputs:
             latest = None
-            for message in reversed(command.take()):
+            for message in reversed(command.take(self._commands_since)):
                 values = command_values(command.topic, message.twist if self._stamped
                                         and command.topic == CMD_VEL_TOPIC else message)
                 problem = command_problem(values, command.slot.size, command.labels)
@@ -424,6 +429,8 @@ class SimulatorNode(Node):
         with self._command_lock:   # commands sent after this call are kept
             for command in self._inputs:
                 command.slot.clear()
+            # Those still waiting in the subscriptions are from before it: dropped when taken.
+            self._commands_since = time.time_ns()
         with self._cv:
             self._reset_requested = True
             self._wake()
