@@ -17,9 +17,9 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
-# The time line (stamps) lives in timeline.py, topic names, types and QoS in topics.py;
+# Stamps come from the time line (timeline.py); topic names, types and QoS live in topics.py,
 # re-exported here for the message builders' users.
-from .timeline import NS, seconds_ns, stamp_ns  # noqa: F401
+from .timeline import NS  # noqa: F401
 from .topics import (ARM_TOPIC, CLOCK_TOPIC, CMD_VEL_TOPIC, COMMAND_QOS_DEPTH,  # noqa: F401
                      COMMAND_TOPICS, JOINT_STATES_TOPIC, ODOM_TOPIC, STATE_QOS_DEPTH,
                      STATE_TOPICS, TOPIC_TYPES, WHEEL_TOPIC)

@@ -30,7 +30,6 @@ import math
 import sys
 import time
 
-import numpy as np
 import yaml
 
 from . import __version__, cli

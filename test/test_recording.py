@@ -461,6 +461,40 @@ def test_recording_memory_is_bounded_by_the_chunk_size(tmp_path):
     assert summary_chunks >= 20
 
 
+# --- the node's bag rotation (recording/rotation.py), without a node -------------------------
+
+def test_a_new_time_line_rotates_the_bag_and_a_failure_only_stops_recording(tmp_path):
+    from mobile_manip_sim.errors import UserError
+    from mobile_manip_sim.messages import state_messages
+    from mobile_manip_sim.recording.recorder import RunRecorder
+    from mobile_manip_sim.recording.rotation import RotatingRecorder
+
+    scene = load_scene(None)
+    sim = Simulation(scene)
+    names = scene.robot.joint_names()
+    opened, lines = [], []
+
+    def make_bag(path):
+        if len(opened) == 2:
+            raise UserError("record", f"{path}: cannot create")
+        opened.append(path)
+        return RunRecorder(path, scene, scene.integrator, {"source": "node",
+                                                           "publish_rate": "100.0"})
+
+    recording = RotatingRecorder(tmp_path / "run", make_bag, lines.append, lines.append)
+    for stamp in (0, 10_000_000, 0, 10_000_000, 0, 10_000_000):   # three time lines
+        recording.states(stamp, state_messages(sim, stamp, names), sim.impacts)
+        recording.commands(stamp, [0.0, 0.0], [0.0] * 4)
+    recording.close()
+    assert opened == [str(tmp_path / "run"), str(tmp_path / "run_1")]
+    assert lines == [f"reset: bag {tmp_path / 'run'} closed, recording on in {tmp_path / 'run_1'}",
+                     f"recording stopped at the reset: record: {tmp_path / 'run_2'}: cannot "
+                     f"create"]
+    for bag in opened:   # each closed, each one time line
+        assert [m.log_time_ns for m in open_bag(bag).messages("/joint_states")] == \
+            [0, 10_000_000]
+
+
 # --- replay -----------------------------------------------------------------------------------
 
 def test_replay_publishes_the_recorded_messages_in_order_at_the_recorded_rate(probe, headless_bags):
