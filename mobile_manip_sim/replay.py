@@ -139,8 +139,7 @@ class RecordedRun:
                                         self._number("atol"), prefix=f"{METADATA_NAME}")
         self.rate = self._number("publish_rate" if self.source == "node" else "sample_rate")
         self.duration = self._number("duration") if "duration" in metadata else None
-        if self.source == "simulate" and self.duration is None:
-            raise UserError(f"{METADATA_NAME}.duration", "missing from the bag's metadata")
+        # A headless run ends at its duration (without one, its grid is endless like a node's).
         self.grid = Grid(self.rate, self.duration if self.source == "simulate" else None)
         self.base_command = metadata.get("base_command", "effort")
         if self.base_command not in BASE_COMMAND_TOPICS:
