@@ -333,8 +333,8 @@ def _bag_efforts(bag, joint_efforts, sample_ns, scene, decode, topics):
     bag has them: as applied, each held from the segment start it is stamped with (the time
     line's rule), so the one that applies over interval k is the latest stamped ≤ t_k. A
     velocity-mode bag has cmd_vel instead of wheel torques: the wheel-speed loop's torques vary
-    within a segment, so the wheels take the mean of the torques /joint_states carries at both
-    ends. Without commands: /joint_states' effort field (the efforts of the segment that
+    within a segment, so the wheels take the mean of the torques at both ends (`_loop_torques`).
+    Without commands: /joint_states' effort field (the efforts of the segment that
     ENDED at each stamp: row k is then taken from sample k + 1); else the scene's efforts."""
     from std_msgs.msg import Float64MultiArray
 
@@ -365,10 +365,36 @@ def _bag_efforts(bag, joint_efforts, sample_ns, scene, decode, topics):
                 held[k, target] = values
     sources = list(recorded)
     if CMD_VEL in topics and WHEEL_COMMANDS not in topics and complete:
-        torques = np.array(joint_efforts, dtype=float)[:, :2]
-        held[:, :2] = 0.5 * (torques + np.vstack([torques[1:], torques[-1:]]))
+        held[:, :2] = _loop_torques(bag, np.array(joint_efforts, dtype=float)[:, :2], sample_ns,
+                                    scene, decode)
         sources.insert(0, f"{JOINT_STATES} wheel torques")
     return held, " and ".join(sources)
+
+
+def _loop_torques(bag, torques: np.ndarray, sample_ns, scene, decode) -> np.ndarray:
+    """(N, 2) mean wheel torque of the speed loop over each interval: /joint_states carries
+    the torque at the END of the segment that ended at each stamp (before the next cmd_vel
+    applies); at a segment start the loop's proportional term jumps by kp times the change of
+    the wheel-speed targets (the integral term is continuous), which the recorded cmd_vel and
+    the bag's ``wheel_speed_kp`` give. Saturation at the effort limits is not modelled."""
+    from geometry_msgs.msg import Twist
+
+    from .messages import command_values
+
+    kp = float(bag.metadata().get("mobile_manip_sim", {}).get("wheel_speed_kp", 0.0))
+    base = scene.robot.base
+    history = CommandHistory((message.log_time_ns,
+                              command_values(CMD_VEL, decode(message, Twist)))
+                             for message in bag.messages([CMD_VEL]))
+    targets = np.zeros((len(sample_ns), 2))
+    for k, stamp in enumerate(sample_ns):
+        command = history.at(int(stamp))
+        if command is not None:
+            v, omega = command
+            targets[k] = [(v + base.half_track * omega) / base.wheel_radius,
+                          (v - base.half_track * omega) / base.wheel_radius]
+    start = torques + kp * np.diff(targets, axis=0, prepend=0.0)
+    return 0.5 * (start + np.vstack([torques[1:], torques[-1:]]))
 
 
 # --- quantities derived from a run ------------------------------------------------------------
