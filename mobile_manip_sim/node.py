@@ -62,8 +62,9 @@ and /clock as published and of the command topics as applied (arm efforts, and w
 in velocity mode cmd_vel as a Twist: held from a segment start on, after timeout and limits, at
 t = 0 and whenever they change), every record stamped with its simulated time; plus the scene,
 the integrator settings, the base command mode and wheel-speed gains, and the impact log
-(recording/recorder.py, rotation.py), so `replay --resimulate` reproduces the run bit for bit. SIGINT/SIGTERM close it (summary, metadata.yaml); a SIGKILL loses at
-most the open chunk, about a second of wall time. A bag holds one time line: after ~/reset it
+(recording/recorder.py, rotation.py), so `replay --resimulate` reproduces the run bit for
+bit. SIGINT/SIGTERM close it (summary, metadata.yaml); a SIGKILL loses at most the open chunk,
+about a second of wall time. A bag holds one time line: after ~/reset it
 is closed and recording goes on in `<record>_1`, `<record>_2`, ... An unusable `record` path at
 start-up is a one-line error and exit status 2; a write failure while running (a full disk) is
 one error line, recording stops, the simulation goes on.

@@ -414,7 +414,8 @@ def test_a_node_bag_balances_energy_when_a_command_times_out(tmp_path):
     """The node publishes, at stamp k + 1, the efforts of the segment that ENDED there; plot
     takes the efforts over each interval from the recorded commands instead, so a command
     that times out leaves no phantom step in the balance (it was −2.2 J when each effort was
-    applied one sample late in the issue's run, 0.75 J here). Re-simulation agrees with the bag bit for bit."""
+    applied one sample late in the issue's run, 0.75 J here). Re-simulation agrees with the
+    bag bit for bit."""
     scene = load_scene()
     path = tmp_path / "node_bag"
     record_node_bag(path, scene, {10_000_000: ([1.0, 1.0], [4.8, 5.9, 0.0, 1.0])},
