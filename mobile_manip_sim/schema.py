@@ -331,10 +331,13 @@ def string_map(value, path, *, max_entries=1000, max_length=10_000) -> dict[str,
 
 
 RUN_METADATA_KEYS = ("version", "integrator_method", "dt", "rtol", "atol", "scene_name", "source",
-                     "sample_rate", "publish_rate", "duration")
+                     "sample_rate", "publish_rate", "duration", "base_command", "wheel_speed_kp",
+                     "wheel_speed_ki")
 RUN_METADATA_NUMBERS = {"dt": (1e-9, 1.0), "rtol": (1e-14, 1.0), "atol": (1e-20, 1.0),
                         "sample_rate": (1e-6, 1e6), "publish_rate": (1e-6, 1e6),
-                        "duration": (1e-9, 1e6)}
+                        "duration": (1e-9, 1e6), "wheel_speed_kp": (0.0, 1e6),
+                        "wheel_speed_ki": (0.0, 1e6)}
+BASE_COMMANDS = ("effort", "velocity")   # the node's base_command parameter
 
 
 RUN_METADATA_RATE = {"simulate": "sample_rate", "node": "publish_rate"}   # source → its rate
@@ -346,7 +349,8 @@ def run_metadata(value, path: str = "mobile_manip_sim") -> dict:
     is required (and a `simulate` run's duration, which fixes its sample times)."""
     value = string_map(value, path, max_entries=len(RUN_METADATA_KEYS), max_length=200)
     keys(value, path, required=("version", "integrator_method", "dt", "rtol", "atol", "source"),
-         optional=("scene_name", "sample_rate", "publish_rate", "duration"))
+         optional=("scene_name", "sample_rate", "publish_rate", "duration", "base_command",
+                   "wheel_speed_kp", "wheel_speed_ki"))
     if value["integrator_method"] not in METHODS:
         raise UserError(f"{path}.integrator_method", f"unknown method "
                                                      f"{short(value['integrator_method'])}")
@@ -360,7 +364,13 @@ def run_metadata(value, path: str = "mobile_manip_sim") -> dict:
             parsed[key] = number(number_value, f"{path}.{key}", lo=lo, hi=hi)
     if value["source"] not in RUN_METADATA_RATE:
         raise UserError(f"{path}.source", f"expected node or simulate, got {short(value['source'])}")
+    if value.setdefault("base_command", "effort") not in BASE_COMMANDS:
+        raise UserError(f"{path}.base_command", f"expected effort or velocity, got "
+                                                f"{short(value['base_command'])}")
+    parsed["base_command"] = value["base_command"]
     needed = [RUN_METADATA_RATE[value["source"]]] + (["duration"] if value["source"] == "simulate" else [])
+    if value["base_command"] == "velocity":   # the wheel-speed loop's gains shape the run
+        needed += ["wheel_speed_kp", "wheel_speed_ki"]
     for key in needed:
         if key not in value:
             raise UserError(f"{path}.{key}", f"missing (a {value['source']} run records it)")

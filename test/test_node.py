@@ -681,14 +681,19 @@ def test_the_shipped_params_file_applies_under_another_node_name(tmp_path):
     assert result.returncode == 2 and "publish_rate" in result.stderr, result.stderr
 
 
-def test_cmd_vel_held_for_4_s_drives_the_base_at_that_twist(probe, simulator, tmp_path):
+def test_cmd_vel_held_for_4_s_drives_the_base_at_that_twist_and_resimulates(probe, simulator,
+                                                                           tmp_path):
     """base_command velocity: cmd_vel (0.3 m/s, 0.5 rad/s) for 4 s of simulated time; the
-    wheel-speed loop inside the simulation brings /odom's twist within 10 % of it."""
+    wheel-speed loop inside the simulation brings /odom's twist within 10 % of it. The velocity
+    command is part of the run: recorded as applied, and the bag re-simulates bit for bit."""
     from geometry_msgs.msg import Twist
+    from rosbags.rosbag2 import Reader
+    from rosbags.typesys import Stores, get_typestore
     probe.pause(True)
+    bag = tmp_path / "velocity_run"
     node = start_simulator(probe, tmp_path, *FAST, "-p", "base_command:=velocity",
                            "-p", "wheel_speed.kp:=5.0", "-p", "wheel_speed.ki:=50.0",
-                           "-r", "__node:=velocity_sim")
+                           "-p", f"record:={bag}", "-r", "__node:=velocity_sim")
     publisher = probe.node.create_publisher(Twist, "/cmd_vel", 10)
     try:
         wait_for(lambda: publisher.get_subscription_count() > 0, "the node's cmd_vel subscription")
@@ -705,4 +710,76 @@ def test_cmd_vel_held_for_4_s_drives_the_base_at_that_twist(probe, simulator, tm
         assert efforts[0] != 0.0 and efforts[1] != 0.0   # the loop's torques, published
     finally:
         probe.node.destroy_publisher(publisher)
+        assert node.stop() == 0, node.output()
+    store = get_typestore(Stores.ROS2_JAZZY)
+    with Reader(bag) as reader:
+        topics = {connection.topic: connection.msgtype for connection in reader.connections}
+        assert topics["/cmd_vel"] == "geometry_msgs/msg/Twist"
+        assert "/wheel_effort_controller/commands" not in topics
+        commands = [(stamp, store.deserialize_cdr(data, "geometry_msgs/msg/Twist"))
+                    for connection, stamp, data in reader.messages()
+                    if connection.topic == "/cmd_vel"]
+    assert commands[0][0] == 0 and commands[0][1].linear.x == 0.0   # zero until commanded
+    assert any((c.linear.x, c.angular.z) == (0.3, 0.5) for _, c in commands), commands
+    assert all(stamp % PERIOD_NS == 0 for stamp, _ in commands)      # at segment starts
+    result = subprocess.run([executable("replay"), str(bag), "--resimulate"], env=child_env(),
+                            capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0 and "IDENTICAL" in result.stdout, result.stdout + result.stderr
+
+
+# --- load ---------------------------------------------------------------------------------------
+
+def cpu_seconds(process: SimulatorProcess) -> float:
+    """User + system CPU time of a node process so far (s), from /proc."""
+    fields = open(f"/proc/{process.process.pid}/stat").read().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def test_a_10_khz_command_flood_keeps_real_time_and_services_answer_within_50_ms(probe,
+                                                                                 simulator,
+                                                                                 tmp_path):
+    """Another process floods the wheel topic at 10 kHz while a node runs at real_time_factor
+    1: the node takes commands latest first when it needs them, so it keeps real time and
+    ~/pause answers within 50 ms."""
+    probe.pause(True)   # the shared node idles
+    node = start_simulator(probe, tmp_path, "-p", "integrator.method:=rk4",
+                           "-p", "integrator.dt:=0.001", "-p", "real_time_factor:=1.0",
+                           "-p", "command_timeout:=0.0", "-r", "__node:=flood_sim")
+    pause = probe.node.create_client(SetBool, "/flood_sim/pause")
+    seconds = 6.0
+    flood = subprocess.Popen([os.sys.executable, os.path.join(os.path.dirname(__file__),
+                                                              "command_flood.py"),
+                              "10000", str(seconds)], env=child_env(), stdout=subprocess.PIPE,
+                             text=True)
+    try:
+        wait_for(pause.service_is_ready, "the flooded node's ~/pause")
+        time.sleep(1.0)   # the flood is on
+        clock0, wall0, cpu0 = probe.snapshot("clock")[-1], time.monotonic(), cpu_seconds(node)
+        time.sleep(2.0)
+        clock1, wall1, cpu1 = probe.snapshot("clock")[-1], time.monotonic(), cpu_seconds(node)
+        factor = (clock1 - clock0) / 1e9 / (wall1 - wall0)
+        load = (cpu1 - cpu0) / (wall1 - wall0)
+        latencies = []
+        for paused in (True, False, True, False):
+            begin = time.monotonic()
+            future = pause.call_async(SetBool.Request(data=paused))
+            wait_for(future.done, "a ~/pause answer")
+            latencies.append(time.monotonic() - begin)
+            assert future.result().success
+            time.sleep(0.2)
+        assert flood.poll() is None, "the flood ended before the measurements"
+        sent = flood.communicate(timeout=seconds + 30)[0]
+        count = int(re.search(r"sent (\d+) in ([\d.]+) s", sent).group(1))
+        print(f"flood: {sent.strip()}, real-time factor {factor:.3f}, node CPU {load:.0%} of a "
+              f"core, ~/pause latencies "
+              f"{', '.join(f'{1000 * latency:.1f}' for latency in latencies)} ms")
+        assert count >= 0.8 * 10000 * seconds, sent   # the flood really was ~10 kHz
+        assert factor >= 0.9, f"real-time factor {factor:.3f} under the flood"
+        assert max(latencies) <= 0.05, f"~/pause latencies {latencies}"
+        assert node.process.poll() is None, node.output()
+    finally:
+        if flood.poll() is None:
+            flood.kill()
+            flood.wait()
+        probe.node.destroy_client(pause)
         assert node.stop() == 0, node.output()

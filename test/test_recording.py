@@ -329,7 +329,8 @@ def test_a_node_bag_reads_back_with_mcap_and_is_complete(node_run):
     assert run == {"version": __version__, "integrator_method": "rk4", "dt": "0.001",
                    "rtol": repr(load_scene(None).integrator.rtol),
                    "atol": repr(load_scene(None).integrator.atol),
-                   "scene_name": "paper_two_link", "source": "node", "publish_rate": "100.0"}
+                   "scene_name": "paper_two_link", "source": "node", "publish_rate": "100.0",
+                   "base_command": "effort"}
     assert "rosbag2" in metadata
     for channel in summary.channels.values():
         qos = yaml.safe_load(channel.metadata["offered_qos_profiles"])
@@ -442,6 +443,40 @@ def test_recording_memory_is_bounded_by_the_chunk_size(tmp_path):
     assert summary_chunks >= 20
 
 
+# --- the node's bag rotation (recording/rotation.py), without a node -------------------------
+
+def test_a_new_time_line_rotates_the_bag_and_a_failure_only_stops_recording(tmp_path):
+    from mobile_manip_sim.errors import UserError
+    from mobile_manip_sim.messages import state_messages
+    from mobile_manip_sim.recording.recorder import RunRecorder
+    from mobile_manip_sim.recording.rotation import RotatingRecorder
+
+    scene = load_scene(None)
+    sim = Simulation(scene)
+    names = scene.robot.joint_names()
+    opened, lines = [], []
+
+    def make_bag(path):
+        if len(opened) == 2:
+            raise UserError("record", f"{path}: cannot create")
+        opened.append(path)
+        return RunRecorder(path, scene, scene.integrator, {"source": "node",
+                                                           "publish_rate": "100.0"})
+
+    recording = RotatingRecorder(tmp_path / "run", make_bag, lines.append, lines.append)
+    for stamp in (0, 10_000_000, 0, 10_000_000, 0, 10_000_000):   # three time lines
+        recording.states(stamp, state_messages(sim, stamp, names), sim.impacts)
+        recording.commands(stamp, [0.0, 0.0], [0.0] * 4)
+    recording.close()
+    assert opened == [str(tmp_path / "run"), str(tmp_path / "run_1")]
+    assert lines == [f"reset: bag {tmp_path / 'run'} closed, recording on in {tmp_path / 'run_1'}",
+                     f"recording stopped at the reset: record: {tmp_path / 'run_2'}: cannot "
+                     f"create"]
+    for bag in opened:   # each closed, each one time line
+        assert [m.log_time_ns for m in open_bag(bag).messages("/joint_states")] == \
+            [0, 10_000_000]
+
+
 # --- replay -----------------------------------------------------------------------------------
 
 def test_replay_publishes_the_recorded_messages_in_order_at_the_recorded_rate(probe, headless_bags):
@@ -468,6 +503,24 @@ def test_replay_publishes_the_recorded_messages_in_order_at_the_recorded_rate(pr
     gaps = sorted(b - a for a, b in zip(arrivals, arrivals[1:]))
     assert abs(gaps[len(gaps) // 2] - 0.05 / rate) < 0.01   # median spacing: 50 ms / rate
     assert f"played {sum(len(v) for v in recorded.values())} messages" in result.stdout
+
+
+def test_replay_without_waiting_still_reaches_a_subscriber_that_already_runs(probe,
+                                                                           headless_bags):
+    """No --wait-for-subscribers: discovery of the running probe is still awaited (bounded),
+    so its first message is the bag's first (it lost ~0.4 s of the bag before)."""
+    bag = headless_bags[0]
+    probe.clear()
+    start = time.monotonic()
+    result = run_cli("replay", str(bag), "--topics", "/joint_states", timeout=60)
+    wall = time.monotonic() - start
+    assert result.returncode == 0, result.stderr
+    recorded = [deserialize_message(m.data, JointState)
+                for m in open_bag(bag).messages("/joint_states")]
+    wait_for(lambda: len(probe.messages("/joint_states")) >= len(recorded),
+             "every replayed /joint_states")
+    assert probe.messages("/joint_states") == recorded
+    assert wall < 30, f"replay took {wall:.1f} s"
 
 
 # --- crashes and failures ---------------------------------------------------------------------

@@ -11,7 +11,7 @@ All three advance ``s = (q, u, e, W)`` (`layout.py`) by one step of length h (s)
 `stepping.py` runs them, with the events in between.
 """
 from ..dynamics import kernels
-from ..dynamics.jit import jit, jit_inline
+from ..dynamics.jit import jit_inline
 from . import layout
 from .system import derivative
 
