@@ -40,11 +40,12 @@ from .timeline import CommandHistory, Grid, apply_commands, start_node_time_line
 from .topics import BAG_TOPIC_TYPES, BASE_COMMAND_TOPICS
 
 ACK_TIMEOUT = 2.0          # s: how long to wait at the end for reliable subscribers to ack
-DISCOVERY_TIMEOUT = 5.0    # s: the longest wait for running subscribers to be matched
-# s: the graph unchanged this long, all its subscribers matched: go. DDS announces a new
-# participant at once and then every ~0.1 s, but a loaded machine can take well over 0.3 s to
-# show a running subscriber at all (a replay test lost its first messages so).
-DISCOVERY_SETTLE = 1.0
+# Discovery: with subscribers on the played topics known and matched, and the graph unchanged
+# for DISCOVERY_SETTLE s, play; with none known yet, wait up to DISCOVERY_TIMEOUT s for one (on a
+# loaded machine a running subscriber can take over a second to show up at all: a test lost the
+# bag's first second so).
+DISCOVERY_TIMEOUT = 3.0
+DISCOVERY_SETTLE = 0.5
 SLEEP_SLICE = 0.05         # s: longest sleep between checks for a shutdown
 MAX_QOS_PROFILES = 100     # recorded publishers of one topic
 MAX_QOS_DEPTH = 100_000    # history depth: a deeper one is damage, and would be allocated
@@ -445,8 +446,8 @@ def play(bag, args) -> int:
 
 
 def _await_discovery(node, publishers: dict) -> None:
-    """Give discovery the time to match the subscribers that already run: until every
-    subscriber the ROS graph knows on a played topic is matched and the graph (nodes,
+    """Give discovery the time to match the subscribers that already run: until some
+    subscriber is known on a played topic, every one known is matched and the graph (nodes,
     subscribers, matches) has not changed for DISCOVERY_SETTLE s; at most DISCOVERY_TIMEOUT s."""
     import rclpy
 
@@ -461,7 +462,8 @@ def _await_discovery(node, publishers: dict) -> None:
         graph = (known, matched, sorted(node.get_node_names_and_namespaces()))
         if graph != last:
             last, since = graph, now
-        elif now - since >= DISCOVERY_SETTLE and all(m >= k for m, k in zip(matched, known)):
+        elif (now - since >= DISCOVERY_SETTLE and any(known)
+              and all(m >= k for m, k in zip(matched, known))):
             return
         time.sleep(0.02)
 
