@@ -23,6 +23,7 @@ package are dropped whenever any of its sources changes (`_drop_stale_caches`).
 """
 import hashlib
 import os
+import sys
 from pathlib import Path
 
 ENABLED = os.environ.get("MOBILE_MANIP_SIM_NO_JIT", "") in ("", "0")
@@ -119,5 +120,33 @@ def _drop_stale_caches() -> None:
         pass
 
 
+def _load_implementations_without_blas() -> None:
+    """Load numba's library of implementations now, without scipy.linalg.
+
+    The first compiled call of a process, even one read from the cache, makes numba import its
+    implementations of Python and NumPy (`refresh` of the CPU target), and among them
+    `numba.np.arraymath` imports scipy.linalg only to note whether np.dot has BLAS behind it:
+    0.2 s of CPU, half of what loading the implementations costs, and 15 MB resident, in every
+    run. No kernel here calls BLAS or LAPACK, so `scipy.linalg.cython_blas` is hidden while they
+    load. In this process a numba function compiled later that calls np.dot or np.linalg still
+    imports scipy.linalg itself, when it is compiled (`numba.np.linalg.ensure_blas`); only
+    np.correlate and np.convolve take numba's own loop instead of BLAS."""
+    from numba.core.compiler_lock import global_compiler_lock
+    from numba.core.registry import cpu_target
+    name = "scipy.linalg.cython_blas"
+    hide = name not in sys.modules
+    with global_compiler_lock:
+        if hide:
+            sys.modules[name] = None   # `import` of it raises ImportError, parents untouched
+        try:
+            cpu_target.target_context.refresh()
+        except ImportError:   # a numba that needs it here: leave the loading to numba
+            pass
+        finally:
+            if hide and name in sys.modules and sys.modules[name] is None:
+                del sys.modules[name]
+
+
 if ENABLED:
     _drop_stale_caches()
+    _load_implementations_without_blas()
