@@ -79,6 +79,7 @@ import sys
 import threading
 import time
 from fractions import Fraction
+from typing import TYPE_CHECKING
 
 import numpy as np
 import rclpy
@@ -97,11 +98,13 @@ from . import cli
 from .engine.simulation import DEFAULT_WHEEL_SPEED_GAINS, Simulation, SimulationError
 from .errors import UserError
 from .messages import NS, stamp_ns, state_messages, transform
-from .recording.recorder import RunRecorder
 from .scene import METHODS, load_scene, make_integrator
 from .topics import (ARM_TOPIC, CLOCK_TOPIC, CMD_VEL_TOPIC, DESCRIPTION_TOPIC, JOINT_STATES_TOPIC, ODOM_TOPIC,
                      TF_TOPIC, WHEEL_TOPIC, command_qos, latched_qos, relative, state_qos)
 from .urdf import robot_description
+
+if TYPE_CHECKING:   # imported when a bag is opened: mcap and the CDR tables only when recording
+    from .recording.recorder import RunRecorder
 
 NODE_NAME = "mobile_manip_sim"
 WARN_EVERY = 5.0           # s of wall time between repeats of one kind of warning
@@ -681,6 +684,7 @@ class SimulatorNode(Node):
 
     # --- recording (hooks called by the stepping thread, and _on_close after it stopped) ----
     def _open_bag(self, path: str) -> RunRecorder:
+        from .recording.recorder import RunRecorder
         self._bag_count += 1
         self._recorded_stamp = None
         return RunRecorder(path, self.scene, self._settings,
