@@ -19,7 +19,8 @@ return a new array cannot be used in a kernel.
 numba keys a cached function on its own source file only, yet a kernel called from another
 module is compiled *into* its caller: after an edit of `kernels.py`, the cached
 `engine.system.derivative` would keep running the old kernel. So the caches of the whole
-package are dropped whenever any of its sources changes (`_drop_stale_caches`).
+package are dropped whenever a source that compiled code may depend on changes
+(`_drop_stale_caches`).
 """
 import hashlib
 import os
@@ -97,16 +98,23 @@ class Bound:
         return result
 
 
-def _drop_stale_caches() -> None:
+# Where compiled code may come from: the dynamics and the engine (below the adapters, they
+# import nothing above them), and any other module that defines a kernel (`bench/loops.py`).
+KERNEL_PACKAGES = ("dynamics", "engine")
+
+
+def _drop_stale_caches(package: Path = Path(__file__).resolve().parents[1]) -> None:
     """Delete the package's numba cache files (``__pycache__/*.nbi, *.nbc``) when a source that
-    compiles anything (it mentions ``jit``) changed."""
-    package = Path(__file__).resolve().parents[1]
+    compiled code may depend on changed: any module of dynamics/ or engine/ (kernels freeze the
+    module constants they read, such as workspace.py's indices, into their machine code) or
+    one that defines a kernel. An edit of an adapter (node, CLI, plots) keeps the caches."""
     digest = hashlib.sha1(numba.__version__.encode())
     try:
         for path in sorted(package.rglob("*.py")):
+            relative = path.relative_to(package)
             source = path.read_bytes()
-            if b"jit" in source:
-                digest.update(str(path.relative_to(package)).encode())
+            if relative.parts[0] in KERNEL_PACKAGES or b"@jit" in source:
+                digest.update(str(relative).encode())
                 digest.update(source)
         stamp = package / "__pycache__" / "numba-sources.sha1"
         if stamp.is_file() and stamp.read_text() == digest.hexdigest():
