@@ -83,6 +83,7 @@ import re
 import sys
 import threading
 import time
+from typing import TYPE_CHECKING
 
 import numpy as np
 import rclpy
@@ -105,7 +106,6 @@ from .engine.simulation import DEFAULT_WHEEL_SPEED_GAINS, Simulation, Simulation
 from .errors import UserError
 from .messages import NS, command_values, state_messages, transform
 from .pacing import Pacer
-from .recording.recorder import RunRecorder
 from .recording.rotation import RotatingRecorder
 from .scene import METHODS, load_scene, make_integrator
 from .timeline import CommandSlot, Grid, apply_commands, format_ns, start_node_time_line
@@ -113,6 +113,9 @@ from .topics import (ARM_TOPIC, CLOCK_TOPIC, CMD_VEL_TOPIC, COMMAND_QOS_DEPTH, D
                      JOINT_STATES_TOPIC, ODOM_TOPIC, TF_TOPIC, WHEEL_TOPIC, command_qos,
                      latched_qos, relative, state_qos)
 from .urdf import robot_description
+
+if TYPE_CHECKING:   # imported when a bag is opened: mcap and the CDR tables only when recording
+    from .recording.recorder import RunRecorder
 
 NODE_NAME = "mobile_manip_sim"
 WARN_EVERY = 5.0           # s of wall time between repeats of one kind of warning
@@ -732,6 +735,7 @@ class SimulatorNode(Node):
 
     # --- recording (stepping thread, outside _cv; _on_close after it stopped) ---------------
     def _open_bag(self, path: str) -> RunRecorder:
+        from .recording.recorder import RunRecorder
         metadata = {"source": "node", "publish_rate": repr(self.grid.hz),
                     "base_command": self.base_command}
         if self.velocity_mode:

@@ -42,3 +42,27 @@ def test_bound_kernel_reaches_compiled_code_directly():
     bound(np.ones(3), 1.0)
     assert bound._entry is not _weighted_sum   # the dispatcher is out of the way
     assert bound(np.ones(3), 2.0) == 6.0
+
+
+@pytest.mark.skipif(not jit.ENABLED, reason="numba is off")
+def test_caches_are_dropped_when_kernel_sources_change_and_kept_when_an_adapter_does(tmp_path):
+    package = tmp_path / "package"
+    sources = {"dynamics/workspace.py": "S = 6\n", "engine/system.py": "@jit\ndef f(): pass\n",
+               "bench/loops.py": "@jit\ndef g(): pass\n", "node.py": "# publication jitter\n"}
+    for name, text in sources.items():
+        (package / name).parent.mkdir(parents=True, exist_ok=True)
+        (package / name).write_text(text)
+    cache = package / "engine" / "__pycache__" / "system.f-1.py311.nbi"
+
+    def cached_after_editing(name: str) -> bool:
+        cache.parent.mkdir(exist_ok=True)
+        cache.write_bytes(b"index")
+        (package / name).write_text(sources[name] + "# edited\n")
+        jit._drop_stale_caches(package)
+        return cache.exists()
+
+    jit._drop_stale_caches(package)   # the first stamp
+    assert cached_after_editing("node.py")
+    assert not cached_after_editing("dynamics/workspace.py")   # constants frozen into kernels
+    assert not cached_after_editing("bench/loops.py")
+    assert not cached_after_editing("engine/system.py")

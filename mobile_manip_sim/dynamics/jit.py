@@ -19,10 +19,12 @@ return a new array cannot be used in a kernel.
 numba keys a cached function on its own source file only, yet a kernel called from another
 module is compiled *into* its caller: after an edit of `kernels.py`, the cached
 `engine.system.derivative` would keep running the old kernel. So the caches of the whole
-package are dropped whenever any of its sources changes (`_drop_stale_caches`).
+package are dropped whenever a source that compiled code may depend on changes
+(`_drop_stale_caches`).
 """
 import hashlib
 import os
+import sys
 from pathlib import Path
 
 ENABLED = os.environ.get("MOBILE_MANIP_SIM_NO_JIT", "") in ("", "0")
@@ -96,16 +98,23 @@ class Bound:
         return result
 
 
-def _drop_stale_caches() -> None:
+# Where compiled code may come from: the dynamics and the engine (below the adapters, they
+# import nothing above them), and any other module that defines a kernel (`bench/loops.py`).
+KERNEL_PACKAGES = ("dynamics", "engine")
+
+
+def _drop_stale_caches(package: Path = Path(__file__).resolve().parents[1]) -> None:
     """Delete the package's numba cache files (``__pycache__/*.nbi, *.nbc``) when a source that
-    compiles anything (it mentions ``jit``) changed."""
-    package = Path(__file__).resolve().parents[1]
+    compiled code may depend on changed: any module of dynamics/ or engine/ (kernels freeze the
+    module constants they read, such as workspace.py's indices, into their machine code) or
+    one that defines a kernel. An edit of an adapter (node, CLI, plots) keeps the caches."""
     digest = hashlib.sha1(numba.__version__.encode())
     try:
         for path in sorted(package.rglob("*.py")):
+            relative = path.relative_to(package)
             source = path.read_bytes()
-            if b"jit" in source:
-                digest.update(str(path.relative_to(package)).encode())
+            if relative.parts[0] in KERNEL_PACKAGES or b"@jit" in source:
+                digest.update(str(relative).encode())
                 digest.update(source)
         stamp = package / "__pycache__" / "numba-sources.sha1"
         if stamp.is_file() and stamp.read_text() == digest.hexdigest():
@@ -119,5 +128,33 @@ def _drop_stale_caches() -> None:
         pass
 
 
+def _load_implementations_without_blas() -> None:
+    """Load numba's library of implementations now, without scipy.linalg.
+
+    The first compiled call of a process, even one read from the cache, makes numba import its
+    implementations of Python and NumPy (`refresh` of the CPU target), and among them
+    `numba.np.arraymath` imports scipy.linalg only to note whether np.dot has BLAS behind it:
+    some 0.25 s of CPU, more than half of what loading the implementations costs, and 15 MB
+    resident, in every run. No kernel here calls BLAS or LAPACK, so `scipy.linalg.cython_blas` is hidden while they
+    load. In this process a numba function compiled later that calls np.dot or np.linalg still
+    imports scipy.linalg itself, when it is compiled (`numba.np.linalg.ensure_blas`); only
+    np.correlate and np.convolve take numba's own loop instead of BLAS."""
+    from numba.core.compiler_lock import global_compiler_lock
+    from numba.core.registry import cpu_target
+    name = "scipy.linalg.cython_blas"
+    hide = name not in sys.modules
+    with global_compiler_lock:
+        if hide:
+            sys.modules[name] = None   # `import` of it raises ImportError, parents untouched
+        try:
+            cpu_target.target_context.refresh()
+        except ImportError:   # a numba that needs it here: leave the loading to numba
+            pass
+        finally:
+            if hide and name in sys.modules and sys.modules[name] is None:
+                del sys.modules[name]
+
+
 if ENABLED:
     _drop_stale_caches()
+    _load_implementations_without_blas()

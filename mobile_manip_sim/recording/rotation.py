@@ -9,9 +9,10 @@ never delays a service.
 """
 from __future__ import annotations
 
-from typing import Callable
+from typing import TYPE_CHECKING, Callable
 
-from mobile_manip_sim.recording.recorder import RunRecorder
+if TYPE_CHECKING:   # a bag's recorder (mcap, the CDR tables) is imported only when one opens
+    from mobile_manip_sim.recording.recorder import RunRecorder
 
 
 class RotatingRecorder:
