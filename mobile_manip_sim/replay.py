@@ -187,8 +187,12 @@ class RecordedRun:
         """The source's segments from stamp ``start`` to stamp ``end`` (ns): (segment start
         stamp, time in s the source advanced its engine to). One per recorded state, unless
         states are missing in between."""
+        if self.source == "node":   # a node's run is as long as its bag says: bound the work
+            from .scene import check_work
+            check_work(end / NS, self.settings, f"{JOINT_STATES_TOPIC} stamp", f"{METADATA_NAME}.dt",
+                       self.rate, f"{METADATA_NAME}.publish_rate")
         try:
-            return list(self.grid.segments(start, end))
+            return self.grid.segments(start, end)
         except ValueError as error:
             raise UserError(JOINT_STATES_TOPIC, str(error)) from None
 

@@ -94,15 +94,15 @@ class Grid:
 
     def segments(self, start: int, end: int) -> Iterator[tuple[int, float]]:
         """(segment start stamp, time the engine advances to) for every segment from the point
-        stamped ``start`` to the one stamped ``end``; ValueError when one is not a point."""
+        stamped ``start`` to the one stamped ``end``, generated one at a time; ValueError (at
+        once) when one is not a point."""
         first, last = self.index(start), self.index(end)
         for stamp, k in ((start, first), (end, last)):
             if k is None:
                 raise ValueError(f"stamp {stamp} ns is not a point of the {self.hz:g} Hz grid"
                                  + ("" if self.duration is None else
                                     f" of a {self.duration:g} s run"))
-        for k in range(first, last):
-            yield self.stamp(k), self.time(k + 1)
+        return ((self.stamp(k), self.time(k + 1)) for k in range(first, last))
 
 
 def sample_times(duration: float, sample_rate: float) -> Iterator[float]:

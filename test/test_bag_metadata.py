@@ -17,6 +17,7 @@ from bag_rewrite import rewrite_bag
 from hostile_yaml import ALIAS_BOMB
 from mobile_manip_sim import plot, replay, schema
 from mobile_manip_sim.errors import EXIT_USER_ERROR, UserError
+from mobile_manip_sim.recording.bag_reader import open_bag
 from mobile_manip_sim.recording.headless import HeadlessRecorder
 from mobile_manip_sim.scene import load_scene, make_integrator
 from mobile_manip_sim.simulate import run as simulate_run
@@ -262,8 +263,6 @@ RUN_METADATA = [  # (case id, changes to the map (None removes), key, problem)
 @pytest.mark.parametrize("changes, key, problem", [case[1:] for case in RUN_METADATA],
                          ids=[case[0] for case in RUN_METADATA])
 def test_damaged_run_metadata_is_one_line_naming_the_key(good_bag, tmp_path, capsys, changes, key, problem):
-    from mobile_manip_sim.recording.bag_reader import open_bag
-
     recorded = open_bag(good_bag).metadata()[RUN]
     damaged = {name: value for name, value in {**recorded, **changes}.items() if value is not None}
     rewrite_bag(good_bag, tmp_path / "bag", metadata={RUN: damaged})
@@ -392,3 +391,23 @@ def test_metadata_yaml_schema_accepts_what_our_writer_writes(good_bag):
     document = schema.load_yaml(good_bag / "metadata.yaml")
     info = schema.bag_information(copy.deepcopy(document))
     assert info["relative_file_paths"] == [FILE] and info["version"] == 9
+
+
+def test_a_node_bag_whose_states_jump_far_ahead_is_refused_before_simulating(good_bag, tmp_path,
+                                                                             capsys):
+    """A crafted stamp gap in a node's bag (which has no duration) would ask the re-simulation
+    for 2·10⁹ segments: refused at once by the work limits `simulate` applies, naming the stamp."""
+    from rclpy.serialization import deserialize_message, serialize_message
+    from sensor_msgs.msg import JointState
+
+    def jump(topic, data, index):
+        if topic != "/joint_states" or index == 0:
+            return data
+        message = deserialize_message(data, JointState)
+        message.header.stamp.sec = 10 ** 8
+        return serialize_message(message)
+    run = dict(open_bag(good_bag).metadata()[RUN])
+    run.update(source="node", publish_rate=run.pop("sample_rate"))
+    del run["duration"]
+    rewrite_bag(good_bag, tmp_path / "bag", jump, metadata={RUN: run})
+    assert "/joint_states stamp" in refusal((replay, str(tmp_path / "bag"), "--resimulate"), capsys)
