@@ -1,5 +1,7 @@
-"""engine/runge_kutta.py: the compiled Dormand–Prince pairs against SciPy's RK45 and DOP853 on
-the robot's own right-hand side (the paper scene), and against a tight reference solution."""
+"""engine/runge_kutta.py and the engine's adaptive core (engine/adaptive_stepping.py): the
+compiled Dormand–Prince pairs against SciPy's RK45 and DOP853 on the robot's own right-hand side
+(the paper scene), and against a tight reference solution; with end stops, against a tight run
+and against the same run in pure Python."""
 import copy
 import json
 import os
@@ -13,7 +15,7 @@ from scipy import integrate
 from mobile_manip_sim.dynamics import jit
 from mobile_manip_sim.engine import runge_kutta as rk
 from mobile_manip_sim.engine.simulation import Simulation
-from mobile_manip_sim.scene import load_scene, parse_scene
+from mobile_manip_sim.scene import load_scene, make_integrator, parse_scene
 
 SCIPY = {"rk45": integrate.RK45, "dop853": integrate.DOP853}
 DURATION = 1.5
@@ -21,7 +23,8 @@ SAMPLES = np.linspace(0.0, DURATION, 151)   # 100 Hz
 
 
 def paper_system(stops=True):
-    """(system, s0, f) of the paper scene; without its end stops the right-hand side is smooth."""
+    """(system, s0, f, scene) of the paper scene; without its end stops the right-hand side is
+    smooth."""
     scene = load_scene()
     if not stops:
         document = copy.deepcopy(scene.document)
@@ -29,12 +32,12 @@ def paper_system(stops=True):
         scene = parse_scene(document)
     system = Simulation(scene).system
     s0 = Simulation(scene).s.copy()
-    return system, s0, lambda t, y: system.derivative(y)
+    return system, s0, lambda t, y: system.derivative(y), scene
 
 
 def one_step(method, h, rtol, atol):
     """Our step from the paper scene's initial state and SciPy's solver forced to the same h."""
-    system, s0, f = paper_system()
+    system, s0, f, _ = paper_system()
     n = s0.size
     m = rk.METHOD_IDS[method]
     f0 = f(0.0, s0)
@@ -108,7 +111,7 @@ def test_dense_output_equals_scipys_interpolant(method):
 def test_dense_output_has_its_order(method, hs):
     """Mid-step interpolation error of one step from the initial state ∝ h^(p+1), p the
     interpolant's order (4 for rk45, 7 for dop853): the step's own error is one order smaller."""
-    system, s0, f = paper_system(stops=False)
+    system, s0, f, _ = paper_system(stops=False)
     reference = integrate.solve_ivp(f, (0.0, hs[0]), s0, method="DOP853", rtol=1e-13, atol=1e-15,
                                     dense_output=True).sol
     m = rk.METHOD_IDS[method]
@@ -129,7 +132,7 @@ def test_dense_output_has_its_order(method, hs):
 
 def run(method, rtol, atol, samples=SAMPLES, system=None, s0=None):
     if system is None:
-        system, s0, _ = paper_system(stops=False)
+        system, s0, _, _ = paper_system(stops=False)
     s = s0.copy()
     out = np.zeros((samples.size, s.size))
     counts = rk.integrate(rk.METHOD_IDS[method], system.tuple, s, 0.0, DURATION, rtol, atol, 0.0,
@@ -140,7 +143,7 @@ def run(method, rtol, atol, samples=SAMPLES, system=None, s0=None):
 @pytest.fixture(scope="module")
 def reference():
     """The paper robot without stops at 100 Hz, DOP853 at rtol 1e-13."""
-    system, s0, f = paper_system(stops=False)
+    system, s0, f, _ = paper_system(stops=False)
     return integrate.solve_ivp(f, (0.0, DURATION), s0, method="DOP853", rtol=1e-13, atol=1e-15,
                                t_eval=SAMPLES).y.T
 
@@ -149,7 +152,7 @@ def reference():
 @pytest.mark.parametrize("rtol", [1e-5, 1e-9])
 def test_integrate_matches_solve_ivp(method, rtol, reference):
     atol = rtol * 1e-2
-    system, s0, f = paper_system(stops=False)
+    system, s0, f, _ = paper_system(stops=False)
     (steps, rejected, evals), samples, s_end = run(method, rtol, atol, system=system, s0=s0)
     theirs = integrate.solve_ivp(f, (0.0, DURATION), s0, method=method.upper(), rtol=rtol, atol=atol,
                                  t_eval=SAMPLES)
@@ -183,8 +186,9 @@ def test_cost_falls_as_rtol_loosens_and_error_follows_rtol(reference):
 
 
 def small_case():
-    """A compact run used by the compiled/pure-Python comparison (one step, interpolant, solve)."""
-    system, s0, f = paper_system(stops=False)
+    """A compact run used by the compiled/pure-Python comparison (one step, interpolant, solve,
+    and the engine's run of the paper scene with its stops)."""
+    system, s0, f, _ = paper_system(stops=False)
     values = {"compiled": jit.ENABLED}
     for method in ("rk45", "dop853"):
         m = rk.METHOD_IDS[method]
@@ -199,6 +203,9 @@ def small_case():
         counts, samples, _ = run(method, 1e-5, 1e-7, samples=SAMPLES[::15], system=system, s0=s0)
         values[method] = [out.tolist(), err.tolist(), y.tolist(), h0,
                           rk.error_norm(m, err, s0, out, 1e-6, 1e-8), list(counts), samples.tolist()]
+        rows, sim = engine_run(method, 1e-7)
+        values[method + " with stops"] = [[sim.steps, sim.rhs_evaluations],
+                                          [impact.time for impact in sim.impacts], rows.tolist()]
     return values
 
 
@@ -216,3 +223,80 @@ def test_pure_python_path_gives_the_compiled_numbers():
         for a, b in zip(py, co):
             np.testing.assert_allclose(np.array(a, dtype=float), np.array(b, dtype=float),
                                        rtol=1e-12, atol=1e-13)
+        py, co = python[method + " with stops"], compiled[method + " with stops"]
+        assert py[0] == co[0] and len(py[1]) == 3
+        np.testing.assert_allclose(py[1], co[1], rtol=0, atol=1e-13)
+        np.testing.assert_allclose(np.array(py[2]), np.array(co[2]), rtol=0, atol=1e-11)
+
+
+# --- the engine's compiled adaptive core (engine/adaptive_stepping.py) ----------------------
+
+def engine_run(method, rtol, stops=True, times=SAMPLES[1:]):
+    """A Simulation of the paper scene sampled at `times` through the compiled adaptive core:
+    (rows of (s, T + V), the simulation)."""
+    scene = load_scene() if stops else paper_system(stops=False)[3]
+    sim = Simulation(scene, make_integrator(scene.integrator, method, rtol=rtol, atol=rtol * 1e-2))
+    return sim.sample(times), sim
+
+
+@pytest.mark.parametrize("method", ["rk45", "dop853"])
+@pytest.mark.parametrize("rtol", [1e-5, 1e-9])
+def test_the_engine_steps_like_solve_ivp_across_samples(method, rtol, reference):
+    """Without stops one solve spans the whole run: SciPy's step count, right-hand sides and
+    error (its solve_ivp does not cut steps at t_eval either), whatever the sample rate."""
+    system, s0, f, _ = paper_system(stops=False)
+    rows, sim = engine_run(method, rtol, stops=False)
+    theirs = integrate.solve_ivp(f, (0.0, DURATION), s0, method=method.upper(), rtol=rtol,
+                                 atol=rtol * 1e-2, t_eval=SAMPLES)
+    their_steps = len(integrate.solve_ivp(f, (0.0, DURATION), s0, method=method.upper(), rtol=rtol,
+                                          atol=rtol * 1e-2).t) - 1
+    assert abs(sim.steps - their_steps) <= 0.1 * their_steps + 1
+    assert abs(sim.rhs_evaluations - theirs.nfev) <= 0.1 * theirs.nfev
+    ours_error = np.max(np.abs(rows[:, :-1] - reference[1:]))
+    their_error = np.max(np.abs(theirs.y.T[1:] - reference[1:]))
+    assert their_error / 3 < ours_error < 3 * their_error
+
+
+@pytest.fixture(scope="module")
+def stops_reference():
+    """The paper scene with its end stops, dop853 at rtol 1e-13 (rk4 converges to it:
+    test_end_stops.test_a_rod_leaving_its_stop_is_released_at_the_located_instant)."""
+    rows, sim = engine_run("dop853", 1e-13)
+    assert [impact.link for impact in sim.impacts] == [2, 1, 2]
+    return rows[:, :-1]
+
+
+@pytest.mark.parametrize("method", ["rk45", "dop853"])
+def test_with_stops_cost_falls_as_rtol_loosens_and_error_follows_rtol(method, stops_reference):
+    """Impacts restart the solve, but only they do: the work still falls with rtol, and the
+    error (impact times included) follows rtol."""
+    rtols = (1e-5, 1e-7, 1e-9)
+    evals, errors = [], []
+    for rtol in rtols:
+        rows, sim = engine_run(method, rtol)
+        assert len(sim.impacts) == 3
+        evals.append(sim.rhs_evaluations)
+        errors.append(np.max(np.abs(rows[:, :-1] - stops_reference)))
+    assert evals[0] < evals[1] < evals[2], evals
+    assert errors[0] > errors[1] > errors[2], errors
+    for rtol, error in zip(rtols, errors):
+        assert rtol / 30 < error < 100 * rtol, (rtol, error)
+
+
+@pytest.mark.parametrize("method", ["rk45", "dop853"])
+def test_samples_and_targets_do_not_cut_the_solve(method):
+    """One compiled call over all samples, one call per sample, and a run with the (unchanged)
+    command re-sent at every sample give bit-identical states, impacts and work: only a real
+    change of the command restarts the solve. Repeating the run repeats it bit for bit."""
+    rows, sim = engine_run(method, 1e-7)
+    for resend in (False, True, False):
+        again, _ = engine_run(method, 1e-7, times=[])
+        states = []
+        for t in SAMPLES[1:]:
+            if resend:
+                again.set_efforts(again.wheel_efforts, again.joint_efforts)
+            again.advance_to(t)
+            states.append(np.append(again.s, again.total_energy()))
+        assert np.array_equal(np.array(states), rows)
+        assert again.impacts == sim.impacts
+        assert (again.steps, again.rhs_evaluations) == (sim.steps, sim.rhs_evaluations)

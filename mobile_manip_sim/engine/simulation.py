@@ -75,7 +75,7 @@ class Simulation:
         else:
             self._solve = adaptive_stepping.make_solve(size, self.settings.rtol, self.settings.atol)
             self._core = adaptive_stepping if method in rk.METHOD_IDS else None
-            self._core_args = (rk.METHOD_IDS.get(method), self.system.data, self.stops,
+            self._core_args = (rk.METHOD_IDS.get(method, dense.POWER), self.system.data, self.stops,
                                self._scratch, self._solve)
             self._step_budget = max(1, budget // 4)
         self.set_wheel_speed_gains(*DEFAULT_WHEEL_SPEED_GAINS)
@@ -223,6 +223,9 @@ class Simulation:
         """Integrate from the current time to exactly t_end (s)."""
         if t_end < self.t:
             raise UserError("t_end", f"{t_end} is before the current time {self.t}")
+        if self._solve is not None and adaptive_stepping.inside_step(
+                self._core_args[0], self._solve, self.s, self._clock, t_end):
+            return   # most targets of an adaptive run: inside the step in hand, interpolated
         if self._core is None:
             self._advance_scipy(t_end)
             return
@@ -281,13 +284,12 @@ class Simulation:
         """Step SciPy's solver from Python; everything else is the compiled adaptive core's
         (`adaptive_stepping.reach`, `locate_event`: samples, events, the Zeno guard, restarts),
         on the solver's interpolant as a power series (`dense.from_scipy`)."""
-        args = (dense.POWER, self.system.data, self.stops, self._scratch, self._solve)
-        while not adaptive_stepping.reach(*args, self.s, self._clock, t_end):
+        while not adaptive_stepping.reach(*self._core_args, self.s, self._clock, t_end):
             self._collect_impacts()
-            self._take_scipy_step(args)
+            self._take_scipy_step()
         self._collect_impacts()
 
-    def _take_scipy_step(self, args) -> None:
+    def _take_scipy_step(self) -> None:
         """One step of the SciPy solver into the adaptive core's step in hand (`Solve`)."""
         solve = self._solve
         status, work = solve.status, solve.work
@@ -296,10 +298,8 @@ class Simulation:
             self._solver = scipy_solver(self.settings.method)(
                 lambda _t, y: derivative(y), self.t, self.s.copy(), math.inf, rtol=self.settings.rtol,
                 atol=self.settings.atol, first_step=status[adaptive_stepping.H_NEXT] or None)
-            status[adaptive_stepping.STEP_T0] = self.t
-        else:
-            status[adaptive_stepping.STEP_T0] += status[adaptive_stepping.STEP_H]
         solver = self._solver
+        status[adaptive_stepping.STEP_T0] = solver.t
         solve.start[:] = solver.y
         message = solver.step()
         if solver.status == "failed":
@@ -319,7 +319,7 @@ class Simulation:
         status[adaptive_stepping.EVENT] = adaptive_stepping.NO_EVENT
         if self.resting.any():   # the release check needs f(y₁) just evaluated
             work[rk.WORK_F1] = self.system.derivative(y1)
-        adaptive_stepping.locate_event(*args)
+        adaptive_stepping.locate_event(*self._core_args)
 
     def _fail(self, state) -> None:
         bad = [i for i, value in enumerate(state) if not math.isfinite(value)]
