@@ -24,7 +24,7 @@ from . import layout
 from . import runge_kutta as rk
 from .dense import Interpolant, interpolate
 from .events import (MAX_IMPACTS_PER_STEP, RELEASE, crossing_in_step, first_crossing,
-                     holding_margin_after, locate, step_state)
+                     holding_margin_after, locate)
 from .stepping import (BUDGET, DONE, LOG_FULL, LOST, NOT_FINITE, STEPS, T0, any_watched, copy_into,
                        finite, total_energy)
 from .stops import any_resting, impact, release_at_root
@@ -112,7 +112,7 @@ def locate_event(method, system, stops, scr, solve):
                          scr.trial, scr.stages, scr.forces, dense)
         # whichever comes first: the other one is found again by the solve restarted there
         if status[EVENT] == NO_EVENT or h_leave < status[EVENT_H]:
-            step_state(method, system, start, h_leave, solve.event, scr.stages, dense)
+            interpolate(dense, start, h_leave, solve.event)
             status[EVENT], status[EVENT_H] = LEAVE, h_leave
 
 
