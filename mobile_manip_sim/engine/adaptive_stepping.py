@@ -12,6 +12,10 @@ right-hand sides for dop853, none for rk45); the next step starts from y₁ with
 event found in the step ends the solve there: it is applied once a target passes it, and the
 solve restarts from the event with the length of the step that held it as its first try.
 
+SciPy's radau and bdf use the same bookkeeping from Python (`Simulation._advance_scipy`): each
+SciPy step, its interpolant a `dense.POWER` series, becomes the step in hand (`reach`,
+`locate_event`), so every adaptive method shares the event handling and the Zeno guard.
+
 The simulated time is clock[T0] of `stepping.py`'s clock (K stays 0); STEPS and LOST as there.
 """
 import math
@@ -243,20 +247,14 @@ def advance(method, system, stops, scr, solve, s, clock, t_end, max_steps):
 @jit
 def advance_samples(method, system, stops, scr, solve, s, clock, times, rows, first, max_steps):
     """`advance` to each of times[first:], writing (s, T + V) into rows[i]; returns (status,
-    next sample index) — the caller calls again after BUDGET or LOG_FULL."""
-    size = s.shape[0]
-    i = first
-    budget = max_steps
-    while i < times.shape[0]:
-        before = clock[STEPS]
-        status = advance(method, system, stops, scr, solve, s, clock, times[i], budget)
-        budget -= int(clock[STEPS] - before)
+    next sample index) — the caller calls again after BUDGET or LOG_FULL. The budget counts
+    steps only: a sample inside the step in hand costs none."""
+    steps = clock[STEPS]
+    for i in range(first, times.shape[0]):
+        status = advance(method, system, stops, scr, solve, s, clock, times[i],
+                         max_steps - int(clock[STEPS] - steps))
         if status != DONE:
             return status, i
-        for j in range(size):
-            rows[i, j] = s[j]
-        rows[i, size] = total_energy(system, s)
-        i += 1
-        if budget <= 0 and i < times.shape[0]:
-            return BUDGET, i
-    return DONE, i
+        copy_into(s, rows[i])
+        rows[i, s.shape[0]] = total_energy(system, s)
+    return DONE, times.shape[0]
