@@ -54,6 +54,14 @@ def relative(a, b):
     return np.max(np.abs(a - b)) / np.max(np.abs(b))
 
 
+def engine_run(method, rtol, stops=True, times=SAMPLES[1:]):
+    """A Simulation of the paper scene sampled at `times` through the compiled adaptive core:
+    (rows of (s, T + V), the simulation)."""
+    scene = load_scene() if stops else paper_system(stops=False)[3]
+    sim = Simulation(scene, make_integrator(scene.integrator, method, rtol=rtol, atol=rtol * 1e-2))
+    return sim.sample(times), sim
+
+
 @pytest.mark.parametrize("method, h", [("rk45", 0.02), ("dop853", 0.1)])
 def test_one_step_equals_scipys_step(method, h):
     rtol, atol = 1e-3, 1e-6
@@ -130,16 +138,6 @@ def test_dense_output_has_its_order(method, hs):
     assert np.all(np.abs(slopes - expected) < 0.7), (errors, slopes)
 
 
-def run(method, rtol, atol, samples=SAMPLES, system=None, s0=None):
-    if system is None:
-        system, s0, _, _ = paper_system(stops=False)
-    s = s0.copy()
-    out = np.zeros((samples.size, s.size))
-    counts = rk.integrate(rk.METHOD_IDS[method], system.tuple, s, 0.0, DURATION, rtol, atol, 0.0,
-                          samples, out, rk.work_array(s.size))
-    return counts, out, s
-
-
 @pytest.fixture(scope="module")
 def reference():
     """The paper robot without stops at 100 Hz, DOP853 at rtol 1e-13."""
@@ -148,35 +146,16 @@ def reference():
                                t_eval=SAMPLES).y.T
 
 
-@pytest.mark.parametrize("method", ["rk45", "dop853"])
-@pytest.mark.parametrize("rtol", [1e-5, 1e-9])
-def test_integrate_matches_solve_ivp(method, rtol, reference):
-    atol = rtol * 1e-2
-    system, s0, f, _ = paper_system(stops=False)
-    (steps, rejected, evals), samples, s_end = run(method, rtol, atol, system=system, s0=s0)
-    theirs = integrate.solve_ivp(f, (0.0, DURATION), s0, method=method.upper(), rtol=rtol, atol=atol,
-                                 t_eval=SAMPLES)
-    their_steps = len(integrate.solve_ivp(f, (0.0, DURATION), s0, method=method.upper(),
-                                          rtol=rtol, atol=atol).t) - 1
-    assert abs(steps - their_steps) <= 0.1 * their_steps
-    assert abs(evals - theirs.nfev) <= 0.1 * theirs.nfev
-    ours_error = np.max(np.abs(samples - reference))
-    their_error = np.max(np.abs(theirs.y.T - reference))
-    assert their_error / 3 < ours_error < 3 * their_error
-    assert relative(samples[-1], s_end) < 1e-14   # the last sample is the end of the last step
-    assert np.array_equal(samples[0], s0)
-
-
 def test_cost_falls_as_rtol_loosens_and_error_follows_rtol(reference):
     """dop853, paper robot without stops, 100 Hz samples. The old engine restarted SciPy at
     each sample and paid the same ~2500 right-hand sides per second at every rtol."""
     evals, errors = [], []
     for rtol in (1e-4, 1e-7, 1e-10):
-        (steps, rejected, count), samples, _ = run("dop853", rtol, rtol * 1e-2)
-        evals.append(count)
-        errors.append(np.max(np.abs(samples - reference)))
+        rows, sim = engine_run("dop853", rtol, stops=False)
+        evals.append(sim.rhs_evaluations)
+        errors.append(np.max(np.abs(rows[:, :-1] - reference[1:])))
     assert evals[0] < evals[1] < evals[2]
-    # Issue 10 targets ≤ 1/4. Measured 173/617 = 0.28, and SciPy's DOP853 (the same controller)
+    # Issue 10 targets ≤ 1/4. Measured 173/590 = 0.29, and SciPy's DOP853 (the same controller)
     # 176/620: the order-8 asymptote 10^(−6/8) = 0.18 is diluted by costs that do not shrink
     # with rtol (the step ramp-up from the initial guess, rejections, and 3 dense-output stages
     # on each step, since at 100 Hz every step holds a sample). So the bound checked is 0.3.
@@ -186,8 +165,8 @@ def test_cost_falls_as_rtol_loosens_and_error_follows_rtol(reference):
 
 
 def small_case():
-    """A compact run used by the compiled/pure-Python comparison (one step, interpolant, solve,
-    and the engine's run of the paper scene with its stops)."""
+    """A compact run used by the compiled/pure-Python comparison (one step, interpolant, and the
+    engine's runs of the paper robot without and with its stops)."""
     system, s0, f, _ = paper_system(stops=False)
     values = {"compiled": jit.ENABLED}
     for method in ("rk45", "dop853"):
@@ -200,7 +179,8 @@ def small_case():
         rk.dense_prepare(m, system.tuple, s0, out, f0, f1, 0.05, K, coeffs)
         rk.dense_eval(m, coeffs, s0, 0.05, 0.3, y)
         h0 = rk.initial_step(m, system.tuple, s0, f0, DURATION, 1e-6, 1e-8, np.inf, np.zeros(n), np.zeros(n))
-        counts, samples, _ = run(method, 1e-5, 1e-7, samples=SAMPLES[::15], system=system, s0=s0)
+        samples, sim = engine_run(method, 1e-5, stops=False, times=SAMPLES[15::15])
+        counts = [sim.steps, sim.rhs_evaluations]
         values[method] = [out.tolist(), err.tolist(), y.tolist(), h0,
                           rk.error_norm(m, err, s0, out, 1e-6, 1e-8), list(counts), samples.tolist()]
         rows, sim = engine_run(method, 1e-7)
@@ -219,7 +199,7 @@ def test_pure_python_path_gives_the_compiled_numbers():
     assert python["compiled"] is False and compiled["compiled"] is True
     for method in ("rk45", "dop853"):
         py, co = python[method], compiled[method]
-        assert py[5] == co[5]   # the same steps, rejections and evaluations
+        assert py[5] == co[5]   # the same steps and evaluations
         for a, b in zip(py, co):
             np.testing.assert_allclose(np.array(a, dtype=float), np.array(b, dtype=float),
                                        rtol=1e-12, atol=1e-13)
@@ -231,14 +211,6 @@ def test_pure_python_path_gives_the_compiled_numbers():
 
 
 # --- the engine's compiled adaptive core (engine/adaptive_stepping.py) ----------------------
-
-def engine_run(method, rtol, stops=True, times=SAMPLES[1:]):
-    """A Simulation of the paper scene sampled at `times` through the compiled adaptive core:
-    (rows of (s, T + V), the simulation)."""
-    scene = load_scene() if stops else paper_system(stops=False)[3]
-    sim = Simulation(scene, make_integrator(scene.integrator, method, rtol=rtol, atol=rtol * 1e-2))
-    return sim.sample(times), sim
-
 
 @pytest.mark.parametrize("method", ["rk45", "dop853"])
 @pytest.mark.parametrize("rtol", [1e-5, 1e-9])
@@ -270,7 +242,8 @@ def stops_reference():
 @pytest.mark.parametrize("method", ["rk45", "dop853"])
 def test_with_stops_cost_falls_as_rtol_loosens_and_error_follows_rtol(method, stops_reference):
     """Impacts restart the solve, but only they do: the work still falls with rtol, and the
-    error (impact times included) follows rtol."""
+    error (impact times included) follows rtol — times a growth factor of up to ~150 here, as
+    the open-loop arm falls (an unstable chain amplifies every local error)."""
     rtols = (1e-5, 1e-7, 1e-9)
     evals, errors = [], []
     for rtol in rtols:
@@ -279,9 +252,9 @@ def test_with_stops_cost_falls_as_rtol_loosens_and_error_follows_rtol(method, st
         evals.append(sim.rhs_evaluations)
         errors.append(np.max(np.abs(rows[:, :-1] - stops_reference)))
     assert evals[0] < evals[1] < evals[2], evals
-    assert errors[0] > errors[1] > errors[2], errors
+    assert errors[0] > 10 * errors[1] > 100 * errors[2], errors
     for rtol, error in zip(rtols, errors):
-        assert rtol / 30 < error < 100 * rtol, (rtol, error)
+        assert rtol / 30 < error < 300 * rtol, (rtol, error)
 
 
 @pytest.mark.parametrize("method", ["rk45", "dop853"])
@@ -291,7 +264,7 @@ def test_samples_and_targets_do_not_cut_the_solve(method):
     change of the command restarts the solve. Repeating the run repeats it bit for bit."""
     rows, sim = engine_run(method, 1e-7)
     for resend in (False, True, False):
-        again, _ = engine_run(method, 1e-7, times=[])
+        _, again = engine_run(method, 1e-7, times=[])
         states = []
         for t in SAMPLES[1:]:
             if resend:
