@@ -47,10 +47,11 @@ def run(main: Callable[[list[str] | None], int | None], argv: list[str] | None =
     except KeyboardInterrupt:
         return 130
     except RuntimeError as error:  # SimulationError: the numbers went bad; say when and where
-        if type(error).__name__ != "SimulationError":
-            raise
+        if "SimulationError" not in {kind.__name__ for kind in type(error).__mro__}:
+            raise   # (by name: importing the engine here would load numba for every executable)
         print(f"{prog}: error: {error}", file=sys.stderr)
-        return 1
+        # A StepLimitError names the settings that cannot follow the run: a user's choice.
+        return EXIT_USER_ERROR if getattr(error, "key", None) else 1
     finally:
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)

@@ -9,36 +9,24 @@ interface (``q``, ``u``, ``qdot()``, ``wheel_efforts``, ``joint_efforts``): a ``
 from __future__ import annotations
 
 import math
-from fractions import Fraction
 
 from builtin_interfaces.msg import Time
-from geometry_msgs.msg import Quaternion
+from geometry_msgs.msg import Quaternion, Twist
 from nav_msgs.msg import Odometry
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
-NS = 10 ** 9
-# Topic names, types and QoS live in topics.py; re-exported here for the message builders' users.
-from .topics import (ARM_TOPIC, CLOCK_TOPIC, COMMAND_QOS_DEPTH, COMMAND_TOPICS,  # noqa: F401
-                     JOINT_STATES_TOPIC, ODOM_TOPIC, STATE_QOS_DEPTH, STATE_TOPICS, TOPIC_TYPES,
-                     WHEEL_TOPIC)
+# Stamps come from the time line (timeline.py); topic names, types and QoS live in topics.py,
+# re-exported here for the message builders' users.
+from .timeline import NS  # noqa: F401
+from .topics import (ARM_TOPIC, CLOCK_TOPIC, CMD_VEL_TOPIC, COMMAND_QOS_DEPTH,  # noqa: F401
+                     COMMAND_TOPICS, JOINT_STATES_TOPIC, ODOM_TOPIC, STATE_QOS_DEPTH,
+                     STATE_TOPICS, TOPIC_TYPES, WHEEL_TOPIC)
 
 # Ground truth: every one of the six pose/twist dimensions is known (see node.py).
 GROUND_TRUTH_VARIANCE = 1e-9
 GROUND_TRUTH_COVARIANCE = [GROUND_TRUTH_VARIANCE if i % 7 == 0 else 0.0 for i in range(36)]
-
-
-def stamp_ns(k: int, rate: Fraction) -> int:
-    """k / rate in integer nanoseconds, rounded half up: exact, and never drifting with k."""
-    numerator = k * NS * rate.denominator
-    return (2 * numerator + rate.numerator) // (2 * rate.numerator)
-
-
-def seconds_ns(seconds: float) -> int:
-    """A time in seconds (a float, taken exactly) in integer nanoseconds, rounded half up."""
-    value = Fraction(seconds) * NS
-    return math.floor(value + Fraction(1, 2))
 
 
 def time_msg(ns: int) -> Time:
@@ -99,6 +87,25 @@ def clock(stamp: int) -> Clock:
 def float64_array(values) -> Float64MultiArray:
     """An effort command as the effort controllers take it."""
     return Float64MultiArray(data=[float(v) for v in values])
+
+
+def twist(values) -> Twist:
+    """A base velocity command (v m/s, ω rad/s) as cmd_vel carries it."""
+    message = Twist()
+    message.linear.x, message.angular.z = float(values[0]), float(values[1])
+    return message
+
+
+def command_message(topic: str, values):
+    """The message of a command topic carrying ``values`` (as applied)."""
+    return twist(values) if topic == CMD_VEL_TOPIC else float64_array(values)
+
+
+def command_values(topic: str, message) -> list[float]:
+    """The values of a command message (the inverse of ``command_message``)."""
+    if topic == CMD_VEL_TOPIC:
+        return [message.linear.x, message.angular.z]
+    return list(message.data)
 
 
 def transform(odom: Odometry):

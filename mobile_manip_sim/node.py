@@ -30,20 +30,22 @@ Synchronous mode (parameter synchronous): the first state waits for a state subs
 command publisher; segment k is computed only once a new command has arrived on every command
 topic with a publisher after state k went out (or sync_timeout wall seconds passed).
 
-Timing. Publication k carries the state at simulated time t_k = k / publish_rate; its stamp is
-computed from the integer k in integer nanoseconds (exactly k·10⁹/rate when that is an integer,
-otherwise rounded to the nearest ns without accumulating), so stamps never drift, skip or repeat.
-One stepping thread owns the engine: for each k it takes the latest valid commands (zero-order
-hold: a command that arrives during a segment takes effect at the start of the next one),
-advances the engine to t_{k+1}, waits until the wall clock reaches
-start_wall + t_{k+1} / real_time_factor, then publishes. Computing before waiting keeps the
-compute time out of the publication jitter. The first publication (k = 0) is the initial state.
-If the node falls behind the wall clock it says so (throttled, with the measured real-time
-factor) and re-anchors its pacing instead of bursting to catch up. The executor (subscriptions,
-services, parameters) runs in the main thread and never waits for the engine: ~/pause and
+Timing: the run's time line is timeline.py's (the grid of publications, exact integer-ns
+stamps, when a command takes effect, the node's start), the pacing pacing.py's; this module only
+wires them to ROS. One stepping thread owns the engine: for each k it takes the latest valid
+commands (zero-order hold: a command that arrives during a segment takes effect at the start of
+the next one), advances the engine to t_{k+1}, waits until the wall clock reaches the pacer's
+due time, then publishes. Computing before waiting keeps the compute time out of the
+publication jitter. The first publication (k = 0) is the initial state. If the node falls
+behind the wall clock it says so (throttled, with the measured real-time factor) and paces on
+from there instead of bursting to catch up. Commands are not callbacks: the stepping thread
+takes them from the subscriptions when it needs them, latest first, so a flood costs the
+middleware (whose keep-last history drops the surplus), not the executor. The executor
+(services, parameters) runs in the main thread and never waits for the engine: ~/pause and
 ~/reset set flags under a lock that also guards every publication, so once they have answered
 nothing more of the old time line goes out (a segment computed across a pause is published after
-the resume; one computed across a reset is dropped). State topics are reliable, depth 100.
+the resume; one computed across a reset is dropped). Recording happens outside that lock, so a
+bag rotation never delays a service. State topics are reliable, depth 100.
 `real_time_factor` and `command_timeout` can be changed while running; the others are read-only.
 
 The node starts with ZERO efforts, not the scene's `efforts:` (those are for headless runs): a
@@ -56,11 +58,13 @@ engine's state becomes non-finite the node logs the error and pauses; ~/reset re
 or invalid scene or parameter at start-up is one line on stderr and exit status 2.
 
 Recording (parameter `record` = a new bag directory): a rosbag2 MCAP bag of /joint_states, /odom
-and /clock as published and of both command topics as applied (the efforts held from a segment
-start on, after timeout and limits: at t = 0 and whenever they change), every record stamped
-with its simulated time; plus the scene, the integrator settings and the impact log
-(recording/recorder.py). SIGINT/SIGTERM close it (summary, metadata.yaml); a SIGKILL loses at
-most the open chunk, about a second of wall time. A bag holds one time line: after ~/reset it
+and /clock as published and of the command topics as applied (arm efforts, and wheel torques or
+in velocity mode cmd_vel as a Twist: held from a segment start on, after timeout and limits, at
+t = 0 and whenever they change), every record stamped with its simulated time; plus the scene,
+the integrator settings, the base command mode and wheel-speed gains, and the impact log
+(recording/recorder.py, rotation.py), so `replay --resimulate` reproduces the run bit for
+bit. SIGINT/SIGTERM close it (summary, metadata.yaml); a SIGKILL loses at most the open chunk,
+about a second of wall time. A bag holds one time line: after ~/reset it
 is closed and recording goes on in `<record>_1`, `<record>_2`, ... An unusable `record` path at
 start-up is a one-line error and exit status 2; a write failure while running (a full disk) is
 one error line, recording stops, the simulation goes on.
@@ -73,20 +77,23 @@ matrices invertible for filters (robot_localization rejects all-zero covariances
 """
 from __future__ import annotations
 
+import contextlib
 import math
 import re
 import sys
 import threading
 import time
-from fractions import Fraction
 
 import numpy as np
 import rclpy
 import rclpy.logging
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, SetParametersResult
+from rclpy.callback_groups import CallbackGroup
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.executors import SingleThreadedExecutor
+from rclpy.guard_condition import GuardCondition
+from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
@@ -96,17 +103,21 @@ from std_srvs.srv import SetBool, Trigger
 from . import cli
 from .engine.simulation import DEFAULT_WHEEL_SPEED_GAINS, Simulation, SimulationError
 from .errors import UserError
-from .messages import NS, stamp_ns, state_messages, transform
+from .messages import NS, command_values, state_messages, transform
+from .pacing import Pacer
 from .recording.recorder import RunRecorder
+from .recording.rotation import RotatingRecorder
 from .scene import METHODS, load_scene, make_integrator
-from .topics import (ARM_TOPIC, CLOCK_TOPIC, CMD_VEL_TOPIC, DESCRIPTION_TOPIC, JOINT_STATES_TOPIC, ODOM_TOPIC,
-                     TF_TOPIC, WHEEL_TOPIC, command_qos, latched_qos, relative, state_qos)
+from .timeline import CommandSlot, Grid, apply_commands, format_ns, start_node_time_line
+from .topics import (ARM_TOPIC, CLOCK_TOPIC, CMD_VEL_TOPIC, COMMAND_QOS_DEPTH, DESCRIPTION_TOPIC,
+                     JOINT_STATES_TOPIC, ODOM_TOPIC, TF_TOPIC, WHEEL_TOPIC, command_qos,
+                     latched_qos, relative, state_qos)
 from .urdf import robot_description
 
 NODE_NAME = "mobile_manip_sim"
 WARN_EVERY = 5.0           # s of wall time between repeats of one kind of warning
-LAG_TOLERANCE = 0.1        # s behind the wall clock before the node says it cannot keep up
 BAG_FLUSH_INTERVAL = 1.0   # s of wall time: the most of a recording a SIGKILL may lose
+MAX_TAKEN = 4 * COMMAND_QOS_DEPTH   # messages one drain takes from a command topic, at most
 SHUTDOWN_POLL = 0.2        # s: how often the executor checks for an external shutdown
 STEP_TIMEOUT = 30.0        # s of wall time a ~/step call waits for its state
 STOP_TIMEOUT = 2.0         # s of wall time shutdown waits for the stepping thread
@@ -179,23 +190,43 @@ def command_problem(values, expected: int, labels: str) -> tuple[str, str] | Non
     return None
 
 
-def format_ns(ns: int) -> str:
-    return f"{'-' if ns < 0 else ''}{abs(ns) // NS}.{abs(ns) % NS:09d}"
+class _TakenByTheSteppingThread(CallbackGroup):
+    """Subscriptions the executor neither waits on nor runs: the stepping thread takes their
+    messages itself, latest first, when it needs a command. A flood then costs the middleware
+    (whose keep-last history drops the surplus) rather than one Python callback per message."""
+
+    def can_execute(self, entity) -> bool:
+        return False
+
+    def beginning_execution(self, entity) -> bool:
+        return False
+
+    def ending_execution(self, entity) -> None:
+        pass
 
 
-class _CommandGroup:
-    """The latest valid command of one topic and when it arrived (simulated ns)."""
+class _CommandInput:
+    """One command topic: its subscription, how a message becomes values, and its slot (the
+    latest valid command, `timeline.CommandSlot`)."""
 
     def __init__(self, topic: str, size: int, labels: str, what: str):
-        self.topic, self.size, self.labels, self.what = topic, size, labels, what
-        self.seq = 0             # valid commands received, ever (synchronous mode)
-        self.seq_published = 0   # seq when the latest state went out
-        self.clear()
+        self.topic, self.labels, self.what = topic, labels, what
+        self.slot = CommandSlot(size)
+        self.subscription = None
 
-    def clear(self) -> None:
-        self.values = np.zeros(self.size)
-        self.received_ns: int | None = None
-        self.timed_out = False
+    def take(self, since_ns: int) -> list:
+        """The messages waiting that arrived at or after ``since_ns`` (wall clock, ns), oldest
+        first; at most MAX_TAKEN: a flood cannot hold us."""
+        taken = []
+        subscription = self.subscription
+        with subscription.handle:
+            for _ in range(MAX_TAKEN):
+                message = subscription.handle.take_message(subscription.msg_type, False)
+                if message is None:
+                    break
+                if message[1]["received_timestamp"] >= since_ns:
+                    taken.append(message[0])
+        return taken
 
 
 class SimulatorNode(Node):
@@ -214,8 +245,7 @@ class SimulatorNode(Node):
         self.sim = Simulation(scene, settings)
         self.joint_names = scene.robot.joint_names()
         n_joints = len(self.joint_names) - 2
-        self.rate = Fraction(p["publish_rate"])
-        self.real_time_factor = p["real_time_factor"]
+        self.grid = Grid(p["publish_rate"])   # publication k at t_k, segment k → k + 1
         self.command_timeout_ns = round(p["command_timeout"] * NS)
         self.odom_frame, self.base_frame = p["odom_frame"], p["base_frame"]
         for name in ("odom_frame", "base_frame"):
@@ -226,18 +256,24 @@ class SimulatorNode(Node):
         self.synchronous, self.sync_timeout = p["synchronous"], p["sync_timeout"]
         if p["base_command"] not in ("effort", "velocity"):
             raise UserError("base_command", f"{p['base_command']!r} is not effort or velocity")
-        self.velocity_mode = p["base_command"] == "velocity"
-        self.sim.set_wheel_speed_gains(p["wheel_speed.kp"], p["wheel_speed.ki"])
+        self.base_command = p["base_command"]
+        self.velocity_mode = self.base_command == "velocity"
+        self.gains = (p["wheel_speed.kp"], p["wheel_speed.ki"])
+        self.sim.set_wheel_speed_gains(*self.gains)
         self._settings = settings
-        self._recorder: RunRecorder | None = None
-        self._recorded_stamp: int | None = None   # last state stamp in the open bag
-        self._bag_count = 0
+        self._recording: RotatingRecorder | None = None
+        self._published: list[tuple[int, dict]] = []   # states not yet recorded
 
         arm_labels = ", ".join(f"tau_{i}, F_{i}" for i in range(1, n_joints // 2 + 1)) or "none"
-        self._wheels = _CommandGroup(WHEEL_TOPIC, 2, "tau_R, tau_L", "wheel")
-        self._arm = _CommandGroup(ARM_TOPIC, n_joints, arm_labels, "arm")
-        self._cmd_vel = _CommandGroup(CMD_VEL_TOPIC, 2, "v, omega", "base velocity")
-        self._command_lock = threading.Lock()      # guards the two _CommandGroup
+        self._base = (_CommandInput(CMD_VEL_TOPIC, 2, "v, omega", "base velocity")
+                      if self.velocity_mode else
+                      _CommandInput(WHEEL_TOPIC, 2, "tau_R, tau_L", "wheel"))
+        self._arm = _CommandInput(ARM_TOPIC, n_joints, arm_labels, "arm")
+        self._inputs = (self._base, self._arm)
+        self._command_lock = threading.Lock()      # guards the command slots
+        # Wall time (ns, the middleware's reception clock) of the latest ~/reset: commands
+        # received before it are dropped.
+        self._commands_since = 0
         self._warned_at: dict[tuple, float] = {}    # throttle: (topic, kind) → wall time
 
         # Stepping state: the stepping thread owns the engine; services only set flags (_cv).
@@ -250,8 +286,7 @@ class SimulatorNode(Node):
         self._failed: str | None = None
         self._reset_requested = False
         self._stopping = False
-        self._anchor = (time.monotonic(), 0)   # (wall s, simulated ns) pacing origin
-        self._window = self._anchor            # start of the real-time-factor measurement
+        self.pacer = Pacer(p["real_time_factor"], 1.0 / self.grid.hz)
 
         # Relative names: a namespace (__ns:=/robot1) or a remap moves every topic.
         self._state_pubs = {
@@ -262,15 +297,18 @@ class SimulatorNode(Node):
         self._description_pub = self.create_publisher(String, relative(DESCRIPTION_TOPIC),
                                                       latched_qos())
         self._description = robot_description(scene, root=self.base_frame)
-        self._command_subs = [
-            self.create_subscription(Float64MultiArray, relative(topic),
-                                     lambda msg, group=group: self._on_command(group, msg),
-                                     command_qos())
-            for topic, group in ((WHEEL_TOPIC, self._wheels), (ARM_TOPIC, self._arm))
-            if not (self.velocity_mode and topic == WHEEL_TOPIC)]
-        if self.velocity_mode:
-            self._command_subs.insert(0, self._cmd_vel_subscription(p["cmd_vel_stamped"]))
-        # in _command_groups() order: answered() pairs them up
+        taken = _TakenByTheSteppingThread()
+        self._stamped = p["cmd_vel_stamped"]
+        for command in self._inputs:
+            kind = Float64MultiArray
+            if command.topic == CMD_VEL_TOPIC:
+                from geometry_msgs.msg import Twist, TwistStamped
+                kind = TwistStamped if self._stamped else Twist
+            command.subscription = self.create_subscription(
+                kind, relative(command.topic), lambda _: None, command_qos(),
+                callback_group=taken)
+        # Wakes the stepping thread from waiting for commands (synchronous mode).
+        self._wake_guard = GuardCondition(None, None, context=self.context)
         self.create_service(Trigger, "~/reset", self._on_reset)
         self.create_service(SetBool, "~/pause", self._on_pause)
         self.create_service(Trigger, "~/step", self._on_step)
@@ -281,14 +319,17 @@ class SimulatorNode(Node):
         self._thread = threading.Thread(target=self._run, name="stepping", daemon=True)
         if self.record:   # last: nothing after this may fail and leave an unfinished bag
             try:
-                self._recorder = self._open_bag(self.record)
+                self._recording = RotatingRecorder(self.record, self._open_bag,
+                                                   self.get_logger().info,
+                                                   self.get_logger().error)
             except UserError as error:
                 raise UserError("record", str(error)) from None
         self.get_logger().info(
             f"scene '{scene.name}', integrator {settings.method} "
             f"({'dt ' + str(settings.dt) if settings.fixed_step else f'rtol {settings.rtol}'}), "
-            f"publishing at {float(self.rate):g} Hz of simulated time, real-time factor "
-            f"{self.real_time_factor:g}{' (free-running)' if self.real_time_factor == 0 else ''}")
+            f"publishing at {self.grid.hz:g} Hz of simulated time, real-time factor "
+            f"{self.pacer.real_time_factor:g}"
+            f"{' (free-running)' if not self.pacer.paced else ''}")
         if p["publish_tf"] and self._tf_pub is None:
             self.get_logger().warning(
                 "publish_tf: tf2_msgs does not import (source a ROS install, or build it with "
@@ -339,71 +380,61 @@ class SimulatorNode(Node):
         with self._cv:
             for parameter in parameters:
                 if parameter.name == "real_time_factor":
-                    self.real_time_factor = parameter.value
-                    self._reanchor()
+                    self.pacer.set_real_time_factor(parameter.value, self._now_ns)
                 elif parameter.name == "command_timeout":
                     self.command_timeout_ns = round(parameter.value * NS)
             self._cv.notify_all()
 
-    # --- commands (executor thread) --------------------------------------------------------
-    def _on_command(self, group: _CommandGroup, msg: Float64MultiArray) -> None:
-        values = msg.data
-        problem = command_problem(values, group.size, group.labels)
-        if problem:
-            kind, text = problem
-            self._warn_throttled((group.topic, kind),
-                                 f"{group.topic}: {text}; keeping the last valid command")
-            return
-        with self._command_lock:
-            group.values = np.array(values, dtype=float)
-            group.received_ns = self._now_ns
-            group.timed_out = False
-            group.seq += 1
-        if self.synchronous:
-            with self._cv:
-                self._cv.notify_all()
+    # --- commands (stepping thread: taken when needed, latest first) ------------------------
+    def _drain(self) -> None:
+        """Take the waiting command messages (the middleware keeps the latest few of a flood);
+        the latest valid one of each topic becomes its slot's command (received at the current
+        segment start). Invalid ones are rejected with a throttled warning naming the topic and
+        the problem; without a valid one the last valid command stays."""
+        for command in self._inputs:
+            latest = None
+            for message in reversed(command.take(self._commands_since)):
+                values = command_values(command.topic, message.twist if self._stamped
+                                        and command.topic == CMD_VEL_TOPIC else message)
+                problem = command_problem(values, command.slot.size, command.labels)
+                if problem is None:
+                    latest = values if latest is None else latest
+                    continue
+                kind, text = problem
+                self._warn_throttled((command.topic, kind),
+                                     f"{command.topic}: {text}; keeping the last valid command")
+            if latest is not None:
+                with self._command_lock:
+                    command.slot.receive(latest, self._now_ns)
 
-    def _cmd_vel_subscription(self, stamped: bool):
-        from geometry_msgs.msg import Twist, TwistStamped
-
-        def on_twist(msg):
-            twist = msg.twist if stamped else msg
-            self._on_command(self._cmd_vel, Float64MultiArray(
-                data=[twist.linear.x, twist.angular.z]))
-        return self.create_subscription(TwistStamped if stamped else Twist,
-                                        relative(CMD_VEL_TOPIC), on_twist, command_qos())
-
-    def _command_groups(self) -> tuple:
-        """The groups that command the run: wheels or cmd_vel, then the arm."""
-        return (self._cmd_vel if self.velocity_mode else self._wheels, self._arm)
-
-    def _held_efforts(self, segment_start_ns: int) -> tuple[np.ndarray, np.ndarray]:
+    def _held_commands(self, segment_start_ns: int) -> tuple[np.ndarray, np.ndarray]:
         """The base command (wheel torques, or [v, ω] in velocity mode) and the arm efforts to
         hold from segment_start_ns on, after the command timeout (a stale cmd_vel is zero
         speed)."""
+        self._drain()
+        held = []
         with self._command_lock:
-            for group in self._command_groups():
-                stale = (self.command_timeout_ns > 0 and group.received_ns is not None
-                         and not group.timed_out
-                         and segment_start_ns - group.received_ns >= self.command_timeout_ns)
-                if stale:
-                    group.values = np.zeros(group.size)
-                    group.timed_out = True
+            for command in self._inputs:
+                values, timed_out = command.slot.held(segment_start_ns, self.command_timeout_ns)
+                held.append(values)
+                if timed_out:
                     self.get_logger().warning(
-                        f"{group.topic}: no command for {self.command_timeout_ns / NS:g} s of "
-                        f"simulated time (command_timeout); {group.what} efforts set to zero "
-                        f"until commands resume")
-            base, arm = self._command_groups()
-            return base.values.copy(), arm.values.copy()
+                        f"{command.topic}: no command for {self.command_timeout_ns / NS:g} s of "
+                        f"simulated time (command_timeout); {command.what} "
+                        f"{'command' if command.topic == CMD_VEL_TOPIC else 'efforts'} set to "
+                        f"zero until commands resume")
+        return held[0], held[1]
 
     # --- services (executor thread): they set flags; the stepping thread acts on them --------
     def _on_reset(self, request, response):
         with self._command_lock:   # commands sent after this call are kept
-            for group in (self._wheels, self._cmd_vel, self._arm):
-                group.clear()
+            for command in self._inputs:
+                command.slot.clear()
+            # Those still waiting in the subscriptions are from before it: dropped when taken.
+            self._commands_since = time.time_ns()
         with self._cv:
             self._reset_requested = True
-            self._cv.notify_all()
+            self._wake()
         # From here on nothing of the old run is published: the next state out is t = 0.
         self.get_logger().info("reset to the initial state, t = 0")
         response.success, response.message = True, "reset to the initial state at t = 0"
@@ -425,9 +456,9 @@ class SimulatorNode(Node):
                 if self._paused:
                     self._paused = False
                     self._steps = 0
-                    self._reanchor()
+                    self.pacer.reanchor(self._now_ns)
                 response.success = True
-            self._cv.notify_all()
+            self._wake()
         self.get_logger().info(response.message)
         return response
 
@@ -442,7 +473,7 @@ class SimulatorNode(Node):
                 return response
             self._steps += 1
             target = self._k + self._steps
-            self._cv.notify_all()
+            self._wake()
             done = self._cv.wait_for(lambda: self._k >= target or self._failed or self._stopping
                                      or self._reset_requested or not self._paused,
                                      timeout=STEP_TIMEOUT)
@@ -476,46 +507,76 @@ class SimulatorNode(Node):
                 return False
             self._publish_description()
             self._publish(0, self._messages(0))
+        self._record_published()
         if not self.synchronous:
             # The first segment loads the compiled kernels: compute it before pacing starts.
             computed = self._compute_next()
             with self._cv:
                 if not self._reset_requested:
                     self._pending = computed
-                self._reanchor()
+                self.pacer.reanchor(self._now_ns)
         return True
 
     def _peers_ready(self) -> bool:
         """Synchronous mode's start condition: someone listens, someone commands."""
         listening = any(pub.get_subscription_count() > 0 for pub in self._state_pubs.values())
-        commanding = any(sub.get_publisher_count() > 0 for sub in self._command_subs)
+        commanding = any(command.subscription.get_publisher_count() > 0
+                         for command in self._inputs)
         return listening and commanding
 
     def _await_command(self) -> None:
-        """Synchronous mode, before computing a segment: wait (not holding _cv afterwards) for
-        a command newer than the latest published state on every command topic that has a
-        publisher (so wheels and arm sent in reply to one state apply together), at most
-        sync_timeout wall seconds."""
+        """Synchronous mode, before computing a segment: wait for a command newer than the
+        latest published state on every command topic that has a publisher (so wheels and arm
+        sent in reply to one state apply together), at most sync_timeout wall seconds. Sleeps
+        in a wait set on the command subscriptions and the wake guard (pause, reset, step,
+        stop), never holding _cv."""
         def answered() -> bool:
+            self._drain()
             with self._command_lock:
-                fresh = [group.seq != group.seq_published for group in self._command_groups()]
-            commanding = [sub.get_publisher_count() > 0 for sub in self._command_subs]
+                fresh = [command.slot.seq != command.slot.seq_published
+                         for command in self._inputs]
+            commanding = [command.subscription.get_publisher_count() > 0
+                          for command in self._inputs]
             return any(fresh) and all(f or not c for f, c in zip(fresh, commanding))
 
-        with self._cv:
-            arrived = self._cv.wait_for(
-                lambda: answered() or self._stopping or self._reset_requested or self._paused,
-                timeout=self.sync_timeout)
-        if not arrived:
-            self._warn_throttled(("sync",), f"synchronous: no command within sync_timeout "
-                                            f"{self.sync_timeout:g} s after t = "
-                                            f"{format_ns(self._now_ns)} s; holding the last one")
+        def interrupted() -> bool:
+            with self._cv:
+                return self._stopping or self._reset_requested or self._paused
+
+        end = time.monotonic() + self.sync_timeout
+        while not (answered() or interrupted()):
+            remaining = end - time.monotonic()
+            if remaining <= 0:
+                self._warn_throttled(("sync",), f"synchronous: no command within sync_timeout "
+                                                f"{self.sync_timeout:g} s after t = "
+                                                f"{format_ns(self._now_ns)} s; holding the last "
+                                                f"one")
+                return
+            self._wait_for_commands(remaining)
+
+    def _wait_for_commands(self, timeout: float) -> None:
+        """Until a command subscription has a message, _wake() is called, or timeout s."""
+        subscriptions = [command.subscription for command in self._inputs]
+        with contextlib.ExitStack() as stack:
+            for entity in (*subscriptions, self._wake_guard):
+                stack.enter_context(entity.handle)
+            wait_set = _rclpy.WaitSet(len(subscriptions), 1, 0, 0, 0, 0, self.context.handle)
+            wait_set.clear_entities()
+            for subscription in subscriptions:
+                wait_set.add_subscription(subscription.handle)
+            wait_set.add_guard_condition(self._wake_guard.handle)
+            wait_set.wait(max(1, round(timeout * NS)))
+
+    def _wake(self) -> None:
+        """Under _cv: a flag changed; wake the stepping thread wherever it waits."""
+        self._cv.notify_all()
+        self._wake_guard.trigger()
 
     def stop(self) -> None:
         """Stop the stepping thread (idempotent); nothing is published afterwards."""
         with self._cv:
             self._stopping = True
-            self._cv.notify_all()
+            self._wake()
         if self._thread.is_alive():
             self._thread.join(timeout=STOP_TIMEOUT)
         if self._thread.is_alive():   # inside a long segment: the bag is closed regardless
@@ -524,14 +585,14 @@ class SimulatorNode(Node):
 
     def _run(self) -> None:
         """The engine's only user once started. _cv guards the flags and every publication, and
-        is never held while integrating, so services answer even during a long segment (such
-        as one that compiles a kernel); a segment computed across a pause is kept for the
-        resume, one computed across a reset is dropped."""
+        is never held while integrating or recording, so services answer even during a long
+        segment (such as one that compiles a kernel) or a bag rotation; a segment computed
+        across a pause is kept for the resume, one computed across a reset is dropped."""
         try:
             if not self._begin():
                 return
             while self._step():
-                pass
+                self._record_published()
         except Exception:
             if self._stopping or not rclpy.ok(context=self.context):
                 return   # the context went down under a publication: shutting down
@@ -573,13 +634,12 @@ class SimulatorNode(Node):
                 self._pending = None
                 self._cv.notify_all()
                 return True
-            paced = self.real_time_factor > 0
-            delay = self._due(stamp_ns(k, self.rate)) - time.monotonic() if paced else 0.0
+            stamp = self.grid.stamp(k)
+            delay = self.pacer.delay(stamp)
             if delay > 0:
                 self._cv.wait(delay)   # woken early by pause, reset, parameters or stop
                 return True
-            if paced:
-                self._check_lag(-delay, k)
+            self._report_lag(stamp, -delay)
             self._publish(k, messages)
             self._pending = None
         return True
@@ -588,15 +648,12 @@ class SimulatorNode(Node):
         """Advance the engine over segment k → k + 1; (k + 1, messages), or None on failure."""
         k = self._k
         start_ns = self._now_ns
-        base, joints = self._held_efforts(start_ns)
+        base, joints = self._held_commands(start_ns)
         try:
-            if self.velocity_mode:
-                self.sim.set_base_velocity(*base)
-                self.sim.set_efforts(joints=joints)
-            else:
-                self.sim.set_efforts(base, joints)
-            self._on_command_applied(start_ns, self.sim.wheel_efforts, self.sim.joint_efforts)
-            self.sim.advance_to((k + 1) / float(self.rate))
+            applied = apply_commands(self.sim, base, joints, self.velocity_mode)
+            if self._recording is not None:
+                self._recording.commands(start_ns, *applied)
+            self.sim.advance_to(self.grid.time(k + 1))
         except (SimulationError, UserError) as error:
             with self._cv:
                 self._failed = f"t = {format_ns(start_ns)} s: {error}"
@@ -606,54 +663,48 @@ class SimulatorNode(Node):
             return None
         return k + 1, self._messages(k + 1)
 
-    def _due(self, target_ns: int) -> float:
-        wall0, ns0 = self._anchor
-        return wall0 + (target_ns - ns0) / NS / self.real_time_factor
-
-    def _reanchor(self) -> None:
-        self._anchor = (time.monotonic(), self._now_ns)
-        self._window = self._anchor
-
-    def _check_lag(self, late: float, k: int) -> None:
-        """Behind the wall clock by `late` s: warn (throttled) and pace from here on."""
-        period = 1.0 / float(self.rate) / self.real_time_factor
-        if late <= max(LAG_TOLERANCE, 5.0 * period):
+    def _report_lag(self, stamp: int, late: float) -> None:
+        """Publishing `late` s behind the wall clock: beyond the pacer's tolerance, warn
+        (throttled, with the measured real-time factor); the pacer paces on from here."""
+        measured = self.pacer.late(stamp, late)
+        if measured is None:
             return
-        wall, ns = time.monotonic(), stamp_ns(k, self.rate)
-        wall0, ns0 = self._window
-        measured = (ns - ns0) / NS / (wall - wall0) if wall > wall0 else float("nan")
+        since = format_ns(self.pacer.window[1])
         if self._warn_throttled(("lag",), f"cannot keep up with real_time_factor "
-                                          f"{self.real_time_factor:g}: {late:.3f} s behind the "
-                                          f"wall clock, measured real-time factor {measured:.2f} "
-                                          f"since {format_ns(ns0)} s; simulated time runs slower"):
-            self._window = (wall, ns)
-        self._anchor = (wall, ns)   # pace on from here rather than burst to catch up
+                                          f"{self.pacer.real_time_factor:g}: {late:.3f} s behind "
+                                          f"the wall clock, measured real-time factor "
+                                          f"{measured:.2f} since {since} s; simulated time runs "
+                                          f"slower"):
+            self.pacer.restart_window()
 
     def _reset_state(self) -> None:
         """Initial state, t = 0, zero efforts. Commands were cleared when the reset was asked
         for; any that arrived since count as received at t = 0."""
-        self.sim.reset()
-        self.sim.set_efforts(np.zeros(2), np.zeros(self.sim.nu - 2))
+        start_node_time_line(self.sim)
         with self._command_lock:
-            for group in (self._wheels, self._cmd_vel, self._arm):
-                if group.received_ns is not None:
-                    group.received_ns = 0
+            for command in self._inputs:
+                if command.slot.received_ns is not None:
+                    command.slot.received_ns = 0
         self._k, self._now_ns, self._pending = 0, 0, None
         self._failed = None
         self._reset_requested = False
         self._steps = 0
-        self._reanchor()
+        self.pacer.reanchor(0)
 
     # --- messages --------------------------------------------------------------------------
     def _messages(self, k: int) -> dict:
         """/joint_states, /odom and /clock for the engine's current state, stamped t_k."""
-        return state_messages(self.sim, stamp_ns(k, self.rate), self.joint_names,
+        return state_messages(self.sim, self.grid.stamp(k), self.joint_names,
                               self.odom_frame, self.base_frame)
 
     def _publish(self, k: int, messages: dict) -> None:
+        """Under _cv. What went out is recorded after _cv is released (_record_published)."""
+        if self.synchronous:
+            self._drain()   # commands sent before this state are not replies to it
         with self._command_lock:   # before publishing: a reply to this state counts as new
-            for group in self._command_groups():
-                group.seq_published = group.seq
+            for command in self._inputs:
+                command.slot.seq_published = command.slot.seq
+        stamp = self.grid.stamp(k)
         published = {}
         try:
             for topic, publisher in self._state_pubs.items():
@@ -664,8 +715,8 @@ class SimulatorNode(Node):
         finally:
             # What went out is recorded, even when a shutdown fails the rest of the group.
             if published:
-                self._on_state_published(stamp_ns(k, self.rate), published)
-        self._k, self._now_ns = k, stamp_ns(k, self.rate)
+                self._published.append((stamp, published))
+        self._k, self._now_ns = k, stamp
 
     def _publish_description(self) -> None:
         self._description_pub.publish(String(data=self._description))
@@ -679,54 +730,31 @@ class SimulatorNode(Node):
         self.get_logger().warning(text)
         return True
 
-    # --- recording (hooks called by the stepping thread, and _on_close after it stopped) ----
+    # --- recording (stepping thread, outside _cv; _on_close after it stopped) ---------------
     def _open_bag(self, path: str) -> RunRecorder:
-        self._bag_count += 1
-        self._recorded_stamp = None
-        return RunRecorder(path, self.scene, self._settings,
-                           {"source": "node", "publish_rate": repr(float(self.rate))},
+        metadata = {"source": "node", "publish_rate": repr(self.grid.hz),
+                    "base_command": self.base_command}
+        if self.velocity_mode:
+            metadata.update(wheel_speed_kp=repr(float(self.gains[0])),
+                            wheel_speed_ki=repr(float(self.gains[1])))
+        return RunRecorder(path, self.scene, self._settings, metadata,
                            flush_interval=BAG_FLUSH_INTERVAL)
 
-    def _on_state_published(self, stamp_ns: int, messages: dict) -> None:
-        """After each publication (stamp 0: the initial state, or the first after a reset).
-        A bag holds one time line: after a reset the bag is closed and recording goes on in
-        ``<record>_<n>``. The engine is at stamp_ns here, so its impact list is the run's."""
-        if self._recorder is None:
-            return
-        if self._recorded_stamp is not None and stamp_ns <= self._recorded_stamp:
-            previous = self._recorder.path
-            self._recording(lambda recorder: recorder.close())
-            if self._recorder is None:
-                return
-            self._recorder = None
-            try:
-                self._recorder = self._open_bag(f"{self.record}_{self._bag_count}")
-            except Exception as error:
-                self.get_logger().error(f"recording stopped at the reset: {error}")
-                return
-            self.get_logger().info(f"reset: bag {previous} closed, recording on in "
-                                   f"{self._recorder.path}")
-        self._recorded_stamp = stamp_ns
-
-        def record(recorder):
-            recorder.states(stamp_ns, messages)
-            recorder.impacts(self.sim.impacts)
-        self._recording(record)
-
-    def _on_command_applied(self, stamp_ns: int, wheels: np.ndarray, joints: np.ndarray) -> None:
-        """At the start of each segment: the efforts held from stamp_ns to the next stamp
-        (after timeout and effort limits); the recorder keeps the changes."""
-        self._recording(lambda recorder: recorder.commands(stamp_ns, wheels, joints))
+    def _record_published(self) -> None:
+        """Record the states published since the last call. The engine is still at the last
+        one's stamp, so its impact list is the run's up to there."""
+        published, self._published = self._published, []
+        if self._recording is not None:
+            for stamp, messages in published:
+                self._recording.states(stamp, messages, self.sim.impacts)
 
     def _on_close(self) -> None:
         """After the stepping thread has stopped, before the node is destroyed (SIGINT,
         SIGTERM, normal exit): the bag gets its impacts, summary and metadata.yaml."""
-        if self._recorder is not None:
-            path = self._recorder.path
-            self._recording(lambda recorder: recorder.close(), self._closing_logger())
-            if self._recorder is not None:
-                self._recorder = None
-                self._closing_logger().info(f"bag {path} closed")
+        if self._recording is not None:
+            self._record_published()
+            logger = self._closing_logger()
+            self._recording.close(logger.info, logger.error)
 
     def _closing_logger(self):
         """The node's logger while its context is up; after SIGINT/SIGTERM shut it down, a
@@ -735,41 +763,25 @@ class SimulatorNode(Node):
             return self.get_logger()
         return rclpy.logging.get_logger(f"{NODE_NAME}_recording")
 
-    def _recording(self, action, logger=None) -> None:
-        """Run ``action(recorder)``; a failure (full disk, ...) is one error line and the end of
-        recording, never of the simulation."""
-        if self._recorder is None:
-            return
-        try:
-            action(self._recorder)
-        except Exception as error:
-            recorder, self._recorder = self._recorder, None
-            recorder.abandon()
-            (logger or self.get_logger()).error(f"recording stopped: {error}; the simulation "
-                                                f"goes on without it")
-
 
 def _check_params_files(argv) -> None:
-    """Each --params-file a readable, regular YAML file: said in one line here, before rcl
-    logs its own error and raises."""
-    import os
+    """Each --params-file read first by the schema's YAML loader (a regular UTF-8 file within its
+    size, nesting, alias-expansion and duplicate-key limits) and refused here in one line: rcl
+    would block on a FIFO, expand an alias bomb without end, silently take the last of two
+    duplicate keys, or fail with its own multi-line error."""
+    from . import schema
 
-    import yaml
     args = list(sys.argv[1:] if argv is None else argv)
     for flag, path in zip(args, args[1:]):
         if flag != "--params-file":
             continue
-        if not os.path.isfile(path):
-            raise UserError("--params-file", f"{path}: not a regular file")
+        what = schema.label(path, 160)
         try:
-            with open(path, "rb") as stream:
-                yaml.safe_load(stream.read(MAX_PARAMS_FILE + 1)[:MAX_PARAMS_FILE].decode())
-        except (OSError, UnicodeDecodeError, yaml.YAMLError) as error:
-            reason = getattr(error, "strerror", None) or type(error).__name__
-            raise UserError("--params-file", f"{path}: not a readable YAML file ({reason})") \
-                from None
-        if os.path.getsize(path) > MAX_PARAMS_FILE:
-            raise UserError("--params-file", f"{path}: larger than {MAX_PARAMS_FILE} bytes")
+            text = schema.read_text_file(path, what, limit=MAX_PARAMS_FILE, kind="parameters file")
+            schema.load_yaml(text, what=what)
+        except UserError as error:
+            text = str(error) if error.key == what else f"{what}: {error}"
+            raise UserError("--params-file", text) from None
 
 
 def _init(argv) -> None:

@@ -8,14 +8,16 @@ serialized CDR, untouched) when the wall clock reaches its log time, counted fro
 played message and divided by ``--rate``; each topic gets the QoS the bag says its publisher
 offered. ``/clock`` comes from the bag and is always played, whatever ``--topics`` selects; a
 bag without it gets one ``rosgraph_msgs/Clock`` per distinct log time. ``--wait-for-subscribers``
-holds playback until every played topic has a subscriber (for scripts and tests).
+holds playback until every played topic has a subscriber (for scripts and tests). Without it,
+playback still waits (at most DISCOVERY_TIMEOUT s) until the subscribers that already run are
+matched: a reliable subscriber matched late would miss the first ~0.4 s of the bag.
 
 Re-simulation: rebuild the `Simulation` from the bag alone (attachment ``scene.yaml``, metadata
-``mobile_manip_sim``: integrator settings, rates, source), hold the recorded effort commands
-from their recorded simulated times (zero-order hold, segments between consecutive recorded
-state stamps, applied the way the recording source applied them), and compare each recorded
-/joint_states and /odom with the messages the re-run gives at that stamp (built by the same
-``messages`` functions). Prints the largest difference per quantity; status 1 if one exceeds
+``mobile_manip_sim``: integrator settings, rates, source, base command mode and wheel-speed
+gains), run the source's time line (`timeline`: its grid of segments, its start, the recorded
+commands — efforts and cmd_vel — held from their recorded simulated times), and compare each
+recorded /joint_states and /odom with the messages the re-run gives at that stamp (built by the
+same ``messages`` functions). Prints the largest difference per quantity; status 1 if one exceeds
 ``--tolerance`` (default 0: bit for bit), else 0.
 
 A missing, unreadable or non-rosbag2 bag, a bag with no complete message, an unknown topic, a
@@ -24,24 +26,25 @@ bag whose messages do not fit its own scene (another robot) → one line, status
 from __future__ import annotations
 
 import importlib
-from collections import deque
 import math
 import sys
 import time
-from fractions import Fraction
 
-import numpy as np
-import yaml
-
-from . import __version__, cli
+from . import __version__, cli, schema
 from .errors import UserError
-from .messages import (ARM_TOPIC, CLOCK_TOPIC, JOINT_STATES_TOPIC, NS, ODOM_TOPIC, TOPIC_TYPES,
-                       WHEEL_TOPIC, clock, joint_state, odometry, quaternion_yaw, stamp_ns)
+from .messages import (ARM_TOPIC, CLOCK_TOPIC, JOINT_STATES_TOPIC, NS, ODOM_TOPIC, clock,
+                       command_values, joint_state, odometry, quaternion_yaw)
 from .recording.bag_reader import open_bag
 from .recording.recorder import METADATA_NAME, SCENE_ATTACHMENT
+from .timeline import CommandHistory, Grid, apply_commands, start_node_time_line
+from .topics import BAG_TOPIC_TYPES, BASE_COMMAND_TOPICS
 
 ACK_TIMEOUT = 2.0          # s: how long to wait at the end for reliable subscribers to ack
+DISCOVERY_TIMEOUT = 2.0    # s: the longest wait for running subscribers to be matched
+DISCOVERY_SETTLE = 0.3     # s: the graph unchanged this long, all its subscribers matched: go
 SLEEP_SLICE = 0.05         # s: longest sleep between checks for a shutdown
+MAX_QOS_PROFILES = 100     # recorded publishers of one topic
+MAX_QOS_DEPTH = 100_000    # history depth: a deeper one is damage, and would be allocated
 
 
 def main(argv=None) -> int:
@@ -120,39 +123,32 @@ class RecordedRun:
             raise UserError(str(bag.path), "not recorded by mobile_manip_sim (no scene.yaml "
                                            "attachment or mobile_manip_sim metadata): cannot "
                                            "resimulate")
-        from .scene import make_integrator, scene_from_text
+        from .scene import check_work, make_integrator, scene_from_text
 
         try:
             text = attachments[SCENE_ATTACHMENT].decode()
         except UnicodeDecodeError:
             raise UserError(SCENE_ATTACHMENT, "attachment is not UTF-8 text") from None
         self.scene = scene_from_text(text, f"{SCENE_ATTACHMENT} in {bag.path}")
-        self.metadata = metadata
-        self.source = self._field("source")
-        if self.source not in ("node", "simulate"):
-            raise UserError(f"{METADATA_NAME}.source", f"unknown source {self.source!r}")
-        self.settings = make_integrator(self.scene.integrator, self._field("integrator_method"),
-                                        self._number("dt"), self._number("rtol"),
-                                        self._number("atol"), prefix=f"{METADATA_NAME}")
-        self.rate = self._number("publish_rate" if self.source == "node" else "sample_rate")
-        self.duration = self._number("duration") if "duration" in metadata else None
+        # The metadata is checked by the schema (keys, types, ranges) and the run's work by the
+        # limits `simulate` applies: a crafted bag cannot ask for a billion sample times.
+        self.metadata = metadata = schema.run_metadata(metadata, METADATA_NAME)
+        self.source = metadata["source"]
+        self.settings = make_integrator(self.scene.integrator, metadata["integrator_method"],
+                                        metadata["dt"], metadata["rtol"], metadata["atol"],
+                                        prefix=f"{METADATA_NAME}")
+        self.rate = metadata[schema.RUN_METADATA_RATE[self.source]]
+        self.duration = metadata.get("duration")
+        if self.source == "simulate":
+            check_work(self.duration, self.settings, f"{METADATA_NAME}.duration",
+                       f"{METADATA_NAME}.dt", self.rate, f"{METADATA_NAME}.sample_rate")
+        # A headless run ends at its duration (without one, its grid is endless like a node's).
+        self.grid = Grid(self.rate, self.duration if self.source == "simulate" else None)
+        self.base_command = metadata["base_command"]
+        self.velocity = self.base_command == "velocity"
+        self.gains = ((metadata["wheel_speed_kp"], metadata["wheel_speed_ki"]) if self.velocity
+                      else None)
         self.names = self.scene.robot.joint_names()
-        self._samples = None
-
-    def _field(self, key: str) -> str:
-        if key not in self.metadata:
-            raise UserError(f"{METADATA_NAME}.{key}", "missing from the bag's metadata")
-        return self.metadata[key]
-
-    def _number(self, key: str) -> float:
-        text = self._field(key)
-        try:
-            value = float(text)
-        except ValueError:
-            raise UserError(f"{METADATA_NAME}.{key}", f"not a number: {text!r}") from None
-        if not (math.isfinite(value) and value > 0):
-            raise UserError(f"{METADATA_NAME}.{key}", f"must be positive, got {text!r}")
-        return value
 
     def check_robot(self) -> None:
         """The recorded topics fit this scene's robot: types, joint names, command lengths."""
@@ -160,7 +156,7 @@ class RecordedRun:
         for topic in (JOINT_STATES_TOPIC, ODOM_TOPIC):
             if topic not in topics:
                 raise UserError(str(self.bag.path), f"no {topic} topic: nothing to compare")
-        for topic, type_name in TOPIC_TYPES.items():
+        for topic, type_name in BAG_TOPIC_TYPES.items():
             if topic in topics and topics[topic] != type_name:
                 raise UserError(topic, f"recorded as {topics[topic]}, expected {type_name} "
                                        f"(a bag from another robot?)")
@@ -177,7 +173,7 @@ class RecordedRun:
                                                 f"a bag from another robot")
 
     def check_command(self, topic: str, values) -> None:
-        expected = 2 if topic == WHEEL_TOPIC else len(self.names) - 2
+        expected = len(self.names) - 2 if topic == ARM_TOPIC else 2
         if len(values) != expected:
             raise UserError(topic, f"{len(values)} values where the bag's scene "
                                    f"{self.scene.name!r} takes {expected}: a bag from another "
@@ -187,30 +183,35 @@ class RecordedRun:
         """The source's segments from stamp ``start`` to stamp ``end`` (ns): (segment start
         stamp, time in s the source advanced its engine to). One per recorded state, unless
         states are missing in between."""
-        if self.source == "simulate":
-            if self._samples is None:
-                from .recording.headless import sample_stamps
+        try:
+            return list(self.grid.segments(start, end))
+        except ValueError as error:
+            raise UserError(JOINT_STATES_TOPIC, str(error)) from None
 
-                if self.duration is None:
-                    raise UserError(f"{METADATA_NAME}.duration", "missing from the bag's metadata")
-                self._samples = sample_stamps(self.rate, self.duration)
-                self._sample_index = {stamp: i for i, (stamp, _) in enumerate(self._samples)}
-            if end not in self._sample_index or start not in self._sample_index:
-                raise UserError(JOINT_STATES_TOPIC, f"stamp {end} ns is not a sample time of "
-                                                    f"this run")
-            first, last = self._sample_index[start], self._sample_index[end]
-            return [(self._samples[i][0], self._samples[i + 1][1]) for i in range(first, last)]
-        rate = Fraction(self.rate)
-        first, last = self._publication(start, rate), self._publication(end, rate)
-        return [(stamp_ns(k, rate), (k + 1) / self.rate) for k in range(first, last)]
+    def commands(self) -> tuple[CommandHistory, CommandHistory]:
+        """The recorded base and arm commands (the base's: wheel torques, or v and ω)."""
+        base_topic = BASE_COMMAND_TOPICS[self.base_command]
+        histories = {base_topic: CommandHistory(), ARM_TOPIC: CommandHistory()}
+        topics = [topic for topic in histories if topic in self.bag.topics()]
+        for message in self.bag.messages(topics) if topics else ():
+            values = command_values(message.topic, _decode(message))
+            self.check_command(message.topic, values)
+            try:
+                histories[message.topic].add(message.log_time_ns, values)
+            except ValueError as error:
+                raise UserError(message.topic, str(error)) from None
+        return histories[base_topic], histories[ARM_TOPIC]
 
-    def _publication(self, stamp: int, rate: Fraction) -> int:
-        """k of the node's publication stamped ``stamp``."""
-        k = round(Fraction(stamp) * rate / NS)
-        if stamp_ns(k, rate) != stamp:
-            raise UserError(JOINT_STATES_TOPIC, f"stamp {stamp} ns is not on the "
-                                                f"{self.rate:g} Hz publication grid")
-        return k
+    def start(self):
+        """The `Simulation` at the source's t = 0."""
+        from .engine.simulation import Simulation
+
+        sim = Simulation(self.scene, self.settings)
+        if self.gains is not None:
+            sim.set_wheel_speed_gains(*self.gains)
+        if self.source == "node":
+            start_node_time_line(sim)
+        return sim
 
 
 # --- re-simulation -------------------------------------------------------------------------
@@ -245,20 +246,16 @@ class Differences:
 
 
 def resimulate(bag, tolerance: float) -> int:
-    from .engine.simulation import Simulation, SimulationError
+    from .engine.simulation import SimulationError
 
     run = RecordedRun(bag)
     run.check_robot()
-    commands = _recorded_commands(run)
+    base_commands, arm_commands = run.commands()
     if run.metadata.get("version") != __version__:
         print(f"note: recorded by mobile_manip_sim {run.metadata.get('version')}, re-simulated "
               f"by {__version__}: bit-for-bit agreement is only expected from the same build")
 
-    sim = Simulation(run.scene, run.settings)
-    if run.source == "node":   # the node's start: reset, efforts zero until the first segment
-        sim.reset()
-        sim.set_efforts(np.zeros(2), np.zeros(sim.nu - 2))
-    held = {WHEEL_TOPIC: None, ARM_TOPIC: None}
+    sim = run.start()
     differences = Differences(tolerance)
     compared = {JOINT_STATES_TOPIC: 0, ODOM_TOPIC: 0}
     sim_stamp = None
@@ -276,7 +273,8 @@ def resimulate(bag, tolerance: float) -> int:
                 raise UserError(message.topic, f"time goes back from {sim_stamp} to {stamp} ns")
             elif stamp > sim_stamp:
                 for start, t_end in run.segments(sim_stamp, stamp):
-                    _segment(run, sim, commands, held, start)
+                    apply_commands(sim, base_commands.at(start), arm_commands.at(start),
+                                   run.velocity)
                     sim.advance_to(t_end)
                 sim_stamp = stamp
             _compare(run, sim, stamp, message.topic, recorded, differences)
@@ -286,31 +284,6 @@ def resimulate(bag, tolerance: float) -> int:
         return 1
     _report(run, bag, differences, compared, first_stamp, sim_stamp)
     return 1 if differences.failed() else 0
-
-
-def _recorded_commands(run) -> dict[str, deque]:
-    """Topic → [(simulated ns from which it was held, efforts)], in time order."""
-    topics = [topic for topic in (WHEEL_TOPIC, ARM_TOPIC) if topic in run.bag.topics()]
-    commands = {WHEEL_TOPIC: deque(), ARM_TOPIC: deque()}
-    for message in run.bag.messages(topics) if topics else ():
-        values = np.array(_decode(message).data, dtype=float)
-        run.check_command(message.topic, values)
-        commands[message.topic].append((message.log_time_ns, values))
-    return commands
-
-
-def _segment(run, sim, commands, held, start: int) -> None:
-    """Efforts for the segment that starts at ``start`` ns, applied as the source did: the
-    node sets the held efforts before every segment, `simulate` only when they change."""
-    changed = False
-    for topic, records in commands.items():
-        while records and records[0][0] <= start:
-            held[topic] = records.popleft()[1]
-            changed = True
-    if run.source == "node" or changed:
-        wheels, joints = held[WHEEL_TOPIC], held[ARM_TOPIC]
-        sim.set_efforts(wheels if wheels is not None else np.zeros(2),
-                        joints if joints is not None else np.zeros(sim.nu - 2))
 
 
 def _compare(run, sim, stamp: int, topic: str, recorded, differences: Differences) -> None:
@@ -369,18 +342,21 @@ def _report(run, bag, differences: Differences, compared: dict, first: int, last
 
 # --- playback ------------------------------------------------------------------------------
 
-def qos_profile(offered: str | None):
+def qos_profile(offered: str | None, topic: str = "topic"):
     """A subscriber-compatible QoS for a topic from its ``offered_qos_profiles`` YAML: reliable
-    only if every recorded publisher was, transient local likewise, the deepest history."""
+    only if every recorded publisher was, transient local likewise, the deepest history. None
+    recorded: reliable, depth 10. A damaged entry is one `UserError` naming the topic."""
     from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy)
 
-    try:
-        profiles = yaml.safe_load(offered) if offered else None
-    except yaml.YAMLError:
-        profiles = None
-    if not isinstance(profiles, list) or not profiles or \
-            not all(isinstance(profile, dict) for profile in profiles):
+    where = f"{topic}: offered_qos_profiles"
+    profiles = schema.load_yaml(offered, what=where) if offered else None
+    if not profiles:
         return QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE)
+    profiles = schema.sequence(profiles, where, max_length=MAX_QOS_PROFILES)
+    for i, profile in enumerate(profiles):
+        schema.mapping(profile, f"{where}[{i}]")
+        if profile.get("depth") is not None:
+            schema.integer(profile["depth"], f"{where}[{i}].depth", lo=0, hi=MAX_QOS_DEPTH)
 
     def policy(profile, key, names):
         value = profile.get(key)
@@ -429,16 +405,20 @@ def play(bag, args) -> int:
     try:
         metadata = bag.channel_metadata()
         publishers = {topic: node.create_publisher(
-            classes[topic], topic, qos_profile(metadata.get(topic, {}).get("offered_qos_profiles")))
+            classes[topic], topic, qos_profile(metadata.get(topic, {}).get("offered_qos_profiles"), topic))
             for topic in selected}
         clock_publisher = None
         if CLOCK_TOPIC not in topics:
             clock_publisher = node.create_publisher(
                 Clock, CLOCK_TOPIC, QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))
+        waiting = dict(publishers)
+        if clock_publisher is not None:
+            waiting[CLOCK_TOPIC] = clock_publisher
         if args.wait_for_subscribers:
-            waiting = list(publishers.values()) + ([clock_publisher] if clock_publisher else [])
-            while rclpy.ok() and not all(p.get_subscription_count() for p in waiting):
+            while rclpy.ok() and not all(p.get_subscription_count() for p in waiting.values()):
                 time.sleep(SLEEP_SLICE)
+        else:
+            _await_discovery(node, waiting)
         played = 0
         wall_start = time.monotonic()
         while rclpy.ok():
@@ -459,6 +439,28 @@ def play(bag, args) -> int:
         node.destroy_node()
         rclpy.try_shutdown()
     return 0
+
+
+def _await_discovery(node, publishers: dict) -> None:
+    """Give discovery the time to match the subscribers that already run: until every
+    subscriber the ROS graph knows on a played topic is matched and the graph (nodes,
+    subscribers, matches) has not changed for DISCOVERY_SETTLE s; at most DISCOVERY_TIMEOUT s."""
+    import rclpy
+
+    start = time.monotonic()
+    last, since = None, start
+    while rclpy.ok():
+        now = time.monotonic()
+        if now - start >= DISCOVERY_TIMEOUT:
+            return
+        known = [node.count_subscribers(topic) for topic in publishers]
+        matched = [publisher.get_subscription_count() for publisher in publishers.values()]
+        graph = (known, matched, sorted(node.get_node_names_and_namespaces()))
+        if graph != last:
+            last, since = graph, now
+        elif now - since >= DISCOVERY_SETTLE and all(m >= k for m, k in zip(matched, known)):
+            return
+        time.sleep(0.02)
 
 
 def _first_at(bag, topics, start: int):

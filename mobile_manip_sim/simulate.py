@@ -22,13 +22,13 @@ import stat
 import sys
 import time
 from pathlib import Path
-from typing import Iterator
 
 from . import cli, schema
 from .engine.simulation import Simulation
 from .errors import UserError
 from .scene import DURATION, Scene, check_work, load_scene, make_integrator
 from .sweep.overrides import parse_assignments, scene_with
+from .timeline import sample_times
 
 SAMPLE_RATE = (1e-6, 1e6)          # Hz, --sample-rate
 
@@ -37,16 +37,6 @@ def csv_columns(n_links: int) -> list[str]:
     arm_q = [name for i in range(1, n_links + 1) for name in (f"q{i}", f"l{i}")]
     arm_u = [name for i in range(1, n_links + 1) for name in (f"qd{i}", f"ld{i}")]
     return ["t", "x", "y", "yaw", "theta_R", "theta_L", *arm_q, "v", "omega", *arm_u, "energy"]
-
-
-def sample_times(duration: float, sample_rate: float) -> Iterator[float]:
-    """k / rate for every k with k / rate ≤ duration, then duration itself if it is off the grid;
-    generated one at a time (a long run never holds them all)."""
-    count = int(duration * sample_rate + 1e-9)
-    for k in range(count + 1):
-        yield k / sample_rate
-    if duration - count / sample_rate > 1e-12 * max(1.0, duration):
-        yield duration
 
 
 class Progress:

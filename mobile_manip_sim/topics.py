@@ -12,6 +12,8 @@ creates every topic under its RELATIVE name (``odom``), so ``__ns:=/robot1`` put
   wheel_effort_controller/commands  std_msgs/msg/Float64MultiArray  command, depth 10
   arm_effort_controller/commands    std_msgs/msg/Float64MultiArray  command
   cmd_vel                           geometry_msgs/msg/Twist (or TwistStamped)  command, velocity mode
+
+A bag holds the state topics and the command topics of its run's mode (`recorded_topics`).
 """
 from __future__ import annotations
 
@@ -24,9 +26,15 @@ WHEEL_TOPIC = "/wheel_effort_controller/commands"
 CMD_VEL_TOPIC = "/cmd_vel"
 ARM_TOPIC = "/arm_effort_controller/commands"
 STATE_TOPICS = (JOINT_STATES_TOPIC, ODOM_TOPIC, CLOCK_TOPIC)
-COMMAND_TOPICS = (WHEEL_TOPIC, ARM_TOPIC)
+COMMAND_TOPICS = (WHEEL_TOPIC, ARM_TOPIC, CMD_VEL_TOPIC)
+# The topic that commands the base, by the node's base_command parameter.
+BASE_COMMAND_TOPICS = {"effort": WHEEL_TOPIC, "velocity": CMD_VEL_TOPIC}
+# In a bag cmd_vel is always a Twist (the applied v, ω; its log time says when it applied),
+# whichever of Twist or TwistStamped the node took.
+CMD_VEL_TYPE = "geometry_msgs/msg/Twist"
 
-# Topic → message type name, as bags and `ros2 topic` spell it (the topics a bag records).
+# Topic → message type name, as bags and `ros2 topic` spell it: the topics of a bag of an
+# effort-commanded run (headless runs and base_command effort).
 TOPIC_TYPES = {
     JOINT_STATES_TOPIC: "sensor_msgs/msg/JointState",
     ODOM_TOPIC: "nav_msgs/msg/Odometry",
@@ -34,6 +42,15 @@ TOPIC_TYPES = {
     WHEEL_TOPIC: "std_msgs/msg/Float64MultiArray",
     ARM_TOPIC: "std_msgs/msg/Float64MultiArray",
 }
+# Every topic one of our bags may hold.
+BAG_TOPIC_TYPES = {**TOPIC_TYPES, CMD_VEL_TOPIC: CMD_VEL_TYPE}
+
+
+def recorded_topics(base_command: str = "effort") -> dict:
+    """Topic → type of the bag of a run whose base takes ``base_command`` (effort|velocity)."""
+    base = BASE_COMMAND_TOPICS[base_command]
+    return {topic: kind for topic, kind in BAG_TOPIC_TYPES.items()
+            if topic not in BASE_COMMAND_TOPICS.values() or topic == base}
 STATE_QOS_DEPTH = 100      # the node's state publishers: room for slow subscribers
 COMMAND_QOS_DEPTH = 10     # rclpy's default publisher depth, what command senders use
 

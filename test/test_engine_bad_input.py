@@ -8,6 +8,7 @@ variants call the same entry point, `simulate.main`, in this process.
 import math
 import subprocess
 import sys
+import time
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
@@ -244,3 +245,82 @@ def test_a_numerical_blow_up_says_when_and_exits_1(tmp_path):
     lines = result.stderr.strip().splitlines()
     assert result.returncode == 1 and len(lines) == 1, result.stderr
     assert "non-finite" in lines[0] and "t = " in lines[0]
+
+
+# --- radau/bdf that cannot follow the solution: step floor and step budget (step_watch) ---------
+
+def featherweight_rods_doc() -> dict:
+    """In bounds but extreme: rods of 1e-9 kg/m pushed with 1e6 N·m and N at the tightest
+    tolerances; radau and bdf used to crawl at steps of 1e-8 to 1e-12 s, minutes per 10 ms."""
+    doc = paper_doc(efforts={"wheels": [0.1, 0.2], "joints": [1e6, 1e6, 1e6, 1e6]})
+    for link in doc["robot"]["arm"]["links"]:
+        link["mass_per_length"] = 1e-9
+    return doc
+
+
+def huge_command_after_reset(method):
+    sim = simulation(paper_doc(), method)
+    sim.reset()
+    sim.set_efforts(wheels=[1e30, 1e30], joints=[1e30] * 4)   # finite, so accepted
+    return sim
+
+
+CRAWLS = {"a huge command after a reset": huge_command_after_reset,
+          "featherweight rods": lambda method: simulation(featherweight_rods_doc(), method,
+                                                           rtol=1e-14, atol=1e-20)}
+
+
+@pytest.mark.parametrize("method", ["radau", "bdf"])
+@pytest.mark.parametrize("case", CRAWLS)
+def test_an_implicit_solver_that_cannot_follow_stops_promptly_in_one_line(case, method):
+    from mobile_manip_sim.engine.simulation import StepLimitError
+
+    sim = CRAWLS[case](method)
+    start = time.perf_counter()
+    with pytest.raises(StepLimitError) as caught:
+        sim.advance_to(0.01)
+    assert time.perf_counter() - start < 30   # it crawled for minutes (or for ever) before
+    message = str(caught.value)
+    assert caught.value.key == "integrator.rtol" and "\n" not in message and len(message) < 300
+    assert message.startswith("integrator.rtol: t = ") and f"{method} cannot follow" in message
+    assert sim.steps < 10_000
+
+
+def test_simulate_exits_2_with_one_line_when_bdf_cannot_follow(tmp_path):
+    scene = tmp_path / "featherweight.yaml"
+    scene.write_text(yaml.safe_dump({**featherweight_rods_doc(), "integrator": {
+        "method": "bdf", "rtol": 1e-14, "atol": 1e-20}}))
+    start = time.monotonic()
+    result = subprocess.run([sys.executable, "-m", "mobile_manip_sim.simulate", "--scene", str(scene),
+                             "--duration", "1.0", "--out", str(tmp_path / "out.csv")],
+                            capture_output=True, text=True, timeout=120)
+    lines = result.stderr.strip().splitlines()
+    assert result.returncode == 2 and len(lines) == 1, result.stderr
+    assert ": error: integrator.rtol: t = " in lines[0] and "bdf cannot follow" in lines[0], lines[0]
+    assert time.monotonic() - start < 60
+
+
+def test_the_step_watch_tells_a_crawl_from_a_restart():
+    from mobile_manip_sim.engine.step_watch import BUDGET_SPAN, BUDGET_STEPS, FLOOR_STEPS, StepWatch
+
+    def first_problem(steps, t=0.0):
+        watch = StepWatch()
+        for i, h in enumerate(steps):
+            problem = watch.problem(t, h)
+            if problem:
+                return i + 1, problem
+            t += h
+        return None
+
+    # A solver restarted with a tiny step grows it tenfold per step: no crawl.
+    assert first_problem([1e-20 * 10 ** i for i in range(18)] + [1e-3] * 100) is None
+    # Below the floor for FLOOR_STEPS steps in a row is one; an interruption starts the count anew.
+    assert first_problem([1e-18] * FLOOR_STEPS)[0] == FLOOR_STEPS
+    assert first_problem(([1e-18] * (FLOOR_STEPS - 1) + [1e-6]) * 3) is None
+    # The floor is relative to t beyond 1 s: a step of 1e-7 s at t = 1e6 s is below it.
+    assert "floor of 1e-06 s" in first_problem([1e-7] * FLOOR_STEPS, t=1e6)[1]
+    # The budget: BUDGET_STEPS steps must cover BUDGET_SPAN; window after window.
+    slow = BUDGET_SPAN / BUDGET_STEPS
+    assert first_problem([0.9 * slow] * BUDGET_STEPS)[0] == BUDGET_STEPS
+    assert first_problem([1.1 * slow] * (3 * BUDGET_STEPS)) is None
+    assert first_problem([1.1 * slow] * BUDGET_STEPS + [0.9 * slow] * BUDGET_STEPS)[0] == 2 * BUDGET_STEPS

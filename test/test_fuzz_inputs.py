@@ -50,9 +50,6 @@ def paths(node, prefix=()):
             yield from paths(value, prefix + (i,))
 
 
-PAPER_PATHS = [p for p in paths(PAPER) if p]
-
-
 def mutate(doc, path, value, delete):
     doc = copy.deepcopy(doc)
     node = doc
@@ -80,17 +77,23 @@ def outcome(call):
     return error
 
 
-mutations = st.lists(st.tuples(st.sampled_from(PAPER_PATHS), values, st.booleans()),
-                     min_size=1, max_size=4)
+def mutations_of(doc):
+    """Lists of up to four (path, value, delete) changes to `doc`."""
+    return st.lists(st.tuples(st.sampled_from([p for p in paths(doc) if p]), values, st.booleans()),
+                    min_size=1, max_size=4)
 
 
-def check_mutated_scene(changes):
-    doc = PAPER
+def mutated(doc, changes):
     for path, value, delete in changes:
         try:
             doc = mutate(doc, path, value, delete)
         except (KeyError, IndexError, TypeError):  # an earlier change removed the parent
             continue
+    return doc
+
+
+def check_mutated_scene(changes):
+    doc = mutated(PAPER, changes)
     outcome(lambda: parse_scene(doc))
 
 
@@ -128,6 +131,25 @@ def check_metadata_yaml(text):
     outcome(lambda: schema.run_metadata(schema.load_yaml(text, what="metadata.yaml")))
 
 
+BAG_INFORMATION = {"rosbag2_bagfile_information": {   # a metadata.yaml as BagWriter writes it
+    "version": 9, "storage_identifier": "mcap", "duration": {"nanoseconds": 200000000},
+    "starting_time": {"nanoseconds_since_epoch": 0}, "message_count": 24,
+    "topics_with_message_count": [{"topic_metadata": {
+        "name": "/odom", "type": "nav_msgs/msg/Odometry", "serialization_format": "cdr",
+        "offered_qos_profiles": "- history: 1\n  depth: 100\n", "type_description_hash": "RIHS01_00"},
+        "message_count": 5}],
+    "compression_format": "", "compression_mode": "", "relative_file_paths": ["bag_0.mcap"],
+    "files": [{"path": "bag_0.mcap", "starting_time": {"nanoseconds_since_epoch": 0},
+               "duration": {"nanoseconds": 200000000}, "message_count": 24}],
+    "custom_data": {}, "ros_distro": "jazzy"}}
+
+
+def check_bag_information(changes):
+    doc = mutated(BAG_INFORMATION, changes)
+    outcome(lambda: schema.bag_information(doc))
+    outcome(lambda: schema.bag_information(schema.load_yaml(yaml.safe_dump(doc), what="metadata.yaml")))
+
+
 def fuzz(settings, check, strategy) -> int:
     """Run `check` on hypothesis examples of `strategy` (each check asserts through `outcome`);
     returns how many examples it saw."""
@@ -141,9 +163,9 @@ def fuzz(settings, check, strategy) -> int:
 
 
 CHECKS = [
-    (check_mutated_scene, mutations), (check_scene_text, st.text(max_size=200)),
+    (check_mutated_scene, mutations_of(PAPER)), (check_scene_text, st.text(max_size=200)),
     (check_yaml_of_values, values), (check_spliced_text, splices), (check_metadata, metadata),
-    (check_metadata_yaml, st.text(max_size=200)),
+    (check_metadata_yaml, st.text(max_size=200)), (check_bag_information, mutations_of(BAG_INFORMATION)),
 ]
 
 
@@ -162,6 +184,9 @@ def test_the_fuzzer_can_fail():
     """The checks are not vacuous: an input known to be bad is refused, and a check that
     accepted anything other than a UserError would see it."""
     assert outcome(lambda: parse_scene(mutate(PAPER, ("duration",), 1e308, False))) is not None
+    assert outcome(lambda: schema.bag_information(BAG_INFORMATION)) is None
+    assert outcome(lambda: schema.bag_information(mutate(
+        BAG_INFORMATION, ("rosbag2_bagfile_information", "custom_data"), [1], False))) is not None
     with pytest.raises(AssertionError):
         outcome(lambda: (_ for _ in ()).throw(UserError("k", "two\nlines")))
     with pytest.raises(ZeroDivisionError):

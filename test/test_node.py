@@ -23,6 +23,7 @@ from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import SetBool, Trigger
 
 from executables import executable
+from hostile_yaml import ALIAS_BOMB
 from ros_helpers import child_env as ros_child_env
 from ros_helpers import spinning
 from mobile_manip_sim.engine.simulation import Simulation
@@ -438,9 +439,44 @@ def test_a_non_finite_state_pauses_the_node_until_reset(fresh, simulator):
     assert simulator.process.poll() is None
 
 
+@pytest.mark.parametrize("method", ["radau", "bdf"])
+def test_a_crawling_implicit_solver_pauses_the_node_until_reset(probe, simulator, tmp_path, method):
+    """radau/bdf and a wheel command of 1e30 right after ~/reset: the solver used to shrink its
+    step towards ulp(0) for good (/clock stuck, services dead, signals ignored). Its step floor
+    ends the segment in one error line naming the tolerance; the node pauses, ~/reset recovers."""
+    probe.pause(True)
+    name = f"{method}_sim"
+    node = start_simulator(probe, tmp_path, "-p", f"integrator.method:={method}",
+                           "-p", "real_time_factor:=5.0", "-r", f"__node:={name}")
+    reset = probe.node.create_client(Trigger, f"/{name}/reset")
+    pause = probe.node.create_client(SetBool, f"/{name}/pause")
+    try:
+        wait_for(lambda: reset.service_is_ready() and pause.service_is_ready(), "its services")
+        assert probe.call(pause, SetBool.Request(data=True)).success
+        assert probe.call(reset, Trigger.Request()).success
+        probe.send(wheels=[1e30, 1e30])
+        assert probe.call(pause, SetBool.Request(data=False)).success
+        failed = wait_for(lambda: [line for line in node.output().splitlines()
+                                   if "simulation failed" in line], "the engine's error in the log")
+        assert len(failed) == 1 and "integrator.rtol: " in failed[0], failed
+        assert "cannot follow the solution" in failed[0], failed[0]
+        response = probe.call(pause, SetBool.Request(data=False))
+        assert not response.success and "call ~/reset" in response.message
+        marks = probe.marks()
+        probe.send(wheels=[0.0, 0.0])
+        assert probe.call(reset, Trigger.Request()).success
+        assert probe.call(pause, SetBool.Request(data=False)).success
+        wait_for(lambda: len(probe.snapshot("joints")) >= marks["joints"] + 20, "publishing after the reset")
+        assert node.process.poll() is None
+    finally:
+        probe.node.destroy_client(reset)
+        probe.node.destroy_client(pause)
+        assert node.stop() == 0, node.output()
+
+
 # --- start-up ---------------------------------------------------------------------------------
 
-@pytest.mark.parametrize("content", [None, "robot: [1, 2\n", "robot: {base: {mass: -1}}\n"])
+@pytest.mark.parametrize("content", [None, "robot: [1, 2\n", "robot: {base: {mass: -1}}\n", ALIAS_BOMB])
 def test_a_missing_or_invalid_scene_exits_2_with_one_line(tmp_path, content):
     path = tmp_path / "scene.yaml"
     if content is not None:
@@ -582,21 +618,54 @@ def test_a_pd_controller_in_lockstep_gives_the_same_bag_every_time(tmp_path):
     assert second == first
 
 
-@pytest.mark.parametrize("case", ["missing params file", "binary params file",
-                                  "unknown parameter"])
+PARAMS_FILES = {  # case: (file content, or a special file's kind; what the one line says)
+    "binary params file": (bytes(range(256)), "not UTF-8"),
+    "alias bomb params file": (ALIAS_BOMB, "expands to more than 100000 YAML nodes"),
+    "duplicate key params file": ("/**:\n  ros__parameters:\n    publish_rate: 50.0\n"
+                                  "    publish_rate: 100.0\n", "publish_rate: duplicate key (line 4)"),
+    "nested params file": ("[" * 3000 + "]" * 3000, "nested deeper than"),
+    "huge params file": ("#" * (2 << 20), "larger than"),
+    "fifo params file": ("fifo", "not a regular file"),
+    "directory params file": ("directory", "not a regular file"),
+    "missing params file": ("missing", "cannot read parameters file"),
+}
+
+
+def params_file(tmp_path, content):
+    path = tmp_path / "params.yaml"
+    if content == "fifo":
+        os.mkfifo(path)    # rcl would block reading it, for good
+    elif content == "directory":
+        path.mkdir()
+    elif content != "missing":
+        (path.write_bytes if isinstance(content, bytes) else path.write_text)(content)
+    return path
+
+
+PARAMETERS = {  # case: (arguments, the key named, what the one line says)
+    "unknown parameter": (["-p", "real_time_facter:=0.0"], "real_time_facter", "unknown"),
+    # in the declared range [0, 1], but a step of 1e-10 s would take 1e8 steps per publication
+    "dt 1e-10": (["-p", "integrator.method:=rk4", "-p", "integrator.dt:=1e-10"], "integrator.dt",
+                 "must be in [1e-09, 1]"),
+}
+
+
+@pytest.mark.parametrize("case", [*PARAMS_FILES, *PARAMETERS])
 def test_bad_ros_arguments_exit_2_with_one_line_naming_the_cause(tmp_path, case):
-    binary = tmp_path / "binary.yaml"
-    binary.write_bytes(bytes(range(256)))
-    args, key = {"missing params file": (["--params-file", str(tmp_path / "none.yaml")],
-                                         "--params-file"),
-                 "binary params file": (["--params-file", str(binary)], "--params-file"),
-                 "unknown parameter": (["-p", "real_time_facter:=0.0"], "real_time_facter")}[case]
+    if case in PARAMS_FILES:
+        content, problem = PARAMS_FILES[case]
+        args, key = ["--params-file", str(params_file(tmp_path, content))], "--params-file"
+    else:
+        args, key, problem = PARAMETERS[case]
+    start = time.monotonic()
     result = subprocess.run([SIMULATOR, "--ros-args", *args], env=child_env(),
                             capture_output=True, text=True, timeout=60)
     assert result.returncode == 2, result.stderr
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith(f"simulator: error: {key}: "), result.stderr
+    assert problem in lines[0], lines[0]
     assert "Traceback" not in result.stdout + result.stderr
+    assert time.monotonic() - start < 30   # refused at start-up, nothing read without end
 
 
 def test_the_shipped_params_file_applies_under_another_node_name(tmp_path):
@@ -612,14 +681,19 @@ def test_the_shipped_params_file_applies_under_another_node_name(tmp_path):
     assert result.returncode == 2 and "publish_rate" in result.stderr, result.stderr
 
 
-def test_cmd_vel_held_for_4_s_drives_the_base_at_that_twist(probe, simulator, tmp_path):
+def test_cmd_vel_held_for_4_s_drives_the_base_at_that_twist_and_resimulates(probe, simulator,
+                                                                           tmp_path):
     """base_command velocity: cmd_vel (0.3 m/s, 0.5 rad/s) for 4 s of simulated time; the
-    wheel-speed loop inside the simulation brings /odom's twist within 10 % of it."""
+    wheel-speed loop inside the simulation brings /odom's twist within 10 % of it. The velocity
+    command is part of the run: recorded as applied, and the bag re-simulates bit for bit."""
     from geometry_msgs.msg import Twist
+    from rosbags.rosbag2 import Reader
+    from rosbags.typesys import Stores, get_typestore
     probe.pause(True)
+    bag = tmp_path / "velocity_run"
     node = start_simulator(probe, tmp_path, *FAST, "-p", "base_command:=velocity",
                            "-p", "wheel_speed.kp:=5.0", "-p", "wheel_speed.ki:=50.0",
-                           "-r", "__node:=velocity_sim")
+                           "-p", f"record:={bag}", "-r", "__node:=velocity_sim")
     publisher = probe.node.create_publisher(Twist, "/cmd_vel", 10)
     try:
         wait_for(lambda: publisher.get_subscription_count() > 0, "the node's cmd_vel subscription")
@@ -636,4 +710,76 @@ def test_cmd_vel_held_for_4_s_drives_the_base_at_that_twist(probe, simulator, tm
         assert efforts[0] != 0.0 and efforts[1] != 0.0   # the loop's torques, published
     finally:
         probe.node.destroy_publisher(publisher)
+        assert node.stop() == 0, node.output()
+    store = get_typestore(Stores.ROS2_JAZZY)
+    with Reader(bag) as reader:
+        topics = {connection.topic: connection.msgtype for connection in reader.connections}
+        assert topics["/cmd_vel"] == "geometry_msgs/msg/Twist"
+        assert "/wheel_effort_controller/commands" not in topics
+        commands = [(stamp, store.deserialize_cdr(data, "geometry_msgs/msg/Twist"))
+                    for connection, stamp, data in reader.messages()
+                    if connection.topic == "/cmd_vel"]
+    assert commands[0][0] == 0 and commands[0][1].linear.x == 0.0   # zero until commanded
+    assert any((c.linear.x, c.angular.z) == (0.3, 0.5) for _, c in commands), commands
+    assert all(stamp % PERIOD_NS == 0 for stamp, _ in commands)      # at segment starts
+    result = subprocess.run([executable("replay"), str(bag), "--resimulate"], env=child_env(),
+                            capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0 and "IDENTICAL" in result.stdout, result.stdout + result.stderr
+
+
+# --- load ---------------------------------------------------------------------------------------
+
+def cpu_seconds(process: SimulatorProcess) -> float:
+    """User + system CPU time of a node process so far (s), from /proc."""
+    fields = open(f"/proc/{process.process.pid}/stat").read().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def test_a_10_khz_command_flood_keeps_real_time_and_services_answer_within_50_ms(probe,
+                                                                                 simulator,
+                                                                                 tmp_path):
+    """Another process floods the wheel topic at 10 kHz while a node runs at real_time_factor
+    1: the node takes commands latest first when it needs them, so it keeps real time and
+    ~/pause answers within 50 ms."""
+    probe.pause(True)   # the shared node idles
+    node = start_simulator(probe, tmp_path, "-p", "integrator.method:=rk4",
+                           "-p", "integrator.dt:=0.001", "-p", "real_time_factor:=1.0",
+                           "-p", "command_timeout:=0.0", "-r", "__node:=flood_sim")
+    pause = probe.node.create_client(SetBool, "/flood_sim/pause")
+    seconds = 6.0
+    flood = subprocess.Popen([os.sys.executable, os.path.join(os.path.dirname(__file__),
+                                                              "command_flood.py"),
+                              "10000", str(seconds)], env=child_env(), stdout=subprocess.PIPE,
+                             text=True)
+    try:
+        wait_for(pause.service_is_ready, "the flooded node's ~/pause")
+        time.sleep(1.0)   # the flood is on
+        clock0, wall0, cpu0 = probe.snapshot("clock")[-1], time.monotonic(), cpu_seconds(node)
+        time.sleep(2.0)
+        clock1, wall1, cpu1 = probe.snapshot("clock")[-1], time.monotonic(), cpu_seconds(node)
+        factor = (clock1 - clock0) / 1e9 / (wall1 - wall0)
+        load = (cpu1 - cpu0) / (wall1 - wall0)
+        latencies = []
+        for paused in (True, False, True, False):
+            begin = time.monotonic()
+            future = pause.call_async(SetBool.Request(data=paused))
+            wait_for(future.done, "a ~/pause answer")
+            latencies.append(time.monotonic() - begin)
+            assert future.result().success
+            time.sleep(0.2)
+        assert flood.poll() is None, "the flood ended before the measurements"
+        sent = flood.communicate(timeout=seconds + 30)[0]
+        count = int(re.search(r"sent (\d+) in ([\d.]+) s", sent).group(1))
+        print(f"flood: {sent.strip()}, real-time factor {factor:.3f}, node CPU {load:.0%} of a "
+              f"core, ~/pause latencies "
+              f"{', '.join(f'{1000 * latency:.1f}' for latency in latencies)} ms")
+        assert count >= 0.8 * 10000 * seconds, sent   # the flood really was ~10 kHz
+        assert factor >= 0.9, f"real-time factor {factor:.3f} under the flood"
+        assert max(latencies) <= 0.05, f"~/pause latencies {latencies}"
+        assert node.process.poll() is None, node.output()
+    finally:
+        if flood.poll() is None:
+            flood.kill()
+            flood.wait()
+        probe.node.destroy_client(pause)
         assert node.stop() == 0, node.output()

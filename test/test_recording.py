@@ -28,6 +28,7 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import Trigger
 
+from bag_rewrite import rewrite_bag
 from executables import executable
 from ros_helpers import child_env as ros_child_env
 from ros_helpers import spinning
@@ -36,7 +37,7 @@ from mobile_manip_sim import __version__
 from mobile_manip_sim.engine.simulation import Simulation
 from mobile_manip_sim.messages import TOPIC_TYPES, float64_array
 from mobile_manip_sim.recording.bag_reader import open_bag
-from mobile_manip_sim.recording.bag_writer import DEFAULT_CHUNK_SIZE, BagWriter
+from mobile_manip_sim.recording.bag_writer import DEFAULT_CHUNK_SIZE
 from mobile_manip_sim.recording.cdr import exact_cdr
 from mobile_manip_sim.recording.headless import HeadlessRecorder
 from mobile_manip_sim.scene import load_scene, make_integrator
@@ -328,7 +329,8 @@ def test_a_node_bag_reads_back_with_mcap_and_is_complete(node_run):
     assert run == {"version": __version__, "integrator_method": "rk4", "dt": "0.001",
                    "rtol": repr(load_scene(None).integrator.rtol),
                    "atol": repr(load_scene(None).integrator.atol),
-                   "scene_name": "paper_two_link", "source": "node", "publish_rate": "100.0"}
+                   "scene_name": "paper_two_link", "source": "node", "publish_rate": "100.0",
+                   "base_command": "effort"}
     assert "rosbag2" in metadata
     for channel in summary.channels.values():
         qos = yaml.safe_load(channel.metadata["offered_qos_profiles"])
@@ -345,25 +347,6 @@ def test_resimulate_reproduces_the_node_run_bit_for_bit(node_run):
     for quantity in ("x", "y", "yaw", "v", "omega", "arm_prismatic_2 position",
                      "right_wheel_joint velocity"):
         assert re.search(rf"^{re.escape(quantity)}\s+0\s+-$", result.stdout, re.M), result.stdout
-
-
-def rewrite_bag(source: Path, target: Path, transform) -> None:
-    """Copy a bag with BagWriter, passing each message through transform(topic, data, index)."""
-    bag = open_bag(source)
-    qos = bag.channel_metadata()
-    counts = {}
-    with BagWriter(target) as writer:
-        for topic, type_name in bag.topics().items():
-            writer.add_topic(topic, type_name, qos[topic]["offered_qos_profiles"])
-        for name, data in bag.attachments().items():
-            writer.add_attachment(name, "application/octet-stream", data)
-        for name, data in bag.metadata().items():
-            if name != "rosbag2":
-                writer.add_metadata(name, data)
-        for message in bag.messages():
-            index = counts[message.topic] = counts.get(message.topic, -1) + 1
-            writer.write(message.topic, transform(message.topic, message.data, index),
-                         message.log_time_ns, message.publish_time_ns)
 
 
 def test_resimulate_reports_an_altered_command(node_run, tmp_path):
@@ -460,6 +443,40 @@ def test_recording_memory_is_bounded_by_the_chunk_size(tmp_path):
     assert summary_chunks >= 20
 
 
+# --- the node's bag rotation (recording/rotation.py), without a node -------------------------
+
+def test_a_new_time_line_rotates_the_bag_and_a_failure_only_stops_recording(tmp_path):
+    from mobile_manip_sim.errors import UserError
+    from mobile_manip_sim.messages import state_messages
+    from mobile_manip_sim.recording.recorder import RunRecorder
+    from mobile_manip_sim.recording.rotation import RotatingRecorder
+
+    scene = load_scene(None)
+    sim = Simulation(scene)
+    names = scene.robot.joint_names()
+    opened, lines = [], []
+
+    def make_bag(path):
+        if len(opened) == 2:
+            raise UserError("record", f"{path}: cannot create")
+        opened.append(path)
+        return RunRecorder(path, scene, scene.integrator, {"source": "node",
+                                                           "publish_rate": "100.0"})
+
+    recording = RotatingRecorder(tmp_path / "run", make_bag, lines.append, lines.append)
+    for stamp in (0, 10_000_000, 0, 10_000_000, 0, 10_000_000):   # three time lines
+        recording.states(stamp, state_messages(sim, stamp, names), sim.impacts)
+        recording.commands(stamp, [0.0, 0.0], [0.0] * 4)
+    recording.close()
+    assert opened == [str(tmp_path / "run"), str(tmp_path / "run_1")]
+    assert lines == [f"reset: bag {tmp_path / 'run'} closed, recording on in {tmp_path / 'run_1'}",
+                     f"recording stopped at the reset: record: {tmp_path / 'run_2'}: cannot "
+                     f"create"]
+    for bag in opened:   # each closed, each one time line
+        assert [m.log_time_ns for m in open_bag(bag).messages("/joint_states")] == \
+            [0, 10_000_000]
+
+
 # --- replay -----------------------------------------------------------------------------------
 
 def test_replay_publishes_the_recorded_messages_in_order_at_the_recorded_rate(probe, headless_bags):
@@ -486,6 +503,24 @@ def test_replay_publishes_the_recorded_messages_in_order_at_the_recorded_rate(pr
     gaps = sorted(b - a for a, b in zip(arrivals, arrivals[1:]))
     assert abs(gaps[len(gaps) // 2] - 0.05 / rate) < 0.01   # median spacing: 50 ms / rate
     assert f"played {sum(len(v) for v in recorded.values())} messages" in result.stdout
+
+
+def test_replay_without_waiting_still_reaches_a_subscriber_that_already_runs(probe,
+                                                                           headless_bags):
+    """No --wait-for-subscribers: discovery of the running probe is still awaited (bounded),
+    so its first message is the bag's first (it lost ~0.4 s of the bag before)."""
+    bag = headless_bags[0]
+    probe.clear()
+    start = time.monotonic()
+    result = run_cli("replay", str(bag), "--topics", "/joint_states", timeout=60)
+    wall = time.monotonic() - start
+    assert result.returncode == 0, result.stderr
+    recorded = [deserialize_message(m.data, JointState)
+                for m in open_bag(bag).messages("/joint_states")]
+    wait_for(lambda: len(probe.messages("/joint_states")) >= len(recorded),
+             "every replayed /joint_states")
+    assert probe.messages("/joint_states") == recorded
+    assert wall < 30, f"replay took {wall:.1f} s"
 
 
 # --- crashes and failures ---------------------------------------------------------------------

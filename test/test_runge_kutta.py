@@ -66,7 +66,7 @@ def engine_run(method, rtol, stops=True, times=SAMPLES[1:]):
 def test_one_step_equals_scipys_step(method, h):
     rtol, atol = 1e-3, 1e-6
     system, s0, f0, out, f1, K, err, evals, solver = one_step(method, h, rtol, atol)
-    tab = rk.tableau(rk.METHOD_IDS[method])
+    tab = rk.TABLEAUS[rk.METHOD_IDS[method]]
     assert evals == tab.n_stages
     assert relative(out, solver.y) < 1e-14
     assert relative(f1, solver.f) < 1e-14
@@ -87,7 +87,7 @@ def test_one_step_equals_scipys_step(method, h):
 
 def test_step_control_grows_shrinks_and_holds_after_a_rejection():
     for m in rk.METHOD_IDS.values():
-        exponent = -1 / (rk.tableau(m).error_order + 1)
+        exponent = -1 / (rk.TABLEAUS[m].error_order + 1)
         assert rk.next_step(m, 0.0, 1.0, False) == rk.MAX_FACTOR
         assert rk.next_step(m, 1e-30, 1.0, False) == rk.MAX_FACTOR
         assert rk.next_step(m, 0.5, 1.0, False) == pytest.approx(rk.SAFETY * 0.5 ** exponent)
@@ -134,7 +134,7 @@ def test_dense_output_has_its_order(method, hs):
         rk.dense_eval(m, coeffs, s0, h, 0.5, y)
         errors.append(np.max(np.abs(y - reference(0.5 * h))))
     slopes = np.diff(np.log(errors)) / np.diff(np.log(hs))
-    expected = rk.tableau(m).dense_order + 1
+    expected = rk.TABLEAUS[m].dense_order + 1
     assert np.all(np.abs(slopes - expected) < 0.7), (errors, slopes)
 
 

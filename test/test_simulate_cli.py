@@ -14,6 +14,7 @@ import pytest
 from rosbags.rosbag2 import Reader as RosbagsReader
 
 from executables import executable
+from hostile_yaml import ALIAS_BOMB
 
 SIMULATE = executable("simulate")
 CONFIG = Path(__file__).resolve().parents[1] / "config"
@@ -60,9 +61,7 @@ def test_special_files_as_a_scene_are_one_line_without_reading(tmp_path):
 
 def test_the_alias_bomb_scene_is_refused_fast(tmp_path):
     bomb = tmp_path / "bomb.yaml"
-    bomb.write_text("a: &a [x,x,x,x,x,x,x,x,x]\n" + "".join(
-        f"{chr(98 + i)}: &{chr(98 + i)} [" + ",".join([f"*{chr(97 + i)}"] * 9) + "]\n"
-        for i in range(8)))
+    bomb.write_text(ALIAS_BOMB)
     assert bomb.stat().st_size < 600
     result = simulate("--scene", bomb, "--out", tmp_path / "run.csv", timeout=30)
     assert_one_line(result, "bomb")
@@ -72,6 +71,18 @@ def test_dev_full_is_one_line():
     result = simulate("--out", "/dev/full", "--duration", "0.2")
     assert_one_line(result, "/dev/full")
     assert "No space left" in result.stderr
+
+
+def test_a_failed_out_leaves_the_recorded_bag_closed_and_whole(tmp_path):
+    """The CSV fails (/dev/full), the bag beside it is closed, not left half-written: its summary
+    and metadata.yaml are there and it re-simulates bit for bit up to the failure."""
+    result = simulate("--out", "/dev/full", "--duration", "0.2", "--record", tmp_path / "bag")
+    assert_one_line(result, "/dev/full")
+    assert (tmp_path / "bag" / "metadata.yaml").is_file()
+    replayed = subprocess.run([executable("replay"), str(tmp_path / "bag"), "--resimulate"],
+                              capture_output=True, text=True, timeout=120)
+    assert replayed.returncode == 0 and "IDENTICAL" in replayed.stdout, replayed.stdout + replayed.stderr
+    assert "no summary" not in replayed.stderr
 
 
 def test_dev_null_gets_no_impacts_file_beside_it_and_rows_end_in_lf(tmp_path):
@@ -114,9 +125,10 @@ def _started(tmp_path, *extra):
     return process
 
 
-@pytest.mark.parametrize("sig, status", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
-def test_a_signal_stops_promptly_and_closes_the_bag(tmp_path, sig, status):
-    process = _started(tmp_path, "--record", tmp_path / "bag")
+@pytest.mark.parametrize("sig, status, method", [(signal.SIGINT, 130, []), (signal.SIGTERM, 143, []),
+                                                 (signal.SIGINT, 130, ["--method", "radau"])])
+def test_a_signal_stops_promptly_and_closes_the_bag(tmp_path, sig, status, method):
+    process = _started(tmp_path, "--record", tmp_path / "bag", *method)
     sent = time.monotonic()
     process.send_signal(sig)
     _, stderr = process.communicate(timeout=30)

@@ -15,11 +15,13 @@ import pyarrow.parquet as pq
 import pytest
 from waiting import wait_for
 
-from mobile_manip_sim.errors import EXIT_USER_ERROR
+from mobile_manip_sim.errors import EXIT_USER_ERROR, UserError
 from mobile_manip_sim.scene import load_scene
+from mobile_manip_sim.sweep.overrides import parse_assignments
 from mobile_manip_sim.sweep.runner import run_one
 
 from executables import executable
+from hostile_yaml import ALIAS_BOMB
 
 # 24 runs: a negative mass (8 runs fail, naming the key), two integrators, four random draws.
 SMALL = """\
@@ -121,28 +123,52 @@ def long_spec(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def killed_worker_table(long_spec, tmp_path_factory):
-    """LONG through a real scheduler and two workers; worker B is SIGKILLed once it has finished
-    a run and while runs remain."""
+    """LONG through a real scheduler and two workers, worker B SIGKILLed after it has finished a
+    run and while runs remain. Nothing is left to timing: the sweep starts once the scheduler has
+    both workers and worker A's one thread is held by a task of this test (waiting on a Dask
+    Event), so only B can finish a run, and the sweep task queued behind the held one on A (work
+    stealing is off) cannot finish before A is released, after B is dead."""
+    from distributed import Client, Event
+
     out = tmp_path_factory.mktemp("cluster") / "out"
     port = free_port()
     address = f"tcp://127.0.0.1:{port}"
+    env = {**os.environ, "DASK_DISTRIBUTED__SCHEDULER__WORK_STEALING": "False"}
     processes = [start([executable("dask"), "scheduler", "--host", "127.0.0.1", "--port", str(port),
-                        "--no-dashboard"])]
+                        "--no-dashboard"], env=env)]
     try:
-        worker_ports = [free_port(), free_port()]
-        for worker_port in worker_ports:
+        workers = []
+        for _ in range(2):
+            worker_port = free_port()
+            workers.append(f"tcp://127.0.0.1:{worker_port}")
             processes.append(start([executable("dask"), "worker", address, "--nthreads", "1", "--no-nanny",
                                     "--host", "127.0.0.1", "--worker-port", str(worker_port),
                                     "--no-dashboard"]))
-        victim, victim_address = processes[2], f"tcp://127.0.0.1:{worker_ports[1]}"
-        driver = start([executable("sweep"), str(long_spec), "--out", str(out), "--scheduler", address])
-        processes.append(driver)
-        rows = wait_for(lambda: [r for r in parts(out) if r["worker"] == victim_address],
-                        "a run finished by worker B", 90)
-        assert len(parts(out)) < 40, "the sweep finished before the worker could be killed"
-        victim.send_signal(signal.SIGKILL)
-        victim.wait(timeout=10)
-        _, stderr = driver.communicate(timeout=90)
+        worker_a, victim, victim_address = workers[0], processes[2], workers[1]
+        with Client(address, timeout=90) as client:
+            client.wait_for_workers(2, timeout=90)
+            assert set(client.scheduler_info()["workers"]) == set(workers)
+            release = Event("release-worker-a", client=client)
+
+            def hold_worker_a():   # nested: pickled by value, the workers cannot import this file
+                Event("release-worker-a").wait(timeout=300)
+
+            held = client.submit(hold_worker_a, workers=[worker_a], pure=False, key="hold-worker-a")
+            wait_for(lambda: client.processing([worker_a])[worker_a], "worker A to hold its task", 90)
+            driver = start([executable("sweep"), str(long_spec), "--out", str(out), "--scheduler", address])
+            processes.append(driver)
+
+            def sweep_task_on_a():
+                return any(str(key).startswith("runs-") for key in client.processing([worker_a])[worker_a])
+            wait_for(sweep_task_on_a, "a sweep task queued on worker A", 90)
+            rows = wait_for(lambda: [r for r in parts(out) if r["worker"] == victim_address],
+                            "a run finished by worker B", 90)
+            assert len(parts(out)) < 40
+            victim.send_signal(signal.SIGKILL)
+            victim.wait(timeout=10)
+            release.set()
+            held.result(timeout=90)
+            _, stderr = driver.communicate(timeout=90)
         assert driver.returncode == 0, stderr
         return table(out), len(rows), victim_address
     finally:
@@ -245,6 +271,39 @@ def test_bad_specs_are_one_line_naming_the_key(tmp_path, text, key):
     assert result.returncode == EXIT_USER_ERROR
     assert result.stderr.strip().startswith(f"sweep: error: {key}"), result.stderr
     assert len(result.stderr.strip().splitlines()) == 1
+
+
+@pytest.mark.parametrize("content, problem", [
+    (ALIAS_BOMB, "expands to more than 100000 YAML nodes"),
+    ("grid: {integrator.method: [rk4]}\ngrid: {integrator.method: [euler]}\n", "grid: duplicate key"),
+    ("grid: " + "[" * 3000 + "]" * 3000, "nested deeper than 64 levels"),
+    (b"grid: \xff\n", "not UTF-8"), ("#" * (2 << 20), "larger than"),
+    ("fifo", "not a regular file"), ("/dev/zero", "not a regular file"),
+    ("grid: !!python/object:os.system {}\n", "not valid YAML"),
+])
+def test_hostile_spec_files_are_one_line_without_reading_on(tmp_path, content, problem):
+    """Spec files go through the scene's loader: its limits, refused in one line at once."""
+    from mobile_manip_sim.sweep.spec import load_spec
+
+    path = tmp_path / "spec.yaml"
+    if content == "fifo":
+        os.mkfifo(path)
+    elif content == "/dev/zero":
+        path = Path(content)
+    else:
+        (path.write_bytes if isinstance(content, bytes) else path.write_text)(content)
+    start = time.monotonic()
+    with pytest.raises(UserError) as caught:
+        load_spec(str(path))
+    assert problem in str(caught.value) and "\n" not in str(caught.value)
+    assert time.monotonic() - start < 2.0
+
+
+def test_simulate_set_values_are_read_by_the_same_loader():
+    with pytest.raises(UserError) as caught:
+        parse_assignments(["robot.base.mass=[*a]"])
+    assert str(caught.value).startswith("--set robot.base.mass: not valid YAML")
+    assert parse_assignments(["integrator.rtol=1e-10", "name=yes"]) == {"integrator.rtol": 1e-10, "name": "yes"}
 
 
 def test_an_unreachable_scheduler_is_one_line(tmp_path):

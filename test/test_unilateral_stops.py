@@ -63,7 +63,8 @@ def test_the_pivoting_solve_is_the_exact_complementarity_solution(seed):
     W = A @ A.T + 0.1 * np.eye(m)
     q = rng.normal(size=m)
     P, w, active = np.zeros(m), np.zeros(m), np.zeros(m, dtype=np.bool_)
-    assert solve_contacts(W, q, np.zeros(m, dtype=np.bool_), active, P, w, np.zeros((m, m + 1))) >= 0
+    assert solve_contacts(W, q, np.zeros(m, dtype=np.bool_), active, P, w, np.zeros((m, m + 1)),
+                          np.zeros(m, dtype=np.int64)) >= 0
     assert np.all(P >= 0.0) and np.all(w >= -1e-12) and abs(P @ w) < 1e-12
     assert np.allclose(P, brute_force_lcp(W, q), atol=1e-10)
 

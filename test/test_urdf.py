@@ -3,6 +3,7 @@ builds a multibody whose projected mass matrix ``M = Sᵀ M_full S`` equals the 
 (scenes built through `parse_scene`, so payload and wheel-inertia effects take the real path);
 joint names and types match /joint_states; ``describe`` behaves as a command-line tool."""
 import copy
+import os
 import zlib
 import subprocess
 import sys
@@ -14,6 +15,7 @@ import pinocchio as pin
 import pytest
 import yaml
 
+from hostile_yaml import ALIAS_BOMB
 from mobile_manip_sim.dynamics import Dynamics
 from mobile_manip_sim.scene import load_scene, parse_scene
 from mobile_manip_sim.urdf import robot_description
@@ -249,13 +251,19 @@ def test_describe_without_scene_prints_the_default_scene():
     assert result.stdout == robot_description(load_scene())
 
 
-def test_describe_missing_scene_is_a_one_line_user_error(tmp_path):
-    missing = tmp_path / "no_such_scene.yaml"
-    result = run_describe("--scene", str(missing))
+@pytest.mark.parametrize("kind, problem", [("missing", "cannot read"), ("fifo", "not a regular file"),
+                                           ("alias bomb", "expands to more than")])
+def test_describe_of_a_bad_scene_file_is_a_one_line_user_error(tmp_path, kind, problem):
+    scene = tmp_path / "no_such_scene.yaml"
+    if kind == "fifo":
+        os.mkfifo(scene)     # a blocking read would hang describe
+    elif kind == "alias bomb":
+        scene.write_text(ALIAS_BOMB)
+    result = run_describe("--scene", str(scene))
     assert result.returncode == 2
     assert result.stdout == ""
     lines = result.stderr.strip().splitlines()
-    assert len(lines) == 1 and str(missing) in lines[0], result.stderr
+    assert len(lines) == 1 and str(scene.stem) in lines[0] and problem in lines[0], result.stderr
 
 
 def test_describe_bad_flag_is_a_one_line_user_error():

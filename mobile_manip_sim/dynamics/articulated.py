@@ -81,7 +81,7 @@ def set_moving(free, moving):
         moving[free[a]] = 1.0
 
 
-@jit
+@jit_inline
 def articulated_forward_dynamics(model, q, u, Q, g, free, ws, ud):
     """u̇ = M(q)⁻¹ (Q − h(q, u)) in O(n) (module doc), gravity g (m/s², along −z) included.
 

@@ -5,9 +5,16 @@ as plain Python: the tests compare both paths. Compiled code is cached on disk, 
 run of a new install pays the compile time.
 
 `jit_inline` is for small helpers that numba should inline into their callers at the IR level.
-Both use ``error_model="numpy"``: a float division by zero gives inf/NaN (which the engine
-reports) instead of raising, which leaves no exception paths, hence no reference counting, in
-the hot loops.
+All use ``error_model="numpy"``: a float division by zero gives inf/NaN (which the engine
+reports) instead of raising, which leaves no exception paths in the hot loops.
+
+`jit` and `jit_inline` compile without numba's reference counting (NRT): the kernels take
+preallocated arrays and records of arrays and allocate nothing, and with NRT on every use of a
+record (the system record holds some forty arrays) across a branch or a call increfs and decrefs
+each of its arrays — atomic operations that cost more than the dynamics itself (1 µs of a 2.4 µs
+right-hand side on the paper robot).
+Scratch arrays come preallocated (workspaces, `stops.ImpactScratch`); numpy functions that
+return a new array cannot be used in a kernel.
 
 numba keys a cached function on its own source file only, yet a kernel called from another
 module is compiled *into* its caller: after an edit of `kernels.py`, the cached
@@ -35,9 +42,9 @@ else:
     def _njit(function, **options):
         """njit with an on-disk cache, or without one (one warning) where none can be written:
         a read-only install with a read-only HOME."""
+        options = dict(fastmath=False, nogil=True, error_model="numpy", **options)
         try:
-            return numba.njit(cache=True, fastmath=False, nogil=True, error_model="numpy",
-                              **options)(function)
+            return numba.njit(cache=True, **options)(function)
         except RuntimeError as error:  # numba: "cannot cache function …: no locator available"
             if "cannot cache" not in str(error):
                 raise
@@ -47,16 +54,46 @@ else:
                 import warnings
                 warnings.warn("numba cannot cache compiled kernels here (read-only install and "
                               "HOME; set NUMBA_CACHE_DIR): compiling at every start", stacklevel=3)
-            return numba.njit(cache=False, fastmath=False, nogil=True, error_model="numpy",
-                              **options)(function)
+            return numba.njit(cache=False, **options)(function)
 
     _warned = False
 
     def jit(function):
-        return _njit(function)
+        return _njit(function, _nrt=False)
 
     def jit_inline(function):
-        return _njit(function, inline="always")
+        return _njit(function, _nrt=False, inline="always")
+
+
+class Bound:
+    """A compiled kernel called from Python, again and again, with arguments of types that never
+    change (one simulation's own records and arrays; scalars passed as float or int as the
+    kernel takes them). The first call goes through numba's dispatcher, which resolves the type
+    of every argument — some 8 µs for the ~60 arrays of the engine's records, as long as ten
+    1 kHz steps of the paper robot — and finds or compiles the machine code; later calls go
+    straight to that code's entry point, which only unboxes the arguments (~1 µs).
+
+    Bind per object whose arrays are passed (their types are then fixed); without numba it is
+    the plain function."""
+
+    def __init__(self, function):
+        self.function = function
+        self._entry = None
+
+    def __call__(self, *args):
+        if self._entry is not None:
+            return self._entry(*args)
+        result = self.function(*args)
+        self._entry = self.function
+        if ENABLED:
+            overloads = self.function.overloads
+            if len(overloads) == 1:   # the one this call used: no need to type the arguments
+                self._entry = next(iter(overloads.values())).entry_point
+            else:   # (None where the dispatcher converted an argument: keep calling it)
+                found = overloads.get(tuple(numba.typeof(arg) for arg in args))
+                if found is not None:
+                    self._entry = found.entry_point
+        return result
 
 
 def _drop_stale_caches() -> None:

@@ -23,7 +23,7 @@ from .spatial import inertia_times, sym_add
 from .vec3 import add, axpy, cross, dot, matvec, put, row, scale, sub, tmatvec
 
 
-@jit
+@jit_inline
 def frames(model, q, ws):
     """Position pass: R_k = R_{k−1} · R0_k · Rz(q_k), O_{k+1} = O_k + l_k x_k (MODEL.md frames)."""
     mount, R0 = model[1], model[2]
@@ -241,7 +241,8 @@ def mass_matrix_by_columns(model, q, ws, zeros, unit, column, M):
         unit[:] = 0.0
         unit[k] = 1.0
         gibbs_appell(model, q, zeros, unit, 0.0, ws, column)
-        M[:, k] = column
+        for i in range(nu):
+            M[i, k] = column[i]
 
 
 @jit
@@ -283,7 +284,7 @@ def potential_energy(model, q, g, ws):
     return g * (V + tip_mass * O[n + 1, 2])
 
 
-@jit
+@jit_inline
 def configuration_rate(model, q, u, qdot):
     """q̇ from u with the nonholonomic constraints built in: ẋ = v cos yaw, θ̇_R = (v + bω)/r, …"""
     r, half_track = model[0][3], model[0][4]

@@ -21,7 +21,7 @@ functions, so one Illinois root finder (`locate`) serves every method.
 """
 import math
 
-from ..dynamics.jit import jit
+from ..dynamics.jit import jit, jit_inline
 from . import layout
 from .dense import interpolate
 from .fixed_step import step
@@ -32,7 +32,7 @@ N_SAMPLES = 16
 MAX_IMPACTS_PER_STEP = 64   # the Zeno guard: beyond it the rod is held at rest
 
 
-@jit
+@jit_inline
 def hermite_turns(l0, d0, l1, d1, h):
     """((τ₁, τ₂), c2, c3): where the cubic Hermite with values l0, l1 and slopes d0, d1 over
     [0, h] has zero slope (−1 for a missing root; roots may lie outside (0, h)), and its
@@ -54,7 +54,7 @@ def hermite_turns(l0, d0, l1, d1, h):
     return roots, c2, c3
 
 
-@jit
+@jit_inline
 def hermite_extrema(l0, d0, l1, d1, h):
     """(min, max) over [0, h] of the cubic Hermite with values l0, l1 and slopes d0, d1."""
     lo = min(l0, l1)
@@ -68,7 +68,7 @@ def hermite_extrema(l0, d0, l1, d1, h):
     return lo, hi
 
 
-@jit
+@jit_inline
 def crossing_in_step(s0, s1, h, system, watched, stroke):
     """True when a watched rod leaves its stroke during the step s0 → s1 (see module doc)."""
     nq, _ = layout.sizes(system)
@@ -168,6 +168,18 @@ def locate(kind, method, system, s0, a, b, i_l, side, stop, resting, trial, stag
 
 
 @jit
+def insert_sorted(a, m, x):
+    """Insert x into the sorted a[:m] (a has room for it); returns m + 1. (The kernels run
+    without numba's reference counting, so numpy's sort, which returns its array, is out.)"""
+    j = m
+    while j > 0 and a[j - 1] > x:
+        a[j] = a[j - 1]
+        j -= 1
+    a[j] = x
+    return m + 1
+
+
+@jit
 def first_crossing(method, system, s0, h, watched, resting, stroke, samples, trial, stages, forces,
                    dense=None):
     """Earliest (h', rod k, side) at which a watched rod meets a stop within the step s0 → h,
@@ -187,9 +199,7 @@ def first_crossing(method, system, s0, h, watched, resting, stroke, samples, tri
             turns, _, _ = hermite_turns(s0[i_l], s0[i_ld], trial[i_l], trial[i_ld], h)
             for tau in turns:
                 if 0.0 < tau < h:
-                    samples[m] = tau
-                    m += 1
-    samples[:m].sort()
+                    m = insert_sorted(samples, m, tau)
     best_h, best_k, best_side = -1.0, 0, 0
     for k in range(1, n + 1):
         if not watched[k - 1]:

@@ -11,7 +11,7 @@ All three advance ``s = (q, u, e, W)`` (`layout.py`) by one step of length h (s)
 `stepping.py` runs them, with the events in between.
 """
 from ..dynamics import kernels
-from ..dynamics.jit import jit
+from ..dynamics.jit import jit_inline
 from . import layout
 from .system import derivative
 
@@ -19,7 +19,7 @@ EULER, SEMI_IMPLICIT_EULER, RK4 = 0, 1, 2
 METHOD_IDS = {"euler": EULER, "semi_implicit_euler": SEMI_IMPLICIT_EULER, "rk4": RK4}
 
 
-@jit
+@jit_inline
 def step(method, system, s, h, out, stages, k1_ready=False):
     """One step of length h from s into out; ``stages`` is (4, len(s)) scratch. With
     ``k1_ready`` stages[0] already holds f(s) (computed by the caller at this very state)."""

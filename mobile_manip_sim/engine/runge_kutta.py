@@ -202,6 +202,9 @@ def _dop853() -> Tableau:
 
 RK45_TABLEAU = _rk45()
 DOP853_TABLEAU = _dop853()
+# For Python callers: compiled functions hand no arrays of their own back to Python (they run
+# without reference counting, `dynamics/jit.py`), so `tableau` is for compiled code only.
+TABLEAUS = {RK45: RK45_TABLEAU, DOP853: DOP853_TABLEAU}
 
 
 @jit

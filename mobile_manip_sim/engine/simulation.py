@@ -17,12 +17,14 @@ from collections import namedtuple
 import numpy as np
 
 from ..dynamics import Dynamics
+from ..dynamics.jit import Bound
 from ..methods import METHODS
 from ..errors import UserError
 from ..scene import IntegratorSettings, Scene
 from . import adaptive_stepping, dense, fixed_step, layout, stepping
 from . import runge_kutta as rk
 from .events import holding_margin
+from .step_watch import StepWatch
 from .stops import LOG_HELD, Impact, make_impact_scratch, make_stops, relock, release
 from .system import (KI, KP, RHS_EVALS, TARGET_L, TARGET_R, TORQUE_LIMIT, VELOCITY_MODE, System,
                      wheel_speed_torques)
@@ -32,10 +34,20 @@ def scipy_solver(method: str):
     from scipy import integrate
     return getattr(integrate, METHODS[method].stepper.split(":")[1])
 DEFAULT_WHEEL_SPEED_GAINS = (0.5, 5.0)   # kp N·m·s/rad, ki N·m/rad (see set_wheel_speed_gains)
+SCIPY_MIN_RTOL = 100 * np.finfo(float).eps   # SciPy's own floor; passed as is, it warns on stderr
 
 
 class SimulationError(RuntimeError):
     """The numbers went bad (NaN/Inf): says when and which quantity."""
+
+
+class StepLimitError(SimulationError):
+    """radau/bdf cannot follow the solution (`step_watch`): the settings named by `key` and the
+    efforts are to blame, so adapters treat it like a user error (status 2)."""
+
+    def __init__(self, key: str, problem: str):
+        super().__init__(f"{key}: {problem}")
+        self.key, self.problem = key, problem
 
 
 ImpactDetail = namedtuple("ImpactDetail", "q u_before u_after free held")
@@ -57,7 +69,7 @@ class Simulation:
                                 law.rest_speed if law else 0.0, self.system.permanently_locked)
         self.watched, self.resting, self.stroke = self.stops.watched, self.stops.resting, self.stops.stroke
         size = layout.state_size(self.nu)
-        self._scratch = stepping.make_scratch(size, model.n_links, make_impact_scratch(self.nu))
+        self._scratch = stepping.make_scratch(size, model.n_links, make_impact_scratch(self.nu, model.n_links))
         self._clock = np.zeros(5)
         self._clock[stepping.DT] = self.settings.dt
         # The compiled core that runs the method (stepping.py, adaptive_stepping.py; None: SciPy's
@@ -78,6 +90,13 @@ class Simulation:
             self._core_args = (rk.METHOD_IDS.get(method, dense.POWER), self.system.data, self.stops,
                                self._scratch, self._solve)
             self._step_budget = max(1, budget // 4)
+        # the compiled calls of every sample, bound to this simulation's argument types
+        self._advance = Bound(self._core.advance) if self._core else None
+        self._advance_samples = Bound(self._core.advance_samples) if self._core else None
+        self._total_energy = Bound(stepping.total_energy)
+        self._inside_step = Bound(adaptive_stepping.inside_step)
+        self._reach = Bound(adaptive_stepping.reach)
+        self._locate_event = Bound(adaptive_stepping.locate_event)
         self.set_wheel_speed_gains(*DEFAULT_WHEEL_SPEED_GAINS)
         self.reset()
 
@@ -100,6 +119,7 @@ class Simulation:
         self.impact_details: list[ImpactDetail] = []
         self.system.counters[:] = 0
         self._solver = None   # radau/bdf: SciPy's solver of the solve in progress
+        self._step_watch = StepWatch()
         self.wheel_efforts = self.joint_efforts = None
         self.set_efforts(self.scene.wheel_efforts, self.scene.joint_efforts)
         self.energy0 = self.total_energy()
@@ -131,7 +151,7 @@ class Simulation:
         return float(self.s[layout.work(self.nq, self.nu)])
 
     def total_energy(self) -> float:
-        return float(stepping.total_energy(self.system.data, self.s))
+        return float(self._total_energy(self.system.data, self.s))
 
     def energy_error(self) -> float:
         """(T + V)(t) − (T + V)(0) − W(t) + impact losses: zero for exact physics (J)."""
@@ -223,15 +243,15 @@ class Simulation:
         """Integrate from the current time to exactly t_end (s)."""
         if t_end < self.t:
             raise UserError("t_end", f"{t_end} is before the current time {self.t}")
-        if self._solve is not None and adaptive_stepping.inside_step(
-                self._core_args[0], self._solve, self.s, self._clock, t_end):
+        t_end = float(t_end)   # the bound calls take the types of their first call
+        if self._solve is not None and self._inside_step(self._core_args[0], self._solve, self.s,
+                                                         self._clock, t_end):
             return   # most targets of an adaptive run: inside the step in hand, interpolated
         if self._core is None:
             self._advance_scipy(t_end)
             return
         while True:
-            status = self._core.advance(*self._core_args, self.s, self._clock, t_end,
-                                        self._step_budget)
+            status = self._advance(*self._core_args, self.s, self._clock, t_end, self._step_budget)
             self._after_compiled(status)
             if status == stepping.DONE:
                 return
@@ -239,7 +259,7 @@ class Simulation:
     def sample(self, times) -> np.ndarray:
         """Advance through the increasing sample times (s); row i = (s, T + V) at times[i]. One
         compiled call (Python is entered only per step budget), but for SciPy's radau/bdf."""
-        times = np.asarray(times, dtype=float)
+        times = np.ascontiguousarray(times, dtype=float)
         rows = np.empty((times.size, self.s.size + 1))
         if times.size and times[0] < self.t:
             raise UserError("t_end", f"{times[0]} is before the current time {self.t}")
@@ -250,8 +270,8 @@ class Simulation:
             return rows
         i = 0
         while i < times.size:
-            status, i = self._core.advance_samples(*self._core_args, self.s, self._clock, times,
-                                                   rows, i, self._step_budget)
+            status, i = self._advance_samples(*self._core_args, self.s, self._clock, times, rows,
+                                              i, self._step_budget)
             self._after_compiled(status)
         return rows
 
@@ -284,7 +304,7 @@ class Simulation:
         """Step SciPy's solver from Python; everything else is the compiled adaptive core's
         (`adaptive_stepping.reach`, `locate_event`: samples, events, the Zeno guard, restarts),
         on the solver's interpolant as a power series (`dense.from_scipy`)."""
-        while not adaptive_stepping.reach(*self._core_args, self.s, self._clock, t_end):
+        while not self._reach(*self._core_args, self.s, self._clock, t_end):
             self._collect_impacts()
             self._take_scipy_step()
         self._collect_impacts()
@@ -295,16 +315,16 @@ class Simulation:
         status, work = solve.status, solve.work
         if status[adaptive_stepping.STEP_H] == 0.0:   # a new solve at (t, s)
             derivative = self.system.derivative
-            self._solver = scipy_solver(self.settings.method)(
-                lambda _t, y: derivative(y), self.t, self.s.copy(), math.inf, rtol=self.settings.rtol,
-                atol=self.settings.atol, first_step=status[adaptive_stepping.H_NEXT] or None)
+            settings = self.settings
+            self._solver = scipy_solver(settings.method)(
+                lambda _t, y: derivative(y), self.t, self.s.copy(), math.inf,
+                rtol=max(settings.rtol, SCIPY_MIN_RTOL), atol=settings.atol,
+                first_step=status[adaptive_stepping.H_NEXT] or None)
         solver = self._solver
-        status[adaptive_stepping.STEP_T0] = solver.t
+        t_before = status[adaptive_stepping.STEP_T0] = solver.t
         solve.start[:] = solver.y
         message = solver.step()
-        if solver.status == "failed":
-            raise SimulationError(f"t = {self._solver.t:.9g} s: {self.settings.method} failed: "
-                                  f"{message}")
+        self._check_scipy_step(solver, t_before, message)
         self._clock[stepping.STEPS] += 1
         if not np.all(np.isfinite(solver.y)):
             self._fail(solver.y)
@@ -314,12 +334,24 @@ class Simulation:
         series = dense.from_scipy(solver.dense_output()).coeffs
         coeffs[:] = 0.0
         coeffs[:len(series)] = series
-        status[adaptive_stepping.STEP_H] = solver.t - status[adaptive_stepping.STEP_T0]
+        status[adaptive_stepping.STEP_H] = solver.t - t_before
         status[adaptive_stepping.DENSE] = 1.0
         status[adaptive_stepping.EVENT] = adaptive_stepping.NO_EVENT
         if self.resting.any():   # the release check needs f(y₁) just evaluated
             work[rk.WORK_F1] = self.system.derivative(y1)
-        adaptive_stepping.locate_event(*self._core_args)
+        self._locate_event(*self._core_args)
+
+    def _check_scipy_step(self, solver, t_before: float, message) -> None:
+        """radau/bdf: a failed step (below ten spacings of t) or a crawl (`step_watch`) is one
+        StepLimitError naming the tolerances, instead of steps of 1e-18 s for ever."""
+        problem = message if solver.status == "failed" else \
+            self._step_watch.problem(t_before, solver.t - t_before)
+        if problem:
+            s = self.settings
+            raise StepLimitError("integrator.rtol", f"t = {t_before:.9g} s: {s.method} cannot "
+                                 f"follow the solution: {problem.rstrip('.')}; check the efforts and "
+                                 f"the scene, or loosen integrator.rtol ({s.rtol:g}) and "
+                                 f"integrator.atol ({s.atol:g})")
 
     def _fail(self, state) -> None:
         bad = [i for i, value in enumerate(state) if not math.isfinite(value)]

@@ -12,7 +12,7 @@ from collections import namedtuple
 import numpy as np
 
 from ..dynamics import kernels
-from ..dynamics.jit import jit
+from ..dynamics.jit import jit, jit_inline
 from . import layout
 from .events import (CROSSING, MAX_IMPACTS_PER_STEP, N_SAMPLES, RELEASE, crossing_in_step,
                      first_crossing, holding_margin, locate, step_state)
@@ -40,7 +40,7 @@ def make_scratch(size: int, n_links: int, impact_scratch) -> StepScratch:
                        np.zeros(size), np.zeros(N_SAMPLES + 2 * n_links), impact_scratch)
 
 
-@jit
+@jit_inline
 def finite(s):
     for i in range(s.shape[0]):
         if not math.isfinite(s[i]):
@@ -48,13 +48,13 @@ def finite(s):
     return True
 
 
-@jit
+@jit_inline
 def copy_into(source, target):
     for i in range(source.shape[0]):
         target[i] = source[i]
 
 
-@jit
+@jit_inline
 def any_watched(stops):
     for k in range(stops.watched.shape[0]):
         if stops.watched[k]:

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..dynamics import kernels
-from ..dynamics.jit import jit
+from ..dynamics.jit import jit, jit_inline
 from . import layout
 from .events import MAX_IMPACTS_PER_STEP, holding_margin
 from .system import derivative, holding_forces
@@ -44,9 +44,17 @@ StopsData = namedtuple("StopsData", [
 ])
 
 ImpactScratch = namedtuple("ImpactScratch", [
-    "M",        # (n_u, n_u) mass matrix
-    "L",        # (n_u, n_u) its Cholesky factor
-    "vectors",  # (4, n_u) scratch for the mass-matrix kernel and the solve
+    "M",         # (n_u, n_u) mass matrix
+    "L",         # (n_u, n_u) its Cholesky factor
+    "vectors",   # (4, n_u) scratch for the mass-matrix kernel and the solve
+    "free",      # (n_u,) int64: the free pseudo-velocities, padded with −1
+    "rods",      # (n,) int64: the rods in contact (the one hit first)
+    "index",     # (n,) int64: the solve's active contacts
+    "flags",     # (2, n) bool: each contact bilateral, active
+    "contact",   # (6, n) per contact: σ, e, c⁻, (1 + e) c⁻, impulse P, w = W P + q
+    "MinvE",     # (n, n_u) M⁻¹ E, one row per contact
+    "W",         # (n, n) the Delassus matrix Eᵀ M⁻¹ E
+    "cholesky",  # (n, n + 1) the solve's factor and right-hand side
 ])
 
 
@@ -63,8 +71,13 @@ def make_stops(model, law, restitution, rest_speed, permanently_locked) -> Stops
                      np.zeros(1, dtype=np.int64))
 
 
-def make_impact_scratch(nu: int) -> ImpactScratch:
-    return ImpactScratch(np.zeros((nu, nu)), np.zeros((nu, nu)), np.zeros((4, nu)))
+def make_impact_scratch(nu: int, n: int) -> ImpactScratch:
+    """Everything one impact needs, preallocated: the kernels allocate nothing (`dynamics/jit.py`)."""
+    n = max(n, 1)
+    return ImpactScratch(np.zeros((nu, nu)), np.zeros((nu, nu)), np.zeros((4, nu)),
+                         np.zeros(nu, dtype=np.int64), np.zeros(n, dtype=np.int64),
+                         np.zeros(n, dtype=np.int64), np.zeros((2, n), dtype=np.bool_),
+                         np.zeros((6, n)), np.zeros((n, nu)), np.zeros((n, n)), np.zeros((n, n + 1)))
 
 
 @jit
@@ -113,7 +126,7 @@ def release_at_root(system, stops, s, ds, forces):
     relock(system, stops)
 
 
-@jit
+@jit_inline
 def any_resting(stops):
     for k in range(stops.resting.shape[0]):
         if stops.resting[k] != 0:
@@ -129,13 +142,13 @@ def kinetic_energy(system, s):
 
 
 @jit
-def solve_contacts(W, q, bilateral, active, P, w, scratch):
+def solve_contacts(W, q, bilateral, active, P, w, scratch, idx):
     """The impact LCP of MODEL.md, exactly: P ≥ 0, w = W P + q ≥ 0, Pᵀw = 0 (W m×m symmetric
     positive definite, so the solution is unique), by Murty's least-index principal pivoting:
     solve on the active set, toggle the first contact that is wrong (a negative impulse, or an
     inactive one moving into its stop), repeat — finite for a P-matrix. A ``bilateral`` contact
     is always active with an impulse of either sign (a rod held by a Zeno guard). ``scratch`` is
-    (m, m + 1). Returns the pivots taken."""
+    (m, m + 1), ``idx`` (m,) int64. Returns the pivots taken."""
     m = q.shape[0]
     for i in range(m):
         active[i] = bilateral[i]
@@ -146,7 +159,6 @@ def solve_contacts(W, q, bilateral, active, P, w, scratch):
     for pivots in range(1 << min(m + 4, 30)):
         # P_A = −W_AA⁻¹ q_A by Cholesky on the active rows, zero elsewhere
         L = scratch
-        idx = np.empty(m, dtype=np.int64)
         n = 0
         for i in range(m):
             if active[i]:
@@ -213,10 +225,11 @@ def contact_impulses(system, stops, s, k_hit, side_hit, restitution, settling, s
     n = stops.resting.shape[0]
     q = s[:nq]
     # contacts: the rod hit first, then the resting ones; σ = +1 at a lower stop (away = +l)
-    rods = np.empty(n, dtype=np.int64)
-    sigma = np.empty(n)
-    e = np.zeros(n)
-    m = 0
+    rods, free = scratch.rods, scratch.free
+    sigma, e, c_minus, qv, P, w = (scratch.contact[0], scratch.contact[1], scratch.contact[2],
+                                   scratch.contact[3], scratch.contact[4], scratch.contact[5])
+    for i in range(n):
+        e[i] = 0.0
     rods[0], sigma[0], e[0] = k_hit, -float(side_hit), restitution
     m = 1
     for k in range(1, n + 1):
@@ -224,7 +237,8 @@ def contact_impulses(system, stops, s, k_hit, side_hit, restitution, settling, s
             rods[m], sigma[m] = k, -float(stops.resting[k - 1])
             m += 1
     # free DOFs for the impulse: all but the scene's locked ones
-    free = np.full(nu, -1, dtype=np.int64)
+    for j in range(nu):
+        free[j] = -1
     n_free = 0
     for j in range(nu):
         if not stops.permanent[j]:
@@ -236,15 +250,14 @@ def contact_impulses(system, stops, s, k_hit, side_hit, restitution, settling, s
         zeros[i] = 0.0
     kernels.mass_matrix(system.model, q, system.ws, zeros, unit, column, scratch.M)
     # M⁻¹ E, one column per contact (over the free DOFs, in free order)
-    MinvE = np.zeros((m, nu))
+    MinvE = scratch.MinvE
     for c in range(m):
         j = layout.u_l(rods[c])
         for i in range(nu):
             unit[i] = 0.0
         unit[j] = sigma[c]
         kernels.cholesky_solve(scratch.M, unit, free, n_free, scratch.L, MinvE[c])
-    W = np.empty((m, m))
-    c_minus = np.empty(m)
+    W = scratch.W[:m, :m]
     for a in range(m):
         c_minus[a] = sigma[a] * s[nq + layout.u_l(rods[a])]
         for b in range(m):
@@ -254,16 +267,13 @@ def contact_impulses(system, stops, s, k_hit, side_hit, restitution, settling, s
             while free[pos] != j:
                 pos += 1
             W[a, b] = sigma[a] * MinvE[b, pos]
-    qv = np.empty(m)
+    bilateral, active = scratch.flags[0, :m], scratch.flags[1, :m]
     for a in range(m):
         qv[a] = (1.0 + e[a]) * c_minus[a]
-    bilateral = np.zeros(m, dtype=np.bool_)
-    if settling:
-        bilateral[:] = True
-    active = np.zeros(m, dtype=np.bool_)
-    P = np.zeros(m)
-    w = np.zeros(m)
-    solve_contacts(W, qv, bilateral, active, P, w, np.zeros((m, m + 1)))
+        bilateral[a] = settling
+        active[a] = False
+    solve_contacts(W, qv[:m], bilateral, active, P[:m], w[:m], scratch.cholesky[:m, :m + 1],
+                   scratch.index[:m])
     for c in range(m):
         if P[c] != 0.0:
             for a in range(n_free):

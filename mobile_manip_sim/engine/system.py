@@ -23,7 +23,7 @@ import numpy as np
 
 from ..dynamics import kernels
 from ..dynamics.articulated import articulated_forward_dynamics
-from ..dynamics.jit import jit
+from ..dynamics.jit import jit, jit_inline
 from . import layout
 
 # counters[...] indices
@@ -61,7 +61,7 @@ def wheel_speed_torques(system, s):
     return min(max(tau_R, -limit), limit), min(max(tau_L, -limit), limit)
 
 
-@jit
+@jit_inline
 def applied_forces(system, s, ds):
     """Q = commanded efforts (or the PI loop's wheel torques) + damping, into ``system.Q``; also
     writes ė (the controller's error rates) into ds. Returns the power Q·u (W)."""

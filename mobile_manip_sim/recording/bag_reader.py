@@ -21,7 +21,6 @@ import zlib
 from pathlib import Path, PurePath
 from typing import Iterable, Iterator, NamedTuple
 
-import yaml
 import zstandard
 from mcap.data_stream import ReadDataStream
 from mcap.exceptions import InvalidMagic, McapError
@@ -33,6 +32,7 @@ from mcap.stream_reader import MAGIC_SIZE, breakup_chunk
 from mcap.summary import Summary
 from mcap.writer import MCAP0_MAGIC as MCAP_MAGIC
 
+from mobile_manip_sim import schema
 from mobile_manip_sim.errors import UserError
 
 # What the mcap library raises on damaged input (lz4 raises RuntimeError, CRC mismatch is a
@@ -170,28 +170,24 @@ def _mcap_files(path: Path) -> list[Path]:
             raise UserError(str(path), "not a rosbag2 MCAP bag (no metadata.yaml, no .mcap file)")
         return files
     info = _bag_information(metadata_path)
-    if info.get("storage_identifier") != "mcap":
+    if info["storage_identifier"] != "mcap":
         raise UserError(str(path), "not a rosbag2 MCAP bag (storage_identifier "
-                                   f"{info.get('storage_identifier')!r} in metadata.yaml)")
-    files = [path / PurePath(name).name for name in info.get("relative_file_paths") or []]
-    for file in files:
+                                   f"{schema.short(info['storage_identifier'])} in metadata.yaml)")
+    files = [path / PurePath(name).name for name in info["relative_file_paths"]]
+    for i, file in enumerate(files):
+        if file in files[:i]:   # read twice, every message would be played twice
+            raise UserError(f"{metadata_path}: rosbag2_bagfile_information.relative_file_paths[{i}]",
+                            f"{file.name} is listed twice")
         if not file.is_file():
             raise UserError(str(file), "listed in metadata.yaml but missing")
-    if not files:
-        raise UserError(str(metadata_path), "relative_file_paths lists no file")
     return files
 
 
 def _bag_information(metadata_path: Path) -> dict:
-    """The ``rosbag2_bagfile_information`` map of a metadata.yaml."""
-    try:
-        document = yaml.safe_load(metadata_path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, yaml.YAMLError) as error:
-        raise UserError(str(metadata_path), f"unreadable ({_one_line(error)})") from None
-    info = document.get("rosbag2_bagfile_information") if isinstance(document, dict) else None
-    if not isinstance(info, dict):
-        raise UserError(str(metadata_path), "no rosbag2_bagfile_information map")
-    return info
+    """The ``rosbag2_bagfile_information`` map of a metadata.yaml, read with the schema's
+    limits (a regular file, size, nesting, aliases, duplicate keys) and checked key by key."""
+    what = str(metadata_path)
+    return schema.bag_information(schema.load_yaml(metadata_path, what=what), what)
 
 
 def _check_header(path: Path, stream) -> None:

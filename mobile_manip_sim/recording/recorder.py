@@ -1,12 +1,13 @@
 """`RunRecorder`: one simulated run (one time line) → one self-describing rosbag2 bag.
 
-Topics (types and offered QoS as the node publishes them, see ``messages.py``):
-/joint_states, /odom, /clock (reliable, volatile, keep_last 100) and both effort command topics
-(reliable, volatile, keep_last 10). Every record's log_time and publish_time is the simulated
-time it belongs to: a state's stamp; a command's segment start, the simulated time from which
-the engine held it. Commands are written as applied (after the command timeout and the effort
-limits), at t = 0 and then only when they change, so the bag determines the whole command
-sequence (zero-order hold between records).
+Topics (types and offered QoS as the node publishes them, see ``topics.py``):
+/joint_states, /odom, /clock (reliable, volatile, keep_last 100) and the run's command topics
+(reliable, volatile, keep_last 10): the arm's efforts and the base's command, wheel torques or,
+with base_command velocity, /cmd_vel (a Twist: v, ω). Every record's log_time and publish_time
+is the simulated time it belongs to: a state's stamp; a command's segment start, the simulated
+time from which the engine held it. Commands are written as applied (after the command timeout
+and the effort limits), at t = 0 and then only when they change, so the bag determines the
+whole command sequence (zero-order hold between records, `timeline.CommandHistory`).
 
 Self-describing: attachment ``scene.yaml`` (the full scene, defaults applied), written first;
 MCAP metadata ``mobile_manip_sim`` (package version, integrator settings, rates, scene name,
@@ -27,9 +28,10 @@ import numpy as np
 
 from mobile_manip_sim import __version__
 from mobile_manip_sim.errors import UserError
-from mobile_manip_sim.messages import (ARM_TOPIC, COMMAND_QOS_DEPTH, COMMAND_TOPICS,
-                                       STATE_QOS_DEPTH, STATE_TOPICS, TOPIC_TYPES, WHEEL_TOPIC,
-                                       float64_array)
+from mobile_manip_sim.messages import command_message
+from mobile_manip_sim.topics import (ARM_TOPIC, BASE_COMMAND_TOPICS, COMMAND_QOS_DEPTH,
+                                     COMMAND_TOPICS, STATE_QOS_DEPTH, STATE_TOPICS,
+                                     recorded_topics)
 from mobile_manip_sim.recording.bag_writer import DEFAULT_CHUNK_SIZE, BagWriter, qos_yaml
 from mobile_manip_sim.recording.cdr import exact_cdr
 
@@ -60,7 +62,8 @@ class RunRecorder:
     """Records one run into a new bag directory ``path`` (see the module docstring).
 
     ``extra_metadata`` adds to the metadata map: ``source`` (node|simulate) and the rate
-    (``publish_rate`` or ``sample_rate``) at least. ``flush_interval`` (wall seconds, None = off)
+    (``publish_rate`` or ``sample_rate``) at least; a node run also its ``base_command``
+    (effort|velocity, default effort), which chooses the base's command topic. ``flush_interval`` (wall seconds, None = off)
     closes the open chunk that often, bounding what a SIGKILL loses in a slow run; headless runs
     leave it off so that their chunks, and hence their bags, do not depend on the wall clock.
     """
@@ -68,10 +71,14 @@ class RunRecorder:
     def __init__(self, path, scene, settings, extra_metadata: dict, *,
                  chunk_size: int = DEFAULT_CHUNK_SIZE, flush_interval: float | None = None):
         metadata = run_metadata(scene, settings, extra_metadata)
+        base_command = metadata.get("base_command", "effort")
+        if base_command not in BASE_COMMAND_TOPICS:
+            raise UserError("base_command", f"{base_command!r} is not effort or velocity")
+        self._base_topic = BASE_COMMAND_TOPICS[base_command]
         self.writer = BagWriter(path, chunk_size=chunk_size)
         self.path = self.writer.path
         try:
-            for topic, type_name in TOPIC_TYPES.items():
+            for topic, type_name in recorded_topics(base_command).items():
                 self.writer.add_topic(topic, type_name, topic_qos(topic))
             self.writer.add_attachment(SCENE_ATTACHMENT, "application/yaml",
                                        scene.to_yaml().encode())
@@ -94,14 +101,17 @@ class RunRecorder:
         self._last_stamp = max(self._last_stamp, stamp)
         self._maybe_flush()
 
-    def commands(self, stamp: int, wheels, joints) -> None:
-        """The efforts held from ``stamp`` ns on; written when they differ (bit for bit) from
-        the last ones written, and always the first time."""
-        for topic, values in ((WHEEL_TOPIC, wheels), (ARM_TOPIC, joints)):
+    def commands(self, stamp: int, base, joints) -> None:
+        """The commands held from ``stamp`` ns on: ``base`` the wheel torques (or, in velocity
+        mode, v and ω; None = none given), ``joints`` the arm efforts. Each is written when it
+        differs (bit for bit) from the last one written, and always the first time."""
+        for topic, values in ((self._base_topic, base), (ARM_TOPIC, joints)):
+            if values is None:
+                continue
             values = np.asarray(values, dtype=float)
             key = values.tobytes()
             if self._last_commands.get(topic) != key:
-                self.writer.write(topic, exact_cdr(float64_array(values)), stamp, stamp)
+                self.writer.write(topic, exact_cdr(command_message(topic, values)), stamp, stamp)
                 self._last_commands[topic] = key
         self._last_stamp = max(self._last_stamp, stamp)
 

@@ -8,25 +8,11 @@ from __future__ import annotations
 import copy
 import re
 
-import yaml
-
+from .. import schema
 from ..errors import UserError
 from ..scene import Scene, parse_scene
 
 _SEGMENT = re.compile(r"([A-Za-z_][A-Za-z0-9_]*)((?:\[\d+\])*)$")
-
-
-class _Loader(yaml.SafeLoader):
-    """YAML 1.1 as PyYAML reads it, except that ``1e-3`` is a number (PyYAML: a string)."""
-
-
-_Loader.add_implicit_resolver(
-    "tag:yaml.org,2002:float",
-    re.compile(r"^[-+]?(?:\d+\.?\d*|\.\d+)[eE][-+]?\d+$"), list("-+0123456789."))
-
-
-def load_yaml(text: str):
-    return yaml.load(text, Loader=_Loader)
 
 
 def parse_path(path: str) -> list:
@@ -101,8 +87,5 @@ def parse_assignments(assignments: list[str], flag: str = "--set") -> dict:
         path, equals, value = text.partition("=")
         if not equals or not path.strip():
             raise UserError(flag, f"expected KEY=VALUE, got {text!r}")
-        try:
-            overrides[path.strip()] = load_yaml(value)
-        except yaml.YAMLError:
-            raise UserError(f"{flag} {path.strip()}", f"value is not valid YAML: {value!r}") from None
+        overrides[path.strip()] = schema.load_yaml(value, what=f"{flag} {schema.label(path.strip())}")
     return overrides

@@ -21,9 +21,10 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import schema
 from ..errors import UserError
 from ..scene import load_scene
-from .overrides import check_known, load_yaml
+from .overrides import check_known
 
 DISTRIBUTIONS = {"uniform": "[low, high]", "normal": "[mean, standard deviation]",
                  "loguniform": "[low, high], both positive", "choice": "[value, …]"}
@@ -74,27 +75,21 @@ def _draw(rng, name, params, count) -> list:
 
 
 def load_spec(path: str) -> Spec:
-    try:
-        text = Path(path).read_text()
-    except (OSError, UnicodeDecodeError) as error:
-        raise UserError(str(path), f"cannot read sweep file ({getattr(error, 'strerror', None) or error})") from None
-    try:
-        doc = load_yaml(text)
-    except Exception as error:  # yaml.YAMLError and its kin
-        raise UserError(str(path), f"not valid YAML: {getattr(error, 'problem', error)}") from None
-    return parse_spec(doc, base_dir=Path(path).parent)
+    what = schema.label(str(path), 160)
+    text = schema.read_text_file(path, what, kind="sweep file")
+    return parse_spec(schema.load_yaml(text, what=what), base_dir=Path(path).parent)
 
 
 def parse_spec(doc, base_dir: Path = Path(".")) -> Spec:
     if not isinstance(doc, dict):
-        raise UserError("sweep", f"expected a mapping, got {doc!r}")
+        raise UserError("sweep", f"expected a mapping, got {schema.short(doc)}")
     for key in doc:
         if key not in KEYS:
             raise UserError(str(key), f"unknown key (allowed: {', '.join(KEYS)})")
     scene_path = doc.get("scene")
     if scene_path is not None:
         if not isinstance(scene_path, str):
-            raise UserError("scene", f"expected a file name, got {scene_path!r}")
+            raise UserError("scene", f"expected a file name, got {schema.short(scene_path)}")
         candidate = Path(scene_path)
         if not candidate.is_absolute() and not candidate.exists() and (base_dir / candidate).exists():
             candidate = base_dir / candidate
@@ -118,13 +113,13 @@ def parse_spec(doc, base_dir: Path = Path(".")) -> Spec:
 
 def _positive(value, key) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
-        raise UserError(key, f"expected a positive number, got {value!r}")
+        raise UserError(key, f"expected a positive number, got {schema.short(value)}")
     return float(value)
 
 
 def _count(value, key) -> int:
     if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-        raise UserError(key, f"expected a whole number ≥ 1, got {value!r}")
+        raise UserError(key, f"expected a whole number ≥ 1, got {schema.short(value)}")
     return value
 
 
@@ -132,12 +127,12 @@ def _grid(grid, document) -> dict:
     if grid is None:
         return {}
     if not isinstance(grid, dict) or not grid:
-        raise UserError("grid", f"expected a mapping of key paths to lists of values, got {grid!r}")
+        raise UserError("grid", f"expected a mapping of key paths to lists of values, got {schema.short(grid)}")
     out = {}
     for path, values in grid.items():
         key = f"grid.{path}"
         if not isinstance(values, list) or not values:
-            raise UserError(key, f"expected a non-empty list of values, got {values!r}")
+            raise UserError(key, f"expected a non-empty list of values, got {schema.short(values)}")
         _known(document, str(path), values[0], key)
         out[str(path)] = values
     return out
@@ -147,7 +142,7 @@ def _random(section, document) -> tuple[int, int, dict]:
     if section is None:
         return 0, 0, {}
     if not isinstance(section, dict):
-        raise UserError("random", f"expected a mapping with count, seed and vary, got {section!r}")
+        raise UserError("random", f"expected a mapping with count, seed and vary, got {schema.short(section)}")
     for key in section:
         if key not in ("count", "seed", "vary"):
             raise UserError(f"random.{key}", "unknown key (allowed: count, seed, vary)")
@@ -156,10 +151,10 @@ def _random(section, document) -> tuple[int, int, dict]:
     count = _count(section["count"], "random.count")
     seed = section.get("seed", 0)
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
-        raise UserError("random.seed", f"expected a whole number ≥ 0, got {seed!r}")
+        raise UserError("random.seed", f"expected a whole number ≥ 0, got {schema.short(seed)}")
     vary = section.get("vary")
     if not isinstance(vary, dict) or not vary:
-        raise UserError("random.vary", f"expected a mapping of key paths to distributions, got {vary!r}")
+        raise UserError("random.vary", f"expected a mapping of key paths to distributions, got {schema.short(vary)}")
     out = {}
     for path, distribution in vary.items():
         key = f"random.vary.{path}"
@@ -172,23 +167,23 @@ def _random(section, document) -> tuple[int, int, dict]:
 def _distribution(value, key) -> tuple[str, list]:
     choices = ", ".join(f"{name}: {shape}" for name, shape in DISTRIBUTIONS.items())
     if not isinstance(value, dict) or len(value) != 1:
-        raise UserError(key, f"expected one distribution ({choices}), got {value!r}")
+        raise UserError(key, f"expected one distribution ({choices}), got {schema.short(value)}")
     (name, params), = value.items()
     if name not in DISTRIBUTIONS:
-        raise UserError(key, f"unknown distribution {name!r} (choose one of: {choices})")
+        raise UserError(key, f"unknown distribution {schema.short(name)} (choose one of: {choices})")
     if not isinstance(params, list) or not params:
-        raise UserError(f"{key}.{name}", f"expected {DISTRIBUTIONS[name]}, got {params!r}")
+        raise UserError(f"{key}.{name}", f"expected {DISTRIBUTIONS[name]}, got {schema.short(params)}")
     if name == "choice":
         return name, params
     numbers = len(params) == 2 and all(isinstance(p, (int, float)) and not isinstance(p, bool)
                                        and math.isfinite(p) for p in params)
     if not numbers:
-        raise UserError(f"{key}.{name}", f"expected {DISTRIBUTIONS[name]}, got {params!r}")
+        raise UserError(f"{key}.{name}", f"expected {DISTRIBUTIONS[name]}, got {schema.short(params)}")
     low, high = params
     if name == "normal" and high < 0 or name != "normal" and low > high:
-        raise UserError(f"{key}.{name}", f"expected {DISTRIBUTIONS[name]}, got {params!r}")
+        raise UserError(f"{key}.{name}", f"expected {DISTRIBUTIONS[name]}, got {schema.short(params)}")
     if name == "loguniform" and low <= 0:
-        raise UserError(f"{key}.{name}", f"expected {DISTRIBUTIONS[name]}, got {params!r}")
+        raise UserError(f"{key}.{name}", f"expected {DISTRIBUTIONS[name]}, got {schema.short(params)}")
     return name, [float(low), float(high)]
 
 

@@ -1,0 +1,94 @@
+"""`RotatingRecorder`: the node's recording, one bag per time line.
+
+A bag holds one time line: when a state arrives whose stamp is not after the last one recorded
+(the t = 0 state after a ~/reset), the bag is closed and recording goes on in
+``<path>_1``, ``<path>_2``, … A failure (a full disk, an unusable new directory) is one error
+line and the end of recording, never of the run. Only the node's stepping thread calls it (and
+the shutdown after that thread stopped), outside the lock its services take, so closing a bag
+never delays a service.
+"""
+from __future__ import annotations
+
+from typing import Callable
+
+from mobile_manip_sim.recording.recorder import RunRecorder
+
+
+class RotatingRecorder:
+    """``open_bag(path)`` makes each bag's `RunRecorder`; ``info`` and ``error`` take one line
+    of text each (the node's logger)."""
+
+    def __init__(self, path: str, open_bag: Callable[[str], RunRecorder],
+                 info: Callable[[str], None], error: Callable[[str], None]):
+        self.base_path = str(path)
+        self._open_bag = open_bag
+        self.info, self.error = info, error
+        self._count = 0
+        self._last_stamp: int | None = None   # last state stamp in the open bag
+        self.recorder: RunRecorder | None = self._open(self.base_path)   # errors: raised
+
+    @property
+    def path(self):
+        return self.recorder.path if self.recorder is not None else None
+
+    def _open(self, path: str) -> RunRecorder:
+        recorder = self._open_bag(path)
+        self._count += 1
+        self._last_stamp = None
+        return recorder
+
+    def states(self, stamp: int, messages: dict, impacts) -> None:
+        """After each publication: the state messages at ``stamp`` ns and the engine's impact
+        list so far (the engine is at ``stamp``)."""
+        if self.recorder is None:
+            return
+        if self._last_stamp is not None and stamp <= self._last_stamp:
+            self._rotate()
+            if self.recorder is None:
+                return
+        self._last_stamp = stamp
+
+        def record(recorder):
+            recorder.states(stamp, messages)
+            recorder.impacts(impacts)
+        self._do(record)
+
+    def commands(self, stamp: int, base, joints) -> None:
+        """At each segment start: the commands held from ``stamp`` ns on, as applied."""
+        self._do(lambda recorder: recorder.commands(stamp, base, joints))
+
+    def close(self, info=None, error=None) -> None:
+        """Finish the open bag (impacts, summary, metadata.yaml); idempotent. ``info`` and
+        ``error`` replace the loggers (at shutdown the node's may be gone)."""
+        if self.recorder is None:
+            return
+        path = self.recorder.path
+        self._do(lambda recorder: recorder.close(), error)
+        if self.recorder is not None:
+            self.recorder = None
+            (info or self.info)(f"bag {path} closed")
+
+    def _rotate(self) -> None:
+        previous = self.recorder.path
+        self._do(lambda recorder: recorder.close())
+        if self.recorder is None:
+            return
+        self.recorder = None
+        try:
+            self.recorder = self._open(f"{self.base_path}_{self._count}")
+        except Exception as failure:
+            self.error(f"recording stopped at the reset: {failure}")
+            return
+        self.info(f"reset: bag {previous} closed, recording on in {self.recorder.path}")
+
+    def _do(self, action, error=None) -> None:
+        """``action(recorder)``; a failure is one error line and the end of recording."""
+        if self.recorder is None:
+            return
+        try:
+            action(self.recorder)
+        except Exception as failure:
+            recorder, self.recorder = self.recorder, None
+            recorder.abandon()
+            (error or self.error)(f"recording stopped: {failure}; the simulation goes on "
+                                  f"without it")
