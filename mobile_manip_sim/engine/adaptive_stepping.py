@@ -186,7 +186,7 @@ def inside_step(method, solve, s, clock, t_end):
     """Move (t, s) to t_end (s) when it lies in the step in hand, not past its event, and its
     interpolant is built (or t_end is the step's end): True; otherwise False, nothing changed.
     It takes none of the system's records, so that Python can call it cheaply for a target
-    inside the step (a call from Python unboxes every array it is given, ~0.1 µs each)."""
+    inside the step (a call from Python unboxes every array it is given)."""
     status = solve.status
     if t_end <= clock[T0]:
         return True
