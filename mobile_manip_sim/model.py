@@ -1,7 +1,7 @@
 """The immutable robot model: what MODEL.md calls the parameters, in SI units.
 
 A `RobotModel` is built once from a scene (see `scene.py`) and shared by every simulation of
-that scene; per-simulation scratch space lives in `dynamics.Workspace`.
+that scene; per-simulation scratch space lives in `dynamics.records.Workspace`.
 """
 from __future__ import annotations
 
@@ -88,12 +88,6 @@ class RobotModel:
     def n_u(self) -> int:
         """Pseudo-velocity size: v, ω, then q̇_i, l̇_i per link."""
         return 2 + 2 * self.n_links
-
-    def base_parameters(self) -> np.ndarray:
-        """[M_pw, I_pw, d, r, b, I_w] as the kernels take them."""
-        b = self.base
-        return np.array([b.mass, b.yaw_inertia, b.com_offset, b.wheel_radius, b.half_track,
-                         b.wheel_inertia])
 
     def joint_names(self) -> list[str]:
         """Names used in /joint_states and the URDF: wheels, then per link revolute, prismatic."""

@@ -36,6 +36,7 @@ from matplotlib.figure import Figure
 
 from . import cli, schema
 from .dynamics import Dynamics, constraint_residuals
+from .effects import settings as effect_settings
 from .errors import UserError
 from .scene import Scene, load_scene, scene_from_text
 from .simulate import csv_columns
@@ -88,20 +89,12 @@ class Run:
 
 def dynamics_of(scene: Scene) -> Dynamics:
     """The simulator's dynamics for a scene (gravity, payload, wheel inertia as it runs them)."""
-    effects = scene.effects
-    return Dynamics(scene.robot, gravity=effects.gravity, tip_mass=effects.payload or 0.0,
-                    wheel_inertia=effects.wheel_inertia)
+    return Dynamics(scene.robot, **effect_settings(scene).dynamics_options())
 
 
 def scene_efforts(scene: Scene) -> np.ndarray:
     """The scene's constant efforts (τ_R, τ_L, τ_1, F_1, …), saturated as the simulator does."""
-    efforts = np.concatenate([scene.wheel_efforts, scene.joint_efforts]).astype(float)
-    limits = scene.effects.effort_limits or {}
-    if limits.get("wheels") is not None:
-        efforts[:2] = np.clip(efforts[:2], -limits["wheels"], limits["wheels"])
-    if limits.get("joints") is not None:
-        efforts[2:] = np.clip(efforts[2:], -limits["joints"], limits["joints"])
-    return efforts
+    return effect_settings(scene).saturate(np.concatenate([scene.wheel_efforts, scene.joint_efforts]))
 
 
 # --- loaders ----------------------------------------------------------------------------------
@@ -476,13 +469,8 @@ def work(run: Run) -> np.ndarray:
 
 def damping_coefficients(run: Run) -> np.ndarray:
     """(2 + 2n,) viscous coefficients on (θ̇_R, θ̇_L, q̇_1, l̇_1, …): torque or force −c·rate."""
-    effects = run.scene.effects
-    c = np.zeros(2 + 2 * run.n_links)
-    if effects.wheel_damping:
-        c[:2] = effects.wheel_damping
-    if effects.joint_damping is not None:
-        c[2:] = effects.joint_damping
-    return c
+    c = effect_settings(run.scene).rate_damping
+    return np.zeros(2 + 2 * run.n_links) if c is None else c
 
 
 def impact_losses(run: Run) -> np.ndarray:
@@ -669,8 +657,7 @@ def figure_energy(run: Run) -> Figure:
 
 
 def _damped(run: Run) -> bool:
-    effects = run.scene.effects
-    return bool(effects.wheel_damping) or effects.joint_damping is not None
+    return effect_settings(run.scene).rate_damping is not None
 
 
 # name → (function, caption); the PNG is <name>.png

@@ -40,8 +40,11 @@ from .timeline import CommandHistory, Grid, apply_commands, start_node_time_line
 from .topics import BAG_TOPIC_TYPES, BASE_COMMAND_TOPICS
 
 ACK_TIMEOUT = 2.0          # s: how long to wait at the end for reliable subscribers to ack
-DISCOVERY_TIMEOUT = 2.0    # s: the longest wait for running subscribers to be matched
-DISCOVERY_SETTLE = 0.3     # s: the graph unchanged this long, all its subscribers matched: go
+DISCOVERY_TIMEOUT = 5.0    # s: the longest wait for running subscribers to be matched
+# s: the graph unchanged this long, all its subscribers matched: go. DDS announces a new
+# participant at once and then every ~0.1 s, but a loaded machine can take well over 0.3 s to
+# show a running subscriber at all (a replay test lost its first messages so).
+DISCOVERY_SETTLE = 1.0
 SLEEP_SLICE = 0.05         # s: longest sleep between checks for a shutdown
 MAX_QOS_PROFILES = 100     # recorded publishers of one topic
 MAX_QOS_DEPTH = 100_000    # history depth: a deeper one is damage, and would be allocated

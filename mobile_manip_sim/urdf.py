@@ -45,6 +45,7 @@ import xml.etree.ElementTree as ET
 
 import numpy as np
 
+from .effects import settings as effect_settings
 from .scene import Scene
 
 UNLIMITED = 1.0e6          # effort (N·m or N) and velocity placeholder where the scene sets none
@@ -116,15 +117,15 @@ def robot_description(scene: Scene, root: str = FOOTPRINT) -> str:
     """The URDF (XML text) of `scene`'s robot with the scene's effects (payload, wheel inertia,
     damping, effort limits) applied as the simulator applies them; `root` names the link on the
     ground under the axle midpoint."""
-    model, effects = scene.robot, scene.effects
+    model, effects = scene.robot, effect_settings(scene)
     base = model.base
     n = model.n_links
     d, r, b = base.com_offset, base.wheel_radius, base.half_track
     names = model.joint_names()
-    limits = effects.effort_limits or {}
-    wheel_efforts = limits.get("wheels")
-    joint_efforts = limits.get("joints")
-    joint_damping = effects.joint_damping or (0.0,) * (2 * n)
+    # the scene's bounds (None where it sets none) and damping, as the simulator applies them
+    limits = effects.effort_limits
+    efforts = [None if limits is None or math.isinf(limits[j]) else limits[j] for j in range(2 + 2 * n)]
+    damping = np.zeros(2 + 2 * n) if effects.rate_damping is None else effects.rate_damping
 
     robot = ET.Element("robot", name=scene.name)
     for name, rgba in (("chassis", (0.3, 0.3, 0.35, 1.0)), ("wheel", (0.1, 0.1, 0.1, 1.0)),
@@ -150,9 +151,9 @@ def robot_description(scene: Scene, root: str = FOOTPRINT) -> str:
             _inertial(link, 0.0, (0.0, 0.0, 0.0), np.diag([0.0, I_w, 0.0]))
         joint = _joint(robot, names[index], "continuous", "base_link", link.get("name"),
                        xyz=(0.0, sign * b, 0.0), axis=(0.0, 1.0, 0.0))
-        if wheel_efforts is not None:
-            _limit(joint, wheel_efforts[index])
-        _damping(joint, effects.wheel_damping)
+        if efforts[index] is not None:
+            _limit(joint, efforts[index])
+        _damping(joint, damping[index])
 
     # Arm: R_k = R_{k−1} · R0_k · Rz(q_k) is the URDF joint transform origin(rpy_k) · Rz(q_k);
     # O_{k+1} = O_k + l_k x_k is the prismatic joint's translation l_k along x.
@@ -161,14 +162,13 @@ def robot_description(scene: Scene, root: str = FOOTPRINT) -> str:
         L, mu = float(model.length[k]), float(model.mass_per_length[k])
         J = np.asarray(model.inertia_per_length[k], dtype=float)
         revolute, prismatic = names[2 + 2 * k], names[3 + 2 * k]
-        efforts = (None, None) if joint_efforts is None else joint_efforts[2 * k: 2 * k + 2]
 
         joint_link = ET.SubElement(robot, "link", name=f"arm_link_{k + 1}")
         joint = _joint(robot, revolute, "continuous", parent, joint_link.get("name"), xyz=xyz,
                        rpy=model.joint_rpy[k], axis=(0.0, 0.0, 1.0))
-        if efforts[0] is not None:
-            _limit(joint, efforts[0])
-        _damping(joint, joint_damping[2 * k])
+        if efforts[2 + 2 * k] is not None:
+            _limit(joint, efforts[2 + 2 * k])
+        _damping(joint, damping[2 + 2 * k])
 
         rod = ET.SubElement(robot, "link", name=f"arm_rod_{k + 1}")
         # A solid round rod has J_xx = μ ρ²/2 per unit length: draw it with that radius ρ.
@@ -180,16 +180,16 @@ def robot_description(scene: Scene, root: str = FOOTPRINT) -> str:
         _inertial(rod, mass, (-0.5 * L, 0.0, 0.0), np.diag([0.0, bending, bending]) + J * L)
         joint = _joint(robot, prismatic, "prismatic", joint_link.get("name"), rod.get("name"),
                        axis=(1.0, 0.0, 0.0))
-        _limit(joint, efforts[1], lower=model.stroke[k][0], upper=model.stroke[k][1])
-        _damping(joint, joint_damping[2 * k + 1])
+        _limit(joint, efforts[3 + 2 * k], lower=model.stroke[k][0], upper=model.stroke[k][1])
+        _damping(joint, damping[3 + 2 * k])
 
         parent, xyz = rod.get("name"), (0.0, 0.0, 0.0)
 
     # Tip: the distal end of the last rod (the rod frame's origin), or the mount point.
     tip = ET.SubElement(robot, "link", name="tip")
-    if effects.payload:
+    if effects.tip_mass:
         _visual(tip, "sphere", "payload", radius=PAYLOAD_RADIUS)
-        _inertial(tip, effects.payload, (0.0, 0.0, 0.0), np.zeros((3, 3)))
+        _inertial(tip, effects.tip_mass, (0.0, 0.0, 0.0), np.zeros((3, 3)))
     _joint(robot, "tip_joint", "fixed", parent, "tip", xyz=xyz)
 
     ET.indent(robot)

@@ -51,8 +51,8 @@ def random_robot(seed, n):
 def by_columns(dyn, q):
     nu = dyn.model.n_u
     M = np.empty((nu, nu))
-    kernels.frames(dyn.model_arrays, q, dyn.ws)
-    kernels.mass_matrix_by_columns(dyn.model_arrays, q, dyn.ws, np.zeros(nu), np.zeros(nu),
+    kernels.frames(dyn.model_record, q, dyn.ws)
+    kernels.mass_matrix_by_columns(dyn.model_record, q, dyn.ws, np.zeros(nu), np.zeros(nu),
                                    np.zeros(nu), M)
     return M
 
@@ -70,7 +70,7 @@ def test_composite_mass_matrix_equals_column_by_column_inverse_dynamics(n):
 def test_composite_mass_matrix_equals_projected_pinocchio_crba(n):
     for seed in range(3):
         _, model, dyn, q, _, _ = random_robot(2000 * n + seed, n)
-        ref = build_projected_model(model, dyn.gravity, tip_mass=float(dyn.model_arrays[6]))
+        ref = build_projected_model(model, dyn.gravity, tip_mass=dyn.model_record.tip_mass)
         M, M_ref = dyn.mass_matrix(q), ref.mass_matrix(q)
         assert np.abs(M - M_ref).max() <= 1e-12 * np.abs(M_ref).max(), np.abs(M - M_ref).max()
 
@@ -116,7 +116,7 @@ def test_locked_pseudo_velocities_get_zero_acceleration_and_the_reduced_solve(n)
         padded = np.full(nu, -1, dtype=np.int64)
         padded[:len(free)] = free
         ud = np.full(nu, np.nan)
-        articulated.forward_dynamics(dyn.model_arrays, q, u, Q, dyn.gravity, padded, dyn.ws, ud)
+        articulated.forward_dynamics(dyn.model_record, q, u, Q, dyn.gravity, padded, dyn.ws, ud)
         assert np.all(ud[locked] == 0.0)
         kappa = np.linalg.cond(M[np.ix_(free, free)]) if free else 1.0
         tol = 10.0 * kappa * EPS * max(1.0, np.abs(ud_ref).max())
@@ -148,7 +148,7 @@ def test_pure_python_and_compiled_fast_paths_agree():
         "    Q = rng.normal(size=model.n_u)\n"
         "    free = np.arange(model.n_u); free[1] = -1 if model.n_u > 2 else 1\n"
         "    ud = np.empty(model.n_u)\n"
-        "    articulated.forward_dynamics(dyn.model_arrays, q, u, Q, dyn.gravity, free, dyn.ws, ud)\n"
+        "    articulated.forward_dynamics(dyn.model_record, q, u, Q, dyn.gravity, free, dyn.ws, ud)\n"
         "    out['values'] += [dyn.mass_matrix(q).tolist(), dyn.forward_dynamics(q, u, Q).tolist(), ud.tolist()]\n"
         "print(json.dumps(out))\n")
     results = []

@@ -73,8 +73,8 @@ def test_bias_with_gravity_equals_projected_pinocchio_rnea(seed):
 @pytest.mark.parametrize("seed", SEEDS[::4])
 def test_bias_without_gravity_equals_projected_pinocchio_rnea(seed):
     _, model, dyn, _, q, u, _ = random_case(seed)
-    ref = build_projected_model(model, 0.0, tip_mass=float(dyn.model_arrays[6]),
-                                wheel_inertia=bool(dyn.model_arrays[0][5] > 0.0))
+    ref = build_projected_model(model, 0.0, tip_mass=dyn.model_record.tip_mass,
+                                wheel_inertia=dyn.model_record.base.wheel_inertia > 0.0)
     h, h_ref = dyn.bias(q, u, gravity=0.0), ref.bias(q, u)
     assert np.max(np.abs(h - h_ref)) <= TOL * max(np.max(np.abs(h_ref)), 1.0), (h - h_ref)
 

@@ -12,7 +12,8 @@ import numpy as np
 import pytest
 
 from mobile_manip_sim.engine.system import CROSSING_CHECKS, DAMPING_STAGE, REDUCED_SOLVE, RHS_EVALS
-from mobile_manip_sim.scene import EFFECT_NAMES, load_scene, make_integrator
+from mobile_manip_sim.effects import SETTING_OF_EFFECT, EffectSettings, settings
+from mobile_manip_sim.scene import EFFECT_NAMES, load_scene, make_integrator, parse_scene
 from mobile_manip_sim.engine.simulation import Simulation
 
 try:
@@ -365,12 +366,56 @@ def test_an_effect_that_is_off_does_no_work(method):
     assert damped["damping"] == damped["rhs"]
     rolling = counters(free_arm_doc(wheel_damping=0.01))
     assert rolling["damping"] == rolling["rhs"]
+    assert counters(free_arm_doc(wheel_damping=0.0))["damping"] == 0   # zero is off, not a stage
     locked = counters(free_arm_doc(locked_joints=["arm_revolute_2"]))
     assert locked["reduced"] == locked["rhs"] and locked["damping"] == 0
     held = counters(free_arm_doc(fixed_base=True))
     assert held["reduced"] == held["rhs"]
     stops = counters(free_arm_doc(stroke_limits={"restitution": 0.5}))
     assert stops["crossing"] > 0 and stops["damping"] == 0
+
+
+# --- one owner: effects.settings ----------------------------------------------------------
+
+# each effect turned on with a value that matters
+EFFECT_ON = {"gravity": 10.0, "stroke_limits": {"restitution": 0.5}, "wheel_inertia": True,
+             "joint_damping": 0.1, "wheel_damping": 0.01, "effort_limits": {"joints": 2.0},
+             "locked_joints": ["arm_prismatic_1"], "fixed_base": True, "payload": 0.3}
+
+
+def changed_settings(doc):
+    """The EffectSettings fields that differ from those of the scene with no effect on."""
+    def same(a, b):
+        return (a is None) == (b is None) and (a is None or np.array_equal(a, b))
+
+    bare = settings(parse_scene(paper_doc(effects={})))
+    ours = settings(parse_scene(doc))
+    return [name for name in EffectSettings.__dataclass_fields__
+            if not same(getattr(ours, name), getattr(bare, name))]
+
+
+def test_each_effect_sets_exactly_its_one_setting_and_off_leaves_it_absent():
+    assert set(EFFECT_ON) == set(EFFECT_NAMES) == set(SETTING_OF_EFFECT)
+    bare = settings(parse_scene(paper_doc(effects={})))
+    assert bare == EffectSettings()   # every setting absent
+    for name in EFFECT_NAMES:
+        assert changed_settings(paper_doc(effects={name: EFFECT_ON[name]})) == [SETTING_OF_EFFECT[name]]
+    off = {"gravity": 0.0, "stroke_limits": False, "wheel_inertia": False, "wheel_damping": 0.0,
+           "effort_limits": {}, "locked_joints": [], "fixed_base": False}
+    assert changed_settings(paper_doc(effects=off)) == []
+
+
+def test_the_engine_runs_the_settings_of_its_scene():
+    doc = paper_doc(effects=dict(EFFECT_ON, locked_joints=["arm_revolute_2"]))
+    sim = simulation(doc, "rk4")
+    own = settings(parse_scene(doc))
+    assert sim.dynamics.gravity == own.gravity == 10.0
+    assert sim.dynamics.model_record.tip_mass == own.tip_mass == 0.3
+    assert sim.dynamics.model_record.base.wheel_inertia == BASE["wheel_inertia"]
+    assert sim.system.permanently_locked == own.locked == (0, 1, 4)
+    assert np.array_equal(sim.system.damping, own.generalized_damping(sim.model.base))
+    assert sim.stop_law == own.stop_law and sim.stops.law.restitution == 0.5
+    assert list(sim.joint_efforts) == list(own.saturate(PAPER["efforts"]["joints"], 2))
 
 
 # --- the example scenes --------------------------------------------------------------------

@@ -17,6 +17,7 @@ import yaml
 
 from hostile_yaml import ALIAS_BOMB
 from mobile_manip_sim.dynamics import Dynamics
+from mobile_manip_sim.effects import settings as effect_settings
 from mobile_manip_sim.scene import load_scene, parse_scene
 from mobile_manip_sim.urdf import robot_description
 
@@ -132,9 +133,7 @@ def random_configuration(rng, robot) -> np.ndarray:
 
 
 def core_dynamics(scene) -> Dynamics:
-    return Dynamics(scene.robot, gravity=scene.effects.gravity,
-                    tip_mass=scene.effects.payload or 0.0,
-                    wheel_inertia=scene.effects.wheel_inertia)
+    return Dynamics(scene.robot, **effect_settings(scene).dynamics_options())
 
 
 @pytest.mark.parametrize("name", SCENES)

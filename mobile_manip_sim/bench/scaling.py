@@ -32,7 +32,7 @@ def measure(progress, quick: bool = False) -> dict:
         nu = scene.robot.n_u
         q = np.array(scene.initial_q)
         u, ud, Q = rng.normal(size=nu), rng.normal(size=nu), rng.normal(size=nu)
-        model, ws, g = dyn.model_arrays, dyn.ws, dyn.gravity
+        model, ws, g = dyn.model_record, dyn.ws, dyn.gravity
         out = np.zeros(nu)
         M, L = np.zeros((nu, nu)), np.zeros((nu, nu))
         z, e, col, h, rhs = (np.zeros(nu) for _ in range(5))

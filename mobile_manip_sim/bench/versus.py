@@ -49,7 +49,7 @@ def per_evaluation(progress, quick: bool = False) -> dict:
         "ours: Dynamics.forward_dynamics (frames + articulated), from Python":
             loops.per_python_call(dyn.forward_dynamics, q, u, Q, target=target),
         "ours: frames + articulated forward dynamics, compiled loop":
-            loops.per_call(loops.forward_dynamics_articulated, dyn.model_arrays, q, u, Q, dyn.gravity,
+            loops.per_call(loops.forward_dynamics_articulated, dyn.model_record, q, u, Q, dyn.gravity,
                            np.arange(nu), dyn.ws, np.zeros(nu), target=target),
         "ours: engine right-hand side (System.derivative), from Python":
             loops.per_python_call(sim.system.derivative, s, target=target),

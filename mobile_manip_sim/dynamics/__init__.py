@@ -17,7 +17,7 @@ import numpy as np
 
 from ..model import RobotModel
 from . import articulated, kernels
-from .workspace import make_workspace
+from .records import make_model, make_workspace
 
 
 class Dynamics:
@@ -31,12 +31,7 @@ class Dynamics:
                  wheel_inertia: bool = True):
         self.model = model
         self.gravity = float(gravity)
-        base = model.base_parameters()
-        if not wheel_inertia:
-            base[5] = 0.0
-        self.model_arrays = (base, np.array(model.mount), np.array(model.joint_rotation),
-                             np.array(model.length), np.array(model.mass_per_length),
-                             np.array(model.inertia_per_length), float(tip_mass))
+        self.model_record = make_model(model, tip_mass, wheel_inertia)   # what the kernels take
         n, nu = model.n_links, model.n_u
         self.ws = make_workspace(n)
         self._zeros = np.zeros(nu)
@@ -46,15 +41,15 @@ class Dynamics:
         self._all = np.arange(nu)
 
     def _frames(self, q) -> None:
-        kernels.frames(self.model_arrays, np.asarray(q, dtype=float), self.ws)
+        kernels.frames(self.model_record, np.asarray(q, dtype=float), self.ws)
 
     def inverse_dynamics(self, q, u, ud, gravity: float | None = None) -> np.ndarray:
         """Q = M(q) u̇ + h(q, u): the recursive Gibbs–Appell pass (MODEL.md ∂S/∂u̇_k = Q_k)."""
         q = np.asarray(q, dtype=float)
         g = self.gravity if gravity is None else gravity
         Q = np.empty(self.model.n_u)
-        kernels.frames(self.model_arrays, q, self.ws)
-        kernels.gibbs_appell(self.model_arrays, q, np.asarray(u, dtype=float),
+        kernels.frames(self.model_record, q, self.ws)
+        kernels.gibbs_appell(self.model_record, q, np.asarray(u, dtype=float),
                              np.asarray(ud, dtype=float), g, self.ws, Q)
         return Q
 
@@ -65,14 +60,14 @@ class Dynamics:
     def mass_matrix(self, q) -> np.ndarray:
         q = np.asarray(q, dtype=float)
         M = np.empty((self.model.n_u, self.model.n_u))
-        kernels.frames(self.model_arrays, q, self.ws)
-        kernels.mass_matrix(self.model_arrays, q, self.ws, self._zeros, self._unit, self._column, M)
+        kernels.frames(self.model_record, q, self.ws)
+        kernels.mass_matrix(self.model_record, q, self.ws, self._zeros, self._unit, self._column, M)
         return M
 
     def forward_dynamics(self, q, u, Q) -> np.ndarray:
         """u̇ = M(q)⁻¹ (Q − h(q, u)) by the articulated-body recursion, O(n) (`articulated.py`)."""
         ud = np.empty(self.model.n_u)
-        articulated.forward_dynamics(self.model_arrays, np.asarray(q, dtype=float),
+        articulated.forward_dynamics(self.model_record, np.asarray(q, dtype=float),
                                      np.asarray(u, dtype=float), np.asarray(Q, dtype=float),
                                      self.gravity, self._all, self.ws, ud)
         return ud
@@ -89,18 +84,18 @@ class Dynamics:
         """(T, V) in J: kinetic energy from the velocities, potential g Σ μ ∫ z dη."""
         q = np.asarray(q, dtype=float)
         self._frames(q)
-        T = kernels.kinetic_energy(self.model_arrays, q, np.asarray(u, dtype=float), self.ws)
-        return T, kernels.potential_energy(self.model_arrays, q, self.gravity, self.ws)
+        T = kernels.kinetic_energy(self.model_record, q, np.asarray(u, dtype=float), self.ws)
+        return T, kernels.potential_energy(self.model_record, q, self.gravity, self.ws)
 
     def joint_origins(self, q) -> np.ndarray:
         """(n+2, 3) world positions: A, O_1 … O_n, then the tip (distal end of rod n)."""
         self._frames(q)
-        return self.ws[1].copy()
+        return self.ws.O.copy()
 
     def link_rotations(self, q) -> np.ndarray:
         """(n+1, 3, 3) world orientations: base_link, then joint frames 1 … n."""
         self._frames(q)
-        return self.ws[0].copy()
+        return self.ws.R.copy()
 
     def tip_position(self, q) -> np.ndarray:
         return self.joint_origins(q)[-1]
@@ -108,7 +103,7 @@ class Dynamics:
     def configuration_rate(self, q, u) -> np.ndarray:
         """q̇ from u (the nonholonomic constraints are built in)."""
         qdot = np.empty(self.model.n_q)
-        kernels.configuration_rate(self.model_arrays, np.asarray(q, float), np.asarray(u, float), qdot)
+        kernels.configuration_rate(self.model_record, np.asarray(q, float), np.asarray(u, float), qdot)
         return qdot
 
     def wheel_forces(self, tau_R: float, tau_L: float) -> tuple[float, float]:

@@ -31,7 +31,6 @@ from .jit import jit, jit_inline
 from .kernels import frames, motion_subspaces, payload_inertia, rod_inertia
 from .spatial import force_cross, inertia_times, motion_cross
 from .vec3 import add, axpy, row, scale
-from .workspace import C, D_INV, I_ART, MOVING, P_ART, S, U, U_ART, V
 
 
 @jit_inline
@@ -89,15 +88,15 @@ def articulated_forward_dynamics(model, q, u, Q, g, free, ws, ud):
     pseudo-velocities, padded with −1; locked ones get u̇ = 0. ``ud`` (n_u) receives u̇.
     Needs `kernels.frames(model, q, ws)`.
     """
-    base = model[0]
-    Sk, Vk, Ck, Uk, Dinv, ua, IA, pA, moving = (ws[S], ws[V], ws[C], ws[U], ws[D_INV], ws[U_ART],
-                                                ws[I_ART], ws[P_ART], ws[MOVING])
+    base = model.base
+    Sk, Vk, Ck, Uk, Dinv, ua, IA, pA, moving = (ws.S, ws.V, ws.C, ws.U, ws.D_inv, ws.u_art,
+                                                ws.I_art, ws.p_art, ws.moving)
     n = Sk.shape[0] - 1
     set_moving(free, moving)
     motion_subspaces(ws)
 
     # 1. outward: twists and velocity-product accelerations (all with the true velocities)
-    x0 = row(ws[2], 0)
+    x0 = row(ws.x, 0)
     w, v = (0.0, 0.0, u[1]), scale(u[0], x0)
     for i in range(3):
         Vk[0, i], Vk[0, 3 + i] = w[i], v[i]
@@ -164,7 +163,8 @@ def articulated_forward_dynamics(model, q, u, Q, g, free, ws, ud):
             pA[i] += s
 
     # 3. the root: base (v, ω) with its own mass, yaw inertia and wheels
-    M_pw, I_pw, d, r, half_track, I_w = base[0], base[1], base[2], base[3], base[4], base[5]
+    M_pw, I_pw, d = base.mass, base.yaw_inertia, base.com_offset
+    r, half_track, I_w = base.wheel_radius, base.half_track, base.wheel_inertia
     wheels = 2.0 * I_w / (r * r)
     vv, om = u[0], u[1]
     # S_0ᵀ I^A S_0 with s_v = (0, x_0), s_ω = (z, 0); a_g = (0, g z)

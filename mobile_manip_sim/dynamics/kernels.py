@@ -3,9 +3,9 @@
 Notation follows MODEL.md, with links numbered 1..n and index 0 for the base:
 ``q = (x, y, yaw, θ_R, θ_L, q_1, l_1, …, q_n, l_n)``, ``u = (v, ω, q̇_1, l̇_1, …)``.
 
-The kernels take the model as a tuple ``model = (base, mount, R0, L, mu, J, tip_mass)``
-(see `RobotModel` and `Dynamics.model_arrays`) and the workspace tuple ``ws`` of preallocated
-arrays declared in `workspace.py`; the first six, all in the world frame `odom`:
+The kernels take the model record ``model`` (`records.Model`: base, mount, R0, L, mu, J,
+tip_mass) and the workspace record ``ws`` of preallocated arrays (`records.Workspace`, where
+every field's frame and shape is declared); the first six, all in the world frame `odom`:
 
 - ``R[k]``  (n+1, 3, 3) orientation of joint frame k (R[0]: base_link);
 - ``O[k]``  (n+2, 3) joint origins: O[0] = A, O[k] = O_k, O[n+1] = distal end of rod n (tip);
@@ -26,8 +26,8 @@ from .vec3 import add, axpy, cross, dot, matvec, put, row, scale, sub, tmatvec
 @jit_inline
 def frames(model, q, ws):
     """Position pass: R_k = R_{k−1} · R0_k · Rz(q_k), O_{k+1} = O_k + l_k x_k (MODEL.md frames)."""
-    mount, R0 = model[1], model[2]
-    R, O, x, z = ws[0], ws[1], ws[2], ws[3]
+    mount, R0 = model.mount, model.R0
+    R, O, x, z = ws.R, ws.O, ws.x, ws.z
     n = R0.shape[0]
     c, s = math.cos(q[2]), math.sin(q[2])
     R[0, 0, 0], R[0, 0, 1], R[0, 0, 2] = c, -s, 0.0
@@ -75,8 +75,8 @@ def gibbs_appell(model, q, u, ud, g, ws, Q):
     Needs `frames(model, q, ws)` first. One outward pass (ω_k, α_k, a_{O_k}; rod forces F_k and
     moments N_k) and one inward pass (accumulated f, n projected on z_k, x_k, then the base).
     """
-    base, L, mu, J, tip_mass = model[0], model[3], model[4], model[5], model[6]
-    R, O, x, z, F, N = ws[0], ws[1], ws[2], ws[3], ws[4], ws[5]
+    base, L, mu, J, tip_mass = model.base, model.L, model.mu, model.J, model.tip_mass
+    R, O, x, z, F, N = ws.R, ws.O, ws.x, ws.z, ws.F, ws.N
     n = L.shape[0]
     v, om, vd, omd = u[0], u[1], ud[0], ud[1]
     x0 = row(x, 0)
@@ -114,7 +114,8 @@ def gibbs_appell(model, q, u, ud, g, ws, Q):
         Q[2 * k] = dot(row(z, k), m)
         Q[2 * k + 1] = dot(xk, f)
     m_A = add(m, cross(m_w, f))
-    M_pw, I_pw, d, r, half_track, I_w = base[0], base[1], base[2], base[3], base[4], base[5]
+    M_pw, I_pw, d = base.mass, base.yaw_inertia, base.com_offset
+    r, half_track, I_w = base.wheel_radius, base.half_track, base.wheel_inertia
     wheels = 2.0 * I_w / (r * r)
     Q[0] = dot(x0, f) + M_pw * (vd - d * om * om) + wheels * vd
     Q[1] = m_A[2] + M_pw * d * (v * om + d * omd) + I_pw * omd + wheels * half_track ** 2 * omd
@@ -124,8 +125,8 @@ def gibbs_appell(model, q, u, ud, g, ws, Q):
 def rod_inertia(model, q, ws, k):
     """Rigid-body inertia (m, h, I) of rod k (1 … n) about A (see `spatial.py`):
     ∫ over η ∈ [l_k − L_k, l_k] of μ_k at p = O_k + η x_k, plus L_k R J Rᵀ. Needs `frames`."""
-    L, mu, J = model[3], model[4], model[5]
-    R, O, x = ws[0], ws[1], ws[2]
+    L, mu, J = model.L, model.mu, model.J
+    R, O, x = ws.R, ws.O, ws.x
     Lk, muk = L[k - 1], mu[k - 1]
     s1, s2 = rod_moments(q[4 + 2 * k], Lk)
     A = row(O, 0)
@@ -167,7 +168,7 @@ def rod_inertia(model, q, ws, k):
 def payload_inertia(model, ws):
     """Rigid-body inertia (m, h, I) about A of the payload, a point mass at the tip O_{n+1}
     (carried by rod n, or by the base when n = 0). Needs `frames`."""
-    m, O = model[6], ws[1]
+    m, O = model.tip_mass, ws.O
     t = sub(row(O, O.shape[0] - 1), row(O, 0))
     tt = dot(t, t)
     return m, scale(m, t), (m * (tt - t[0] * t[0]), m * (tt - t[1] * t[1]), m * (tt - t[2] * t[2]),
@@ -178,7 +179,7 @@ def payload_inertia(model, ws):
 def motion_subspaces(ws):
     """S[k] (6 × 2, about A): columns (z_k, (O_k − A) × z_k) for q̇_k and (0, x_k) for l̇_k;
     S[0]: (0, x_0) for v and (z, 0) for ω (constant in base_link). Needs `frames`."""
-    O, x, z, S = ws[1], ws[2], ws[3], ws[6]
+    O, x, z, S = ws.O, ws.x, ws.z, ws.S
     n = S.shape[0] - 1
     A = row(O, 0)
     for i in range(6):
@@ -205,8 +206,8 @@ def mass_matrix(model, q, ws, zeros, unit, column, M):
     k … n about A (one inward pass) and s_i the motion subspace columns about A; the base and
     wheels add their own terms to the (v, ω) block, as in `gibbs_appell`.
     """
-    base = model[0]
-    S = ws[6]
+    base = model.base
+    S = ws.S
     n = S.shape[0] - 1
     motion_subspaces(ws)
     m_c, h_c, I_c = payload_inertia(model, ws)
@@ -224,9 +225,10 @@ def mass_matrix(model, q, ws, zeros, unit, column, M):
                              + S[j, 3, d] * f_f[0] + S[j, 4, d] * f_f[1] + S[j, 5, d] * f_f[2])
                     M[2 * j + d, col] = value
                     M[col, 2 * j + d] = value
-    M_pw, I_pw, d, r, half_track, I_w = base[0], base[1], base[2], base[3], base[4], base[5]
+    M_pw, I_pw, d = base.mass, base.yaw_inertia, base.com_offset
+    r, half_track, I_w = base.wheel_radius, base.half_track, base.wheel_inertia
     wheels = 2.0 * I_w / (r * r)
-    x0 = row(ws[2], 0)
+    x0 = row(ws.x, 0)
     M[0, 0] = m_c + M_pw + wheels
     M[0, 1] = M[1, 0] = dot(x0, cross((0.0, 0.0, 1.0), h_c))
     M[1, 1] = I_c[2] + I_pw + M_pw * d * d + wheels * half_track ** 2
@@ -248,10 +250,11 @@ def mass_matrix_by_columns(model, q, ws, zeros, unit, column, M):
 @jit
 def kinetic_energy(model, q, u, ws):
     """T = Σ ½∫μ|v|² + ½ ω·(J L) ω over rods, plus the base and wheels. Needs `frames`."""
-    base, L, mu, J, tip_mass = model[0], model[3], model[4], model[5], model[6]
-    R, O, x = ws[0], ws[1], ws[2]
+    base, L, mu, J, tip_mass = model.base, model.L, model.mu, model.J, model.tip_mass
+    R, O, x = ws.R, ws.O, ws.x
     n = L.shape[0]
-    M_pw, I_pw, d, r, half_track, I_w = base[0], base[1], base[2], base[3], base[4], base[5]
+    M_pw, I_pw, d = base.mass, base.yaw_inertia, base.com_offset
+    r, half_track, I_w = base.wheel_radius, base.half_track, base.wheel_inertia
     v, om = u[0], u[1]
     T = 0.5 * M_pw * (v * v + d * d * om * om) + 0.5 * I_pw * om * om
     T += 0.5 * I_w * ((v + half_track * om) ** 2 + (v - half_track * om) ** 2) / (r * r)
@@ -274,8 +277,8 @@ def kinetic_energy(model, q, u, ws):
 @jit
 def potential_energy(model, q, g, ws):
     """V = g Σ μ ∫ z(η) dη + g m_tip z_tip (the base moves in the plane). Needs `frames`."""
-    L, mu, tip_mass = model[3], model[4], model[6]
-    O, x = ws[1], ws[2]
+    L, mu, tip_mass = model.L, model.mu, model.tip_mass
+    O, x = ws.O, ws.x
     n = L.shape[0]
     V = 0.0
     for k in range(1, n + 1):
@@ -287,7 +290,7 @@ def potential_energy(model, q, g, ws):
 @jit_inline
 def configuration_rate(model, q, u, qdot):
     """q̇ from u with the nonholonomic constraints built in: ẋ = v cos yaw, θ̇_R = (v + bω)/r, …"""
-    r, half_track = model[0][3], model[0][4]
+    r, half_track = model.base.wheel_radius, model.base.half_track
     v, om = u[0], u[1]
     qdot[0] = v * math.cos(q[2])
     qdot[1] = v * math.sin(q[2])

@@ -18,6 +18,7 @@ import numpy as np
 
 from ..dynamics import Dynamics
 from ..dynamics.jit import Bound
+from ..effects import settings as effect_settings
 from ..methods import METHODS
 from ..errors import UserError
 from ..scene import IntegratorSettings, Scene
@@ -57,16 +58,14 @@ class Simulation:
     def __init__(self, scene: Scene, integrator: IntegratorSettings | None = None):
         self.scene = scene
         self.settings = integrator or scene.integrator
-        model, effects = scene.robot, scene.effects
+        model = scene.robot
         self.model = model
-        self.dynamics = Dynamics(model, gravity=effects.gravity, tip_mass=effects.payload or 0.0,
-                                 wheel_inertia=effects.wheel_inertia)
-        self.system = System(self.dynamics, _damping(scene), _locked_indices(scene))
+        self.effects = effects = effect_settings(scene)   # what the scene turns on (effects.py)
+        self.dynamics = Dynamics(model, **effects.dynamics_options())
+        self.system = System(self.dynamics, effects.generalized_damping(model.base), effects.locked)
         self.nq, self.nu = model.n_q, model.n_u
-        law = effects.stroke_limits
-        self.stop_law = law
-        self.stops = make_stops(model, law.law if law else "impulse", law.restitution if law else 0.0,
-                                law.rest_speed if law else 0.0, self.system.permanently_locked)
+        self.stop_law = effects.stop_law
+        self.stops = make_stops(model, effects.stop_law, self.system.permanently_locked)
         self.watched, self.resting, self.stroke = self.stops.watched, self.stops.resting, self.stops.stroke
         size = layout.state_size(self.nu)
         self._scratch = stepping.make_scratch(size, model.n_links, make_impact_scratch(self.nu, model.n_links))
@@ -167,14 +166,13 @@ class Simulation:
     # --- commands ------------------------------------------------------------------------
     def set_efforts(self, wheels=None, joints=None) -> None:
         """Hold these efforts from now on: wheels (τ_R, τ_L) N·m, joints (τ_1, F_1, …)."""
-        limits = self.scene.effects.effort_limits or {}
         Q = self.system.Q_cmd
         before = Q.copy(), self.velocity_mode
         if wheels is not None:
-            self.wheel_efforts = _command(wheels, 2, "wheels", limits.get("wheels"))
+            self.wheel_efforts = self.effects.saturate(_command(wheels, 2, "wheels"))
             self.system.control[VELOCITY_MODE] = 0.0
         if joints is not None:
-            self.joint_efforts = _command(joints, self.nu - 2, "joints", limits.get("joints"))
+            self.joint_efforts = self.effects.saturate(_command(joints, self.nu - 2, "joints"), 2)
         Q[0], Q[1] = self.dynamics.wheel_forces(*self.wheel_efforts)
         Q[2:] = self.joint_efforts
         if not np.array_equal(before[0], Q) or before[1] != self.velocity_mode:
@@ -185,7 +183,7 @@ class Simulation:
         torques come from the wheel-speed PI loop (`set_wheel_speed_gains`) inside the simulated
         system, recomputed at every evaluation of the right-hand side and clipped to the wheel
         effort limits. `set_efforts(wheels=...)` returns the wheels to torque commands."""
-        target = _command([v, omega], 2, "cmd_vel", None)
+        target = _command([v, omega], 2, "cmd_vel")
         r, b = self.model.base.wheel_radius, self.model.base.half_track
         control = self.system.control
         before = control.copy()
@@ -206,9 +204,8 @@ class Simulation:
                 raise UserError(f"wheel_speed.{name}", f"must be a finite number ≥ 0, got {value!r}")
         if not torque_limit > 0.0:
             raise UserError("wheel_speed.torque_limit", f"must be positive, got {torque_limit!r}")
-        limits = (self.scene.effects.effort_limits or {}).get("wheels")
-        if limits is not None:
-            torque_limit = min(torque_limit, float(np.min(limits)))
+        if self.effects.effort_limits is not None:
+            torque_limit = min(torque_limit, float(np.min(self.effects.effort_limits[:2])))
         control = self.system.control
         control[KP], control[KI], control[TORQUE_LIMIT] = kp, ki, torque_limit
         self._restart()
@@ -363,7 +360,7 @@ class Simulation:
                 "impacts": len(self.impacts), "energy_error": self.energy_error()}
 
 
-def _command(values, size, group, limits) -> np.ndarray:
+def _command(values, size, group) -> np.ndarray:
     try:
         array = np.array(values, dtype=float).reshape(-1)
     except (TypeError, ValueError):
@@ -372,29 +369,5 @@ def _command(values, size, group, limits) -> np.ndarray:
         raise UserError(f"efforts.{group}", f"expected {size} values, got {array.size}")
     if not np.all(np.isfinite(array)):
         raise UserError(f"efforts.{group}", f"values must be finite, got {array.tolist()}")
-    if limits is not None:
-        array = np.clip(array, -limits, limits)
     return array
 
-
-def _damping(scene: Scene):
-    """Diagonal viscous coefficients on u, or None when no damping effect is on."""
-    effects, base = scene.effects, scene.robot.base
-    if effects.joint_damping is None and effects.wheel_damping is None:
-        return None
-    c = np.zeros(scene.robot.n_u)
-    if effects.wheel_damping:
-        # Wheel torques −c θ̇ with θ̇_R/L = (v ± bω)/r, projected: Q_v = −2c v/r², Q_ω = −2c b² ω/r².
-        c[0] = 2.0 * effects.wheel_damping / base.wheel_radius ** 2
-        c[1] = 2.0 * effects.wheel_damping * base.half_track ** 2 / base.wheel_radius ** 2
-    if effects.joint_damping is not None:
-        c[2:] = effects.joint_damping
-    return c
-
-
-def _locked_indices(scene: Scene) -> list[int]:
-    names = scene.robot.joint_names()[2:]
-    locked = [2 + names.index(name) for name in scene.effects.locked_joints]
-    if scene.effects.fixed_base:
-        locked += [0, 1]
-    return locked

@@ -35,12 +35,18 @@ StopsData = namedtuple("StopsData", [
     "resting",    # (n,) int64: −1 / +1 rod held at its lower / upper stop, 0 free
     "stroke",     # (n, 2) [min, max] of each l_k, m
     "permanent",  # (n_u,) bool: locked by the scene (locked joints, fixed base)
-    "law",        # (3,) law id, restitution e, rest speed (m/s)
+    "law",        # StopLaw: the impact law and its parameters
     "log",        # (capacity, LOG_COLUMNS) one row per impact
     "log_q",      # (capacity, n_q) configuration at each impact
     "log_u",      # (capacity, 2, n_u) u⁻ and u⁺ of each impact
     "log_free",   # (capacity, n_u) bool: the pseudo-velocities free at each impact
     "count",      # (1,) int64: rows of the log in use
+])
+
+StopLaw = namedtuple("StopLaw", [
+    "kind",         # IMPULSE (MODEL.md's unilateral law) or REFLECT (the paper's: l̇ reversed alone)
+    "restitution",  # e ∈ [0, 1]
+    "rest_speed",   # m/s: a rod rebounding slower than this is held at its stop
 ])
 
 ImpactScratch = namedtuple("ImpactScratch", [
@@ -58,14 +64,16 @@ ImpactScratch = namedtuple("ImpactScratch", [
 ])
 
 
-def make_stops(model, law, restitution, rest_speed, permanently_locked) -> StopsData:
+def make_stops(model, stop_law, permanently_locked) -> StopsData:
+    """The stops of `model` under the scene's `StrokeLimits` (None: no stops, never watched)."""
     n, nq, nu = model.n_links, model.n_q, model.n_u
     capacity = 4 * MAX_IMPACTS_PER_STEP * (n + 2)   # half of it is room for one step's impacts
     permanent = np.zeros(nu, dtype=np.bool_)
     permanent[list(permanently_locked)] = True
     return StopsData(np.zeros(n, dtype=np.bool_), np.zeros(n, dtype=np.int64),
                      np.array(model.stroke, dtype=float), permanent,
-                     np.array([LAW_IDS.get(law, IMPULSE), restitution, rest_speed]),
+                     StopLaw(LAW_IDS[stop_law.law], float(stop_law.restitution),
+                             float(stop_law.rest_speed)) if stop_law else StopLaw(IMPULSE, 0.0, 0.0),
                      np.zeros((capacity, LOG_COLUMNS)), np.zeros((capacity, nq)),
                      np.zeros((capacity, 2, nu)), np.zeros((capacity, nu), dtype=np.bool_),
                      np.zeros(1, dtype=np.int64))
@@ -294,7 +302,7 @@ def impact(system, stops, s, k, side, t, hold, scratch, ds, forces):
     law, then a rebound or rest, logged. ``hold`` stops it at rest whatever its speed."""
     nq, nu = layout.sizes(system)
     j = layout.u_l(k)
-    law, restitution, rest_speed = stops.law[0], stops.law[1], stops.law[2]
+    law, restitution, rest_speed = stops.law.kind, stops.law.restitution, stops.law.rest_speed
     u_before = s[nq + j]
     row = stops.count[0]
     held = hold or side * u_before <= 0.0

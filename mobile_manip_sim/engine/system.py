@@ -34,13 +34,13 @@ N_COUNTERS = 5
 VELOCITY_MODE, KP, KI, TORQUE_LIMIT, TARGET_R, TARGET_L = range(6)
 
 SystemData = namedtuple("SystemData", [
-    "model",     # the dynamics' model tuple (`Dynamics.model_arrays`)
+    "model",     # the dynamics' model record (`dynamics.records.Model`)
     "gravity",   # g, m/s² along −z
     "damping",   # (n_u,) viscous coefficients on u, or (0,) when no damping effect is on
     "free",      # (n_u,) indices of the free pseudo-velocities, padded with −1
     "Q_cmd",     # (n_u,) commanded generalized forces (wheels' part unused in velocity mode)
     "control",   # (6,) wheel-speed PI loop: mode (0 effort, 1 velocity), kp, ki, limit, targets
-    "ws",        # the dynamics workspace
+    "ws",        # the dynamics workspace (`dynamics.records.Workspace`)
     "Q",         # (n_u,) scratch: applied generalized forces of the current evaluation
     "counters",  # (N_COUNTERS,) stage counters
 ])
@@ -50,8 +50,8 @@ SystemData = namedtuple("SystemData", [
 def wheel_speed_torques(system, s):
     """(τ_R, τ_L), N·m: the PI loop on wheel speeds, τ = kp (θ̇* − θ̇) + ki e, clipped to ±limit,
     with θ̇_R/L = (v ± b ω)/r and e the integral of θ̇* − θ̇ held in the state."""
-    control, base = system.control, system.model[0]
-    r, b = base[3], base[4]
+    control, base = system.control, system.model.base
+    r, b = base.wheel_radius, base.half_track
     nq, nu = layout.sizes(system)
     v, om = s[nq], s[nq + 1]
     i_e = layout.controller(nq, nu)
@@ -75,7 +75,7 @@ def applied_forces(system, s, ds):
     if control[VELOCITY_MODE] != 0.0:
         system.counters[CONTROL_STAGE] += 1
         tau_R, tau_L = wheel_speed_torques(system, s)
-        r, b = model[0][3], model[0][4]
+        r, b = model.base.wheel_radius, model.base.half_track
         Q[0] = (tau_R + tau_L) / r
         Q[1] = b * (tau_R - tau_L) / r
         v, om = s[nq], s[nq + 1]
@@ -138,7 +138,7 @@ class System:
         self.control = np.zeros(6)
         self.control[TORQUE_LIMIT] = math.inf
         self.permanently_locked = tuple(sorted(locked))
-        self.data = SystemData(dynamics.model_arrays, float(dynamics.gravity), self.damping,
+        self.data = SystemData(dynamics.model_record, float(dynamics.gravity), self.damping,
                                self.free, self.Q_cmd, self.control, dynamics.ws, np.zeros(nu),
                                self.counters)
         self.set_locked(())
