@@ -190,11 +190,8 @@ def write(results, out: Path) -> Path:
               "advanced to 100 Hz samples as `simulate` does. Error: largest |state − reference| over "
               "the samples (q and u). Energy error: largest |T + V − W + impact losses − E₀|. Constraint "
               "residual: largest no-skid / no-slip residual (built into the kinematics: round-off).", "",
-              "The adaptive methods are restarted at every sample (`Simulation.advance_to` starts a new "
-              "SciPy solver each call), which caps their step near the 10 ms sample interval: on the "
-              "smooth paper scene loose tolerances are then as accurate, and cost as much, as tight "
-              "ones. Sampling less often lets them take longer steps (§4.2 shows DOP853 run by SciPy "
-              "in one piece).", ""]
+              "The adaptive methods integrate through the samples (read from the dense output) and "
+              "restart only at a discontinuity: an impact, a release, a command change.", ""]
     for index, wp in enumerate(results.get("wp", []), start=1):
         parts.append(_work_precision(wp, index))
 

@@ -1,8 +1,9 @@
 """Events inside a step, compiled: a rod reaching an end stop, a resting rod pulled off its stop.
 
-Both are roots in h' ∈ (0, h] of an event function evaluated on the integrator's *own* step
-``step(s0, h')`` — so the state at the located instant is what the integrator itself would
-reach, with no interpolation error:
+Both are roots in h' ∈ (0, h] of an event function of the state h' into the step (`step_state`):
+for the fixed-step methods the integrator's *own* step ``step(s0, h')`` — so the state at the
+located instant is what the integrator itself would reach, with no interpolation error — and for
+the adaptive ones the step's dense output (a `dense.Interpolant`, passed as ``dense``):
 
 - crossing of rod k at its stop (side −1 lower, +1 upper): ``g(h') = side · (stop − l_k(h'))``;
   positive inside the stroke;
@@ -15,14 +16,14 @@ crosses and comes back within one step is not missed (SciPy's sign-change detect
 scipy #9228); the first crossing is bracketed between 16 samples of the step plus the path's
 turning points, then located by the Illinois method.
 
-`step_state(...)` is the one place that evaluates a trial step for the event functions of the
-fixed-step methods; the adaptive ones evaluate theirs on the dense output
-(`Simulation._first_crossing`, `locate_python`: the same Illinois method over a Python callable).
+`step_state(...)` is the one place that evaluates the state inside a step for the event
+functions, so one Illinois root finder (`locate`) serves every method.
 """
 import math
 
 from ..dynamics.jit import jit, jit_inline
 from . import layout
+from .dense import interpolate
 from .fixed_step import step
 from .system import CROSSING_CHECKS, derivative, holding_forces
 
@@ -89,6 +90,12 @@ def crossing_in_step(s0, s1, h, system, watched, stroke):
 def holding_margin(system, s, resting, ds, forces):
     """min over resting rods of the force (N) its stop pushes with: > 0 while all are held."""
     derivative(system, s, ds)
+    return holding_margin_after(system, s, resting, ds, forces)
+
+
+@jit
+def holding_margin_after(system, s, resting, ds, forces):
+    """`holding_margin` right after ds = derivative(s) (`holding_forces` reuses what it left)."""
     holding_forces(system, s, ds, forces)
     margin = math.inf
     for k in range(1, resting.shape[0] + 1):
@@ -99,31 +106,38 @@ def holding_margin(system, s, resting, ds, forces):
 
 
 @jit
-def step_state(method, system, s0, h, out, stages):
-    """The state the integrator reaches from s0 in h (s0 itself for h ≤ 0), into out."""
-    if h > 0.0:
-        step(method, system, s0, h, out, stages)
-    else:
+def step_state(method, system, s0, h, out, stages, dense=None):
+    """The state h (s) into the step from s0 (s0 itself for h ≤ 0), into out: the integrator's
+    own step, or the step's dense output when one is given."""
+    if h <= 0.0:
         for i in range(s0.shape[0]):
             out[i] = s0[i]
+    elif dense is None:   # a plain `is None` test: numba drops the branch a call cannot take
+        step(method, system, s0, h, out, stages)
+    else:
+        interpolate(dense, s0, h, out)
 
 
 @jit
-def event_value(kind, method, system, s0, h, i_l, side, stop, resting, trial, stages, forces):
+def event_value(kind, method, system, s0, h, i_l, side, stop, resting, trial, stages, forces,
+                dense=None):
     """g(h') of the module doc for `kind` CROSSING (rod at index i_l, side, stop) or RELEASE."""
-    step_state(method, system, s0, h, trial, stages)
+    step_state(method, system, s0, h, trial, stages, dense)
     if kind == CROSSING:
         return (stop - trial[i_l]) * side
     return holding_margin(system, trial, resting, stages[3], forces)
 
 
 @jit
-def locate(kind, method, system, s0, a, b, i_l, side, stop, resting, trial, stages, forces):
+def locate(kind, method, system, s0, a, b, i_l, side, stop, resting, trial, stages, forces,
+           dense=None):
     """The root of g in (a, b] with g(a) ≥ 0 > g(b), by the Illinois method: the h' with
     g(h') ≤ 0 closest to the root (the state has just reached the event)."""
     h = b - a
-    ga = event_value(kind, method, system, s0, a, i_l, side, stop, resting, trial, stages, forces)
-    gb = event_value(kind, method, system, s0, b, i_l, side, stop, resting, trial, stages, forces)
+    ga = event_value(kind, method, system, s0, a, i_l, side, stop, resting, trial, stages, forces,
+                     dense)
+    gb = event_value(kind, method, system, s0, b, i_l, side, stop, resting, trial, stages, forces,
+                     dense)
     g_root = gb  # g at b itself: the Illinois steps halve gb, which must not pass for convergence
     last = 0
     for _ in range(200):
@@ -136,7 +150,8 @@ def locate(kind, method, system, s0, a, b, i_l, side, stop, resting, trial, stag
             c = 0.5 * (a + b)
         if not a < c < b:
             c = 0.5 * (a + b)
-        gc = event_value(kind, method, system, s0, c, i_l, side, stop, resting, trial, stages, forces)
+        gc = event_value(kind, method, system, s0, c, i_l, side, stop, resting, trial, stages,
+                         forces, dense)
         if gc <= 0.0:
             b, gb, g_root = c, gc, gc
             if last == -1:
@@ -165,7 +180,8 @@ def insert_sorted(a, m, x):
 
 
 @jit
-def first_crossing(method, system, s0, h, watched, resting, stroke, samples, trial, stages, forces):
+def first_crossing(method, system, s0, h, watched, resting, stroke, samples, trial, stages, forces,
+                   dense=None):
     """Earliest (h', rod k, side) at which a watched rod meets a stop within the step s0 → h,
     or (−1, 0, 0) when none does (the Hermite path dipped, the step itself did not)."""
     nq, _ = layout.sizes(system)
@@ -176,7 +192,7 @@ def first_crossing(method, system, s0, h, watched, resting, stroke, samples, tri
         m += 1
     # A rod that crosses and comes back between two samples would be missed: add the instants
     # where each rod's Hermite path over the step (the one `crossing_in_step` flagged) turns.
-    step_state(method, system, s0, h, trial, stages)
+    step_state(method, system, s0, h, trial, stages, dense)
     for k in range(1, n + 1):
         if watched[k - 1]:
             i_l, i_ld = layout.l(k), layout.ld(nq, k)
@@ -196,14 +212,14 @@ def first_crossing(method, system, s0, h, watched, resting, stroke, samples, tri
             end = -1
             for j in range(m):
                 if event_value(CROSSING, method, system, s0, samples[j], i_l, side, stop, resting,
-                               trial, stages, forces) < 0.0:
+                               trial, stages, forces, dense) < 0.0:
                     end = j
                     break
             if end < 0:
                 continue
             a = samples[end - 1] if end > 0 else 0.0
             h_hit = locate(CROSSING, method, system, s0, a, samples[end], i_l, side, stop,
-                           resting, trial, stages, forces)
+                           resting, trial, stages, forces, dense)
             if best_k == 0 or h_hit < best_h:
                 best_h, best_k, best_side = h_hit, k, side
     return best_h, best_k, best_side

@@ -46,7 +46,8 @@ MAX_FACTOR = 10.0   # the most a step can grow after an acceptance
 
 MAX_STAGES = 16     # rows of K: DOP853's 12 stages, f(y₁) and 3 dense-output stages
 MAX_DENSE = 7       # rows of the dense-output coefficients (DOP853's degree-7 interpolant)
-# rows of `integrate`'s work array: K, coeffs, f₀, f₁, y₁, err (2)
+# rows of the work array of a solve (`accepted_step`, `adaptive_stepping.Solve`): K, coeffs, f₀,
+# f₁, y₁, err (2)
 WORK_K, WORK_COEFFS, WORK_F0, WORK_F1, WORK_Y1, WORK_ERR = 0, 16, 23, 24, 25, 26
 WORK_ROWS = 28
 
@@ -215,7 +216,7 @@ def tableau(method_id):
 
 
 def work_array(n: int) -> np.ndarray:
-    """Scratch for `integrate` with states of n entries: (WORK_ROWS, n)."""
+    """Scratch for `accepted_step` with states of n entries: (WORK_ROWS, n)."""
     return np.zeros((WORK_ROWS, n))
 
 
@@ -410,73 +411,6 @@ def dense_eval(method_id, coeffs, s, h, theta, y_out):
             y += coeffs[r, i]
             y *= theta if (6 - r) % 2 == 0 else 1.0 - theta
         y_out[i] = y + s[i]
-
-
-@jit
-def integrate(method_id, system, s, t0, t1, rtol, atol, h0, sample_times, samples_out, work):
-    """Integrate from t0 to t1 (s) in one continuous solve, in place on s (left at t1).
-
-    Writes the dense-output state at each of `sample_times` (sorted, in [t0, t1]) into
-    samples_out (len(sample_times), n); the interpolant is built only for steps that hold a
-    sample. h0 > 0 is the first step to try, otherwise `initial_step` picks it. `work` is
-    (WORK_ROWS, n) scratch (`work_array`). No events: the right-hand side must be smooth on
-    [t0, t1]. Returns (accepted steps, rejected steps, right-hand sides evaluated); accepted
-    steps = −1 when the step fell below 10 ulps of t (the run stopped there, s at that time).
-    """
-    n = s.shape[0]
-    K = work[WORK_K:WORK_K + MAX_STAGES]
-    coeffs = work[WORK_COEFFS:WORK_COEFFS + MAX_DENSE]
-    f0 = work[WORK_F0]
-    f1 = work[WORK_F1]
-    y1 = work[WORK_Y1]
-    err = work[WORK_ERR:WORK_ERR + 2]
-    derivative(system, s, f0)
-    evals = 1
-    if h0 > 0.0:
-        h_abs = h0
-    else:
-        h_abs = initial_step(method_id, system, s, f0, t1 - t0, rtol, atol, np.inf, y1, f1)
-        evals += 1
-    n_samples = sample_times.shape[0]
-    k = 0
-    while k < n_samples and sample_times[k] <= t0:
-        for i in range(n):
-            samples_out[k, i] = s[i]
-        k += 1
-    t = t0
-    steps = 0
-    rejected = 0
-    while t < t1:
-        min_step = 10.0 * abs(np.nextafter(t, np.inf) - t)
-        if h_abs < min_step:
-            h_abs = min_step
-        retried = False
-        while True:
-            if h_abs < min_step:
-                return -1, rejected, evals
-            t_new = t + h_abs
-            if t_new > t1:
-                t_new = t1
-            h = t_new - t
-            h_abs = abs(h)
-            evals += rk_step(method_id, system, s, f0, h, y1, f1, K, err)
-            norm = error_norm(method_id, err, s, y1, rtol, atol)
-            h_abs = next_step(method_id, norm, h_abs, retried)
-            if norm < 1.0:
-                break
-            retried = True
-            rejected += 1
-        steps += 1
-        if k < n_samples and sample_times[k] <= t_new:
-            evals += dense_prepare(method_id, system, s, y1, f0, f1, h, K, coeffs)
-            while k < n_samples and sample_times[k] <= t_new:
-                dense_eval(method_id, coeffs, s, h, (sample_times[k] - t) / h, samples_out[k])
-                k += 1
-        for i in range(n):
-            s[i] = y1[i]
-            f0[i] = f1[i]
-        t = t_new
-    return steps, rejected, evals
 
 
 @jit

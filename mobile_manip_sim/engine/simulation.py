@@ -22,12 +22,11 @@ from ..effects import settings as effect_settings
 from ..methods import METHODS
 from ..errors import UserError
 from ..scene import IntegratorSettings, Scene
-from . import fixed_step, layout, stepping
-from .adaptive import CompiledSolver
+from . import adaptive_stepping, dense, fixed_step, layout, stepping
+from . import runge_kutta as rk
+from .events import holding_margin
 from .step_watch import StepWatch
-from .events import MAX_IMPACTS_PER_STEP, N_SAMPLES, crossing_in_step, hermite_turns, holding_margin
-from .stops import (LOG_HELD, Impact, impact, make_impact_scratch, make_stops, relock, release,
-                    release_at_root)
+from .stops import LOG_HELD, Impact, make_impact_scratch, make_stops, relock, release
 from .system import (KI, KP, RHS_EVALS, TARGET_L, TARGET_R, TORQUE_LIMIT, VELOCITY_MODE, System,
                      wheel_speed_torques)
 
@@ -72,13 +71,31 @@ class Simulation:
         self._scratch = stepping.make_scratch(size, model.n_links, make_impact_scratch(self.nu, model.n_links))
         self._clock = np.zeros(5)
         self._clock[stepping.DT] = self.settings.dt
-        self._method = fixed_step.METHOD_IDS.get(self.settings.method)
-        # Steps per compiled call: about 20 ms of work, so signals, pause and reset act promptly.
-        self._step_budget = max(1, int(40_000 / (model.n_links + 2)))
+        # The compiled core that runs the method (stepping.py, adaptive_stepping.py; None: SciPy's
+        # radau/bdf, stepped from Python) and its leading arguments. Steps per compiled call:
+        # about 20 ms of work, so signals, pause and reset act promptly (an adaptive step costs
+        # about four fixed ones).
+        budget = max(1, int(40_000 / (model.n_links + 2)))
+        method = self.settings.method
+        self._solve = None
+        if self.settings.fixed_step:
+            self._core = stepping
+            self._core_args = (fixed_step.METHOD_IDS[method], self.system.data, self.stops,
+                               self._scratch)
+            self._step_budget = budget
+        else:
+            self._solve = adaptive_stepping.make_solve(size, self.settings.rtol, self.settings.atol)
+            self._core = adaptive_stepping if method in rk.METHOD_IDS else None
+            self._core_args = (rk.METHOD_IDS.get(method, dense.POWER), self.system.data, self.stops,
+                               self._scratch, self._solve)
+            self._step_budget = max(1, budget // 4)
         # the compiled calls of every sample, bound to this simulation's argument types
-        self._advance = Bound(stepping.advance)
-        self._advance_samples = Bound(stepping.advance_samples)
+        self._advance = Bound(self._core.advance) if self._core else None
+        self._advance_samples = Bound(self._core.advance_samples) if self._core else None
         self._total_energy = Bound(stepping.total_energy)
+        self._inside_step = Bound(adaptive_stepping.inside_step)
+        self._reach = Bound(adaptive_stepping.reach)
+        self._locate_event = Bound(adaptive_stepping.locate_event)
         self.set_wheel_speed_gains(*DEFAULT_WHEEL_SPEED_GAINS)
         self.reset()
 
@@ -91,18 +108,16 @@ class Simulation:
         self.system.control[VELOCITY_MODE] = 0.0
         self._clock[:] = 0.0
         self._clock[stepping.DT] = self.settings.dt
-        self._t_adaptive = 0.0
+        if self._solve is not None:
+            self._solve.status[:] = 0.0   # a fresh solve: `rk.initial_step` picks its first step
         self.resting[:] = 0
         self.watched[:] = self.stop_law is not None
         self.stops.count[0] = 0
         relock(self.system.data, self.stops)
         self.impacts: list[Impact] = []
         self.impact_details: list[ImpactDetail] = []
-        self._run = (0, 0, 0, 0.0)   # rod, stop, count and first time of the latest run of impacts
         self.system.counters[:] = 0
-        self._h_last = None
-        self._solver = None
-        self._current = None
+        self._solver = None   # radau/bdf: SciPy's solver of the solve in progress
         self._step_watch = StepWatch()
         self.wheel_efforts = self.joint_efforts = None
         self.set_efforts(self.scene.wheel_efforts, self.scene.joint_efforts)
@@ -110,9 +125,8 @@ class Simulation:
 
     @property
     def t(self) -> float:
-        if self.settings.fixed_step:
-            return float(self._clock[stepping.T0] + self._clock[stepping.K] * self.settings.dt)
-        return float(self._t_adaptive)
+        # the adaptive methods keep their time in T0 (K stays 0)
+        return float(self._clock[stepping.T0] + self._clock[stepping.K] * self.settings.dt)
 
     @property
     def steps(self) -> int:
@@ -194,7 +208,7 @@ class Simulation:
             torque_limit = min(torque_limit, float(np.min(self.effects.effort_limits[:2])))
         control = self.system.control
         control[KP], control[KI], control[TORQUE_LIMIT] = kp, ki, torque_limit
-        self._solver = self._current = None
+        self._restart()
 
     def wheel_torques(self) -> np.ndarray:
         """(τ_R, τ_L) acting now, N·m: the commanded ones, or the PI loop's in velocity mode."""
@@ -206,11 +220,16 @@ class Simulation:
     def velocity_mode(self) -> bool:
         return bool(self.system.control[VELOCITY_MODE])
 
+    def _restart(self) -> None:
+        """The right-hand side changes here: adaptive solves end at the current (t, s)."""
+        if self._solve is not None:
+            adaptive_stepping.restart(self._solve)
+
     def _command_changed(self) -> None:
         """A discontinuity of the right-hand side: adaptive solvers restart here, and a resting
         rod that the new command pulls off its stop is freed at this very instant (the steppers
         look for releases only inside steps; otherwise it would stay held a whole step)."""
-        self._solver = self._current = None
+        self._restart()
         scr = self._scratch
         if self.resting.any() and holding_margin(self.system.data, self.s, self.resting,
                                                  scr.stages[3], scr.forces) < 0.0:
@@ -221,43 +240,46 @@ class Simulation:
         """Integrate from the current time to exactly t_end (s)."""
         if t_end < self.t:
             raise UserError("t_end", f"{t_end} is before the current time {self.t}")
-        if self.settings.fixed_step:
-            self._advance_fixed(t_end)
-        else:
-            self._advance_adaptive(t_end)
+        t_end = float(t_end)   # the bound calls take the types of their first call
+        if self._solve is not None and self._inside_step(self._core_args[0], self._solve, self.s,
+                                                         self._clock, t_end):
+            return   # most targets of an adaptive run: inside the step in hand, interpolated
+        if self._core is None:
+            self._advance_scipy(t_end)
+            return
+        while True:
+            status = self._advance(*self._core_args, self.s, self._clock, t_end, self._step_budget)
+            self._after_compiled(status)
+            if status == stepping.DONE:
+                return
 
     def sample(self, times) -> np.ndarray:
         """Advance through the increasing sample times (s); row i = (s, T + V) at times[i]. One
-        compiled call for fixed-step methods (Python is entered only per step budget)."""
+        compiled call (Python is entered only per step budget), but for SciPy's radau/bdf."""
         times = np.ascontiguousarray(times, dtype=float)
         rows = np.empty((times.size, self.s.size + 1))
         if times.size and times[0] < self.t:
             raise UserError("t_end", f"{times[0]} is before the current time {self.t}")
-        if not self.settings.fixed_step:
+        if self._core is None:
             for i, t in enumerate(times):
                 self.advance_to(t)
                 rows[i, :-1], rows[i, -1] = self.s, self.total_energy()
             return rows
         i = 0
         while i < times.size:
-            status, i = self._advance_samples(self._method, self.system.data, self.stops,
-                                              self._scratch, self.s, self._clock, times, rows, i,
-                                              self._step_budget)
+            status, i = self._advance_samples(*self._core_args, self.s, self._clock, times, rows,
+                                              i, self._step_budget)
             self._after_compiled(status)
         return rows
-
-    def _advance_fixed(self, t_end: float) -> None:
-        while True:
-            status = self._advance(self._method, self.system.data, self.stops, self._scratch,
-                                   self.s, self._clock, float(t_end), self._step_budget)
-            self._after_compiled(status)
-            if status == stepping.DONE:
-                return
 
     def _after_compiled(self, status: int) -> None:
         self._collect_impacts()
         if status == stepping.NOT_FINITE:
             self._fail(self._scratch.out)
+        if status == adaptive_stepping.STALLED:
+            h = self._solve.status[adaptive_stepping.H_NEXT]
+            raise SimulationError(f"t = {self.t:.9g} s: {self.settings.method} failed: the step "
+                                  f"fell below 10 ulps of t (h = {h:.3g} s)")
         if status == stepping.CHATTER:
             raise SimulationError(f"t = {self.t:.9g} s: end stops chatter beyond what one step can "
                                   f"resolve (rods released and hitting again without end); "
@@ -274,85 +296,47 @@ class Simulation:
                 bool(stops.log[row, LOG_HELD])))
         stops.count[0] = 0
 
-    # --- adaptive methods: SciPy solvers kept across samples until a discontinuity ---------
-    def _impact(self, k: int, side: int, t: float, hold: bool = False) -> None:
-        scr = self._scratch
-        self._clock[stepping.LOST] += impact(self.system.data, self.stops, self.s, k, side, t, hold,
-                                             scr.impact, scr.stages[3], scr.forces)
+    # --- radau, bdf: a SciPy solver kept across samples until a discontinuity ----------------
+    def _advance_scipy(self, t_end: float) -> None:
+        """Step SciPy's solver from Python; everything else is the compiled adaptive core's
+        (`adaptive_stepping.reach`, `locate_event`: samples, events, the Zeno guard, restarts),
+        on the solver's interpolant as a power series (`dense.from_scipy`)."""
+        while not self._reach(*self._core_args, self.s, self._clock, t_end):
+            self._collect_impacts()
+            self._take_scipy_step()
         self._collect_impacts()
 
-    def _chattering(self, k: int, side: int, h: float) -> bool:
-        """Zeno guard of the adaptive methods (the fixed-step one counts impacts per step): rod k
-        hitting the same stop MAX_IMPACTS_PER_STEP times in a row within one step length h (s) is
-        chattering with ever smaller rebounds, down to round-off and on forever; hold it."""
-        k_run, side_run, count, t_first = self._run
-        if (k_run, side_run) == (k, side) and self._t_adaptive - t_first < h:
-            count += 1
-        else:
-            count, t_first = 1, self._t_adaptive
-        self._run = (k, side, count, t_first)
-        return count >= MAX_IMPACTS_PER_STEP
-
-    def _advance_adaptive(self, t_end: float) -> None:
-        """Step one SciPy solver through the sample times, sampling its dense output; restart it
-        only at a discontinuity (an impact, a release, a command change)."""
-        while True:
-            current = self._current
-            if current is not None:
-                t_before, t_after, dense, y_after, event = current
-                t_stop = event[0] if event is not None else t_after
-                if t_end <= t_stop:
-                    if t_end == t_after and event is None:
-                        self.s = y_after.copy()
-                    elif t_end > self._t_adaptive:
-                        self.s = dense(t_end)
-                    self._t_adaptive = t_end
-                    return
-                if event is not None:
-                    self._apply_event(event)
-                    continue
-            self._take_adaptive_step()
-
-    def _take_adaptive_step(self) -> None:
-        system = self.system
-        if self._solver is None:
+    def _take_scipy_step(self) -> None:
+        """One step of the SciPy solver into the adaptive core's step in hand (`Solve`)."""
+        solve = self._solve
+        status, work = solve.status, solve.work
+        if status[adaptive_stepping.STEP_H] == 0.0:   # a new solve at (t, s)
+            derivative = self.system.derivative
             settings = self.settings
-            if METHODS[settings.method].stepper == "runge_kutta":
-                self._solver = CompiledSolver(settings.method, system.data, self._t_adaptive,
-                                              self.s, settings.rtol, settings.atol, self._h_last)
-            else:
-                derivative = system.derivative
-                self._solver = scipy_solver(settings.method)(
-                    lambda _t, y: derivative(y), self._t_adaptive, self.s.copy(), math.inf,
-                    rtol=max(settings.rtol, SCIPY_MIN_RTOL), atol=settings.atol,
-                    first_step=self._h_last)
+            self._solver = scipy_solver(settings.method)(
+                lambda _t, y: derivative(y), self.t, self.s.copy(), math.inf,
+                rtol=max(settings.rtol, SCIPY_MIN_RTOL), atol=settings.atol,
+                first_step=status[adaptive_stepping.H_NEXT] or None)
         solver = self._solver
-        s_before, t_before = solver.y.copy(), solver.t
+        t_before = status[adaptive_stepping.STEP_T0] = solver.t
+        solve.start[:] = solver.y
         message = solver.step()
-        if not isinstance(solver, CompiledSolver):
-            self._check_scipy_step(solver, t_before, message)
-        if solver.status == "failed":
-            raise SimulationError(f"t = {t_before:.9g} s: {self.settings.method} failed: {message}")
+        self._check_scipy_step(solver, t_before, message)
         self._clock[stepping.STEPS] += 1
-        h = solver.t - t_before
-        self._h_last = h
         if not np.all(np.isfinite(solver.y)):
             self._fail(solver.y)
-        dense = solver.dense_output()
-        event = None
-        scr = self._scratch
-        if self.watched.any() and crossing_in_step(s_before, solver.y, h, system.data, self.watched,
-                                                   self.stroke):
-            hit = self._first_crossing(lambda dh: dense(t_before + dh), s_before, h)
-            if hit is not None:
-                event = (t_before + hit[0], "impact", hit, h)
-        if event is None and self.resting.any() and holding_margin(
-                system.data, solver.y, self.resting, scr.stages[3], scr.forces) < 0.0:
-            h_release = locate_python(lambda dh: self._holding_margin(dense(t_before + dh) if dh > 0
-                                                                      else s_before), 0.0, h)
-            event = (t_before + h_release, "release", dense(t_before + h_release), h)
-        # the step's end state, kept exactly (dense(t_after) may differ from it by round-off)
-        self._current = (t_before, solver.t, dense, solver.y.copy(), event)
+        y1 = work[rk.WORK_Y1]
+        y1[:] = solver.y
+        coeffs = work[rk.WORK_COEFFS:rk.WORK_COEFFS + rk.MAX_DENSE]
+        series = dense.from_scipy(solver.dense_output()).coeffs
+        coeffs[:] = 0.0
+        coeffs[:len(series)] = series
+        status[adaptive_stepping.STEP_H] = solver.t - t_before
+        status[adaptive_stepping.DENSE] = 1.0
+        status[adaptive_stepping.EVENT] = adaptive_stepping.NO_EVENT
+        if self.resting.any():   # the release check needs f(y₁) just evaluated
+            work[rk.WORK_F1] = self.system.derivative(y1)
+        self._locate_event(*self._core_args)
 
     def _check_scipy_step(self, solver, t_before: float, message) -> None:
         """radau/bdf: a failed step (below ten spacings of t) or a crawl (`step_watch`) is one
@@ -366,48 +350,6 @@ class Simulation:
                                  f"the scene, or loosen integrator.rtol ({s.rtol:g}) and "
                                  f"integrator.atol ({s.atol:g})")
 
-    def _apply_event(self, event) -> None:
-        t_event, kind, detail, h = event
-        self._t_adaptive = t_event
-        if kind == "impact":
-            _, k, side, state = detail
-            self.s = state
-            self._impact(k, side, t_event, hold=self._chattering(k, side, h))
-        else:
-            self.s = detail
-            scr = self._scratch
-            release_at_root(self.system.data, self.stops, self.s, scr.stages[3], scr.forces)
-        self._solver = self._current = None
-
-    def _holding_margin(self, state) -> float:
-        scr = self._scratch
-        return float(holding_margin(self.system.data, state, self.resting, scr.stages[3], scr.forces))
-
-    def _first_crossing(self, state_at, s0, h):
-        """Earliest (h', rod, side, state) where a watched rod meets a stop within h, or None."""
-        samples = [h * j / N_SAMPLES for j in range(1, N_SAMPLES + 1)]
-        end_state = state_at(h)
-        for k in np.flatnonzero(self.watched) + 1:
-            i_l, i_ld = layout.l(k), layout.ld(self.nq, k)
-            turns, _, _ = hermite_turns(s0[i_l], s0[i_ld], end_state[i_l], end_state[i_ld], h)
-            samples += [tau for tau in turns if 0.0 < tau < h]
-        samples.sort()
-        best = None
-        for k in np.flatnonzero(self.watched) + 1:
-            i_l = layout.l(k)
-            for side, stop in ((-1, self.stroke[k - 1, 0]), (1, self.stroke[k - 1, 1])):
-                def g(dh, i_l=i_l, side=side, stop=stop):
-                    return (stop - state_at(dh)[i_l]) * side if dh > 0 else (stop - s0[i_l]) * side
-                end = next((j for j, x in enumerate(samples) if g(x) < 0.0), None)
-                if end is None:
-                    continue
-                h_hit = locate_python(g, samples[end - 1] if end else 0.0, samples[end])
-                if best is None or h_hit < best[0]:
-                    best = (h_hit, int(k), side, state_at(h_hit))
-        if best is not None:
-            best[3][layout.l(best[1])] = self.stroke[best[1] - 1, 0 if best[2] < 0 else 1]
-        return best
-
     def _fail(self, state) -> None:
         bad = [i for i, value in enumerate(state) if not math.isfinite(value)]
         raise SimulationError(f"t = {self.t:.9g} s: state became non-finite (entries {bad}); "
@@ -416,34 +358,6 @@ class Simulation:
     def stats(self) -> dict:
         return {"t": self.t, "steps": self.steps, "rhs_evaluations": self.rhs_evaluations,
                 "impacts": len(self.impacts), "energy_error": self.energy_error()}
-
-
-def locate_python(g, a: float, b: float, tol: float = 1e-13) -> float:
-    """The root of g in (a, b] with g(a) ≥ 0 > g(b), by the Illinois method (the adaptive
-    methods' event functions live on SciPy's dense output; `events.locate` is the compiled twin
-    on the integrator's own step)."""
-    h = b - a
-    ga, gb = g(a), g(b)
-    g_root = gb
-    side = 0
-    for _ in range(200):
-        c = b - gb * (b - a) / (gb - ga) if gb != ga and ga != 0.0 else 0.5 * (a + b)
-        if not a < c < b:
-            c = 0.5 * (a + b)
-        gc = g(c)
-        if gc <= 0.0:
-            b, gb, g_root = c, gc, gc
-            if side == -1:
-                ga *= 0.5
-            side = -1
-        else:
-            a, ga = c, gc
-            if side == 1:
-                gb *= 0.5
-            side = 1
-        if -tol <= g_root <= 0.0 or b - a <= 1e-15 * h:
-            break
-    return b
 
 
 def _command(values, size, group) -> np.ndarray:

@@ -1,0 +1,260 @@
+"""The adaptive core, compiled end to end: Dormand–Prince 5(4) (`rk45`) and 8(5,3) (`dop853`)
+of `runge_kutta.py` with error control. One call advances to a target time (or fills a whole
+array of samples) with every step, crossing check, event location on the step's dense output,
+impact, rest and release, and the Zeno guard inside compiled code; Python is entered once per
+call — and, as in `stepping.py`, whenever a call has used its step budget.
+
+One solve runs from its start until a discontinuity (an impact, a release, a command change:
+`restart`); the step is never cut at a target or a sample. The last accepted step stays *in hand*
+(`Solve`: its start y₀, stages, y₁, f(y₀), f(y₁)): targets and samples inside it are read from
+its dense output, which is built only when a target, a sample or an event lies in the step (3
+right-hand sides for dop853, none for rk45); the next step starts from y₁ with f(y₁) (FSAL). An
+event found in the step ends the solve there: it is applied once a target passes it, and the
+solve restarts from the event with the length of the step that held it as its first try.
+
+SciPy's radau and bdf use the same bookkeeping from Python (`Simulation._advance_scipy`): each
+SciPy step, its interpolant a `dense.POWER` series, becomes the step in hand (`reach`,
+`locate_event`), so every adaptive method shares the event handling and the Zeno guard.
+
+The simulated time is clock[T0] of `stepping.py`'s clock (K stays 0); STEPS and LOST as there.
+"""
+import math
+from collections import namedtuple
+
+import numpy as np
+
+from ..dynamics.jit import jit
+from . import layout
+from . import runge_kutta as rk
+from .dense import Interpolant, interpolate
+from .events import (MAX_IMPACTS_PER_STEP, RELEASE, crossing_in_step, first_crossing,
+                     holding_margin_after, locate)
+from .stepping import (BUDGET, DONE, LOG_FULL, LOST, NOT_FINITE, STEPS, T0, any_watched, copy_into,
+                       finite, total_energy)
+from .stops import any_resting, impact, release_at_root
+from .system import derivative
+
+STALLED = 5   # why `advance` returned, besides stepping.py's: the step fell below 10 ulps of t
+
+# Solve.status[...] entries
+(STEP_T0,     # start of the step in hand (s)
+ STEP_H,      # its length (s); 0: none in hand, the next step starts a new solve at (t, s)
+ H_NEXT,      # the next step to try (s); 0: `rk.initial_step` picks one
+ DENSE,       # 1 once the interpolant of the step in hand is built
+ EVENT,       # NO_EVENT, IMPACT or LEAVE: the first event in the step in hand
+ EVENT_H,     # its time into the step (s)
+ EVENT_K,     # the rod (1-based) and the stop (−1 lower, +1 upper) of an impact
+ EVENT_SIDE,
+ RUN_K,       # the latest run of impacts of one rod at one stop (the Zeno guard): rod, stop,
+ RUN_SIDE,    # how many, and the time of the first (s)
+ RUN_COUNT,
+ RUN_T) = range(12)
+N_STATUS = 12
+NO_EVENT, IMPACT, LEAVE = 0, 1, 2
+
+Solve = namedtuple("Solve", [
+    "work",       # (rk.WORK_ROWS, size) the step in hand: stages, interpolant, f₀, f₁, y₁, errors
+    "start",      # (size,) y₀, the state at the start of the step in hand
+    "event",      # (size,) the state at its event (an impact: l_k exactly at the stop)
+    "tolerance",  # (2,) rtol, atol (per component of s, in its own units)
+    "status",     # (N_STATUS,) the solve's bookkeeping, entries above
+])
+
+
+def make_solve(size: int, rtol: float, atol: float) -> Solve:
+    return Solve(rk.work_array(size), np.zeros(size), np.zeros(size), np.array([rtol, atol]),
+                 np.zeros(N_STATUS))
+
+
+@jit
+def restart(solve):
+    """A discontinuity at the current (t, s): drop the step in hand; the next step starts a new
+    solve there, trying the length of the last step taken."""
+    status = solve.status
+    if status[STEP_H] > 0.0:
+        status[H_NEXT] = status[STEP_H]
+    status[STEP_H] = 0.0
+    status[EVENT] = NO_EVENT
+
+
+@jit
+def interpolant(method, system, solve):
+    """The dense output of the step in hand, built on first use."""
+    work, status = solve.work, solve.status
+    coeffs = work[rk.WORK_COEFFS:rk.WORK_COEFFS + rk.MAX_DENSE]
+    if status[DENSE] == 0.0:
+        rk.dense_prepare(method, system, solve.start, work[rk.WORK_Y1], work[rk.WORK_F0],
+                         work[rk.WORK_F1], status[STEP_H],
+                         work[rk.WORK_K:rk.WORK_K + rk.MAX_STAGES], coeffs)
+        status[DENSE] = 1.0
+    return Interpolant(method, coeffs, status[STEP_H])
+
+
+@jit
+def locate_event(method, system, stops, scr, solve):
+    """The first event in the step in hand, into solve.status[EVENT…] and solve.event: a watched
+    rod reaching a stop, or the instant a resting rod's stop would start to pull."""
+    work, status, start = solve.work, solve.status, solve.start
+    y1, h = work[rk.WORK_Y1], status[STEP_H]
+    # The holding forces at y₁ reuse f(y₁) and what its evaluation, the step's last, left in the
+    # workspace: check before the interpolant's stages evaluate anything else.
+    pulled = any_resting(stops) and holding_margin_after(system, y1, stops.resting,
+                                                         work[rk.WORK_F1], scr.forces) < 0.0
+    if any_watched(stops) and crossing_in_step(start, y1, h, system, stops.watched, stops.stroke):
+        dense = interpolant(method, system, solve)
+        h_hit, k, side = first_crossing(method, system, start, h, stops.watched, stops.resting,
+                                        stops.stroke, scr.samples, scr.trial, scr.stages,
+                                        scr.forces, dense)
+        if k != 0:
+            interpolate(dense, start, h_hit, solve.event)
+            solve.event[layout.l(k)] = stops.stroke[k - 1, 0] if side < 0 else stops.stroke[k - 1, 1]
+            status[EVENT], status[EVENT_H] = IMPACT, h_hit
+            status[EVENT_K], status[EVENT_SIDE] = k, side
+    if pulled:
+        dense = interpolant(method, system, solve)
+        h_leave = locate(RELEASE, method, system, start, 0.0, h, 0, 0, 0.0, stops.resting,
+                         scr.trial, scr.stages, scr.forces, dense)
+        # whichever comes first: the other one is found again by the solve restarted there
+        if status[EVENT] == NO_EVENT or h_leave < status[EVENT_H]:
+            interpolate(dense, start, h_leave, solve.event)
+            status[EVENT], status[EVENT_H] = LEAVE, h_leave
+
+
+@jit
+def take_step(method, system, stops, scr, solve, s, clock):
+    """One accepted step after the step in hand (or starting a new solve at (t, s)), its first
+    event located. Returns DONE, NOT_FINITE (the bad state in scr.out) or STALLED."""
+    work, status, start = solve.work, solve.status, solve.start
+    rtol, atol = solve.tolerance[0], solve.tolerance[1]
+    f0, f1, y1 = work[rk.WORK_F0], work[rk.WORK_F1], work[rk.WORK_Y1]
+    if status[STEP_H] > 0.0:
+        status[STEP_T0] += status[STEP_H]
+        copy_into(y1, start)
+        copy_into(f1, f0)   # FSAL: f(y₁) is the next step's first stage
+    else:
+        status[STEP_T0] = clock[T0]
+        copy_into(s, start)
+        derivative(system, start, f0)
+        if status[H_NEXT] <= 0.0:
+            status[H_NEXT] = rk.initial_step(method, system, start, f0, math.inf, rtol, atol,
+                                             math.inf, y1, f1)
+    h, h_next = rk.accepted_step(method, system, start, status[STEP_T0], status[H_NEXT], math.inf,
+                                 rtol, atol, work)
+    if h < 0.0:
+        status[STEP_H] = 0.0
+        return STALLED
+    clock[STEPS] += 1.0
+    status[STEP_H], status[H_NEXT], status[DENSE], status[EVENT] = h, h_next, 0.0, NO_EVENT
+    if not finite(y1):
+        copy_into(y1, scr.out)
+        return NOT_FINITE
+    locate_event(method, system, stops, scr, solve)
+    return DONE
+
+
+@jit
+def chattering(status, k, side, t, h):
+    """The Zeno guard of the adaptive methods (the fixed-step one counts impacts per step): rod k
+    hitting the same stop MAX_IMPACTS_PER_STEP times in a row within one step length h (s) is
+    chattering with ever smaller rebounds, down to round-off and on forever; hold it."""
+    if status[RUN_K] == k and status[RUN_SIDE] == side and t - status[RUN_T] < h:
+        status[RUN_COUNT] += 1.0
+    else:
+        status[RUN_K], status[RUN_SIDE], status[RUN_COUNT], status[RUN_T] = k, side, 1.0, t
+    return status[RUN_COUNT] >= MAX_IMPACTS_PER_STEP
+
+
+@jit
+def apply_event(system, stops, scr, solve, s, clock):
+    """Move (t, s) to the event of the step in hand, apply it, and restart the solve there."""
+    status = solve.status
+    t = status[STEP_T0] + status[EVENT_H]
+    copy_into(solve.event, s)
+    clock[T0] = t
+    if status[EVENT] == IMPACT:
+        k, side = int(status[EVENT_K]), int(status[EVENT_SIDE])
+        hold = chattering(status, k, side, t, status[STEP_H])
+        clock[LOST] += impact(system, stops, s, k, side, t, hold, scr.impact, scr.stages[3],
+                              scr.forces)
+    else:
+        release_at_root(system, stops, s, scr.stages[3], scr.forces)
+    restart(solve)
+
+
+@jit
+def inside_step(method, solve, s, clock, t_end):
+    """Move (t, s) to t_end (s) when it lies in the step in hand, not past its event, and its
+    interpolant is built (or t_end is the step's end): True; otherwise False, nothing changed.
+    It takes none of the system's records, so that Python can call it cheaply for a target
+    inside the step (a call from Python unboxes every array it is given)."""
+    status = solve.status
+    if t_end <= clock[T0]:
+        return True
+    h, t0 = status[STEP_H], status[STEP_T0]
+    event = status[EVENT] != NO_EVENT
+    if h <= 0.0 or t_end > t0 + (status[EVENT_H] if event else h):
+        return False
+    if t_end == t0 + h and not event:
+        copy_into(solve.work[rk.WORK_Y1], s)   # the step's end, exactly
+    elif status[DENSE] == 0.0:
+        return False
+    else:
+        dense = Interpolant(method, solve.work[rk.WORK_COEFFS:rk.WORK_COEFFS + rk.MAX_DENSE], h)
+        interpolate(dense, solve.start, t_end - t0, s)
+    clock[T0] = t_end
+    return True
+
+
+@jit
+def reach(method, system, stops, scr, solve, s, clock, t_end):
+    """Move (t, s) to t_end (s) inside the step in hand, or to its event when t_end lies past the
+    event (which is then applied). True when (t, s) is at t_end, False when a new step is needed."""
+    if inside_step(method, solve, s, clock, t_end):
+        return True
+    status = solve.status
+    h = status[STEP_H]
+    if h <= 0.0:
+        return False
+    if status[EVENT] != NO_EVENT:
+        if t_end > status[STEP_T0] + status[EVENT_H]:
+            apply_event(system, stops, scr, solve, s, clock)
+            return False
+    elif t_end > status[STEP_T0] + h:
+        return False
+    interpolant(method, system, solve)   # t_end is inside: build what `inside_step` reads
+    return inside_step(method, solve, s, clock, t_end)
+
+
+@jit
+def advance(method, system, stops, scr, solve, s, clock, t_end, max_steps):
+    """Advance (t, s) to exactly t_end (s). Returns DONE, or BUDGET after max_steps steps,
+    LOG_FULL when the impact log needs emptying, NOT_FINITE (scr.out holds the bad state) or
+    STALLED (the step fell below 10 ulps of t; solve.status[H_NEXT] the step tried)."""
+    room = stops.log.shape[0] // 2
+    taken = 0
+    while not reach(method, system, stops, scr, solve, s, clock, t_end):
+        if taken >= max_steps:
+            return BUDGET
+        if stops.count[0] > room:
+            return LOG_FULL
+        status = take_step(method, system, stops, scr, solve, s, clock)
+        if status != DONE:
+            return status
+        taken += 1
+    return DONE
+
+
+@jit
+def advance_samples(method, system, stops, scr, solve, s, clock, times, rows, first, max_steps):
+    """`advance` to each of times[first:], writing (s, T + V) into rows[i]; returns (status,
+    next sample index) — the caller calls again after BUDGET or LOG_FULL. The budget counts
+    steps only: a sample inside the step in hand costs none."""
+    steps = clock[STEPS]
+    for i in range(first, times.shape[0]):
+        status = advance(method, system, stops, scr, solve, s, clock, times[i],
+                         max_steps - int(clock[STEPS] - steps))
+        if status != DONE:
+            return status, i
+        copy_into(s, rows[i])
+        rows[i, s.shape[0]] = total_energy(system, s)
+    return DONE, times.shape[0]
