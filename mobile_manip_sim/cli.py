@@ -5,6 +5,7 @@ import argparse
 import signal
 import sys
 import threading
+from contextlib import contextmanager
 from typing import Callable
 
 from .errors import EXIT_USER_ERROR, UserError
@@ -23,20 +24,51 @@ class Terminated(BaseException):
 
 
 EXIT_TERMINATED = 128 + signal.SIGTERM
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+_critical_depth = 0      # `critical` blocks entered and not left
+_pending = None          # a stop signal that arrived inside one, raised when it ends
 
 
-def _terminate(signum, frame):
-    raise Terminated()
+def _raise(signum):
+    if signum == signal.SIGTERM:
+        raise Terminated()
+    raise KeyboardInterrupt
+
+
+def _on_stop_signal(signum, frame):
+    global _pending
+    if _critical_depth:
+        _pending = signum
+        return
+    _raise(signum)
+
+
+@contextmanager
+def critical():
+    """A write that must not be cut in half (one sample's CSV row and bag messages): a SIGINT or
+    SIGTERM arriving inside is raised when the block ends — raised in the middle, it left a
+    message record cut short inside the bag's last chunk, which readers then choke on."""
+    global _critical_depth, _pending
+    _critical_depth += 1
+    try:
+        yield
+    finally:
+        _critical_depth -= 1
+    if not _critical_depth and _pending is not None:
+        signum, _pending = _pending, None
+        _raise(signum)
 
 
 def run(main: Callable[[list[str] | None], int | None], argv: list[str] | None = None, *,
         sigterm: bool = False) -> int:
     """Call ``main(argv)``; a `UserError` becomes ``<prog>: error: <key>: <problem>``, status 2.
-    With `sigterm`, SIGTERM raises `Terminated` in the main thread (status 143)."""
+    With `sigterm`, SIGTERM raises `Terminated` in the main thread (status 143), and both it and
+    SIGINT wait for the end of a `critical` block."""
     prog = sys.argv[0].rsplit("/", 1)[-1] if sys.argv else "mobile_manip_sim"
-    previous = None
+    previous = {}
     if sigterm and threading.current_thread() is threading.main_thread():
-        previous = signal.signal(signal.SIGTERM, _terminate)
+        previous = {signum: signal.signal(signum, _on_stop_signal) for signum in STOP_SIGNALS}
     try:
         return int(main(argv) or 0)
     except Terminated:
@@ -53,5 +85,5 @@ def run(main: Callable[[list[str] | None], int | None], argv: list[str] | None =
         # A StepLimitError names the settings that cannot follow the run: a user's choice.
         return EXIT_USER_ERROR if getattr(error, "key", None) else 1
     finally:
-        if previous is not None:
-            signal.signal(signal.SIGTERM, previous)
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)

@@ -129,10 +129,12 @@ def _main(argv) -> int:
         output.writerow(csv_columns(scene.robot.n_links))
 
         def on_sample(sim):
-            output.writerow([repr(sim.t), *map(repr, sim.q.tolist()), *map(repr, sim.u.tolist()),
-                             repr(sim.total_energy())])
-            if recorder:
-                recorder.sample(sim)
+            row = [repr(sim.t), *map(repr, sim.q.tolist()), *map(repr, sim.u.tolist()),
+                   repr(sim.total_energy())]
+            with cli.critical():   # a signal stops the run between samples' writes, not inside
+                output.writerow(row)
+                if recorder:
+                    recorder.sample(sim)
 
         start = time.perf_counter()
         progress = Progress(duration)

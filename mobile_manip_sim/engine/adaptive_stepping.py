@@ -31,10 +31,13 @@ from .events import (MAX_IMPACTS_PER_STEP, RELEASE, crossing_in_step, first_cros
                      holding_margin_after, locate)
 from .stepping import (BUDGET, DONE, LOG_FULL, LOST, NOT_FINITE, STEPS, T0, any_watched, copy_into,
                        finite, total_energy)
+from .step_watch import make_watch, watch_step
 from .stops import any_resting, impact, release_at_root
 from .system import derivative
 
-STALLED = 5   # why `advance` returned, besides stepping.py's: the step fell below 10 ulps of t
+# why `advance` returned, besides stepping.py's: the step fell below 10 ulps of t; the steps
+# crawl (`step_watch`: solve.watch says which limit, solve.status[STEP_T0], [STEP_H] the step)
+STALLED, CRAWLING = 5, 6
 
 # Solve.status[...] entries
 (STEP_T0,     # start of the step in hand (s)
@@ -58,12 +61,13 @@ Solve = namedtuple("Solve", [
     "event",      # (size,) the state at its event (an impact: l_k exactly at the stop)
     "tolerance",  # (2,) rtol, atol (per component of s, in its own units)
     "status",     # (N_STATUS,) the solve's bookkeeping, entries above
+    "watch",      # (3,) the run's progress count (`step_watch`)
 ])
 
 
 def make_solve(size: int, rtol: float, atol: float) -> Solve:
     return Solve(rk.work_array(size), np.zeros(size), np.zeros(size), np.array([rtol, atol]),
-                 np.zeros(N_STATUS))
+                 np.zeros(N_STATUS), make_watch())
 
 
 @jit
@@ -123,7 +127,7 @@ def locate_event(method, system, stops, scr, solve):
 @jit
 def take_step(method, system, stops, scr, solve, s, clock):
     """One accepted step after the step in hand (or starting a new solve at (t, s)), its first
-    event located. Returns DONE, NOT_FINITE (the bad state in scr.out) or STALLED."""
+    event located. Returns DONE, NOT_FINITE (the bad state in scr.out), STALLED or CRAWLING."""
     work, status, start = solve.work, solve.status, solve.start
     rtol, atol = solve.tolerance[0], solve.tolerance[1]
     f0, f1, y1 = work[rk.WORK_F0], work[rk.WORK_F1], work[rk.WORK_Y1]
@@ -148,6 +152,8 @@ def take_step(method, system, stops, scr, solve, s, clock):
     if not finite(y1):
         copy_into(y1, scr.out)
         return NOT_FINITE
+    if watch_step(solve.watch, status[STEP_T0], h):
+        return CRAWLING
     locate_event(method, system, stops, scr, solve)
     return DONE
 

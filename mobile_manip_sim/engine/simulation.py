@@ -25,7 +25,7 @@ from ..scene import IntegratorSettings, Scene
 from . import adaptive_stepping, dense, fixed_step, layout, stepping
 from . import runge_kutta as rk
 from .events import holding_margin
-from .step_watch import StepWatch
+from . import step_watch
 from .stops import LOG_HELD, Impact, make_impact_scratch, make_stops, relock, release
 from .system import (KI, KP, RHS_EVALS, TARGET_L, TARGET_R, TORQUE_LIMIT, VELOCITY_MODE, System,
                      wheel_speed_torques)
@@ -43,7 +43,7 @@ class SimulationError(RuntimeError):
 
 
 class StepLimitError(SimulationError):
-    """radau/bdf cannot follow the solution (`step_watch`): the settings named by `key` and the
+    """An adaptive method cannot follow the solution (`step_watch`): the settings named by `key` and the
     efforts are to blame, so adapters treat it like a user error (status 2)."""
 
     def __init__(self, key: str, problem: str):
@@ -96,6 +96,7 @@ class Simulation:
         self._inside_step = Bound(adaptive_stepping.inside_step)
         self._reach = Bound(adaptive_stepping.reach)
         self._locate_event = Bound(adaptive_stepping.locate_event)
+        self._watch_step = Bound(step_watch.watch_step)
         self.set_wheel_speed_gains(*DEFAULT_WHEEL_SPEED_GAINS)
         self.reset()
 
@@ -110,6 +111,7 @@ class Simulation:
         self._clock[stepping.DT] = self.settings.dt
         if self._solve is not None:
             self._solve.status[:] = 0.0   # a fresh solve: `rk.initial_step` picks its first step
+            step_watch.clear(self._solve.watch)
         self.resting[:] = 0
         self.watched[:] = self.stop_law is not None
         self.stops.count[0] = 0
@@ -118,7 +120,6 @@ class Simulation:
         self.impact_details: list[ImpactDetail] = []
         self.system.counters[:] = 0
         self._solver = None   # radau/bdf: SciPy's solver of the solve in progress
-        self._step_watch = StepWatch()
         self.wheel_efforts = self.joint_efforts = None
         self.set_efforts(self.scene.wheel_efforts, self.scene.joint_efforts)
         self.energy0 = self.total_energy()
@@ -276,6 +277,10 @@ class Simulation:
         self._collect_impacts()
         if status == stepping.NOT_FINITE:
             self._fail(self._scratch.out)
+        if status == adaptive_stepping.CRAWLING:
+            t_before, h = (self._solve.status[adaptive_stepping.STEP_T0],
+                           self._solve.status[adaptive_stepping.STEP_H])
+            self._cannot_follow(t_before, step_watch.describe(self._solve.watch, t_before, h))
         if status == adaptive_stepping.STALLED:
             h = self._solve.status[adaptive_stepping.H_NEXT]
             raise SimulationError(f"t = {self.t:.9g} s: {self.settings.method} failed: the step "
@@ -341,14 +346,18 @@ class Simulation:
     def _check_scipy_step(self, solver, t_before: float, message) -> None:
         """radau/bdf: a failed step (below ten spacings of t) or a crawl (`step_watch`) is one
         StepLimitError naming the tolerances, instead of steps of 1e-18 s for ever."""
-        problem = message if solver.status == "failed" else \
-            self._step_watch.problem(t_before, solver.t - t_before)
-        if problem:
-            s = self.settings
-            raise StepLimitError("integrator.rtol", f"t = {t_before:.9g} s: {s.method} cannot "
-                                 f"follow the solution: {problem.rstrip('.')}; check the efforts and "
-                                 f"the scene, or loosen integrator.rtol ({s.rtol:g}) and "
-                                 f"integrator.atol ({s.atol:g})")
+        if solver.status == "failed":
+            self._cannot_follow(t_before, message)
+        h = solver.t - t_before
+        if self._watch_step(self._solve.watch, t_before, h):
+            self._cannot_follow(t_before, step_watch.describe(self._solve.watch, t_before, h))
+
+    def _cannot_follow(self, t_before: float, problem: str) -> None:
+        s = self.settings
+        raise StepLimitError("integrator.rtol", f"t = {t_before:.9g} s: {s.method} cannot "
+                             f"follow the solution: {problem.rstrip('.')}; check the efforts and "
+                             f"the scene, or loosen integrator.rtol ({s.rtol:g}) and "
+                             f"integrator.atol ({s.atol:g})")
 
     def _fail(self, state) -> None:
         bad = [i for i, value in enumerate(state) if not math.isfinite(value)]

@@ -1,4 +1,4 @@
-"""Progress limits of the SciPy-stepped methods (radau, bdf).
+"""Progress limits of the adaptive methods.
 
 An implicit solver facing a solution it cannot follow (a wheel command of 1e30 right after a
 reset, a stiff scene at the tightest tolerance) need not fail: it shrinks its step towards the
@@ -12,38 +12,61 @@ that into an error (README, "Bad input"):
   average step of 2 µs (the hardest bundled scene, radau at rtol 1e-14, takes under 2000 steps
   per 10 ms).
 
-Every SciPy step returns to Python, so signals, pause and reset act between steps.
+The compiled rk45/dop853 core (`adaptive_stepping.take_step`) and the SciPy-stepped radau/bdf
+(`Simulation._take_scipy_step`) count with the same `watch` on the same record, so every adaptive
+method crawls into the same one-line error (a 1e30 command after a reset had dop853 taking steps
+of 1e-19 s for ever).
 """
 from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..dynamics.jit import jit
 
 STEP_FLOOR = 1e-12      # of max(1 s, t)
 FLOOR_STEPS = 50
 BUDGET_STEPS = 5_000
 BUDGET_SPAN = 0.01      # s of simulated time per BUDGET_STEPS steps
 
+# watch[...] entries: steps in a row below the floor; start (s) and steps of the budget's window
+SHORT, MARK, STEPS = range(3)
 
-class StepWatch:
-    """Counts one run's accepted steps (a new watch after each reset)."""
 
-    def __init__(self):
-        self._t_mark = None    # start of the budget's current window
-        self._steps = 0        # steps in that window
-        self._short = 0        # steps in a row below the floor
+def make_watch() -> np.ndarray:
+    """One run's count (a new one, or `clear`, after each reset)."""
+    watch = np.zeros(3)
+    clear(watch)
+    return watch
 
-    def problem(self, t_before: float, h: float) -> str | None:
-        """After an accepted step h (s) from t_before (s): why the solver is crawling, or None."""
-        if self._t_mark is None:
-            self._t_mark = t_before
-        self._steps += 1
+
+def clear(watch: np.ndarray) -> None:
+    watch[:] = (0.0, math.nan, 0.0)
+
+
+@jit
+def watch_step(watch, t_before, h):
+    """After an accepted step h (s) from t_before (s): True when the solver is crawling."""
+    if math.isnan(watch[MARK]):
+        watch[MARK] = t_before
+    watch[STEPS] += 1.0
+    watch[SHORT] = watch[SHORT] + 1.0 if h < STEP_FLOOR * max(1.0, abs(t_before)) else 0.0
+    if watch[SHORT] >= FLOOR_STEPS:
+        return True
+    if watch[STEPS] >= BUDGET_STEPS:
+        if t_before + h - watch[MARK] < BUDGET_SPAN:
+            return True
+        watch[MARK], watch[STEPS] = t_before + h, 0.0
+    return False
+
+
+def describe(watch: np.ndarray, t_before: float, h: float) -> str:
+    """Which limit `watch_step` found crossed at the step h (s) from t_before (s), in words."""
+    if watch[SHORT] >= FLOOR_STEPS:
         floor = STEP_FLOOR * max(1.0, abs(t_before))
-        self._short = self._short + 1 if h < floor else 0
-        if self._short >= FLOOR_STEPS:
-            return (f"its step stayed below the floor of {floor:.0e} s for {FLOOR_STEPS} steps "
-                    f"in a row (the last {h:.3g} s)")
-        if self._steps >= BUDGET_STEPS:
-            covered = t_before + h - self._t_mark
-            if covered < BUDGET_SPAN:
-                return (f"{BUDGET_STEPS} steps advanced it only {covered:.3g} s, beyond the step "
-                        f"budget of {BUDGET_STEPS} steps per {BUDGET_SPAN:g} s")
-            self._t_mark, self._steps = t_before + h, 0
-        return None
+        return (f"its step stayed below the floor of {floor:.0e} s for {FLOOR_STEPS} steps "
+                f"in a row (the last {h:.3g} s)")
+    covered = t_before + h - watch[MARK]
+    return (f"{BUDGET_STEPS} steps advanced it only {covered:.3g} s, beyond the step "
+            f"budget of {BUDGET_STEPS} steps per {BUDGET_SPAN:g} s")

@@ -14,7 +14,7 @@ import numpy as np
 from ..dynamics import kernels
 from ..dynamics.jit import jit, jit_inline
 from . import layout
-from .events import (CROSSING, MAX_IMPACTS_PER_STEP, N_SAMPLES, RELEASE, crossing_in_step,
+from .events import (MAX_IMPACTS_PER_STEP, N_SAMPLES, RELEASE, crossing_in_step,
                      first_crossing, holding_margin, locate, step_state)
 from .fixed_step import step
 from .stops import any_resting, impact, release_at_root
