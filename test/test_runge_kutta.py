@@ -42,7 +42,7 @@ def one_step(method, h, rtol, atol):
     m = rk.METHOD_IDS[method]
     f0 = f(0.0, s0)
     out, f1, K, err = np.zeros(n), np.zeros(n), np.zeros((rk.MAX_STAGES, n)), np.zeros((2, n))
-    evals = rk.rk_step(m, system.tuple, s0, f0, h, out, f1, K, err)
+    evals = rk.rk_step(m, system.data, s0, f0, h, out, f1, K, err)
     solver = SCIPY[method](f, 0.0, s0.copy(), 10.0, first_step=h, rtol=rtol, atol=atol)
     solver.step()
     assert solver.t == h, "SciPy rejected the step: choose a looser tolerance"
@@ -79,7 +79,7 @@ def test_one_step_equals_scipys_step(method, h):
     assert ours == pytest.approx(theirs, rel=1e-9)
     h_next = rk.next_step(rk.METHOD_IDS[method], ours, h, False)
     assert h_next == pytest.approx(solver.h_abs, rel=1e-9)
-    assert rk.initial_step(rk.METHOD_IDS[method], system.tuple, s0, f0, DURATION, rtol, atol, np.inf,
+    assert rk.initial_step(rk.METHOD_IDS[method], system.data, s0, f0, DURATION, rtol, atol, np.inf,
                            np.zeros(s0.size), np.zeros(s0.size)) == pytest.approx(
         integrate._ivp.common.select_initial_step(lambda t, y: system.derivative(y), 0.0, s0, DURATION,
                                                   np.inf, f0, 1, tab.error_order, rtol, atol), rel=1e-12)
@@ -103,7 +103,7 @@ def test_dense_output_equals_scipys_interpolant(method):
     system, s0, f0, out, f1, K, err, evals, solver = one_step(method, h, 1e-3, 1e-6)
     m = rk.METHOD_IDS[method]
     coeffs = np.zeros((rk.MAX_DENSE, s0.size))
-    extra = rk.dense_prepare(m, system.tuple, s0, out, f0, f1, h, K, coeffs)
+    extra = rk.dense_prepare(m, system.data, s0, out, f0, f1, h, K, coeffs)
     assert extra == (3 if method == "dop853" else 0)
     theirs = solver.dense_output()
     y = np.zeros(s0.size)
@@ -129,8 +129,8 @@ def test_dense_output_has_its_order(method, hs):
     f0 = f(0.0, s0)
     errors = []
     for h in hs:
-        rk.rk_step(m, system.tuple, s0, f0, h, out, f1, K, err)
-        rk.dense_prepare(m, system.tuple, s0, out, f0, f1, h, K, coeffs)
+        rk.rk_step(m, system.data, s0, f0, h, out, f1, K, err)
+        rk.dense_prepare(m, system.data, s0, out, f0, f1, h, K, coeffs)
         rk.dense_eval(m, coeffs, s0, h, 0.5, y)
         errors.append(np.max(np.abs(y - reference(0.5 * h))))
     slopes = np.diff(np.log(errors)) / np.diff(np.log(hs))
@@ -175,10 +175,10 @@ def small_case():
         f0 = f(0.0, s0)
         out, f1, K, err = np.zeros(n), np.zeros(n), np.zeros((rk.MAX_STAGES, n)), np.zeros((2, n))
         coeffs, y = np.zeros((rk.MAX_DENSE, n)), np.zeros(n)
-        rk.rk_step(m, system.tuple, s0, f0, 0.05, out, f1, K, err)
-        rk.dense_prepare(m, system.tuple, s0, out, f0, f1, 0.05, K, coeffs)
+        rk.rk_step(m, system.data, s0, f0, 0.05, out, f1, K, err)
+        rk.dense_prepare(m, system.data, s0, out, f0, f1, 0.05, K, coeffs)
         rk.dense_eval(m, coeffs, s0, 0.05, 0.3, y)
-        h0 = rk.initial_step(m, system.tuple, s0, f0, DURATION, 1e-6, 1e-8, np.inf, np.zeros(n), np.zeros(n))
+        h0 = rk.initial_step(m, system.data, s0, f0, DURATION, 1e-6, 1e-8, np.inf, np.zeros(n), np.zeros(n))
         samples, sim = engine_run(method, 1e-5, stops=False, times=SAMPLES[15::15])
         counts = [sim.steps, sim.rhs_evaluations]
         values[method] = [out.tolist(), err.tolist(), y.tolist(), h0,

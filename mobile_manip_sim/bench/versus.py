@@ -54,7 +54,7 @@ def per_evaluation(progress, quick: bool = False) -> dict:
         "ours: engine right-hand side (System.derivative), from Python":
             loops.per_python_call(sim.system.derivative, s, target=target),
         "ours: engine right-hand side, compiled loop":
-            loops.per_call(loops.engine_derivative, sim.system.tuple, s, ds, target=target),
+            loops.per_call(loops.engine_derivative, sim.system.data, s, ds, target=target),
     }
     agree = peers.agreement(dyn, peer, rng)
     progress("per evaluation: " + ", ".join(f"{v * 1e6:.2f} µs" for v in out.values()))

@@ -144,11 +144,6 @@ class System:
         self.set_locked(())
         self._scratch = np.zeros(layout.state_size(nu))
 
-    @property
-    def tuple(self):
-        """The record the compiled code takes (kept under its old name for callers)."""
-        return self.data
-
     def set_locked(self, extra: tuple) -> None:
         """Lock the scene's locked DOFs plus `extra` (rods resting at a stop)."""
         locked = set(self.permanently_locked) | set(extra)
