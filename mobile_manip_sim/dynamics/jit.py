@@ -106,7 +106,7 @@ KERNEL_PACKAGES = ("dynamics", "engine")
 def _drop_stale_caches(package: Path = Path(__file__).resolve().parents[1]) -> None:
     """Delete the package's numba cache files (``__pycache__/*.nbi, *.nbc``) when a source that
     compiled code may depend on changed: any module of dynamics/ or engine/ (kernels freeze the
-    module constants they read, such as workspace.py's indices, into their machine code) or
+    module constants they read, such as the method tables of runge_kutta.py, into their code) or
     one that defines a kernel. An edit of an adapter (node, CLI, plots) keeps the caches."""
     digest = hashlib.sha1(numba.__version__.encode())
     try:
