@@ -121,6 +121,13 @@ def test_locked_pseudo_velocities_get_zero_acceleration_and_the_reduced_solve(n)
         kappa = np.linalg.cond(M[np.ix_(free, free)]) if free else 1.0
         tol = 10.0 * kappa * EPS * max(1.0, np.abs(ud_ref).max())
         assert np.abs(ud - ud_ref).max() <= tol
+        # The force each locked slide transmits, read off the same pass, is the generalized
+        # force M u̇ + h of its l̇_k (what its stop must supply beyond Q).
+        slides = [j for j in locked if j >= 3 and j % 2 == 1]
+        transmitted = M @ ud_ref + h
+        for j in slides:
+            scale = 1.0 + np.abs(M[j]).max() * np.abs(ud_ref).max() + abs(h[j])
+            assert abs(dyn.ws.slide_force[(j - 1) // 2] - transmitted[j]) <= 1e3 * kappa * EPS * scale
 
 
 def test_cholesky_and_articulated_paths_agree_on_the_paper_robot():

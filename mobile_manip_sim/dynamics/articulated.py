@@ -26,6 +26,12 @@ A locked pseudo-velocity (a rod resting at its stop, a locked joint, a fixed bas
 column of S set to zero and its pivot to one: the joint is rigid for accelerations, and its
 u̇ comes out exactly zero; its velocity, if any, still enters the kinematics, as in the
 Cholesky path (`kernels.mass_matrix` + `kernels.cholesky_solve`) this replaces.
+
+The force a locked slide transmits comes with it: the force across joint k is
+``f_k = I^A_k a_k + p^A_k`` (I^A_k, p^A_k before the downdate), and a locked slide carries its
+component ``s_lᵀ f_k`` (``ws.slide_force[k]``, N), the generalized force M u̇ + h of that
+pseudo-velocity. The stop holding a resting rod pushes with it minus the applied force
+(`engine.system.slide_holding_forces`): no second, inverse-dynamics pass.
 """
 from .jit import jit, jit_inline
 from .kernels import frames, motion_subspaces, payload_inertia, rod_inertia
@@ -89,8 +95,8 @@ def articulated_forward_dynamics(model, q, u, Q, g, free, ws, ud):
     Needs `kernels.frames(model, q, ws)`.
     """
     base = model.base
-    Sk, Vk, Ck, Uk, Dinv, ua, IA, pA, moving = (ws.S, ws.V, ws.C, ws.U, ws.D_inv, ws.u_art,
-                                                ws.I_art, ws.p_art, ws.moving)
+    Sk, Vk, Ck, Uk, Dinv, ua, IA, pA, moving, slide = (ws.S, ws.V, ws.C, ws.U, ws.D_inv, ws.u_art,
+                                                       ws.I_art, ws.p_art, ws.moving, ws.slide)
     n = Sk.shape[0] - 1
     set_moving(free, moving)
     motion_subspaces(ws)
@@ -134,6 +140,12 @@ def articulated_forward_dynamics(model, q, u, Q, g, free, ws, ud):
                 for j in range(6):
                     s += IA[i, j] * Sk[k, j, c]
                 Uk[k, i, c] = s
+        if moving[2 * k + 1] == 0.0:
+            # a locked slide transmits s_lᵀ f_k, f_k = I^A_k a_k + p^A_k (s_l = (0, x_k)):
+            # keep s_lᵀ I^A_k (= I^A_k s_l, symmetric) and s_lᵀ p^A_k for the outward pass
+            for j in range(6):
+                slide[k, j] = IA[j, 3] * ws.x[k, 0] + IA[j, 4] * ws.x[k, 1] + IA[j, 5] * ws.x[k, 2]
+            slide[k, 6] = pA[3] * ws.x[k, 0] + pA[4] * ws.x[k, 1] + pA[5] * ws.x[k, 2]
         D00, D11, D01, u0, u1 = 0.0, 0.0, 0.0, Q[2 * k], Q[2 * k + 1]
         for i in range(6):
             D00 += Sk[k, i, 0] * Uk[k, i, 0]
@@ -202,6 +214,11 @@ def articulated_forward_dynamics(model, q, u, Q, g, free, ws, ud):
         a_w = add(a_w, scale(qdd, (Sk[k, 0, 0], Sk[k, 1, 0], Sk[k, 2, 0])))
         a_v = add(a_v, add(scale(qdd, (Sk[k, 3, 0], Sk[k, 4, 0], Sk[k, 5, 0])),
                            scale(ldd, (Sk[k, 3, 1], Sk[k, 4, 1], Sk[k, 5, 1]))))
+        if moving[2 * k + 1] == 0.0:
+            f = slide[k, 6]
+            for i in range(3):
+                f += slide[k, i] * a_w[i] + slide[k, 3 + i] * a_v[i]
+            ws.slide_force[k] = f
 
 
 @jit

@@ -47,6 +47,8 @@ Workspace = namedtuple("Workspace", [
     "I_art",    # (6, 6) articulated inertia of the subchain being accumulated
     "p_art",    # (6,) … and its bias force
     "moving",   # (2n+2,) 1.0 for a free pseudo-velocity, 0.0 for a locked one
+    "slide",    # (n+1, 7) for a locked slide: s_lᵀ I^A_k (6), then s_lᵀ p^A_k
+    "slide_force",  # (n+1,) N: s_lᵀ (I^A_k a_k + p^A_k), the force a locked slide k transmits
 ])
 
 
@@ -68,4 +70,5 @@ def make_workspace(n_links: int) -> Workspace:
         z=np.zeros((n + 1, 3)), F=np.zeros((n + 2, 3)), N=np.zeros((n + 2, 3)),
         S=np.zeros((n + 1, 6, 2)), V=np.zeros((n + 1, 6)), C=np.zeros((n + 1, 6)),
         U=np.zeros((n + 1, 6, 2)), D_inv=np.zeros((n + 1, 3)), u_art=np.zeros((n + 1, 2)),
-        I_art=np.zeros((6, 6)), p_art=np.zeros(6), moving=np.zeros(2 * n + 2))
+        I_art=np.zeros((6, 6)), p_art=np.zeros(6), moving=np.zeros(2 * n + 2),
+        slide=np.zeros((n + 1, 7)), slide_force=np.zeros(n + 1))

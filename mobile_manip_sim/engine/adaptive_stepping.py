@@ -100,10 +100,9 @@ def locate_event(method, system, stops, scr, solve):
     rod reaching a stop, or the instant a resting rod's stop would start to pull."""
     work, status, start = solve.work, solve.status, solve.start
     y1, h = work[rk.WORK_Y1], status[STEP_H]
-    # The holding forces at y₁ reuse f(y₁) and what its evaluation, the step's last, left in the
-    # workspace: check before the interpolant's stages evaluate anything else.
-    pulled = any_resting(stops) and holding_margin_after(system, y1, stops.resting,
-                                                         work[rk.WORK_F1], scr.forces) < 0.0
+    # The holding forces at y₁ are what f(y₁), the step's last evaluation, left in the workspace:
+    # check before the interpolant's stages evaluate anything else.
+    pulled = any_resting(stops) and holding_margin_after(system, stops.resting, scr.forces) < 0.0
     if any_watched(stops) and crossing_in_step(start, y1, h, system, stops.watched, stops.stroke):
         dense = interpolant(method, system, solve)
         h_hit, k, side = first_crossing(method, system, start, h, stops.watched, stops.resting,

@@ -25,7 +25,7 @@ from ..dynamics.jit import jit, jit_inline
 from . import layout
 from .dense import interpolate
 from .fixed_step import step
-from .system import CROSSING_CHECKS, derivative, holding_forces
+from .system import CROSSING_CHECKS, derivative, slide_holding_forces
 
 CROSSING, RELEASE = 0, 1
 N_SAMPLES = 16
@@ -90,13 +90,13 @@ def crossing_in_step(s0, s1, h, system, watched, stroke):
 def holding_margin(system, s, resting, ds, forces):
     """min over resting rods of the force (N) its stop pushes with: > 0 while all are held."""
     derivative(system, s, ds)
-    return holding_margin_after(system, s, resting, ds, forces)
+    return holding_margin_after(system, resting, forces)
 
 
-@jit
-def holding_margin_after(system, s, resting, ds, forces):
-    """`holding_margin` right after ds = derivative(s) (`holding_forces` reuses what it left)."""
-    holding_forces(system, s, ds, forces)
+@jit_inline
+def holding_margin_after(system, resting, forces):
+    """`holding_margin` right after a derivative at the state (which left the forces)."""
+    slide_holding_forces(system, resting, forces)
     margin = math.inf
     for k in range(1, resting.shape[0] + 1):
         if resting[k - 1] != 0:

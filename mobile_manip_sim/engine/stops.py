@@ -22,7 +22,7 @@ from ..dynamics import kernels
 from ..dynamics.jit import jit, jit_inline
 from . import layout
 from .events import MAX_IMPACTS_PER_STEP, holding_margin
-from .system import derivative, holding_forces
+from .system import derivative, slide_holding_forces
 
 IMPULSE, REFLECT = 0, 1
 LAW_IDS = {"impulse": IMPULSE, "reflect": REFLECT}
@@ -108,7 +108,7 @@ def relock(system, stops):
 def release(system, stops, s, ds, forces):
     """Free every resting rod that its stop would have to pull at s. Returns how many."""
     derivative(system, s, ds)
-    holding_forces(system, s, ds, forces)
+    slide_holding_forces(system, stops.resting, forces)
     freed = 0
     for k in range(1, stops.resting.shape[0] + 1):
         side = stops.resting[k - 1]
@@ -125,7 +125,7 @@ def release(system, stops, s, ds, forces):
 def release_at_root(system, stops, s, ds, forces):
     """At a located release instant: free every resting rod whose stop no longer pushes (≥ 0)."""
     derivative(system, s, ds)
-    holding_forces(system, s, ds, forces)
+    slide_holding_forces(system, stops.resting, forces)
     for k in range(1, stops.resting.shape[0] + 1):
         side = stops.resting[k - 1]
         if side != 0 and side * forces[layout.u_l(k)] >= 0.0:

@@ -116,13 +116,25 @@ def holding_forces(system, s, ds, out):
     """Generalized force each locked pseudo-velocity needs to stay locked, M u̇ + h − Q, at s right
     after ds = derivative(s) (which left the frames of s in the workspace and Q in system.Q), into
     out[:n_u] (zero on the free ones up to round-off): one inverse-dynamics pass, O(n); the mass
-    matrix is not needed."""
+    matrix is not needed. The engine reads the resting rods' forces off the derivative itself
+    (`slide_holding_forces`); this full pass serves `System.constraint_forces` and the tests."""
     nq, nu = layout.sizes(system)
     q = s[:nq]
     kernels.gibbs_appell(system.model, q, s[nq:nq + nu], ds[nq:nq + nu], system.gravity,
                          system.ws, out[:nu])
     for k in range(nu):
         out[k] -= system.Q[k]
+
+
+@jit_inline
+def slide_holding_forces(system, resting, out):
+    """The force (N) the stop of each resting rod k must push with along the rod to hold it,
+    M u̇ + h − Q of its l̇_k, into out[u_l(k)], right after a `derivative` with the rod locked:
+    read off the articulated-body pass (`dynamics/articulated.py`), no inverse dynamics."""
+    for k in range(1, resting.shape[0] + 1):
+        if resting[k - 1] != 0:
+            j = layout.u_l(k)
+            out[j] = system.ws.slide_force[k] - system.Q[j]
 
 
 class System:
