@@ -16,6 +16,9 @@ SciPy's radau and bdf use the same bookkeeping from Python (`Simulation._advance
 SciPy step, its interpolant a `dense.POWER` series, becomes the step in hand (`reach`,
 `locate_event`), so every adaptive method shares the event handling and the Zeno guard.
 
+The Zeno guard is `events.zeno_guard`, the fixed-step core's too, with the length of the step in
+hand (the one holding the impact) as its window (`apply_event`).
+
 The simulated time is clock[T0] of `stepping.py`'s clock (K stays 0); STEPS and LOST as there.
 """
 import math
@@ -27,8 +30,8 @@ from ..dynamics.jit import jit
 from . import layout
 from . import runge_kutta as rk
 from .dense import Interpolant, interpolate
-from .events import (MAX_IMPACTS_PER_STEP, RELEASE, crossing_in_step, first_crossing,
-                     holding_margin_after, locate)
+from .events import (RELEASE, crossing_in_step, first_crossing, holding_margin_after, locate,
+                     zeno_guard)
 from .stepping import (BUDGET, DONE, LOG_FULL, LOST, NOT_FINITE, STEPS, T0, any_watched, copy_into,
                        finite, total_energy)
 from .step_watch import make_watch, watch_step
@@ -47,12 +50,8 @@ STALLED, CRAWLING = 5, 6
  EVENT,       # NO_EVENT, IMPACT or LEAVE: the first event in the step in hand
  EVENT_H,     # its time into the step (s)
  EVENT_K,     # the rod (1-based) and the stop (−1 lower, +1 upper) of an impact
- EVENT_SIDE,
- RUN_K,       # the latest run of impacts of one rod at one stop (the Zeno guard): rod, stop,
- RUN_SIDE,    # how many, and the time of the first (s)
- RUN_COUNT,
- RUN_T) = range(12)
-N_STATUS = 12
+ EVENT_SIDE) = range(8)
+N_STATUS = 8
 NO_EVENT, IMPACT, LEAVE = 0, 1, 2
 
 Solve = namedtuple("Solve", [
@@ -158,18 +157,6 @@ def take_step(method, system, stops, scr, solve, s, clock):
 
 
 @jit
-def chattering(status, k, side, t, h):
-    """The Zeno guard of the adaptive methods (the fixed-step one counts impacts per step): rod k
-    hitting the same stop MAX_IMPACTS_PER_STEP times in a row within one step length h (s) is
-    chattering with ever smaller rebounds, down to round-off and on forever; hold it."""
-    if status[RUN_K] == k and status[RUN_SIDE] == side and t - status[RUN_T] < h:
-        status[RUN_COUNT] += 1.0
-    else:
-        status[RUN_K], status[RUN_SIDE], status[RUN_COUNT], status[RUN_T] = k, side, 1.0, t
-    return status[RUN_COUNT] >= MAX_IMPACTS_PER_STEP
-
-
-@jit
 def apply_event(system, stops, scr, solve, s, clock):
     """Move (t, s) to the event of the step in hand, apply it, and restart the solve there."""
     status = solve.status
@@ -178,7 +165,7 @@ def apply_event(system, stops, scr, solve, s, clock):
     clock[T0] = t
     if status[EVENT] == IMPACT:
         k, side = int(status[EVENT_K]), int(status[EVENT_SIDE])
-        hold = chattering(status, k, side, t, status[STEP_H])
+        hold = zeno_guard(stops.run, k, side, t, status[STEP_H])
         clock[LOST] += impact(system, stops, s, k, side, t, hold, scr.impact, scr.stages[3],
                               scr.forces)
     else:

@@ -18,6 +18,17 @@ turning points, then located by the Illinois method.
 
 `step_state(...)` is the one place that evaluates the state inside a step for the event
 functions, so one Illinois root finder (`locate`) serves every method.
+
+The Zeno guard (`zeno_guard`), the one for every method, fixed-step and adaptive: a rod hitting
+the same stop ZENO_IMPACTS times within one step length of the first of those impacts is
+chattering with ever smaller rebounds (an accumulation of impacts, down to round-off and on
+forever) and is held there at the impact that completes the run. Each rod and stop keeps its
+own run (`stops.StopsData.run`), so impacts of other rods in between neither break a run nor
+count towards it: two rods trading ever smaller impacts each fill their own run and are held,
+while a rod bouncing normally is never held because another one chatters. The step length is
+dt for the fixed-step methods and the length of the step in hand for the adaptive ones. The
+last resort when rods are released and hit again without end is the fixed-step core's
+log-room exit (`stepping.CHATTER`).
 """
 import math
 
@@ -29,7 +40,24 @@ from .system import CROSSING_CHECKS, derivative, slide_holding_forces
 
 CROSSING, RELEASE = 0, 1
 N_SAMPLES = 16
-MAX_IMPACTS_PER_STEP = 64   # the Zeno guard: beyond it the rod is held at rest
+ZENO_IMPACTS = 64   # the Zeno guard: a run of this many impacts holds the rod at its stop
+RUN_COUNT, RUN_T = 0, 1   # stops.run[k − 1, stop, ...]: impacts in the run, time of its first (s)
+
+
+@jit
+def zeno_guard(run, k, side, t, window):
+    """The Zeno guard of the module doc: rod k (1-based) meets its lower (side −1) or upper (+1)
+    stop at time t (s). Counts the impact into the run of that rod at that stop — a new run when
+    the first of the current one lies window (s) or more before t — and returns True from the
+    ZENO_IMPACTS-th impact of the run on, i.e. when the rod is to be held (a rod released and
+    back within the window is still chattering). ``run`` is
+    (n, 2, 2): [RUN_COUNT, RUN_T] per rod and stop (0 lower, 1 upper); zeros: no run."""
+    j = 0 if side < 0 else 1
+    if run[k - 1, j, RUN_COUNT] > 0.0 and t - run[k - 1, j, RUN_T] < window:
+        run[k - 1, j, RUN_COUNT] += 1.0
+    else:
+        run[k - 1, j, RUN_COUNT], run[k - 1, j, RUN_T] = 1.0, t
+    return run[k - 1, j, RUN_COUNT] >= ZENO_IMPACTS
 
 
 @jit_inline

@@ -115,6 +115,7 @@ class Simulation:
         self.resting[:] = 0
         self.watched[:] = self.stop_law is not None
         self.stops.count[0] = 0
+        self.stops.run[:] = 0.0   # no run of impacts for the Zeno guard
         relock(self.system.data, self.stops)
         self.impacts: list[Impact] = []
         self.impact_details: list[ImpactDetail] = []

@@ -3,6 +3,10 @@ array of samples) with every step, crossing check, event location, impact, rest 
 and the Zeno guard inside compiled code. Python is entered once per call — and, so that signals,
 `~/pause` and `~/reset` act promptly, whenever a call has used its step budget.
 
+The Zeno guard is `events.zeno_guard`, the adaptive core's too, with dt as its window. A step
+whose impacts would overflow the impact log (rods released by the guard and hitting again
+without end) ends the call with CHATTER, the last resort.
+
 The time line: t = t0 + k·dt with an integer step count k (so that long runs land exactly on
 k·dt); a target off that grid ends in one shorter step, after which the grid restarts there.
 """
@@ -14,8 +18,8 @@ import numpy as np
 from ..dynamics import kernels
 from ..dynamics.jit import jit, jit_inline
 from . import layout
-from .events import (MAX_IMPACTS_PER_STEP, N_SAMPLES, RELEASE, crossing_in_step,
-                     first_crossing, holding_margin, locate, step_state)
+from .events import (N_SAMPLES, RELEASE, crossing_in_step, first_crossing, holding_margin, locate,
+                     step_state, zeno_guard)
 from .fixed_step import step
 from .stops import any_resting, impact, release_at_root
 
@@ -64,42 +68,39 @@ def any_watched(stops):
 
 @jit
 def step_with_events(method, system, stops, scr, s, h, t, clock):
-    """One step of length h from time t in which end stops may be hit (and hit again)."""
+    """One step of length h from time t in which end stops may be hit (and hit again): each
+    impact logged and put to the Zeno guard (window dt), the step finished after the last one.
+    CHATTER when the impact log has no room left for the next impact."""
     dt = clock[DT]
-    while True:
-        k, side = 0, 0
-        # Each round ends with a rod held at its stop; a step that needs more rounds than the
-        # log has room for (rods released and hitting again without end) is reported, not run on.
-        if stops.count[0] + MAX_IMPACTS_PER_STEP + 2 > stops.log.shape[0]:
-            return CHATTER
-        for _ in range(MAX_IMPACTS_PER_STEP):
-            step(method, system, s, h, scr.out, scr.stages)
-            if not finite(scr.out):
-                return NOT_FINITE
-            if not crossing_in_step(s, scr.out, h, system, stops.watched, stops.stroke):
-                copy_into(scr.out, s)
-                return DONE
-            h_hit, k, side = first_crossing(method, system, s, h, stops.watched, stops.resting,
-                                            stops.stroke, scr.samples, scr.trial, scr.stages,
-                                            scr.forces)
-            if k == 0:   # the Hermite path dipped, the step itself did not
-                copy_into(scr.out, s)
-                return DONE
-            step_state(method, system, s, h_hit, scr.trial, scr.stages)
-            copy_into(scr.trial, s)
-            s[layout.l(k)] = stops.stroke[k - 1, 0] if side < 0 else stops.stroke[k - 1, 1]
-            h -= h_hit
-            t += h_hit
-            clock[LOST] += impact(system, stops, s, k, side, t, False, scr.impact, scr.stages[3],
-                                  scr.forces)
-            if h <= 1e-15 * dt:
-                return DONE
-        # Zeno guard: this many impacts in one step are a rod chattering against its stop with
-        # ever smaller rebounds. Hold it there (it leaves when the net force pulls it away) and
-        # finish the step with it held; stepping on regardless would carry it through the stop.
-        if stops.resting[k - 1] == 0:
-            clock[LOST] += impact(system, stops, s, k, side, t, True, scr.impact, scr.stages[3],
-                                  scr.forces)
+    # One impact per round, each taking a row of the log: bounded by the log's room.
+    for _ in range(stops.log.shape[0] - stops.count[0]):
+        step(method, system, s, h, scr.out, scr.stages)
+        if not finite(scr.out):
+            return NOT_FINITE
+        if not crossing_in_step(s, scr.out, h, system, stops.watched, stops.stroke):
+            copy_into(scr.out, s)
+            return DONE
+        h_hit, k, side = first_crossing(method, system, s, h, stops.watched, stops.resting,
+                                        stops.stroke, scr.samples, scr.trial, scr.stages,
+                                        scr.forces)
+        if k == 0:   # the Hermite path dipped, the step itself did not
+            copy_into(scr.out, s)
+            return DONE
+        step_state(method, system, s, h_hit, scr.trial, scr.stages)
+        copy_into(scr.trial, s)
+        s[layout.l(k)] = stops.stroke[k - 1, 0] if side < 0 else stops.stroke[k - 1, 1]
+        h -= h_hit
+        t += h_hit
+        # A chattering rod is held at its stop (it leaves when the net force pulls it away) and
+        # the step finishes with it held; stepping on regardless would carry it through the stop.
+        hold = zeno_guard(stops.run, k, side, t, dt)
+        clock[LOST] += impact(system, stops, s, k, side, t, hold, scr.impact, scr.stages[3],
+                              scr.forces)
+        if h <= 1e-15 * dt:
+            return DONE
+    # The log is full within one step: rods released and hitting again without end (or more
+    # rods chattering at once than the log was sized for) are reported, not run on.
+    return CHATTER
 
 
 @jit

@@ -6,7 +6,8 @@
   goes to the stop log (`StopsData.log`), from which `Simulation` builds its `Impact` list.
 - Resting: a rod whose rebound speed is below ``rest_speed`` is held at the stop (its l̇ degree
   of freedom is locked, not stiffly pushed back), and so is a rod whose rebounds are too small
-  to resolve (the Zeno guards). It leaves when the stop would have to pull to hold it
+  to resolve (the Zeno guard, `events.zeno_guard`, called by both cores — `stepping.py` and
+  `adaptive_stepping.py` — at each impact, its runs kept here in `StopsData.run`). It leaves when the stop would have to pull to hold it
   (`release`: the holding force changes sign), located inside the step like an impact
   (`events.py`) and checked whenever the command changes.
 """
@@ -21,7 +22,7 @@ import numpy as np
 from ..dynamics import kernels
 from ..dynamics.jit import jit, jit_inline
 from . import layout
-from .events import MAX_IMPACTS_PER_STEP, holding_margin
+from .events import ZENO_IMPACTS, holding_margin
 from .system import derivative, slide_holding_forces
 
 IMPULSE, REFLECT = 0, 1
@@ -41,6 +42,8 @@ StopsData = namedtuple("StopsData", [
     "log_u",      # (capacity, 2, n_u) u⁻ and u⁺ of each impact
     "log_free",   # (capacity, n_u) bool: the pseudo-velocities free at each impact
     "count",      # (1,) int64: rows of the log in use
+    "run",        # (n, 2, 2) the Zeno guard's run per rod and stop (0 lower, 1 upper): impacts,
+                  # time of the first (s) (`events.zeno_guard`); zeros: none; cleared on reset
 ])
 
 StopLaw = namedtuple("StopLaw", [
@@ -67,7 +70,10 @@ ImpactScratch = namedtuple("ImpactScratch", [
 def make_stops(model, stop_law, permanently_locked) -> StopsData:
     """The stops of `model` under the scene's `StrokeLimits` (None: no stops, never watched)."""
     n, nq, nu = model.n_links, model.n_q, model.n_u
-    capacity = 4 * MAX_IMPACTS_PER_STEP * (n + 2)   # half of it is room for one step's impacts
+    # Half of it is room for one step's impacts: a run of ZENO_IMPACTS at each stop of every
+    # rod (the Zeno guard holds the rod at the last) and 4·ZENO_IMPACTS more, so that the
+    # log-room exit (`stepping.CHATTER`) is a last resort.
+    capacity = 4 * ZENO_IMPACTS * (n + 2)
     permanent = np.zeros(nu, dtype=np.bool_)
     permanent[list(permanently_locked)] = True
     return StopsData(np.zeros(n, dtype=np.bool_), np.zeros(n, dtype=np.int64),
@@ -76,7 +82,7 @@ def make_stops(model, stop_law, permanently_locked) -> StopsData:
                              float(stop_law.rest_speed)) if stop_law else StopLaw(IMPULSE, 0.0, 0.0),
                      np.zeros((capacity, LOG_COLUMNS)), np.zeros((capacity, nq)),
                      np.zeros((capacity, 2, nu)), np.zeros((capacity, nu), dtype=np.bool_),
-                     np.zeros(1, dtype=np.int64))
+                     np.zeros(1, dtype=np.int64), np.zeros((n, 2, 2)))
 
 
 def make_impact_scratch(nu: int, n: int) -> ImpactScratch:
@@ -155,7 +161,7 @@ def solve_contacts(W, q, bilateral, active, P, w, scratch, idx):
     positive definite, so the solution is unique), by Murty's least-index principal pivoting:
     solve on the active set, toggle the first contact that is wrong (a negative impulse, or an
     inactive one moving into its stop), repeat — finite for a P-matrix. A ``bilateral`` contact
-    is always active with an impulse of either sign (a rod held by a Zeno guard). ``scratch`` is
+    is always active with an impulse of either sign (a rod held by the Zeno guard). ``scratch`` is
     (m, m + 1), ``idx`` (m,) int64. Returns the pivots taken."""
     m = q.shape[0]
     for i in range(m):
@@ -224,7 +230,7 @@ def contact_impulses(system, stops, s, k_hit, side_hit, restitution, settling, s
     once"): u⁺ = u⁻ + M⁻¹ E P, in place on s. Rods are unlocked for the impulse; afterwards a
     resting rod whose stop gave no impulse and that moves away leaves it (resting → 0).
 
-    ``settling``: the rod arrives slower than the rest speed (or a Zeno guard holds it): every
+    ``settling``: the rod arrives slower than the rest speed (or the Zeno guard holds it): every
     contact is then held (bilateral, c⁺ = 0) — below the rest speed, rods touching their stops are
     in persistent contact, and the holding forces decide when each leaves (`release`). Solving
     such an impact unilaterally instead would throw a pressed neighbour off with a speed below
