@@ -104,6 +104,7 @@ from std_srvs.srv import SetBool, Trigger
 from . import cli
 from .engine.simulation import DEFAULT_WHEEL_SPEED_GAINS, Simulation, SimulationError
 from .errors import UserError
+from .memory import CompilerPages, release_compiler_pages
 from .messages import NS, command_values, state_messages, transform
 from .pacing import Pacer
 from .recording.rotation import RotatingRecorder
@@ -284,6 +285,7 @@ class SimulatorNode(Node):
         self._k = 0                  # index of the latest published state
         self._now_ns = 0             # its stamp: simulated time at the start of the open segment
         self._pending = None         # (k + 1, messages) computed, waiting for its wall time
+        self._compiler_pages = CompilerPages()   # given back after a segment loaded a kernel
         self._paused = False
         self._steps = 0              # ~/step requests not yet published
         self._failed: str | None = None
@@ -657,6 +659,7 @@ class SimulatorNode(Node):
             if self._recording is not None:
                 self._recording.commands(start_ns, *applied)
             self.sim.advance_to(self.grid.time(k + 1))
+            self._compiler_pages.release_if_used()
         except (SimulationError, UserError) as error:
             with self._cv:
                 self._failed = f"t = {format_ns(start_ns)} s: {error}"
@@ -800,6 +803,7 @@ def _init(argv) -> None:
 
 
 def _main(argv) -> int:
+    release_compiler_pages()   # those numba's import touched; loading the kernels needs few
     _init(argv)
     node = None
     try:

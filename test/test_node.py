@@ -783,3 +783,40 @@ def test_a_10_khz_command_flood_keeps_real_time_and_services_answer_within_50_ms
             flood.wait()
         probe.node.destroy_client(pause)
         assert node.stop() == 0, node.output()
+
+
+def resident_mb(pid: int) -> tuple[float, float]:
+    """VmRSS of a process and the part of it in LLVM's library (MB), from /proc."""
+    status = open(f"/proc/{pid}/status").read()
+    total = int(re.search(r"VmRSS:\s+(\d+)", status).group(1))
+    llvm, inside = 0, False
+    with open(f"/proc/{pid}/smaps") as smaps:
+        for line in smaps:
+            head = line.split(" ", 1)[0]
+            if "-" in head and not head.endswith(":"):
+                inside = "libllvmlite" in line
+            elif inside and head == "Rss:":
+                llvm += int(line.split()[1])
+    return total / 1024, llvm / 1024
+
+
+def test_at_real_time_factor_1_the_node_holds_at_most_200_mb_and_none_of_llvm(probe, simulator,
+                                                                            tmp_path):
+    """Issue 10: rk4 at real_time_factor 1, driven into the end stops. Once the kernels are
+    loaded the node gives back LLVM's pages (memory.py; 69 of its 200 MB before); loading a
+    kernel later may read a few back."""
+    probe.pause(True)   # the shared node idles
+    node = start_simulator(probe, tmp_path, "-p", "integrator.method:=rk4",
+                           "-p", "integrator.dt:=0.001", "-p", "real_time_factor:=1.0",
+                           "-p", "command_timeout:=0.0", "-r", "__node:=memory_sim")
+    try:
+        scene = load_scene(None)
+        probe.send(scene.wheel_efforts.tolist(), scene.joint_efforts.tolist())
+        time.sleep(4.0)   # past the first impacts
+        total, llvm = resident_mb(node.process.pid)
+        print(f"node VmRSS {total:.1f} MB, of it LLVM {llvm:.1f} MB")
+        assert llvm <= 8.0, f"LLVM's library holds {llvm:.1f} MB of the node's {total:.1f} MB"
+        assert total <= 200.0, f"VmRSS {total:.1f} MB"
+        assert node.process.poll() is None, node.output()
+    finally:
+        assert node.stop() == 0, node.output()
