@@ -8,7 +8,8 @@ One solve runs from its start until a discontinuity (an impact, a release, a com
 `restart`); the step is never cut at a target or a sample. The last accepted step stays *in hand*
 (`Solve`: its start y₀, stages, y₁, f(y₀), f(y₁)): targets and samples inside it are read from
 its dense output, which is built only when a target, a sample or an event lies in the step (3
-right-hand sides for dop853, none for rk45); the next step starts from y₁ with f(y₁) (FSAL). An
+right-hand sides for dop853 unless its stages alone give one within the tolerance for the
+samples, none for rk45); the next step starts from y₁ with f(y₁) (FSAL). An
 event found in the step ends the solve there: it is applied once a target passes it, and the
 solve restarts from the event with the length of the step that held it as its first try.
 
@@ -46,13 +47,14 @@ STALLED, CRAWLING = 5, 6
 (STEP_T0,     # start of the step in hand (s)
  STEP_H,      # its length (s); 0: none in hand, the next step starts a new solve at (t, s)
  H_NEXT,      # the next step to try (s); 0: `rk.initial_step` picks one
- DENSE,       # 1 once the interpolant of the step in hand is built
+ DENSE,       # 0 no interpolant of the step in hand yet; FULL or FROM_STAGES (`interpolant`)
  EVENT,       # NO_EVENT, IMPACT or LEAVE: the first event in the step in hand
  EVENT_H,     # its time into the step (s)
  EVENT_K,     # the rod (1-based) and the stop (−1 lower, +1 upper) of an impact
  EVENT_SIDE) = range(8)
 N_STATUS = 8
 NO_EVENT, IMPACT, LEAVE = 0, 1, 2
+FULL, FROM_STAGES = 1.0, 2.0   # Solve.status[DENSE]: dense_prepare's, or dense_from_stages'
 
 Solve = namedtuple("Solve", [
     "work",       # (rk.WORK_ROWS, size) the step in hand: stages, interpolant, f₀, f₁, y₁, errors
@@ -81,15 +83,23 @@ def restart(solve):
 
 
 @jit
-def interpolant(method, system, solve):
-    """The dense output of the step in hand, built on first use."""
+def interpolant(method, system, solve, for_events):
+    """The dense output of the step in hand, built on first use: for dop853 from the step's
+    stages when that is accurate enough (`rk.dense_from_stages`), otherwise with 3 more
+    right-hand sides. An event is located on the full one (`for_events`): its time and state
+    start the next solve, so they get the better interpolant; samples only read it."""
     work, status = solve.work, solve.status
     coeffs = work[rk.WORK_COEFFS:rk.WORK_COEFFS + rk.MAX_DENSE]
-    if status[DENSE] == 0.0:
-        rk.dense_prepare(method, system, solve.start, work[rk.WORK_Y1], work[rk.WORK_F0],
-                         work[rk.WORK_F1], status[STEP_H],
-                         work[rk.WORK_K:rk.WORK_K + rk.MAX_STAGES], coeffs)
-        status[DENSE] = 1.0
+    if status[DENSE] == 0.0 or (for_events and status[DENSE] == FROM_STAGES):
+        K = work[rk.WORK_K:rk.WORK_K + rk.MAX_STAGES]
+        if not for_events and rk.dense_from_stages(method, solve.start, work[rk.WORK_Y1],
+                                                   status[STEP_H], K, coeffs, solve.tolerance[0],
+                                                   solve.tolerance[1]):
+            status[DENSE] = FROM_STAGES
+        else:
+            rk.dense_prepare(method, system, solve.start, work[rk.WORK_Y1], work[rk.WORK_F0],
+                             work[rk.WORK_F1], status[STEP_H], K, coeffs)
+            status[DENSE] = FULL
     return Interpolant(method, coeffs, status[STEP_H])
 
 
@@ -103,7 +113,7 @@ def locate_event(method, system, stops, scr, solve):
     # check before the interpolant's stages evaluate anything else.
     pulled = any_resting(stops) and holding_margin_after(system, stops.resting, scr.forces) < 0.0
     if any_watched(stops) and crossing_in_step(start, y1, h, system, stops.watched, stops.stroke):
-        dense = interpolant(method, system, solve)
+        dense = interpolant(method, system, solve, True)
         h_hit, k, side = first_crossing(method, system, start, h, stops.watched, stops.resting,
                                         stops.stroke, scr.samples, scr.trial, scr.stages,
                                         scr.forces, dense)
@@ -113,7 +123,7 @@ def locate_event(method, system, stops, scr, solve):
             status[EVENT], status[EVENT_H] = IMPACT, h_hit
             status[EVENT_K], status[EVENT_SIDE] = k, side
     if pulled:
-        dense = interpolant(method, system, solve)
+        dense = interpolant(method, system, solve, True)
         h_leave = locate(RELEASE, method, system, start, 0.0, h, 0, 0, 0.0, stops.resting,
                          scr.trial, scr.stages, scr.forces, dense)
         # whichever comes first: the other one is found again by the solve restarted there
@@ -213,7 +223,7 @@ def reach(method, system, stops, scr, solve, s, clock, t_end):
             return False
     elif t_end > status[STEP_T0] + h:
         return False
-    interpolant(method, system, solve)   # t_end is inside: build what `inside_step` reads
+    interpolant(method, system, solve, False)   # t_end is inside: build what `inside_step` reads
     return inside_step(method, solve, s, clock, t_end)
 
 

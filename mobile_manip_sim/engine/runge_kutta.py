@@ -8,7 +8,10 @@ Two methods, both with local extrapolation (the step is taken with the higher-or
 - ``dop853``: Dormand–Prince 8(5,3), 12 stages + f(y₁) (Hairer–Nørsett–Wanner §II.5 and the
   Fortran code DOP853). The error estimate combines the 5th- and 3rd-order embedded formulas as
   Hairer's code does (`error_norm`). Dense output: the 7th-order interpolant, which costs 3 more
-  stages per step that needs it (`dense_prepare`).
+  stages per step that needs it (`dense_prepare`), or — where its estimated error is within
+  the tolerance — a 6th-order continuous extension from the step's own stages, which costs none
+  (`dense_from_stages`). f(y₁) enters neither error estimate, so a rejected step does not
+  evaluate it (11 right-hand sides, as in dop853.f; an accepted one 12).
 
 The right-hand side is `engine.system.derivative(system, s, ds)` of the state s = (q, u, e, W)
 (n = n_q + n_u + 1 entries; autonomous: efforts are held between calls, so no t argument).
@@ -29,6 +32,7 @@ h·max(MIN_FACTOR, SAFETY·‖err‖^(−1/(p̂+1))) after a rejected one, p̂ t
 """
 from __future__ import annotations
 
+import functools
 import math
 from collections import namedtuple
 
@@ -63,6 +67,9 @@ Tableau = namedtuple("Tableau", [
     "C",             # (n_extended,) nodes c_i
     "E",             # (2, n_stages + 1) error weights: row 0 main estimate, row 1 DOP853's 3rd order
     "P",             # dense output: rk45 (7, 4) Q = Kᵀ P; dop853 (4, 16) D of the degree-3..6 terms
+    "F",             # dop853: (7, 13) the F₀..F₆ (over h) of the stage-only continuous extension
+                     # (`dense_from_stages`) as weights of k₀..k₁₂; rk45: unused
+    "F_check",       # dop853: (13,) weights of its error estimate at θ = 1/2; rk45: unused
 ])
 
 
@@ -88,7 +95,7 @@ def _rk45() -> Tableau:
         [0.0, 127303824393 / 49829197408, -318862633887 / 49829197408, 701980252875 / 199316789632],
         [0.0, -282668133 / 205662961, 2019193451 / 616988883, -1453857185 / 822651844],
         [0.0, 40617522 / 29380423, -110615467 / 29380423, 69997945 / 29380423]])
-    return Tableau(5, 4, 6, 7, True, 4, A, B, C, E, P)
+    return Tableau(5, 4, 6, 7, True, 4, A, B, C, E, P, np.zeros((7, 7)), np.zeros(7))
 
 
 # DOP853 (Hairer's DOP853 Fortran code, dop853.f): the nonzero a_ij by row, 0-based stages.
@@ -179,6 +186,22 @@ _DOP853_D = [
      14: -0.39177261675615439165231486172e+2, 15: -0.14972683625798562581422125276e+3},
 ]
 
+# dop853's stage-only continuous extension (`dense_from_stages`), as derived by
+# `continuous_extension(A[:13, :13], 6, 7)` and `(…, 5, 6)` (test_runge_kutta checks its order
+# conditions): the F₀..F₆ (over h) as weights of k₀..k₁₂, and the weights at θ = 1/2 of the
+# difference of the 6th- and 5th-order extensions (its error estimate). Written out: deriving
+# them costs a least-squares solve at every import.
+_DOP853_FREE_F = [
+    [0.05429373410662919, -5.744810948970287e-12, -1.4195763484140518e-11, 2.036010099994902e-12, -1.0592581153681184e-11, 4.450312892731961, 1.891517899345718, -5.801203960023994, 0.31116436694003063, -0.15216094965611926, 0.2013654008186372, 0.044710615715519396, 1.6278811554384188e-11],
+    [0.945706580240147, 7.338650395822853e-09, 1.0172510195836708e-07, 6.187593026467435e-07, 1.8383428034446048e-09, -4.450437064939308, -1.8915589981604342, 5.801362911353181, -0.31117585890550714, 0.15217734434986596, -0.2013650500075157, -0.0447107732214207, 1.796678350540759e-07],
+    [-0.8914128461339814, -7.326178958253585e-09, -1.0172139876322558e-07, -6.18733627925956e-07, -1.8257988806753698e-09, 8.900749957769222, 3.78307689743383, -11.602566871406452, 0.6223402258617057, -0.30433829404125845, 0.40273045082413717, 0.08942138892221818, -1.000000179656352],
+    [-5.26732214198784, 3.3294282897232586e-09, 2.042665449064871e-07, -2.3230257461370084e-07, 1.2783876158271429e-08, 329.3840048923721, 142.91731335760824, -458.2092190265066, 11.62154752040783, -20.641869978207524, -0.5888866858049795, 1.1177653000133017, -0.33333322594633596],
+    [6.162266198749819, 1.5553823206960177e-08, 2.2722847207554903e-07, -9.45946871021838e-07, 1.838865698476023e-08, -969.2582697082798, -321.8981662389633, 1241.2457647806477, -102.53806805928184, 145.56817948240496, -2.5260140714084116, -3.7556918578328227, 7.000000158744471],
+    [10.254628151224786, -9.080698933737667e-09, -1.0696785708609247e-07, 7.055715269753488e-07, -6.242201190919496e-09, -1321.5945286104688, -513.1892436204416, 1793.4170291901428, -47.1991374119948, 73.85370501094917, 7.151358749746265, 0.4172991497997741, -3.1111111922344596],
+    [-15.837046495634512, -2.6044436817648114e-09, -4.2686687328882875e-08, 3.3596552708989496e-07, -2.5700849782594086e-09, 4299.827775274584, 1327.082158611198, -5415.071096144488, 451.26118852140763, -630.1080513558175, -17.15492869578162, 2.1220206123252525e-08, -2.479407395953917e-08],
+]
+_DOP853_FREE_CHECK = [-0.07842700798220235, 1.4611108351858748e-09, 3.03959734657047e-08, 4.9013292958602986e-08, 1.464617148575865e-09, 21.293272629877528, 6.571872709719171, -26.816093537263306, 2.234700783358812, -3.1203723363221183, -0.08495332789735799, -2.8734307267775675e-08, 3.289911046058594e-08]
+
 
 def _dop853() -> Tableau:
     """DOP853 from the sparse rows above."""
@@ -197,7 +220,95 @@ def _dop853() -> Tableau:
     for r, row in enumerate(_DOP853_D):
         for j, d in row.items():
             P[r, j] = d
-    return Tableau(8, 7, 12, 16, True, 7, A, B, np.array(_DOP853_C), E, P)
+    return Tableau(8, 7, 12, 16, True, 7, A, B, np.array(_DOP853_C), E, P,
+                   np.array(_DOP853_FREE_F), np.array(_DOP853_FREE_CHECK))
+
+
+def free_dense_weights(A: np.ndarray) -> tuple:
+    """(F, F_check) of `_DOP853_FREE_F`, `_DOP853_FREE_CHECK` from DOP853's A[:13, :13]."""
+    sixth = continuous_extension(A, 6, 7)
+    fifth = continuous_extension(A, 5, 6)
+    F = np.linalg.solve(hairer_basis().T, sixth)
+    F_check = sum(0.5 ** (r + 1) * (sixth[r] - (fifth[r] if r < 6 else 0.0)) for r in range(7))
+    return F, F_check
+
+
+def rooted_trees(order: int) -> dict:
+    """The rooted trees with up to `order` nodes by node count, each a sorted tuple of its
+    subtrees (the leaf is ()); HNW I §II.2."""
+    trees = {1: [()]}
+    forests = {0: {()}}   # the multisets of trees with n nodes in all, as sorted tuples
+    for n in range(1, order):
+        forests[n] = {tuple(sorted((tree,) + rest)) for size in range(1, n + 1)
+                      for tree in trees[size] for rest in forests[n - size]}
+        trees[n + 1] = sorted(forests[n])   # a root over each forest
+    return trees
+
+
+def continuous_extension(A: np.ndarray, order: int, degree: int) -> np.ndarray:
+    """Weights β (degree, s) of a continuous extension y(θ) = y₀ + h Σ_i b_i(θ) k_i, b_i(θ) =
+    Σ_r β_ri θ^(r+1), of the s-stage method whose last row of A is b and whose last stage is
+    f(y₁) (FSAL): of uniform order `order` (Σ_i b_i(θ) Φ_i(t) = θ^ρ(t)/γ(t) for every tree t
+    with ρ(t) ≤ order, HNW I §II.6), with b(1) = b and b'(1) = e_s (y and y' continuous from
+    step to step); the freedom left minimises the order-(order+1) residuals over θ ∈ [0.1, 0.9]
+    (least squares). Raises if no such extension exists."""
+    s = A.shape[0]
+    trees = rooted_trees(order + 1)
+
+    @functools.cache
+    def phi(tree):   # elementary weights Φ_i(t) of every stage
+        v = np.ones(s)
+        for child in tree:
+            v = v * (A @ phi(child))
+        return v
+
+    @functools.cache
+    def nodes(tree):
+        return 1 + sum(nodes(child) for child in tree)
+
+    @functools.cache
+    def gamma(tree):   # the density γ(t)
+        return nodes(tree) * math.prod(gamma(child) for child in tree)
+
+    rows, rhs = [], []
+    for r in range(1, degree + 1):       # the coefficient of θ^r in each condition
+        for rho in range(1, order + 1):
+            for tree in trees[rho]:
+                row = np.zeros(degree * s)
+                row[(r - 1) * s:r * s] = phi(tree)
+                rows.append(row)
+                rhs.append(1.0 / gamma(tree) if rho == r else 0.0)
+    for i in range(s):                   # b(1) = b, b'(1) = e_s
+        rows.append(np.tile(np.eye(s)[i], degree))
+        rhs.append(A[-1, i])
+        rows.append(np.kron(np.arange(1.0, degree + 1), np.eye(s)[i]))
+        rhs.append(1.0 if i == s - 1 else 0.0)
+    C, d = np.array(rows), np.array(rhs)
+    beta = np.linalg.lstsq(C, d, rcond=None)[0]
+    if np.abs(C @ beta - d).max() > 1e-10:
+        raise ValueError(f"no continuous extension of order {order} and degree {degree}")
+    _, sigma, Vt = np.linalg.svd(C, full_matrices=False)
+    null = Vt[int(np.sum(sigma > 1e-10 * sigma[0])):].T
+    if null.shape[1]:
+        next_rows, next_rhs = [], []
+        for theta in np.linspace(0.1, 0.9, 9):
+            for tree in trees[order + 1]:
+                next_rows.append(np.concatenate([theta ** r * phi(tree) for r in range(1, degree + 1)]))
+                next_rhs.append(theta ** (order + 1) / gamma(tree))
+        R = np.array(next_rows)
+        beta = beta + null @ np.linalg.lstsq(R @ null, np.array(next_rhs) - R @ beta, rcond=None)[0]
+    return beta.reshape(degree, s)
+
+
+def hairer_basis() -> np.ndarray:
+    """(7, 7): row j = the coefficients of θ¹..θ⁷ in the j-th basis polynomial of dop853.f's
+    interpolant, θ, θ(1−θ), θ²(1−θ), θ²(1−θ)², θ³(1−θ)², θ³(1−θ)³, θ⁴(1−θ)³ (`dense_eval`)."""
+    basis = np.zeros((7, 7))
+    for j in range(7):
+        poly = np.polynomial.polynomial.polypow([0.0, 1.0], (j + 2) // 2)
+        poly = np.polynomial.polynomial.polymul(poly, np.polynomial.polynomial.polypow([1.0, -1.0], (j + 1) // 2))
+        basis[j, :len(poly) - 1] = poly[1:]
+    return basis
 
 
 RK45_TABLEAU = _rk45()
@@ -232,6 +343,49 @@ def _stage_state(s, h, a, n_terms, K, y):
 
 
 @jit
+def _stages(method_id, system, s, f0, h, out, K):
+    """The stages k₁..k_{n_stages−1} of a step of length h from s (k₀ = f0) into K, and its
+    end state y₁ into out (which doubles as the stage-state scratch: it must not alias s)."""
+    tab = tableau(method_id)
+    n_stages = tab.n_stages
+    for i in range(s.shape[0]):
+        K[0, i] = f0[i]
+    for stage in range(1, n_stages):
+        _stage_state(s, h, tab.A[stage], stage, K, out)
+        derivative(system, out, K[stage])
+    _stage_state(s, h, tab.B, n_stages, K, out)
+
+
+@jit
+def _end_derivative(method_id, system, out, f_out, K):
+    """f(y₁) into f_out and K[n_stages]."""
+    n_stages = tableau(method_id).n_stages
+    derivative(system, out, f_out)
+    for i in range(out.shape[0]):
+        K[n_stages, i] = f_out[i]
+
+
+@jit
+def _error_estimates(method_id, h, K, err):
+    """err[row] = h·Σ_j E[row, j] k_j."""
+    tab = tableau(method_id)
+    for row in range(2):
+        for i in range(err.shape[1]):
+            total = 0.0
+            for j in range(tab.n_stages + 1):
+                if tab.E[row, j] != 0.0:
+                    total += tab.E[row, j] * K[j, i]
+            err[row, i] = h * total
+
+
+@jit
+def error_needs_end_derivative(method_id):
+    """Whether f(y₁) enters the error estimate (rk45: it is a stage; dop853: not)."""
+    tab = tableau(method_id)
+    return tab.E[0, tab.n_stages] != 0.0 or tab.E[1, tab.n_stages] != 0.0
+
+
+@jit
 def rk_step(method_id, system, s, f0, h, out, f_out, K, err):
     """One step of length h (s) from s, f0 = f(s): out = y₁, f_out = f(y₁).
 
@@ -240,26 +394,10 @@ def rk_step(method_id, system, s, f0, h, out, f_out, K, err):
     it must not alias s. Returns the number of right-hand sides evaluated (n_stages: the stages
     after the first, plus f(y₁)).
     """
-    tab = tableau(method_id)
-    n_stages = tab.n_stages
-    n = s.shape[0]
-    for i in range(n):
-        K[0, i] = f0[i]
-    for stage in range(1, n_stages):
-        _stage_state(s, h, tab.A[stage], stage, K, out)
-        derivative(system, out, K[stage])
-    _stage_state(s, h, tab.B, n_stages, K, out)
-    derivative(system, out, f_out)
-    for i in range(n):
-        K[n_stages, i] = f_out[i]
-    for row in range(2):
-        for i in range(n):
-            total = 0.0
-            for j in range(n_stages + 1):
-                if tab.E[row, j] != 0.0:
-                    total += tab.E[row, j] * K[j, i]
-            err[row, i] = h * total
-    return n_stages
+    _stages(method_id, system, s, f0, h, out, K)
+    _end_derivative(method_id, system, out, f_out, K)
+    _error_estimates(method_id, h, K, err)
+    return tableau(method_id).n_stages
 
 
 @jit
@@ -387,6 +525,45 @@ def dense_prepare(method_id, system, s, out, f0, f1, h, K, coeffs):
 
 
 @jit
+def dense_from_stages(method_id, s, out, h, K, coeffs, rtol, atol):
+    """dop853: the interpolant of the step s → out of length h from its 13 stages alone (no
+    right-hand side), when its estimated error is within the tolerance. Returns True when
+    coeffs[:7] holds it (the F₀..F₆ that `dense_eval` reads), False (coeffs untouched) when the
+    step needs `dense_prepare`'s 7th-order interpolant; always False for rk45, whose
+    interpolant costs nothing anyway.
+
+    The continuous extension is of order 6 (`continuous_extension`: one order below the 7th-order
+    one, whose 3 extra stages it saves). Its error is estimated at θ = 1/2 by its difference to
+    the 5th-order extension of the same stages (tab.F_check), in `error_norm`'s scaled RMS norm,
+    which must not exceed 1: as the step's error is estimated by lower-order formulas, the
+    estimate is that of the lower-order extension, so it bounds the 6th-order one's
+    (measured: 1.2-2× its error on the paper robot). The estimate shrinks with h like h⁶
+    where the step's own error shrinks like h⁸, so loose tolerances (long steps) pass and
+    tight ones fall back.
+    """
+    if method_id == RK45:
+        return False
+    tab = tableau(method_id)
+    n = s.shape[0]
+    total = 0.0
+    for i in range(n):
+        estimate = 0.0
+        for k in range(tab.n_stages + 1):
+            estimate += tab.F_check[k] * K[k, i]
+        sc = atol + rtol * max(abs(s[i]), abs(out[i]))
+        total += (h * estimate / sc) ** 2
+    if not math.sqrt(total / n) <= 1.0:   # also when NaN
+        return False
+    for r in range(7):
+        for i in range(n):
+            value = 0.0
+            for k in range(tab.n_stages + 1):
+                value += tab.F[r, k] * K[k, i]
+            coeffs[r, i] = h * value
+    return True
+
+
+@jit
 def dense_eval(method_id, coeffs, s, h, theta, y_out):
     """The state at t₀ + θh, θ ∈ [0, 1], of the step prepared by `dense_prepare` from s.
 
@@ -416,7 +593,8 @@ def dense_eval(method_id, coeffs, s, h, theta, y_out):
 @jit
 def accepted_step(method_id, system, s, t, h_abs, t_bound, rtol, atol, work):
     """Steps from (t, s) with f(s) in work[WORK_F0], shrinking h until one is accepted: the new
-    state and its f in work[WORK_Y1], work[WORK_F1], the stages in work[WORK_K…]. Returns (h
+    state and its f in work[WORK_Y1], work[WORK_F1] (f(y₁) evaluated last), the stages in
+    work[WORK_K…]. Returns (h
     taken, next h to try); h taken = −1 when the step fell below 10 ulps of t (s unchanged)."""
     K = work[WORK_K:WORK_K + MAX_STAGES]
     f0, f1, y1 = work[WORK_F0], work[WORK_F1], work[WORK_Y1]
@@ -428,10 +606,17 @@ def accepted_step(method_id, system, s, t, h_abs, t_bound, rtol, atol, work):
             return -1.0, h_abs
         t_new = min(t + h_abs, t_bound)
         h = t_new - t
-        rk_step(method_id, system, s, f0, h, y1, f1, K, err)
+        # f(y₁) only once it is needed: a rejected dop853 step costs 11 right-hand sides, not 12
+        end_first = error_needs_end_derivative(method_id)
+        _stages(method_id, system, s, f0, h, y1, K)
+        if end_first:
+            _end_derivative(method_id, system, y1, f1, K)
+        _error_estimates(method_id, h, K, err)
         norm = error_norm(method_id, err, s, y1, rtol, atol)
         h_next = next_step(method_id, norm, abs(h), retried)
         if norm < 1.0:
+            if not end_first:
+                _end_derivative(method_id, system, y1, f1, K)
             return h, h_next
         h_abs = h_next
         retried = True
