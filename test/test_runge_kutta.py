@@ -13,6 +13,7 @@ import pytest
 from scipy import integrate
 
 from mobile_manip_sim.dynamics import jit
+from mobile_manip_sim.engine import continuous_extension
 from mobile_manip_sim.engine import runge_kutta as rk
 from mobile_manip_sim.engine.simulation import Simulation
 from mobile_manip_sim.engine.system import RHS_EVALS
@@ -151,8 +152,8 @@ def test_dense_output_from_stages_meets_the_order_conditions():
     every tree up to order 6 at any θ, b(1) = b; and they are what `free_dense_weights` derives."""
     tab = rk.DOP853_TABLEAU
     A = tab.A[:13, :13]
-    beta = rk.hairer_basis().T @ tab.F            # (7, 13): the weights of θ¹..θ⁷
-    trees = rk.rooted_trees(6)
+    beta = continuous_extension.hairer_basis().T @ tab.F            # (7, 13): the weights of θ¹..θ⁷
+    trees = continuous_extension.rooted_trees(6)
 
     def phi(tree):
         v = np.ones(13)
@@ -173,7 +174,7 @@ def test_dense_output_from_stages_meets_the_order_conditions():
             for tree in trees[order]:
                 assert b @ phi(tree) == pytest.approx(theta ** order / gamma(tree), rel=1e-7, abs=1e-12)
     np.testing.assert_allclose(beta.sum(axis=0), tab.A[12, :13], atol=1e-9)
-    F, check = rk.free_dense_weights(A)
+    F, check = continuous_extension.free_dense_weights(A)
     np.testing.assert_allclose(F, tab.F, rtol=1e-6, atol=1e-6 * np.abs(tab.F).max())
     np.testing.assert_allclose(check, tab.F_check, rtol=1e-6, atol=1e-6 * np.abs(check).max())
 
