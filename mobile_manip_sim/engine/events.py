@@ -114,7 +114,7 @@ def crossing_in_step(s0, s1, h, system, watched, stroke):
     return False
 
 
-@jit
+@jit_inline
 def holding_margin(system, s, resting, ds, forces):
     """min over resting rods of the force (N) its stop pushes with: > 0 while all are held."""
     derivative(system, s, ds)

@@ -103,7 +103,7 @@ def step_with_events(method, system, stops, scr, s, h, t, clock):
     return CHATTER
 
 
-@jit
+@jit_inline
 def grid_step(method, system, stops, scr, s, clock, k1_ready):
     """One whole step dt on the grid, events and releases included. Returns the status and
     whether scr.stages[0] now holds f(s) for the next step (the release check computed it)."""
