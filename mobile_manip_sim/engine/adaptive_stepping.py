@@ -115,8 +115,8 @@ def locate_event(method, system, stops, scr, solve):
     if any_watched(stops) and crossing_in_step(start, y1, h, system, stops.watched, stops.stroke):
         dense = interpolant(method, system, solve, True)
         h_hit, k, side = first_crossing(method, system, start, h, stops.watched, stops.resting,
-                                        stops.stroke, scr.samples, scr.trial, scr.stages,
-                                        scr.forces, dense)
+                                        stops.stroke, scr.samples, scr.crossed, scr.trial,
+                                        scr.stages, scr.forces, dense)
         if k != 0:
             interpolate(dense, start, h_hit, solve.event)
             solve.event[layout.l(k)] = stops.stroke[k - 1, 0] if side < 0 else stops.stroke[k - 1, 1]

@@ -208,10 +208,11 @@ def insert_sorted(a, m, x):
 
 
 @jit
-def first_crossing(method, system, s0, h, watched, resting, stroke, samples, trial, stages, forces,
-                   dense=None):
+def first_crossing(method, system, s0, h, watched, resting, stroke, samples, crossed, trial, stages,
+                   forces, dense=None):
     """Earliest (h', rod k, side) at which a watched rod meets a stop within the step s0 → h,
-    or (−1, 0, 0) when none does (the Hermite path dipped, the step itself did not)."""
+    or (−1, 0, 0) when none does (the Hermite path dipped, the step itself did not).
+    ``crossed`` (n,) int64 is scratch: the side each rod is past at the bracket's end."""
     nq, _ = layout.sizes(system)
     n = watched.shape[0]
     m = 0
@@ -228,26 +229,35 @@ def first_crossing(method, system, s0, h, watched, resting, stroke, samples, tri
             for tau in turns:
                 if 0.0 < tau < h:
                     m = insert_sorted(samples, m, tau)
+    # Bracket the first crossing between samples, the state at each serving every rod and stop
+    # (an interpolant's round-off right after an impact must not pass for a new crossing at
+    # h' ≈ 0): every stop is inside at samples[end − 1], the ones crossed are past at samples[end].
+    end = -1
+    for j in range(m):
+        step_state(method, system, s0, samples[j], trial, stages, dense)
+        for k in range(1, n + 1):
+            crossed[k - 1] = 0
+            if watched[k - 1]:
+                l_k = trial[layout.l(k)]
+                if l_k < stroke[k - 1, 0]:
+                    crossed[k - 1] = -1
+                elif l_k > stroke[k - 1, 1]:
+                    crossed[k - 1] = 1
+                if crossed[k - 1] != 0:
+                    end = j
+        if end >= 0:
+            break
+    if end < 0:
+        return -1.0, 0, 0
+    a = samples[end - 1] if end > 0 else 0.0
     best_h, best_k, best_side = -1.0, 0, 0
     for k in range(1, n + 1):
-        if not watched[k - 1]:
+        side = crossed[k - 1]
+        if side == 0:
             continue
-        i_l = layout.l(k)
-        for side in (-1, 1):
-            stop = stroke[k - 1, 0] if side < 0 else stroke[k - 1, 1]
-            # Bracket the first crossing between samples: an interpolant's round-off right
-            # after an impact must not pass for a new crossing at h' ≈ 0.
-            end = -1
-            for j in range(m):
-                if event_value(CROSSING, method, system, s0, samples[j], i_l, side, stop, resting,
-                               trial, stages, forces, dense) < 0.0:
-                    end = j
-                    break
-            if end < 0:
-                continue
-            a = samples[end - 1] if end > 0 else 0.0
-            h_hit = locate(CROSSING, method, system, s0, a, samples[end], i_l, side, stop,
-                           resting, trial, stages, forces, dense)
-            if best_k == 0 or h_hit < best_h:
-                best_h, best_k, best_side = h_hit, k, side
+        stop = stroke[k - 1, 0] if side < 0 else stroke[k - 1, 1]
+        h_hit = locate(CROSSING, method, system, s0, a, samples[end], layout.l(k), side, stop,
+                       resting, trial, stages, forces, dense)
+        if best_k == 0 or h_hit < best_h:
+            best_h, best_k, best_side = h_hit, k, side
     return best_h, best_k, best_side

@@ -35,13 +35,15 @@ StepScratch = namedtuple("StepScratch", [
     "stages",   # (4, size) Runge–Kutta stages
     "forces",   # (size,) holding forces (first n_u entries)
     "samples",  # (N_SAMPLES + 2n,) instants bracketing a crossing
+    "crossed",  # (n,) int64: the stop (−1, +1) each rod is past at the bracket's end, or 0
     "impact",   # stops.ImpactScratch
 ])
 
 
 def make_scratch(size: int, n_links: int, impact_scratch) -> StepScratch:
     return StepScratch(np.zeros(size), np.zeros(size), np.zeros(size), np.zeros((4, size)),
-                       np.zeros(size), np.zeros(N_SAMPLES + 2 * n_links), impact_scratch)
+                       np.zeros(size), np.zeros(N_SAMPLES + 2 * n_links),
+                       np.zeros(max(n_links, 1), dtype=np.int64), impact_scratch)
 
 
 @jit_inline
@@ -81,8 +83,8 @@ def step_with_events(method, system, stops, scr, s, h, t, clock):
             copy_into(scr.out, s)
             return DONE
         h_hit, k, side = first_crossing(method, system, s, h, stops.watched, stops.resting,
-                                        stops.stroke, scr.samples, scr.trial, scr.stages,
-                                        scr.forces)
+                                        stops.stroke, scr.samples, scr.crossed, scr.trial,
+                                        scr.stages, scr.forces)
         if k == 0:   # the Hermite path dipped, the step itself did not
             copy_into(scr.out, s)
             return DONE
