@@ -134,12 +134,12 @@ def articulated_forward_dynamics(model, q, u, Q, g, free, ws, ud):
     for k in range(n, 0, -1):
         m, h, I = rod_inertia(model, q, ws, k)
         add_body(IA, pA, m, h, I, Vk, k)
-        for i in range(6):
-            for c in range(2):
-                s = 0.0
-                for j in range(6):
-                    s += IA[i, j] * Sk[k, j, c]
-                Uk[k, i, c] = s
+        for i in range(6):   # U = I^A S; the slide's column (0, x_k) has no angular part
+            s = 0.0
+            for j in range(6):
+                s += IA[i, j] * Sk[k, j, 0]
+            Uk[k, i, 0] = s
+            Uk[k, i, 1] = IA[i, 3] * Sk[k, 3, 1] + IA[i, 4] * Sk[k, 4, 1] + IA[i, 5] * Sk[k, 5, 1]
         if moving[2 * k + 1] == 0.0:
             # a locked slide transmits s_lᵀ f_k, f_k = I^A_k a_k + p^A_k (s_l = (0, x_k)):
             # keep s_lᵀ I^A_k (= I^A_k s_l, symmetric) and s_lᵀ p^A_k for the outward pass
@@ -149,9 +149,10 @@ def articulated_forward_dynamics(model, q, u, Q, g, free, ws, ud):
         D00, D11, D01, u0, u1 = 0.0, 0.0, 0.0, Q[2 * k], Q[2 * k + 1]
         for i in range(6):
             D00 += Sk[k, i, 0] * Uk[k, i, 0]
-            D11 += Sk[k, i, 1] * Uk[k, i, 1]
             D01 += Sk[k, i, 0] * Uk[k, i, 1]
             u0 -= Sk[k, i, 0] * pA[i]
+        for i in range(3, 6):
+            D11 += Sk[k, i, 1] * Uk[k, i, 1]
             u1 -= Sk[k, i, 1] * pA[i]
         if moving[2 * k] == 0.0:
             D00, u0 = 1.0, 0.0
@@ -161,11 +162,12 @@ def articulated_forward_dynamics(model, q, u, Q, g, free, ws, ud):
         d00, d11, d01 = D11 / det, D00 / det, -D01 / det
         Dinv[k, 0], Dinv[k, 1], Dinv[k, 2] = d00, d11, d01
         ua[k, 0], ua[k, 1] = u0, u1
-        for i in range(6):  # I^a = I^A − U D⁻¹ Uᵀ
+        for i in range(6):  # I^a = I^A − U D⁻¹ Uᵀ, symmetric: the upper triangle, mirrored
             W0 = Uk[k, i, 0] * d00 + Uk[k, i, 1] * d01
             W1 = Uk[k, i, 0] * d01 + Uk[k, i, 1] * d11
-            for j in range(6):
+            for j in range(i, 6):
                 IA[i, j] -= W0 * Uk[k, j, 0] + W1 * Uk[k, j, 1]
+                IA[j, i] = IA[i, j]
         Dinv_u0 = d00 * u0 + d01 * u1
         Dinv_u1 = d01 * u0 + d11 * u1
         for i in range(6):  # p^a = p^A + I^a c + U D⁻¹ u
