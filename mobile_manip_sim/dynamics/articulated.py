@@ -134,18 +134,18 @@ def articulated_forward_dynamics(model, q, u, Q, g, free, ws, ud):
     for k in range(n, 0, -1):
         m, h, I = rod_inertia(model, q, ws, k)
         add_body(IA, pA, m, h, I, Vk, k)
-        for i in range(6):   # U = I^A S; the slide's column (0, x_k) has no angular part
+        # U = I^A S. The slide's s_l = (0, x_k) has no angular part: I^A s_l is U's slide column
+        # when the slide moves; a locked one (column zero) transmits s_lᵀ f_k, f_k = I^A_k a_k +
+        # p^A_k, so I^A s_l (= s_lᵀ I^A, symmetric) and s_lᵀ p^A are kept for the outward pass.
+        x_k = (ws.x[k, 0], ws.x[k, 1], ws.x[k, 2])
+        for i in range(6):
             s = 0.0
             for j in range(6):
                 s += IA[i, j] * Sk[k, j, 0]
             Uk[k, i, 0] = s
-            Uk[k, i, 1] = IA[i, 3] * Sk[k, 3, 1] + IA[i, 4] * Sk[k, 4, 1] + IA[i, 5] * Sk[k, 5, 1]
-        if moving[2 * k + 1] == 0.0:
-            # a locked slide transmits s_lᵀ f_k, f_k = I^A_k a_k + p^A_k (s_l = (0, x_k)):
-            # keep s_lᵀ I^A_k (= I^A_k s_l, symmetric) and s_lᵀ p^A_k for the outward pass
-            for j in range(6):
-                slide[k, j] = IA[j, 3] * ws.x[k, 0] + IA[j, 4] * ws.x[k, 1] + IA[j, 5] * ws.x[k, 2]
-            slide[k, 6] = pA[3] * ws.x[k, 0] + pA[4] * ws.x[k, 1] + pA[5] * ws.x[k, 2]
+            slide[k, i] = IA[i, 3] * x_k[0] + IA[i, 4] * x_k[1] + IA[i, 5] * x_k[2]
+            Uk[k, i, 1] = slide[k, i] if moving[2 * k + 1] != 0.0 else 0.0
+        slide[k, 6] = pA[3] * x_k[0] + pA[4] * x_k[1] + pA[5] * x_k[2]
         D00, D11, D01, u0, u1 = 0.0, 0.0, 0.0, Q[2 * k], Q[2 * k + 1]
         for i in range(6):
             D00 += Sk[k, i, 0] * Uk[k, i, 0]

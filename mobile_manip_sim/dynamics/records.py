@@ -47,7 +47,7 @@ Workspace = namedtuple("Workspace", [
     "I_art",    # (6, 6) articulated inertia of the subchain being accumulated
     "p_art",    # (6,) … and its bias force
     "moving",   # (2n+2,) 1.0 for a free pseudo-velocity, 0.0 for a locked one
-    "slide",    # (n+1, 7) for a locked slide: s_lᵀ I^A_k (6), then s_lᵀ p^A_k
+    "slide",    # (n+1, 7) s_lᵀ I^A_k (6), then s_lᵀ p^A_k: what a locked slide transmits
     "slide_force",  # (n+1,) N: s_lᵀ (I^A_k a_k + p^A_k), the force a locked slide k transmits
 ])
 

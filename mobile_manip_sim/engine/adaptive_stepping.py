@@ -36,7 +36,7 @@ from .events import (RELEASE, crossing_in_step, first_crossing, holding_margin_a
 from .stepping import (BUDGET, DONE, LOG_FULL, LOST, NOT_FINITE, STEPS, T0, any_watched, copy_into,
                        finite, total_energy)
 from .step_watch import make_watch, watch_step
-from .stops import any_resting, impact, release_at_root
+from .stops import any_resting, impact, release
 from .system import derivative
 
 # why `advance` returned, besides stepping.py's: the step fell below 10 ulps of t; the steps
@@ -179,7 +179,7 @@ def apply_event(system, stops, scr, solve, s, clock):
         clock[LOST] += impact(system, stops, s, k, side, t, hold, scr.impact, scr.stages[3],
                               scr.forces)
     else:
-        release_at_root(system, stops, s, scr.stages[3], scr.forces)
+        release(system, stops, s, scr.stages[3], scr.forces, True)
     restart(solve)
 
 

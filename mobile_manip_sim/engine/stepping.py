@@ -21,7 +21,7 @@ from . import layout
 from .events import (N_SAMPLES, RELEASE, crossing_in_step, first_crossing, holding_margin, locate,
                      step_state, zeno_guard)
 from .fixed_step import step
-from .stops import any_resting, impact, release_at_root
+from .stops import any_resting, impact, release
 
 # why `advance` returned
 DONE, BUDGET, LOG_FULL, NOT_FINITE, CHATTER = 0, 1, 2, 3, 4
@@ -125,7 +125,7 @@ def grid_step(method, system, stops, scr, s, clock, k1_ready):
         h = locate(RELEASE, method, system, scr.start, 0.0, dt, 0, 0, 0.0, stops.resting,
                    scr.trial, scr.stages, scr.forces)
         step_state(method, system, scr.start, h, s, scr.stages)
-        release_at_root(system, stops, s, scr.stages[3], scr.forces)
+        release(system, stops, s, scr.stages[3], scr.forces, True)
         return step_with_events(method, system, stops, scr, s, dt - h, t + h, clock), False
     copy_into(scr.out, s)
     return DONE, any_resting(stops)

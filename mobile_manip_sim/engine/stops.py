@@ -6,8 +6,8 @@
   goes to the stop log (`StopsData.log`), from which `Simulation` builds its `Impact` list.
 - Resting: a rod whose rebound speed is below ``rest_speed`` is held at the stop (its l̇ degree
   of freedom is locked, not stiffly pushed back), and so is a rod whose rebounds are too small
-  to resolve (the Zeno guard, `events.zeno_guard`, called by both cores — `stepping.py` and
-  `adaptive_stepping.py` — at each impact, its runs kept here in `StopsData.run`). It leaves when the stop would have to pull to hold it
+  to resolve (the Zeno guard, `events.zeno_guard`, called by both cores at each impact, its
+  runs kept here in `StopsData.run`). It leaves when the stop would have to pull to hold it
   (`release`: the holding force changes sign), located inside the step like an impact
   (`events.py`) and checked whenever the command changes.
 """
@@ -111,33 +111,21 @@ def relock(system, stops):
 
 
 @jit
-def release(system, stops, s, ds, forces):
-    """Free every resting rod that its stop would have to pull at s. Returns how many."""
+def release(system, stops, s, ds, forces, at_root):
+    """Free every resting rod whose stop would have to pull at s; ``at_root`` (s is a located
+    release instant): also those whose stop no longer pushes (force ≥ 0). Returns how many."""
     derivative(system, s, ds)
     slide_holding_forces(system, stops.resting, forces)
     freed = 0
     for k in range(1, stops.resting.shape[0] + 1):
-        side = stops.resting[k - 1]
-        if side != 0 and side * forces[layout.u_l(k)] > 0.0:
+        pull = stops.resting[k - 1] * forces[layout.u_l(k)]
+        if stops.resting[k - 1] != 0 and (pull > 0.0 or at_root and pull >= 0.0):
             stops.resting[k - 1] = 0
             stops.watched[k - 1] = True
             freed += 1
     if freed:
         relock(system, stops)
     return freed
-
-
-@jit
-def release_at_root(system, stops, s, ds, forces):
-    """At a located release instant: free every resting rod whose stop no longer pushes (≥ 0)."""
-    derivative(system, s, ds)
-    slide_holding_forces(system, stops.resting, forces)
-    for k in range(1, stops.resting.shape[0] + 1):
-        side = stops.resting[k - 1]
-        if side != 0 and side * forces[layout.u_l(k)] >= 0.0:
-            stops.resting[k - 1] = 0
-            stops.watched[k - 1] = True
-    relock(system, stops)
 
 
 @jit_inline
@@ -349,7 +337,7 @@ def impact(system, stops, s, k, side, t, hold, scratch, ds, forces):
         stops.watched[k - 1] = False
         relock(system, stops)
         if holding_margin(system, s, stops.resting, ds, forces) < 0.0:
-            release(system, stops, s, ds, forces)
+            release(system, stops, s, ds, forces, False)
     return T_before - T_after
 
 
