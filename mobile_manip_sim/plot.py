@@ -39,7 +39,7 @@ from .dynamics import Dynamics, constraint_residuals
 from .effects import settings as effect_settings
 from .errors import UserError
 from .scene import Scene, load_scene, scene_from_text
-from .simulate import csv_columns
+from .headless import csv_columns
 from .timeline import NS, CommandHistory
 from .topics import ARM_TOPIC as ARM_COMMANDS
 from .topics import CMD_VEL_TOPIC as CMD_VEL

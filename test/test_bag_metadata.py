@@ -20,7 +20,7 @@ from mobile_manip_sim.errors import EXIT_USER_ERROR, UserError
 from mobile_manip_sim.recording.bag_reader import open_bag
 from mobile_manip_sim.recording.headless import HeadlessRecorder
 from mobile_manip_sim.scene import load_scene, make_integrator
-from mobile_manip_sim.simulate import run as simulate_run
+from mobile_manip_sim.headless import run as simulate_run
 
 RATE, DURATION = 20.0, 0.2
 BOUND_S = 5.0       # wall seconds a refusal may take (the good bag re-simulates in well under 1 s)

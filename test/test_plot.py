@@ -23,8 +23,8 @@ from mobile_manip_sim.errors import EXIT_USER_ERROR
 from mobile_manip_sim.recording.bag_writer import BagWriter, qos_yaml
 from mobile_manip_sim.scene import load_scene, parse_scene
 from mobile_manip_sim.recording.headless import HeadlessRecorder
-from mobile_manip_sim.simulate import run as simulate_run
-from mobile_manip_sim.simulate import sample_times
+from mobile_manip_sim.headless import run as simulate_run
+from mobile_manip_sim.timeline import sample_times
 
 BIN = Path(sys.executable).parent
 SAMPLE_RATE = 100.0
