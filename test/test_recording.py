@@ -41,7 +41,7 @@ from mobile_manip_sim.recording.bag_writer import DEFAULT_CHUNK_SIZE
 from mobile_manip_sim.recording.cdr import exact_cdr
 from mobile_manip_sim.recording.headless import HeadlessRecorder
 from mobile_manip_sim.scene import load_scene, make_integrator
-from mobile_manip_sim.simulate import run as simulate_run
+from mobile_manip_sim.headless import run as simulate_run
 
 DOMAIN_ID = private_domain(1, 99)   # test_node.py uses 100-199
 EXECUTABLES = {name: executable(name) for name in ("simulator", "simulate", "replay")}
