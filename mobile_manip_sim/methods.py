@@ -9,6 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 FIXED, ADAPTIVE = "fixed step", "adaptive"
+COMPILED_STEPPERS = ("stepping", "runge_kutta")   # compiled cores; "scipy:<class>" is SciPy's
 
 
 @dataclass(frozen=True)
@@ -16,14 +17,19 @@ class Method:
     name: str
     kind: str                 # FIXED (takes dt) or ADAPTIVE (takes rtol, atol)
     order: int                # of the propagated solution (bdf: the highest it reaches)
-    stepper: str              # "stepping" (compiled fixed-step core), "runge_kutta" (compiled
-                              # Dormand–Prince), "scipy:<class>" (SciPy solver)
+    stepper: str              # who steps it (STEPPERS): "stepping" (compiled fixed-step core),
+                              # "runge_kutta" (compiled Dormand–Prince), "scipy:<class>" (SciPy)
     sweep: tuple              # the bench's work–precision sweep of dt (s) or rtol
     summary: str
 
     @property
     def fixed_step(self) -> bool:
         return self.kind == FIXED
+
+    @property
+    def compiled(self) -> bool:
+        """Stepped by one of our compiled cores (not by a SciPy solver from Python)."""
+        return self.stepper in COMPILED_STEPPERS
 
 
 METHODS = {m.name: m for m in (
@@ -40,3 +46,7 @@ METHODS = {m.name: m for m in (
 )}
 NAMES = tuple(METHODS)
 FIXED_STEP_NAMES = tuple(name for name, m in METHODS.items() if m.fixed_step)
+ADAPTIVE_NAMES = tuple(name for name, m in METHODS.items() if not m.fixed_step)
+# One id space for the compiled cores, which take a method as a compile-time integer: a method's
+# id is its place in this registry (euler 0 … dop853 4).
+IDS = {name: i for i, name in enumerate(NAMES)}

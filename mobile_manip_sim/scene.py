@@ -17,6 +17,8 @@ import yaml
 from . import schema
 from . import methods
 from .errors import UserError
+from .limits import (ANGLE, ATOL, DAMPING, DENSITY, DT, DURATION, EFFORT, GRAVITY, INERTIA, LENGTH,
+                     MASS, MAX_LINKS, MAX_SAMPLES, MAX_STEPS, RADIUS, RTOL, SPEED)
 from .model import Base, RobotModel
 
 DEFAULT_SCENE = "paper_two_link.yaml"
@@ -93,26 +95,6 @@ class Scene:
 
     def to_yaml(self) -> str:
         return yaml.safe_dump(self.document, sort_keys=False)
-
-
-# --- plausibility bounds (README, "Bad input"): outside them a value is a mistake, not physics
-
-MAX_LINKS = 64                     # arm links (the dynamics is O(n) per step, the checks O(n²))
-MASS = (1e-6, 1e15)                # kg, base mass and payload (1e15: an immovable base)
-LENGTH = (1e-6, 1e3)               # m: rod lengths, half track, offsets
-RADIUS = (1e-4, 1e2)               # m, wheel radius
-DENSITY = (1e-9, 1e6)              # kg/m, rod mass per length
-INERTIA = (0.0, 1e15)              # kg·m² (per length for rods: kg·m)
-ANGLE = 1e6                        # rad, |initial angles|
-SPEED = 1e4                        # m/s or rad/s, |initial velocities|
-EFFORT = 1e6                       # N or N·m, |efforts| and effort limits
-GRAVITY = (0.0, 100.0)             # m/s²
-DAMPING = (0.0, 1e6)               # N·m·s/rad, N·s/m
-DURATION = (0.0, 1e6)              # s (exclusive lower end)
-DT = (1e-9, 1.0)                   # s, the fixed step
-RTOL = (1e-14, 1.0)
-ATOL = (1e-20, 1.0)
-MAX_STEPS = 10_000_000             # duration / dt of a fixed-step run
 
 
 def _number(value, path, *, positive=False, nonnegative=False, lo=None, hi=None) -> float:
@@ -305,9 +287,6 @@ def check_work(duration: float, settings: IntegratorSettings, duration_key: str,
     if settings.fixed_step and settings.dt > 1.0 / sample_rate * (1 + 1e-12):
         raise UserError(dt_key, f"the fixed step {settings.dt:.6g} s is longer than the sample "
                                 f"interval {1.0 / sample_rate:.6g} s ({rate_key})")
-
-
-MAX_SAMPLES = 1_000_000            # duration × sample rate (a CSV of ~200 MB for two links)
 
 
 def parse_scene(doc, name="scene") -> Scene:

@@ -26,10 +26,9 @@ from pathlib import Path
 from . import cli, schema
 from .errors import UserError
 from .headless import csv_columns, csv_row, run, summary_line
-from .scene import DURATION, check_work, load_scene, make_integrator
+from .limits import DURATION, SAMPLE_RATE
+from .scene import check_work, load_scene, make_integrator
 from .scene_overrides import parse_assignments, scene_with
-
-SAMPLE_RATE = (1e-6, 1e6)          # Hz, --sample-rate
 
 
 class Progress:

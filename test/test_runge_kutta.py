@@ -17,6 +17,7 @@ from mobile_manip_sim.engine import continuous_extension
 from mobile_manip_sim.engine import runge_kutta as rk
 from mobile_manip_sim.engine.simulation import Simulation
 from mobile_manip_sim.engine.system import RHS_EVALS
+from mobile_manip_sim.methods import IDS
 from mobile_manip_sim.scene import load_scene, make_integrator, parse_scene
 
 SCIPY = {"rk45": integrate.RK45, "dop853": integrate.DOP853}
@@ -41,7 +42,7 @@ def one_step(method, h, rtol, atol):
     """Our step from the paper scene's initial state and SciPy's solver forced to the same h."""
     system, s0, f, _ = paper_system()
     n = s0.size
-    m = rk.METHOD_IDS[method]
+    m = IDS[method]
     f0 = f(0.0, s0)
     out, f1, K, err = np.zeros(n), np.zeros(n), np.zeros((rk.MAX_STAGES, n)), np.zeros((2, n))
     evals = rk.rk_step(m, system.data, s0, f0, h, out, f1, K, err)
@@ -68,27 +69,27 @@ def engine_run(method, rtol, stops=True, times=SAMPLES[1:]):
 def test_one_step_equals_scipys_step(method, h):
     rtol, atol = 1e-3, 1e-6
     system, s0, f0, out, f1, K, err, evals, solver = one_step(method, h, rtol, atol)
-    tab = rk.TABLEAUS[rk.METHOD_IDS[method]]
+    tab = rk.TABLEAUS[IDS[method]]
     assert evals == tab.n_stages
     assert relative(out, solver.y) < 1e-14
     assert relative(f1, solver.f) < 1e-14
     # DOP853's late stages have |a_ij| up to 44: summation order alone moves them by ~1e-14
     np.testing.assert_allclose(K[:tab.n_stages + 1], solver.K, rtol=0, atol=1e-13 * np.abs(solver.K).max())
     scale = atol + rtol * np.maximum(np.abs(s0), np.abs(out))
-    ours = rk.error_norm(rk.METHOD_IDS[method], err, s0, out, rtol, atol)
+    ours = rk.error_norm(IDS[method], err, s0, out, rtol, atol)
     theirs = solver._estimate_error_norm(solver.K, h, scale)
     assert 1e-5 < theirs < 1   # a real error estimate, far above round-off
     assert ours == pytest.approx(theirs, rel=1e-9)
-    h_next = rk.next_step(rk.METHOD_IDS[method], ours, h, False)
+    h_next = rk.next_step(IDS[method], ours, h, False)
     assert h_next == pytest.approx(solver.h_abs, rel=1e-9)
-    assert rk.initial_step(rk.METHOD_IDS[method], system.data, s0, f0, DURATION, rtol, atol, np.inf,
+    assert rk.initial_step(IDS[method], system.data, s0, f0, DURATION, rtol, atol, np.inf,
                            np.zeros(s0.size), np.zeros(s0.size)) == pytest.approx(
         integrate._ivp.common.select_initial_step(lambda t, y: system.derivative(y), 0.0, s0, DURATION,
                                                   np.inf, f0, 1, tab.error_order, rtol, atol), rel=1e-12)
 
 
 def test_step_control_grows_shrinks_and_holds_after_a_rejection():
-    for m in rk.METHOD_IDS.values():
+    for m in (rk.RK45, rk.DOP853):
         exponent = -1 / (rk.TABLEAUS[m].error_order + 1)
         assert rk.next_step(m, 0.0, 1.0, False) == rk.MAX_FACTOR
         assert rk.next_step(m, 1e-30, 1.0, False) == rk.MAX_FACTOR
@@ -103,7 +104,7 @@ def test_step_control_grows_shrinks_and_holds_after_a_rejection():
 def test_dense_output_equals_scipys_interpolant(method):
     h = 0.02
     system, s0, f0, out, f1, K, err, evals, solver = one_step(method, h, 1e-3, 1e-6)
-    m = rk.METHOD_IDS[method]
+    m = IDS[method]
     coeffs = np.zeros((rk.MAX_DENSE, s0.size))
     extra = rk.dense_prepare(m, system.data, s0, out, f0, f1, h, K, coeffs)
     assert extra == (3 if method == "dop853" else 0)
@@ -126,7 +127,7 @@ def test_dense_output_has_its_order(method, hs, from_stages):
     system, s0, f, _ = paper_system(stops=False)
     reference = integrate.solve_ivp(f, (0.0, hs[0]), s0, method="DOP853", rtol=1e-13, atol=1e-15,
                                     dense_output=True).sol
-    m = rk.METHOD_IDS[method]
+    m = IDS[method]
     n = s0.size
     out, f1, K, err = np.zeros(n), np.zeros(n), np.zeros((rk.MAX_STAGES, n)), np.zeros((2, n))
     coeffs, y = np.zeros((rk.MAX_DENSE, n)), np.zeros(n)
@@ -261,7 +262,7 @@ def small_case():
     system, s0, f, _ = paper_system(stops=False)
     values = {"compiled": jit.ENABLED}
     for method in ("rk45", "dop853"):
-        m = rk.METHOD_IDS[method]
+        m = IDS[method]
         n = s0.size
         f0 = f(0.0, s0)
         out, f1, K, err = np.zeros(n), np.zeros(n), np.zeros((rk.MAX_STAGES, n)), np.zeros((2, n))

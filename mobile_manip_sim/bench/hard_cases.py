@@ -14,6 +14,7 @@ import numpy as np
 
 from ..dynamics import Dynamics
 from ..engine.simulation import Simulation
+from ..methods import ADAPTIVE_NAMES, METHODS
 from ..scene import parse_scene
 from .runs import Clock, Run, integrator, simulate
 from .scenes import paper_document, random_robot_document, variant
@@ -263,7 +264,7 @@ def all_cases(quick: bool = False) -> list:
               ("retracted", lambda: rod_at_stroke_end("retracted")),
               ("extended", lambda: rod_at_stroke_end("extended")),
               ("twenty links", twenty_links)]
-    cases += [(f"effort steps {m}", lambda m=m: effort_steps(m)) for m in ("rk45", "dop853", "radau", "bdf")]
+    cases += [(f"effort steps {m}", lambda m=m: effort_steps(m)) for m in ADAPTIVE_NAMES]
     cases.append(("long run", lambda: long_run(1.0 if quick else 10.0)))
     return cases
 
@@ -274,7 +275,7 @@ def _step_bound(method: str, value: float, duration: float, run: Run) -> int:
     """Fixed step: the steps on the grid plus two per impact (the step split at the stop).
     Adaptive: 10 000 steps per simulated second plus 100 per impact (each impact restarts the
     solver) — a run that needs more has stalled on a stop or a stiff transient."""
-    if method in ("euler", "semi_implicit_euler", "rk4"):
+    if METHODS[method].fixed_step:
         return int(math.ceil(duration / value)) + 2 * run.impacts + 10
     return int(10000 * duration) + 100 * run.impacts
 

@@ -15,6 +15,7 @@ import numpy as np
 
 from ..dynamics import constraint_residuals
 from ..engine.simulation import Simulation, SimulationError
+from ..methods import METHODS
 from ..scene import IntegratorSettings, Scene, make_integrator
 from ..timeline import sample_times
 
@@ -75,7 +76,7 @@ def settings_label(settings: IntegratorSettings) -> str:
 
 def integrator(scene: Scene, method: str, value: float) -> IntegratorSettings:
     """`method` with dt = value (fixed step) or rtol = value, atol = value / 100 (adaptive)."""
-    if method in ("euler", "semi_implicit_euler", "rk4"):
+    if METHODS[method].fixed_step:
         return make_integrator(scene.integrator, method, dt=value)
     return make_integrator(scene.integrator, method, rtol=value, atol=value * 1e-2)
 

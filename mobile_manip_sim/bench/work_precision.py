@@ -69,8 +69,7 @@ def plot(result: WorkPrecision, path) -> None:
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(9.0, 5.0))
-    markers = {"euler": "v", "semi_implicit_euler": "^", "rk4": "s", "rk45": "o", "dop853": "D",
-               "radau": "P", "bdf": "X"}
+    markers = dict(zip(METHODS, "v^soDPX"))   # one per method, in the registry's order
     for method, points in result.by_method().items():
         good = [p for p in points if p.run.ok and math.isfinite(p.error)]
         if not good:

@@ -17,7 +17,7 @@ from numpy.polynomial import polynomial
 from ..dynamics.jit import jit
 from . import runge_kutta as rk
 
-POWER = 2   # kinds: rk.RK45 (0), rk.DOP853 (1), POWER
+POWER = -1   # kinds: rk.RK45 and rk.DOP853 (their method ids, `methods.IDS`), POWER (no method's)
 
 Interpolant = namedtuple("Interpolant", [
     "kind",    # rk.RK45, rk.DOP853 or POWER

@@ -12,11 +12,11 @@ All three advance ``s = (q, u, e, W)`` (`layout.py`) by one step of length h (s)
 """
 from ..dynamics import kernels
 from ..dynamics.jit import jit_inline
+from ..methods import IDS
 from . import layout
 from .system import derivative
 
-EULER, SEMI_IMPLICIT_EULER, RK4 = 0, 1, 2
-METHOD_IDS = {"euler": EULER, "semi_implicit_euler": SEMI_IMPLICIT_EULER, "rk4": RK4}
+EULER, SEMI_IMPLICIT_EULER, RK4 = IDS["euler"], IDS["semi_implicit_euler"], IDS["rk4"]
 
 
 @jit_inline

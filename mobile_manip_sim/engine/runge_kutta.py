@@ -38,10 +38,10 @@ from collections import namedtuple
 import numpy as np
 
 from ..dynamics.jit import jit
+from ..methods import IDS
 from .system import derivative
 
-RK45, DOP853 = 0, 1
-METHOD_IDS = {"rk45": RK45, "dop853": DOP853}
+RK45, DOP853 = IDS["rk45"], IDS["dop853"]
 
 SAFETY = 0.9        # of the asymptotically optimal step
 MIN_FACTOR = 0.2    # the most a step can shrink after a rejection

@@ -19,10 +19,10 @@ import numpy as np
 from ..dynamics import Dynamics
 from ..dynamics.jit import Bound
 from ..effects import settings as effect_settings
-from ..methods import METHODS
+from ..methods import COMPILED_STEPPERS, IDS, METHODS
 from ..errors import UserError
 from ..scene import IntegratorSettings, Scene
-from . import adaptive_stepping, dense, fixed_step, layout, stepping
+from . import adaptive_stepping, dense, layout, stepping
 from . import runge_kutta as rk
 from .events import holding_margin
 from . import step_watch
@@ -34,6 +34,10 @@ def scipy_solver(method: str):
     """SciPy's solver class for an adaptive method, imported only when one is used (~56 MB)."""
     from scipy import integrate
     return getattr(integrate, METHODS[method].stepper.split(":")[1])
+
+
+# The compiled core of each `Method.stepper` (SciPy's solvers have none: stepped from Python).
+CORES = dict(zip(COMPILED_STEPPERS, (stepping, adaptive_stepping)))
 DEFAULT_WHEEL_SPEED_GAINS = (0.5, 5.0)   # kp N·m·s/rad, ki N·m/rad (see set_wheel_speed_gains)
 SCIPY_MIN_RTOL = 100 * np.finfo(float).eps   # SciPy's own floor; passed as is, it warns on stderr
 
@@ -76,18 +80,16 @@ class Simulation:
         # about 20 ms of work, so signals, pause and reset act promptly (an adaptive step costs
         # about four fixed ones).
         budget = max(1, int(40_000 / (model.n_links + 2)))
-        method = self.settings.method
+        method = METHODS[self.settings.method]
+        self._core = CORES.get(method.stepper)
         self._solve = None
-        if self.settings.fixed_step:
-            self._core = stepping
-            self._core_args = (fixed_step.METHOD_IDS[method], self.system.data, self.stops,
-                               self._scratch)
+        if method.fixed_step:
+            self._core_args = (IDS[method.name], self.system.data, self.stops, self._scratch)
             self._step_budget = budget
-        else:
+        else:   # the first argument is also the kind of the step's interpolant (`dense`)
             self._solve = adaptive_stepping.make_solve(size, self.settings.rtol, self.settings.atol)
-            self._core = adaptive_stepping if method in rk.METHOD_IDS else None
-            self._core_args = (rk.METHOD_IDS.get(method, dense.POWER), self.system.data, self.stops,
-                               self._scratch, self._solve)
+            kind = IDS[method.name] if self._core else dense.POWER
+            self._core_args = (kind, self.system.data, self.stops, self._scratch, self._solve)
             self._step_budget = max(1, budget // 4)
         # the compiled calls of every sample, bound to this simulation's argument types
         self._advance = Bound(self._core.advance) if self._core else None

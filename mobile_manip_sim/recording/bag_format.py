@@ -22,7 +22,7 @@ from __future__ import annotations
 import functools
 import importlib
 
-from mobile_manip_sim import __version__, schema
+from mobile_manip_sim import __version__, limits, schema
 from mobile_manip_sim.errors import UserError
 from mobile_manip_sim.methods import METHODS
 from mobile_manip_sim.timeline import NS, CommandHistory, Grid, start_node_time_line
@@ -37,10 +37,11 @@ SOURCE_RATE = {"simulate": "sample_rate", "node": "publish_rate"}   # source →
 RUN_METADATA_KEYS = ("version", "integrator_method", "dt", "rtol", "atol", "scene_name", "source",
                      "sample_rate", "publish_rate", "duration", "base_command", "wheel_speed_kp",
                      "wheel_speed_ki")
-RUN_METADATA_NUMBERS = {"dt": (1e-9, 1.0), "rtol": (1e-14, 1.0), "atol": (1e-20, 1.0),
-                        "sample_rate": (1e-6, 1e6), "publish_rate": (1e-6, 1e6),
-                        "duration": (1e-9, 1e6), "wheel_speed_kp": (0.0, 1e6),
-                        "wheel_speed_ki": (0.0, 1e6)}
+RUN_METADATA_NUMBERS = {"dt": limits.DT, "rtol": limits.RTOL, "atol": limits.ATOL,
+                        "sample_rate": limits.SAMPLE_RATE, "publish_rate": limits.SAMPLE_RATE,
+                        "duration": limits.RECORDED_DURATION,
+                        "wheel_speed_kp": limits.WHEEL_SPEED_GAIN,
+                        "wheel_speed_ki": limits.WHEEL_SPEED_GAIN}
 IMPACT_FIELDS = ("time", "link", "stop", "ld_before", "ld_after", "energy_lost", "resting")
 
 

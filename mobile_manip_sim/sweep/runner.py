@@ -17,6 +17,7 @@ from distributed import WorkerPlugin
 from .. import headless
 from ..dynamics import constraint_residuals
 from ..errors import UserError
+from ..methods import METHODS
 from ..scene_overrides import scene_with
 
 DEFAULT_SAMPLE_RATE = 100.0   # Hz: simulate's default grid (the runs' numbers depend on it)
@@ -116,7 +117,8 @@ def warm_up(document: dict | None = None) -> None:
         return
     from ..scene import load_scene
     base = load_scene(None).document if document is None else document
-    for method in ("rk4", "dop853"):
+    one_per_core = {m.stepper: name for name, m in METHODS.items() if m.compiled}   # rk4, dop853
+    for method in one_per_core.values():
         try:
             run_one(base, {"integrator.method": method}, 0.02)
         except Exception:  # warming is best effort; the real runs report their own errors
