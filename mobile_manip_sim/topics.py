@@ -67,11 +67,13 @@ LIVE_TOPIC_TYPES.update({IMU_TOPIC: "sensor_msgs/msg/Imu",
 BAG_TOPIC_TYPES = {**TOPIC_TYPES, CMD_VEL_TOPIC: CMD_VEL_TYPE}
 
 
-def recorded_topics(base_command: str = "effort") -> dict:
-    """Topic → type of the bag of a run whose base takes ``base_command`` (effort|velocity)."""
+def recorded_topics(base_command: str = "effort", view: bool = True) -> dict:
+    """Topic → type of the bag of a run whose base takes ``base_command`` (effort|velocity),
+    with the view topics unless ``view`` is false."""
     base = BASE_COMMAND_TOPICS[base_command]
     return {topic: kind for topic, kind in BAG_TOPIC_TYPES.items()
-            if topic not in BASE_COMMAND_TOPICS.values() or topic == base}
+            if (topic not in BASE_COMMAND_TOPICS.values() or topic == base)
+            and (view or topic not in VIEW_TOPICS)}
 STATE_QOS_DEPTH = 100      # the node's state publishers: room for slow subscribers
 COMMAND_QOS_DEPTH = 10     # rclpy's default publisher depth, what command senders use
 
