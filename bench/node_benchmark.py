@@ -20,11 +20,9 @@ from __future__ import annotations
 import argparse
 import os
 import platform
-import random
-import shutil
 import signal
-import subprocess
 import sys
+import tempfile
 import threading
 import time
 from pathlib import Path
@@ -32,7 +30,6 @@ from pathlib import Path
 import numpy as np
 import rclpy
 from rclpy.context import Context
-from rclpy.executors import SingleThreadedExecutor
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Float64MultiArray
@@ -40,23 +37,12 @@ from std_msgs.msg import Float64MultiArray
 from mobile_manip_sim.scene import load_scene
 
 HERE = Path(__file__).resolve().parent
-DOMAIN_ID = 100 + random.randrange(100)
+sys.path.insert(0, str(HERE.parent / "test"))   # the tests' ROS harness, shared
+import ros_harness  # noqa: E402
+
+DOMAIN_ID = ros_harness.private_domain(100, 199)
 RK4_1KHZ = ["-p", "integrator.method:=rk4", "-p", "integrator.dt:=0.001"]
 WARM_UP = 3.0          # s of wall time before measuring (start-up, first impacts)
-TICKS = os.sysconf("SC_CLK_TCK")
-
-
-def simulator_executable() -> str:
-    beside = Path(sys.executable).with_name("simulator")
-    found = str(beside) if beside.exists() else shutil.which("simulator")
-    if not found:
-        sys.exit("node_benchmark: the simulator executable is not installed (pip install -e .)")
-    return found
-
-
-def cpu_seconds(pid: int) -> float:
-    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / TICKS   # utime, stime (fields 14, 15)
 
 
 def memory_mb(pid: int) -> dict:
@@ -75,8 +61,10 @@ class Listener:
         self.ticks: list[tuple[int, float]] = []   # (stamp ns, receive time s)
         qos = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
         self.node.create_subscription(Clock, "/clock", self._on_clock, qos)
-        self.wheels = self.node.create_publisher(Float64MultiArray, "/wheel_effort_controller/commands", 10)
-        self.arm = self.node.create_publisher(Float64MultiArray, "/arm_effort_controller/commands", 10)
+        self.wheels = self.node.create_publisher(Float64MultiArray,
+                                                 "/wheel_effort_controller/commands", 10)
+        self.arm = self.node.create_publisher(Float64MultiArray,
+                                              "/arm_effort_controller/commands", 10)
 
     def _on_clock(self, msg):
         now = time.monotonic()
@@ -92,58 +80,36 @@ class Listener:
             return self.ticks[index:]
 
 
-def wait_for(predicate, what: str, timeout: float = 120.0) -> None:
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        if predicate():
-            return
-        time.sleep(0.01)
-    sys.exit(f"node_benchmark: timed out waiting for {what}")
-
-
-def warm_kernels() -> None:
-    """Compile (or load from numba's cache) the kernels both integrators use, end stops
-    included, so that no node compiles them while it is being measured."""
-    from mobile_manip_sim.engine.simulation import Simulation
-    from mobile_manip_sim.scene import make_integrator
-    scene = load_scene(None)
-    for settings in (make_integrator(scene.integrator, "rk4", 0.001), scene.integrator):
-        sim = Simulation(scene, settings)
-        sim.advance_to(1.5)
-
-
 def run_phase(listener: Listener, env: dict, args: list[str], duration: float) -> dict:
     """Start the node with `args`, drive it with the scene's efforts, measure for `duration` s."""
     scene = load_scene(None)
-    process = subprocess.Popen([simulator_executable(), "--ros-args", *args,
-                                "-p", "command_timeout:=0.0"], env=env,
-                               stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    log_dir = tempfile.mkdtemp(prefix="node_benchmark_")
+    node = ros_harness.NodeProcess(log_dir, *args, "-p", "command_timeout:=0.0", env=env)
+    code = None
     try:
         start = listener.count()
-        wait_for(lambda: process.poll() is not None or (
+        ros_harness.wait_for(lambda: not node.running() or (
             listener.count() > start and listener.wheels.get_subscription_count() > 0
-            and listener.arm.get_subscription_count() > 0), "the node")
-        if process.poll() is not None:
-            sys.exit(f"node_benchmark: the node exited: {process.stderr.read()}")
+            and listener.arm.get_subscription_count() > 0), "the node", 120.0)
+        if not node.running():
+            sys.exit(f"node_benchmark: the node exited: {node.output()}")
         listener.wheels.publish(Float64MultiArray(data=scene.wheel_efforts.tolist()))
         listener.arm.publish(Float64MultiArray(data=scene.joint_efforts.tolist()))
         time.sleep(WARM_UP)
         first = listener.count()
-        cpu0, wall0 = cpu_seconds(process.pid), time.monotonic()
+        cpu0, wall0 = ros_harness.cpu_seconds(node.pid), time.monotonic()
         peak_rss = 0.0
         while time.monotonic() < wall0 + duration:
             time.sleep(0.5)
-            peak_rss = max(peak_rss, memory_mb(process.pid)["VmRSS"])
-        cpu1, wall1 = cpu_seconds(process.pid), time.monotonic()
-        memory = memory_mb(process.pid)
+            peak_rss = max(peak_rss, memory_mb(node.pid)["VmRSS"])
+        cpu1, wall1 = ros_harness.cpu_seconds(node.pid), time.monotonic()
+        memory = memory_mb(node.pid)
         ticks = listener.since(first)
+    except ros_harness.TimedOut as error:
+        sys.exit(f"node_benchmark: {error}")
     finally:
-        if process.poll() is None:
-            process.send_signal(signal.SIGTERM)
-        try:
-            code = process.wait(timeout=30)
-        except subprocess.TimeoutExpired:
-            process.kill()
+        code = node.stop(signal.SIGTERM)
+        if code is None:
             code = "killed after SIGTERM timeout"
     if len(ticks) < 2:
         sys.exit(f"node_benchmark: only {len(ticks)} /clock messages in {wall1 - wall0:.0f} s")
@@ -184,25 +150,17 @@ def main(argv=None) -> int:
     parser.add_argument("--out", default=str(HERE / "NODE.md"), help="markdown file to write")
     args = parser.parse_args(argv)
 
-    env = dict(os.environ, ROS_DOMAIN_ID=str(DOMAIN_ID), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
-    os.environ.update(ROS_DOMAIN_ID=str(DOMAIN_ID), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
-    warm_kernels()
+    env = ros_harness.child_env(DOMAIN_ID)
+    # Both integrators' kernels compiled (or loaded) here, so that no node compiles one while
+    # it is being measured.
+    ros_harness.warm_kernels(("rk4", 0.001), (None, None))
     where = machine()
-    context = Context()
-    rclpy.init(context=context, domain_id=DOMAIN_ID)
-    listener = Listener(context)
-    executor = SingleThreadedExecutor(context=context)
-    executor.add_node(listener.node)
-    thread = threading.Thread(target=executor.spin, daemon=True)
-    thread.start()
-    try:
-        paced = run_phase(listener, env, [*RK4_1KHZ, "-p", "real_time_factor:=1.0"], args.duration)
-        free = run_phase(listener, env, [*RK4_1KHZ, "-p", "real_time_factor:=0.0"], args.free_duration)
+    with ros_harness.on_domain(DOMAIN_ID), ros_harness.spinning(Listener, DOMAIN_ID) as listener:
+        paced = run_phase(listener, env, [*RK4_1KHZ, "-p", "real_time_factor:=1.0"],
+                          args.duration)
+        free = run_phase(listener, env, [*RK4_1KHZ, "-p", "real_time_factor:=0.0"],
+                         args.free_duration)
         default = run_phase(listener, env, ["-p", "real_time_factor:=0.0"], args.free_duration)
-    finally:
-        executor.shutdown()
-        listener.node.destroy_node()
-        rclpy.shutdown(context=context)
 
     rows = [
         ("CPU at real_time_factor 1 (rk4, dt = 1 ms, 100 Hz publishing)",

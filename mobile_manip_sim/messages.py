@@ -1,7 +1,7 @@
 """The one place where simulator state becomes ROS messages (the node publishes them, the
 recorder stores them, replay rebuilds them to compare): equal states give equal messages.
 
-Topics, types and QoS: topics.py (meaning: node.py).
+Topics, types and QoS: topics.py (meaning: the README's node section).
 
 Stamps are integer nanoseconds of simulated time. ``state`` is anything with the engine's state
 interface (``q``, ``u``, ``qdot()``, ``wheel_efforts``, ``joint_efforts``): a ``Simulation``.
@@ -26,7 +26,9 @@ from .topics import (ARM_TOPIC, CLOCK_TOPIC, CMD_VEL_TOPIC, COMMAND_QOS_DEPTH,  
                      COMMAND_TOPICS, JOINT_STATES_TOPIC, ODOM_TOPIC, STATE_QOS_DEPTH,
                      STATE_TOPICS, TOPIC_TYPES, WHEEL_TOPIC)
 
-# Ground truth: every one of the six pose/twist dimensions is known (see node.py).
+# Ground truth from the model: a planar model knows z, roll and pitch exactly (all zero), so all
+# six pose and twist dimensions are known. A small positive diagonal rather than 0 keeps the
+# matrices invertible for filters (robot_localization rejects all-zero covariances).
 GROUND_TRUTH_VARIANCE = 1e-9
 GROUND_TRUTH_COVARIANCE = [GROUND_TRUTH_VARIANCE if i % 7 == 0 else 0.0 for i in range(36)]
 

@@ -1,5 +1,5 @@
 """One safe YAML loader and the small validators every input uses (scene files, sweep specs, the
-node's parameters file, bag metadata). Every mistake is a `UserError` naming its key path, in one
+node's parameters file, bag metadata: ``recording/bag_format.py``, ``recording/rosbag2_metadata.py``). Every mistake is a `UserError` naming its key path, in one
 line, with the offending value shortened.
 
 `load_yaml(source, what=...)` reads a `Path` (a regular file of at most MAX_FILE_BYTES; FIFOs,
@@ -26,7 +26,6 @@ from pathlib import Path
 import yaml
 
 from .errors import UserError
-from .methods import METHODS
 
 MAX_FILE_BYTES = 1 << 20      # 1 MiB: a scene is a few kB
 MAX_DEPTH = 64                # nesting levels
@@ -328,149 +327,3 @@ def string_map(value, path, *, max_entries=1000, max_length=10_000) -> dict[str,
         string(key, f"{path}", max_length=200)
         string(item, f"{path}.{label(key)}", max_length=max_length)
     return value
-
-
-RUN_METADATA_KEYS = ("version", "integrator_method", "dt", "rtol", "atol", "scene_name", "source",
-                     "sample_rate", "publish_rate", "duration", "base_command", "wheel_speed_kp",
-                     "wheel_speed_ki")
-RUN_METADATA_NUMBERS = {"dt": (1e-9, 1.0), "rtol": (1e-14, 1.0), "atol": (1e-20, 1.0),
-                        "sample_rate": (1e-6, 1e6), "publish_rate": (1e-6, 1e6),
-                        "duration": (1e-9, 1e6), "wheel_speed_kp": (0.0, 1e6),
-                        "wheel_speed_ki": (0.0, 1e6)}
-BASE_COMMANDS = ("effort", "velocity")   # the node's base_command parameter
-
-
-RUN_METADATA_RATE = {"simulate": "sample_rate", "node": "publish_rate"}   # source → its rate
-
-
-def run_metadata(value, path: str = "mobile_manip_sim") -> dict:
-    """A bag's ``mobile_manip_sim`` metadata map (strings, as MCAP stores them) checked and with
-    its numbers parsed (repr-exact floats), for a replay or re-run to trust: the source's rate
-    is required (and a `simulate` run's duration, which fixes its sample times)."""
-    value = string_map(value, path, max_entries=len(RUN_METADATA_KEYS), max_length=200)
-    keys(value, path, required=("version", "integrator_method", "dt", "rtol", "atol", "source"),
-         optional=("scene_name", "sample_rate", "publish_rate", "duration", "base_command",
-                   "wheel_speed_kp", "wheel_speed_ki"))
-    if value["integrator_method"] not in METHODS:
-        raise UserError(f"{path}.integrator_method", f"unknown method "
-                                                     f"{short(value['integrator_method'])}")
-    parsed = dict(value)
-    for key, (lo, hi) in RUN_METADATA_NUMBERS.items():
-        if key in value:
-            try:
-                number_value = float(value[key])
-            except ValueError:
-                raise UserError(f"{path}.{key}", f"expected a number, got {short(value[key])}") from None
-            parsed[key] = number(number_value, f"{path}.{key}", lo=lo, hi=hi)
-    if value["source"] not in RUN_METADATA_RATE:
-        raise UserError(f"{path}.source", f"expected node or simulate, got {short(value['source'])}")
-    if value.setdefault("base_command", "effort") not in BASE_COMMANDS:
-        raise UserError(f"{path}.base_command", f"expected effort or velocity, got "
-                                                f"{short(value['base_command'])}")
-    parsed["base_command"] = value["base_command"]
-    needed = [RUN_METADATA_RATE[value["source"]]] + (["duration"] if value["source"] == "simulate" else [])
-    if value["base_command"] == "velocity":   # the wheel-speed loop's gains shape the run
-        needed += ["wheel_speed_kp", "wheel_speed_ki"]
-    for key in needed:
-        if key not in value:
-            raise UserError(f"{path}.{key}", f"missing (a {value['source']} run records it)")
-    return parsed
-
-
-# --- rosbag2 metadata.yaml ------------------------------------------------------------------
-# The ``rosbag2_bagfile_information`` map as rosbag2 writes it (metadata versions 1 to 9, Jazzy's).
-# Only storage_identifier and relative_file_paths are used; the rest is checked so that a damaged
-# or crafted file is refused with its key, not read on into a traceback.
-
-ROSBAG2_MAX_VERSION = 9
-MAX_BAG_FILES = 10_000     # entries of relative_file_paths and files
-MAX_BAG_TOPICS = 10_000    # entries of topics_with_message_count
-_NS = (0, 2**63 - 1)       # rosbag2 keeps times and counts in int64
-
-
-def _count(value, path):
-    integer(value, path, lo=_NS[0], hi=_NS[1])
-
-
-def _text(value, path):
-    string(value, path, max_length=MAX_FILE_BYTES)
-
-
-def _file_path(value, path):
-    """A file of the bag, named relative to its directory (older rosbag2 put the bag's own
-    directory in front: only the last part counts)."""
-    name = string(value, path, max_length=4096)
-    if "\x00" in name or Path(name).name in ("", ".", ".."):
-        raise UserError(path, f"expected the name of a file in the bag, got {short(name)}")
-
-
-def _qos_profiles(value, path):
-    """A YAML text (Jazzy) or the list it became in later rosbag2 versions."""
-    if isinstance(value, str):
-        return _text(value, path)
-    for i, profile in enumerate(sequence(value, path, max_length=100)):
-        mapping(profile, f"{path}[{i}]")
-
-
-def _custom_data(value, path):
-    if value is not None:   # rosbag2 writes an empty map as ~
-        string_map(value, path)
-
-
-def _record(fields: dict, required=()):
-    """A check of a mapping with these keys (each checked by its function), no others."""
-    def check(value, path):
-        value = mapping(value, path)
-        keys(value, path, required=required, optional=[key for key in fields if key not in required])
-        for key, item in value.items():
-            fields[key](item, f"{path}.{key}")
-    return check
-
-
-def _list_of(check, max_length: int, min_length: int = 0):
-    def checked(value, path):
-        items = sequence(value, path, max_length=max_length)
-        if len(items) < min_length:
-            raise UserError(path, f"at least {min_length} entries, got {len(items)}")
-        for i, item in enumerate(items):
-            check(item, f"{path}[{i}]")
-    return checked
-
-
-def _version(value, path):
-    integer(value, path, lo=1, hi=ROSBAG2_MAX_VERSION)
-
-
-_duration = _record({"nanoseconds": _count}, required=("nanoseconds",))
-_starting_time = _record({"nanoseconds_since_epoch": _count}, required=("nanoseconds_since_epoch",))
-_BAG_INFORMATION = _record({
-    "version": _version,
-    "storage_identifier": _text,
-    "duration": _duration,
-    "starting_time": _starting_time,
-    "message_count": _count,
-    "topics_with_message_count": _list_of(_record({
-        "topic_metadata": _record({"name": _text, "type": _text, "serialization_format": _text,
-                                   "offered_qos_profiles": _qos_profiles,
-                                   "type_description_hash": _text}, required=("name", "type")),
-        "message_count": _count}, required=("topic_metadata",)), MAX_BAG_TOPICS),
-    "compression_format": _text,
-    "compression_mode": _text,
-    "relative_file_paths": _list_of(_file_path, MAX_BAG_FILES, min_length=1),
-    "files": _list_of(_record({"path": _file_path, "starting_time": _starting_time,
-                               "duration": _duration, "message_count": _count},
-                              required=("path",)), MAX_BAG_FILES),
-    "custom_data": _custom_data,
-    "ros_distro": _text,
-}, required=("version", "storage_identifier", "relative_file_paths"))
-
-
-def bag_information(document, what: str = "metadata.yaml") -> dict:
-    """The checked ``rosbag2_bagfile_information`` map of a parsed metadata.yaml (`load_yaml`);
-    every mistake one `UserError` naming its key path, prefixed with `what` (the file)."""
-    root = "rosbag2_bagfile_information"
-    try:
-        _record({root: _BAG_INFORMATION}, required=(root,))(document, "")
-    except UserError as error:
-        raise UserError(f"{what}: {error.key}" if error.key else what, error.problem) from None
-    return document[root]

@@ -5,7 +5,7 @@
              [--view [PORT]]
 
 Columns: t, x, y, yaw, theta_R, theta_L, q1, l1, …, qn, ln, v, omega, qd1, ld1, …, qdn, ldn,
-energy (T + V, J); LF line ends. Without --scene the embedded paper scene runs. End-stop impacts,
+energy (T + V, J) (`headless.csv_columns`); LF line ends. Without --scene the embedded paper scene runs. End-stop impacts,
 if any, go to FILE.impacts.csv beside the output, only when FILE is a regular file (``--out
 /dev/null`` writes nothing else). The last line printed is the run's summary; its real-time
 factor counts the simulation only (from the first sample that advanced time on: start-up and
@@ -29,20 +29,13 @@ import time
 from pathlib import Path
 
 from . import cli, schema
-from .engine.simulation import Simulation
 from .errors import UserError
-from .scene import DURATION, Scene, check_work, load_scene, make_integrator
-from .sweep.overrides import parse_assignments, scene_with
-from .timeline import sample_times
+from .headless import csv_columns, csv_row, run, summary_line
+from .scene import DURATION, check_work, load_scene, make_integrator
+from .scene_overrides import parse_assignments, scene_with
 
 SAMPLE_RATE = (1e-6, 1e6)          # Hz, --sample-rate
 DEFAULT_VIEW_PORT = 8765           # --view without a port: Foxglove's default
-
-
-def csv_columns(n_links: int) -> list[str]:
-    arm_q = [name for i in range(1, n_links + 1) for name in (f"q{i}", f"l{i}")]
-    arm_u = [name for i in range(1, n_links + 1) for name in (f"qd{i}", f"ld{i}")]
-    return ["t", "x", "y", "yaw", "theta_R", "theta_L", *arm_q, "v", "omega", *arm_u, "energy"]
 
 
 class Progress:
@@ -66,36 +59,6 @@ class Progress:
     def close(self) -> None:
         if self.active:
             self.stream.write("\n")
-
-
-def summary_line(sim: Simulation, wall: float, simulated: float | None = None) -> str:
-    """`wall` s of wall time spent on `simulated` s of simulated time (default: all of it)."""
-    simulated = sim.t if simulated is None else simulated
-    rtf = simulated / wall if wall > 0 else float("inf")
-    return (f"simulated {sim.t:.6g} s in {wall:.4g} s wall (real-time factor {rtf:.1f}), "
-            f"{sim.steps} steps, {sim.rhs_evaluations} rhs evaluations, {len(sim.impacts)} impacts, "
-            f"energy error {sim.energy_error():.3e} J")
-
-
-def run(scene: Scene, duration: float, sample_rate: float, settings=None, on_sample=None,
-        progress: Progress | None = None) -> Simulation:
-    """Simulate `duration` s from the scene's initial state with its constant efforts, calling
-    ``on_sample(sim)`` at every sample time; returns the finished simulation. Its ``timing`` is
-    (simulated s, wall s) from the end of the first sample that advanced time on, or None."""
-    sim = Simulation(scene, settings)
-    timing_from = None
-    for t in sample_times(duration, sample_rate):
-        sim.advance_to(t)
-        if timing_from is None and sim.t > 0:
-            timing_from = (sim.t, time.perf_counter())
-        if on_sample:
-            on_sample(sim)
-        if progress:
-            progress.update(t)
-    sim.timing = None
-    if timing_from is not None and sim.t > timing_from[0]:
-        sim.timing = (sim.t - timing_from[0], time.perf_counter() - timing_from[1])
-    return sim
 
 
 def _main(argv) -> int:
@@ -146,8 +109,7 @@ def _main(argv) -> int:
         output.writerow(csv_columns(scene.robot.n_links))
 
         def on_sample(sim):
-            row = [repr(sim.t), *map(repr, sim.q.tolist()), *map(repr, sim.u.tolist()),
-                   repr(sim.total_energy())]
+            row = [repr(value) for value in csv_row(sim)]
             if view:
                 view.sample(sim)
             with cli.critical():   # a signal stops the run between samples' writes, not inside

@@ -40,8 +40,10 @@ STATE_TOPICS = (JOINT_STATES_TOPIC, ODOM_TOPIC, CLOCK_TOPIC)
 LATCHED_TOPICS = (TF_STATIC_TOPIC, DESCRIPTION_TOPIC)
 VIEW_TOPICS = (TF_TOPIC, TF_STATIC_TOPIC, DESCRIPTION_TOPIC)
 COMMAND_TOPICS = (WHEEL_TOPIC, ARM_TOPIC, CMD_VEL_TOPIC)
-# The topic that commands the base, by the node's base_command parameter.
-BASE_COMMAND_TOPICS = {"effort": WHEEL_TOPIC, "velocity": CMD_VEL_TOPIC}
+# The base's command modes (the node's base_command parameter, a bag's base_command metadata)
+# and the topic that commands the base in each.
+BASE_COMMANDS = ("effort", "velocity")
+BASE_COMMAND_TOPICS = dict(zip(BASE_COMMANDS, (WHEEL_TOPIC, CMD_VEL_TOPIC)))
 # In a bag cmd_vel is always a Twist (the applied v, ω; its log time says when it applied),
 # whichever of Twist or TwistStamped the node took.
 CMD_VEL_TYPE = "geometry_msgs/msg/Twist"

@@ -7,7 +7,7 @@ alone; on the state stamped STATES periods it pauses the simulator and exits.
 import sys
 
 import rclpy
-from ros_helpers import spin_until
+from ros_harness import spin_until
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray

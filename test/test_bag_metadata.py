@@ -15,12 +15,16 @@ import yaml
 
 from bag_rewrite import rewrite_bag
 from hostile_yaml import ALIAS_BOMB
-from mobile_manip_sim import plot, replay, schema
+from mobile_manip_sim import schema
+from mobile_manip_sim.plot import cli as plot
+from mobile_manip_sim.replay import cli as replay
+from mobile_manip_sim.replay.play import qos_profile
 from mobile_manip_sim.errors import EXIT_USER_ERROR, UserError
 from mobile_manip_sim.recording.bag_reader import open_bag
+from mobile_manip_sim.recording.rosbag2_metadata import bag_information
 from mobile_manip_sim.recording.headless import HeadlessRecorder
 from mobile_manip_sim.scene import load_scene, make_integrator
-from mobile_manip_sim.simulate import run as simulate_run
+from mobile_manip_sim.headless import run as simulate_run
 
 RATE, DURATION = 20.0, 0.2
 BOUND_S = 5.0       # wall seconds a refusal may take (the good bag re-simulates in well under 1 s)
@@ -374,7 +378,7 @@ QOS = [  # (offered_qos_profiles text, key, problem)
 @pytest.mark.parametrize("offered, key, problem", QOS)
 def test_damaged_recorded_qos_is_one_line_naming_the_topic(offered, key, problem):
     with pytest.raises(UserError) as caught:
-        replay.qos_profile(offered, "/odom")
+        qos_profile(offered, "/odom")
     message = str(caught.value)
     assert "\n" not in message and key in message and problem in message, message
 
@@ -382,14 +386,14 @@ def test_damaged_recorded_qos_is_one_line_naming_the_topic(offered, key, problem
 def test_recorded_qos_of_our_recorder_and_of_none_is_read():
     from mobile_manip_sim.recording.recorder import topic_qos
 
-    assert replay.qos_profile(topic_qos("/odom"), "/odom").depth == 100
-    assert replay.qos_profile("", "/odom").depth == 10
-    assert replay.qos_profile(None, "/odom").depth == 10
+    assert qos_profile(topic_qos("/odom"), "/odom").depth == 100
+    assert qos_profile("", "/odom").depth == 10
+    assert qos_profile(None, "/odom").depth == 10
 
 
 def test_metadata_yaml_schema_accepts_what_our_writer_writes(good_bag):
     document = schema.load_yaml(good_bag / "metadata.yaml")
-    info = schema.bag_information(copy.deepcopy(document))
+    info = bag_information(copy.deepcopy(document))
     assert info["relative_file_paths"] == [FILE] and info["version"] == 9
 
 

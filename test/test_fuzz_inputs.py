@@ -14,6 +14,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from mobile_manip_sim import schema
+from mobile_manip_sim.recording import bag_format, rosbag2_metadata
 from mobile_manip_sim.errors import UserError
 from mobile_manip_sim.scene import parse_scene, scene_from_text
 
@@ -117,18 +118,18 @@ def check_spliced_text(edit):
 
 
 metadata = st.dictionaries(
-    st.one_of(st.sampled_from(schema.RUN_METADATA_KEYS), st.text(max_size=10)),
+    st.one_of(st.sampled_from(bag_format.RUN_METADATA_KEYS), st.text(max_size=10)),
     st.one_of(st.text(max_size=30), st.sampled_from(["1e308", "nan", "-1", "1e-300", "0.001", "rk4",
                                                      "simulate", "node"]), values),
     max_size=12)
 
 
 def check_metadata(doc):
-    outcome(lambda: schema.run_metadata(doc))
+    outcome(lambda: bag_format.checked_run_metadata(doc))
 
 
 def check_metadata_yaml(text):
-    outcome(lambda: schema.run_metadata(schema.load_yaml(text, what="metadata.yaml")))
+    outcome(lambda: bag_format.checked_run_metadata(schema.load_yaml(text, what="metadata.yaml")))
 
 
 BAG_INFORMATION = {"rosbag2_bagfile_information": {   # a metadata.yaml as BagWriter writes it
@@ -146,8 +147,8 @@ BAG_INFORMATION = {"rosbag2_bagfile_information": {   # a metadata.yaml as BagWr
 
 def check_bag_information(changes):
     doc = mutated(BAG_INFORMATION, changes)
-    outcome(lambda: schema.bag_information(doc))
-    outcome(lambda: schema.bag_information(schema.load_yaml(yaml.safe_dump(doc), what="metadata.yaml")))
+    outcome(lambda: rosbag2_metadata.bag_information(doc))
+    outcome(lambda: rosbag2_metadata.bag_information(schema.load_yaml(yaml.safe_dump(doc), what="metadata.yaml")))
 
 
 def fuzz(settings, check, strategy) -> int:
@@ -184,8 +185,8 @@ def test_the_fuzzer_can_fail():
     """The checks are not vacuous: an input known to be bad is refused, and a check that
     accepted anything other than a UserError would see it."""
     assert outcome(lambda: parse_scene(mutate(PAPER, ("duration",), 1e308, False))) is not None
-    assert outcome(lambda: schema.bag_information(BAG_INFORMATION)) is None
-    assert outcome(lambda: schema.bag_information(mutate(
+    assert outcome(lambda: rosbag2_metadata.bag_information(BAG_INFORMATION)) is None
+    assert outcome(lambda: rosbag2_metadata.bag_information(mutate(
         BAG_INFORMATION, ("rosbag2_bagfile_information", "custom_data"), [1], False))) is not None
     with pytest.raises(AssertionError):
         outcome(lambda: (_ for _ in ()).throw(UserError("k", "two\nlines")))

@@ -4,7 +4,6 @@ comes back. Every wait is on a condition with a timeout; a random ROS_DOMAIN_ID 
 discovery) keeps concurrent runs apart."""
 import math
 import os
-import random
 import re
 import signal
 import subprocess
@@ -24,13 +23,15 @@ from std_srvs.srv import SetBool, Trigger
 
 from executables import executable
 from hostile_yaml import ALIAS_BOMB
-from ros_helpers import child_env as ros_child_env
-from ros_helpers import spinning
+from ros_harness import NodeProcess, on_domain, private_domain, spinning
+from ros_harness import child_env as ros_child_env
+from ros_harness import cpu_seconds as process_cpu_seconds
+from ros_harness import wait_for as harness_wait_for
 from mobile_manip_sim.engine.simulation import Simulation
 from mobile_manip_sim.messages import yaw_quaternion
 from mobile_manip_sim.scene import load_scene, make_integrator
 
-DOMAIN_ID = 100 + random.randrange(100)
+DOMAIN_ID = private_domain(100, 199)
 SIMULATOR = executable("simulator")
 RATE = 100                       # publish_rate (Hz) of the shared node
 PERIOD_NS = 10 ** 9 // RATE
@@ -51,13 +52,7 @@ def child_env() -> dict:
 def wait_for(predicate, what: str, timeout: float = TIMEOUT):
     """Poll `predicate` until it returns something other than None, False or an empty sequence
     (an index 0 counts as found); fail naming `what` after `timeout`. Returns that value."""
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        value = predicate()
-        if not (value is None or value is False or (isinstance(value, (list, tuple, str)) and not value)):
-            return value
-        time.sleep(0.005)
-    pytest.fail(f"timed out after {timeout} s waiting for {what}")
+    return harness_wait_for(predicate, what, timeout)
 
 
 class Probe:
@@ -137,55 +132,15 @@ class Probe:
         return wait_for(lambda: predicate(self.run(name)), what, timeout)
 
 
-class SimulatorProcess:
-    """The installed `simulator` executable, started the way `ros2 run` starts it."""
-
-    def __init__(self, tmp_path, *args):
-        self.log_path = tmp_path / f"simulator-{time.monotonic_ns()}.log"
-        self.log = open(self.log_path, "w")
-        self.process = subprocess.Popen([SIMULATOR, "--ros-args", *args], env=child_env(),
-                                        stdout=self.log, stderr=subprocess.STDOUT)
-
-    def output(self) -> str:
-        return self.log_path.read_text()
-
-    def stop(self) -> int:
-        """SIGTERM, as a launch system or a container runtime sends it: must end cleanly."""
-        if self.process.poll() is None:
-            self.process.send_signal(signal.SIGTERM)
-        try:
-            code = self.process.wait(timeout=15)
-        except subprocess.TimeoutExpired:
-            self.process.kill()
-            self.process.wait()
-            code = None
-        self.log.close()
-        return code
-
-
-def warm_kernels() -> None:
-    """Compile (or load) every engine kernel the nodes will use, start-up and end stops alike,
-    here where it blocks nobody: numba holds the GIL while compiling, so a node compiling a
-    kernel on its first impact would answer no service for that long."""
-    scene = load_scene(None)
-    sim = Simulation(scene, make_integrator(scene.integrator, "rk4", 0.001))
-    sim.set_efforts([0.0, 0.0], [0.0] * 4)
-    sim.advance_to(1.5)
-    assert sim.impacts
+def SimulatorProcess(tmp_path, *args) -> NodeProcess:
+    """The installed `simulator` executable on this module's domain, started as `ros2 run` does."""
+    return NodeProcess(tmp_path, *args, env=child_env())
 
 
 @pytest.fixture(scope="module")
-def probe():
-    warm_kernels()
-    saved = {key: os.environ.get(key) for key in ("ROS_DOMAIN_ID", "ROS_AUTOMATIC_DISCOVERY_RANGE")}
-    os.environ.update(ROS_DOMAIN_ID=str(DOMAIN_ID), ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
-    with spinning(Probe, DOMAIN_ID) as probe:
+def probe(warm_kernels):
+    with on_domain(DOMAIN_ID), spinning(Probe, DOMAIN_ID) as probe:
         yield probe
-    for key, value in saved.items():
-        if value is None:
-            os.environ.pop(key, None)
-        else:
-            os.environ[key] = value
 
 
 def start_simulator(probe, tmp_path, *args) -> SimulatorProcess:
@@ -697,6 +652,8 @@ def test_cmd_vel_held_for_4_s_drives_the_base_at_that_twist_and_resimulates(prob
     publisher = probe.node.create_publisher(Twist, "/cmd_vel", 10)
     try:
         wait_for(lambda: publisher.get_subscription_count() > 0, "the node's cmd_vel subscription")
+        # State 1 out means segment 0 took its command (zero speed): the twist applies later.
+        probe.wait_run("odom", lambda run: any(r[0] >= PERIOD_NS for r in run), "state 1")
         twist = Twist()
         twist.linear.x, twist.angular.z = 0.3, 0.5
         start = probe.snapshot("odom")[-1][0]
@@ -729,10 +686,8 @@ def test_cmd_vel_held_for_4_s_drives_the_base_at_that_twist_and_resimulates(prob
 
 # --- load ---------------------------------------------------------------------------------------
 
-def cpu_seconds(process: SimulatorProcess) -> float:
-    """User + system CPU time of a node process so far (s), from /proc."""
-    fields = open(f"/proc/{process.process.pid}/stat").read().rsplit(")", 1)[1].split()
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+def cpu_seconds(process: NodeProcess) -> float:
+    return process_cpu_seconds(process.pid)
 
 
 def test_a_10_khz_command_flood_keeps_real_time_and_services_answer_within_50_ms(probe,

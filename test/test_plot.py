@@ -17,14 +17,17 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
-from mobile_manip_sim import plot as plotting
+from mobile_manip_sim.plot import cli as plot_cli
+from mobile_manip_sim.plot.energy import impact_losses, work
+from mobile_manip_sim.plot.figures import HEADING_MARKS, RESIDUAL_FLOOR, plot
+from mobile_manip_sim.plot.run import load_run
 from mobile_manip_sim.engine.simulation import DEFAULT_WHEEL_SPEED_GAINS, Simulation
 from mobile_manip_sim.errors import EXIT_USER_ERROR
 from mobile_manip_sim.recording.bag_writer import BagWriter, qos_yaml
 from mobile_manip_sim.scene import load_scene, parse_scene
 from mobile_manip_sim.recording.headless import HeadlessRecorder
-from mobile_manip_sim.simulate import run as simulate_run
-from mobile_manip_sim.simulate import sample_times
+from mobile_manip_sim.headless import run as simulate_run
+from mobile_manip_sim.timeline import sample_times
 
 BIN = Path(sys.executable).parent
 SAMPLE_RATE = 100.0
@@ -176,14 +179,14 @@ def check_figures(figures, run):
     assert len(path_lines) == (3 if n else 2)     # base, tip (with an arm), start markers
     np.testing.assert_array_equal(path_lines[0].get_xdata(), run.q[:, 0])
     arrows = figures["base_path"].axes[0].collections
-    assert len(arrows) == 1 and 3 <= len(arrows[0].get_offsets()) <= plotting.HEADING_MARKS + 1
+    assert len(arrows) == 1 and 3 <= len(arrows[0].get_offsets()) <= HEADING_MARKS + 1
     assert figures["base_path"].axes[0].get_aspect() == 1.0
 
     constraints = figures["constraints"].axes[0]
     assert constraints.get_yscale() == "log" and len(constraints.get_lines()) == 2
     for line in constraints.get_lines():
         values = np.asarray(line.get_ydata())
-        assert len(values) == len(run.t) and values.min() >= plotting.RESIDUAL_FLOOR
+        assert len(values) == len(run.t) and values.min() >= RESIDUAL_FLOOR
         assert values.max() < 1e-12  # the constraints hold to round-off
 
     top, bottom = figures["energy"].axes
@@ -206,10 +209,10 @@ def check_files(out: Path):
 # --- the tests --------------------------------------------------------------------------------
 
 def test_paper_csv_gives_every_figure_with_its_curves(paper_csv, tmp_path):
-    run = plotting.load_run(paper_csv)
+    run = load_run(paper_csv)
     assert run.kind == "csv" and run.n_links == 2 and len(run.t) == 151
     assert impacted_links(run) == {1, 2}  # the paper run hits both stops (see its scene file)
-    figures = plotting.plot(paper_csv, tmp_path / "figures")
+    figures = plot(paper_csv, tmp_path / "figures")
     balance = check_figures(figures, run)
     # W rebuilt from 100 Hz samples agrees with T + V and the impact losses to a few mJ
     assert np.abs(balance).max() < 5e-3
@@ -218,15 +221,15 @@ def test_paper_csv_gives_every_figure_with_its_curves(paper_csv, tmp_path):
 
 def test_bag_gives_the_same_figures_as_the_csv_of_the_same_run(paper_bag, paper_csv, tmp_path):
     path, sim = paper_bag
-    run = plotting.load_run(path)
+    run = load_run(path)
     assert run.kind == "bag" and run.effort_source == ("/wheel_effort_controller/commands and "
                                                        "/arm_effort_controller/commands")
     assert len(run.impacts) == len(sim.impacts) == 3   # rod 2, rod 1 (throwing rod 2 off), rod 2
-    figures = plotting.plot(path, tmp_path / "figures")
+    figures = plot(path, tmp_path / "figures")
     balance = check_figures(figures, run)
     assert np.abs(balance).max() < 5e-3
     check_files(tmp_path / "figures")
-    csv_run = plotting.load_run(paper_csv)
+    csv_run = load_run(paper_csv)
     np.testing.assert_allclose(run.t, csv_run.t, rtol=0, atol=1e-9)
     np.testing.assert_allclose(run.q, csv_run.q, rtol=0, atol=1e-12)
     np.testing.assert_allclose(run.u, csv_run.u, rtol=0, atol=1e-12)
@@ -251,9 +254,9 @@ def test_a_base_only_run_draws_its_path_and_empty_arm_figures(tmp_path):
            {"wheels": [0.3, 0.1]}, "effects": {"wheel_damping": 0.01}}
     scene = parse_scene(doc, "base_only")
     write_bag(tmp_path / "bag", scene, 0.5)
-    run = plotting.load_run(tmp_path / "bag")
+    run = load_run(tmp_path / "bag")
     assert run.n_links == 0 and run.q.shape[1] == 5 and run.u.shape[1] == 2
-    figures = plotting.plot(tmp_path / "bag", tmp_path / "figures")
+    figures = plot(tmp_path / "bag", tmp_path / "figures")
     balance = check_figures(figures, run)
     assert np.abs(balance).max() < 1e-4     # smooth run, damped: W includes the damping
     assert abs(run.q[-1, 2]) > 0.1          # it turned
@@ -281,7 +284,7 @@ def test_bag_efforts_fall_back_to_the_controller_commands(tmp_path):
         bag.write("/wheel_effort_controller/commands",
                   serialize_message(Float64MultiArray(data=[1.0, -1.0])), 15_000_000)
         bag.add_attachment("scene.yaml", "application/yaml", scene.to_yaml().encode())
-    run = plotting.load_run(path)
+    run = load_run(path)
     assert run.effort_source == "/wheel_effort_controller/commands"
     np.testing.assert_array_equal(run.efforts[:, :2], [[0.1, 0.2], [0.1, 0.2], [1.0, -1.0]])
     np.testing.assert_array_equal(run.efforts[:, 2:], np.tile(scene.joint_efforts, (3, 1)))
@@ -319,7 +322,7 @@ def bad_inputs(tmp_path: Path, paper_csv: Path) -> dict:
 
 def test_bad_input_is_one_line_and_status_2(paper_csv, tmp_path, capsys):
     for case, (argv, message) in bad_inputs(tmp_path, paper_csv).items():
-        status = plotting.main([*argv, "--out", str(tmp_path / "out")])
+        status = plot_cli.main([*argv, "--out", str(tmp_path / "out")])
         err = capsys.readouterr().err
         assert status == EXIT_USER_ERROR, case
         assert err.count("\n") == 1 and message in err, (case, err)
@@ -420,14 +423,14 @@ def test_a_node_bag_balances_energy_when_a_command_times_out(tmp_path):
     path = tmp_path / "node_bag"
     record_node_bag(path, scene, {10_000_000: ([1.0, 1.0], [4.8, 5.9, 0.0, 1.0])},
                     timeout_ns=700_000_000, duration=1.2)
-    run = plotting.load_run(path)
+    run = load_run(path)
     assert "/arm_effort_controller/commands" in run.effort_source
-    balance = run.energy - run.energy[0] - plotting.work(run) + plotting.impact_losses(run)
+    balance = run.energy - run.energy[0] - work(run) + impact_losses(run)
     assert np.abs(balance).max() < 5e-3
     # The published efforts, held one sample late, are what made the phantom step.
     late = run.efforts.copy()
     run.efforts = np.vstack([late[:1] * 0, late[:-1]])
-    shifted = run.energy - run.energy[0] - plotting.work(run) + plotting.impact_losses(run)
+    shifted = run.energy - run.energy[0] - work(run) + impact_losses(run)
     assert np.abs(np.diff(shifted)).max() > 0.5   # a step of 0.75 J at the timeout
     result = subprocess.run([str(BIN / "replay"), str(path), "--resimulate"],
                             capture_output=True, text=True, timeout=120)
@@ -443,10 +446,10 @@ def test_a_velocity_mode_bag_balances_energy_with_the_loops_torques(tmp_path):
     path = tmp_path / "velocity_bag"
     record_node_bag(path, scene, {10_000_000: ([0.3, 0.5], [4.8, 5.9, 0.0, 1.0])},
                     timeout_ns=700_000_000, duration=1.2, gains=DEFAULT_WHEEL_SPEED_GAINS)
-    run = plotting.load_run(path)
+    run = load_run(path)
     assert run.effort_source == ("/joint_states wheel torques and "
                                  "/arm_effort_controller/commands")
-    balance = run.energy - run.energy[0] - plotting.work(run) + plotting.impact_losses(run)
+    balance = run.energy - run.energy[0] - work(run) + impact_losses(run)
     assert np.abs(balance).max() < 5e-2
     result = subprocess.run([str(BIN / "replay"), str(path), "--resimulate"],
                             capture_output=True, text=True, timeout=120)

@@ -30,9 +30,9 @@ from std_srvs.srv import Trigger
 
 from bag_rewrite import rewrite_bag
 from executables import executable
-from ros_helpers import child_env as ros_child_env
-from ros_helpers import spinning
-import waiting
+from ros_harness import NodeProcess, private_domain, spinning
+from ros_harness import child_env as ros_child_env
+from ros_harness import wait_for as harness_wait_for
 from mobile_manip_sim import __version__
 from mobile_manip_sim.engine.simulation import Simulation
 from mobile_manip_sim.messages import float64_array
@@ -42,9 +42,9 @@ from mobile_manip_sim.recording.bag_writer import DEFAULT_CHUNK_SIZE
 from mobile_manip_sim.recording.cdr import exact_cdr
 from mobile_manip_sim.recording.headless import HeadlessRecorder
 from mobile_manip_sim.scene import load_scene, make_integrator
-from mobile_manip_sim.simulate import run as simulate_run
+from mobile_manip_sim.headless import run as simulate_run
 
-DOMAIN_ID = 1 + random.randrange(99)   # test_node.py uses 100-199
+DOMAIN_ID = private_domain(1, 99)   # test_node.py uses 100-199
 EXECUTABLES = {name: executable(name) for name in ("simulator", "simulate", "replay")}
 FAST = ["-p", "real_time_factor:=5.0", "-p", "integrator.method:=rk4", "-p", "integrator.dt:=0.001"]
 PERIOD_NS = 10 ** 7                    # the node's default 100 Hz
@@ -64,7 +64,7 @@ def child_env() -> dict:
 
 
 def wait_for(predicate, what: str, timeout: float = TIMEOUT):
-    return waiting.wait_for(predicate, what, timeout)
+    return harness_wait_for(predicate, what, timeout)
 
 
 def ns(stamp) -> int:
@@ -158,41 +158,21 @@ class Probe:
 
 
 @pytest.fixture(scope="module")
-def probe():
-    # Compile (or load) every engine kernel here, where it blocks nobody (see test_node.py).
-    scene = load_scene(None)
-    sim = Simulation(scene, make_integrator(scene.integrator, "rk4", 0.001))
-    sim.advance_to(1.0)
+def probe(warm_kernels):
     with spinning(Probe, DOMAIN_ID) as probe:
         yield probe
 
 
-class Simulator:
-    """The installed `simulator`, recording; its log in a file."""
+class Simulator(NodeProcess):
+    """The installed `simulator`, recording; its log in a file; stopped by SIGINT unless told."""
 
     def __init__(self, tmp_path, *args, preexec_fn=None):
-        self.log_path = tmp_path / f"simulator-{time.monotonic_ns()}.log"
-        self.log = open(self.log_path, "w")
         env = child_env()
         env["ROS_LOG_DIR"] = str(tmp_path / "ros_log")
-        self.process = subprocess.Popen([EXECUTABLES["simulator"], "--ros-args", *args], env=env,
-                                        stdout=self.log, stderr=subprocess.STDOUT,
-                                        preexec_fn=preexec_fn)
-
-    def output(self) -> str:
-        return self.log_path.read_text()
+        super().__init__(tmp_path, *args, env=env, preexec_fn=preexec_fn)
 
     def stop(self, sig=signal.SIGINT) -> int:
-        if self.process.poll() is None:
-            self.process.send_signal(sig)
-        try:
-            return self.process.wait(timeout=15)
-        except subprocess.TimeoutExpired:
-            self.process.kill()
-            self.process.wait()
-            return None
-        finally:
-            self.log.close()
+        return super().stop(sig)
 
 
 def start_simulator(probe, tmp_path, *args, **options) -> Simulator:
@@ -200,7 +180,7 @@ def start_simulator(probe, tmp_path, *args, **options) -> Simulator:
     simulator = Simulator(tmp_path, *args, **options)
     try:
         wait_for(lambda: simulator.process.poll() is not None or (
-            probe.wheels.get_subscription_count() and probe.arm.get_subscription_count()
+            probe.wheels.get_subscription_count() > 0 and probe.arm.get_subscription_count() > 0
             and probe.messages("/joint_states")), "the simulator's first messages", STARTUP_TIMEOUT)
         assert simulator.process.poll() is None, simulator.output()
     except BaseException:
@@ -222,6 +202,9 @@ def node_run(probe, tmp_path_factory):
     bag = tmp_path / "run"
     simulator = start_simulator(probe, tmp_path, *FAST, "-p", f"record:={bag}")
     try:
+        # State 1 out means segment 0 took its commands (zeros): the first sent applies later.
+        wait_for(lambda: any(ns(m.header.stamp) >= PERIOD_NS
+                             for m in probe.messages("/joint_states")), "state 1")
         for wheels, arm in SENT:
             probe.wheels.publish(Float64MultiArray(data=wheels))
             probe.arm.publish(Float64MultiArray(data=arm))

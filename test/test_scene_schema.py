@@ -14,6 +14,7 @@ import yaml
 from hostile_yaml import ALIAS_BOMB
 from mobile_manip_sim import schema
 from mobile_manip_sim.errors import UserError
+from mobile_manip_sim.recording.bag_format import checked_run_metadata
 from mobile_manip_sim.scene import parse_scene, scene_from_text
 
 try:
@@ -274,9 +275,9 @@ def test_run_metadata_is_checked_and_parsed():
     good = {"version": "0.1.0", "integrator_method": "rk4", "dt": "0.001", "rtol": "1e-09",
             "atol": "1e-12", "scene_name": "x", "source": "simulate", "sample_rate": "20.0",
             "duration": "2.0"}
-    assert schema.run_metadata(good)["dt"] == 0.001
+    assert checked_run_metadata(good)["dt"] == 0.001
     for key, value in (("dt", "1e308"), ("dt", "nan"), ("sample_rate", "1e999"), ("rtol", "x"),
                        ("source", "elsewhere"), ("colour", "red")):
         with pytest.raises(UserError) as caught:
-            schema.run_metadata({**good, key: value})
+            checked_run_metadata({**good, key: value})
         assert_one_line(caught.value, f"mobile_manip_sim.{key}")

@@ -17,7 +17,7 @@ from waiting import wait_for
 
 from mobile_manip_sim.errors import EXIT_USER_ERROR, UserError
 from mobile_manip_sim.scene import load_scene
-from mobile_manip_sim.sweep.overrides import parse_assignments
+from mobile_manip_sim.scene_overrides import parse_assignments
 from mobile_manip_sim.sweep.runner import run_one
 
 from executables import executable

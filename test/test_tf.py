@@ -12,7 +12,7 @@ import pytest
 
 import tf2_msgs_build
 from executables import executable
-from ros_helpers import child_env
+from ros_harness import child_env
 
 SIMULATOR = executable("simulator")
 LISTENER = os.path.join(os.path.dirname(__file__), "tf_listener.py")

@@ -2,7 +2,7 @@
 import sys
 
 import rclpy
-from ros_helpers import spin_until
+from ros_harness import spin_until
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from tf2_msgs.msg import TFMessage
 

@@ -8,36 +8,9 @@ import platform
 from pathlib import Path
 
 from .scaling import LINKS, growth_order
+from .tables import sci, seconds, table, verdict
 from .versus import ACCURACY, SEED_SECONDS
 from .work_precision import TARGETS
-
-
-def seconds(value: float) -> str:
-    if value is None or not math.isfinite(value):
-        return "—"
-    if value < 1e-6:
-        return f"{value * 1e9:.0f} ns"
-    if value < 1e-3:
-        return f"{value * 1e6:.2f} µs"
-    if value < 1.0:
-        return f"{value * 1e3:.2f} ms"
-    return f"{value:.2f} s"
-
-
-def sci(value: float) -> str:
-    if value is None or not math.isfinite(value):
-        return "—"
-    return f"{value:.1e}"
-
-
-def table(header, rows) -> str:
-    lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
-    lines += ["| " + " | ".join(str(cell).replace("|", "\\|") for cell in row) + " |" for row in rows]
-    return "\n".join(lines)
-
-
-def verdict(ok: bool, how: str) -> str:
-    return f"**PASS** ({how})" if ok else f"**MISS** ({how})"
 
 
 def _machine() -> str:

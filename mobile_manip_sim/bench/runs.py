@@ -16,7 +16,7 @@ import numpy as np
 from ..dynamics import constraint_residuals
 from ..engine.simulation import Simulation, SimulationError
 from ..scene import IntegratorSettings, Scene, make_integrator
-from ..simulate import sample_times
+from ..timeline import sample_times
 
 
 class Clock:

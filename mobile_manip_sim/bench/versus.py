@@ -16,7 +16,7 @@ from scipy.integrate import solve_ivp
 from ..dynamics import Dynamics
 from ..engine.simulation import Simulation
 from ..scene import load_scene, make_integrator
-from ..simulate import sample_times
+from ..timeline import sample_times
 from . import loops, peers
 from .runs import simulate
 from .scenes import without_stroke_limits

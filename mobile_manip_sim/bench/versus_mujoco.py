@@ -21,11 +21,12 @@ import numpy as np
 
 from ..engine.simulation import Simulation
 from ..scene import load_scene, make_integrator, parse_scene
-from ..simulate import sample_times
+from ..timeline import sample_times
 from . import mujoco_peer
 from .runs import integrator, simulate
 from .scaling import growth_order
 from .scenes import random_arm_scene, random_robot_document
+from .tables import sci, seconds, table, verdict
 
 ARM_LINKS = (8, 16, 32, 64)
 LONG_RUN = 6.0   # s of the paper scene: past ~0.8 s both rods rest at their stops
@@ -224,19 +225,16 @@ def measure(progress, quick: bool = False) -> dict:
 
 def _verdict(misses) -> str:
     """PASS, or MISS with the factor by which each missed part is missed."""
-    from .report import verdict
     missed = [f"{what} short by {factor:.2f}×" for what, factor in misses if factor > 1.0]
     return verdict(not missed, "; ".join(missed) if missed else "all parts met")
 
 
 def _target_table(rows) -> str:
-    from .report import table
     return table(("target", "measured in this run", "verdict"), rows)
 
 
 def section(result, number: int = 7) -> str:
     """The report's MuJoCo section: one table per issue-10 target, then every timing."""
-    from .report import seconds, table
     rk4, euler = result["paper"]
     long, arms, order = result["long"], result["arms"], result["order"]
     parts = [f"## {number}. Against MuJoCo: fixed-step stepping", "",
@@ -299,7 +297,6 @@ def section(result, number: int = 7) -> str:
 
 
 def _work_precision_section(wp, number: int) -> list:
-    from .report import sci, seconds, table
     from .work_precision import TARGETS
     parts = [f"### {number}.4 Work–precision beside MuJoCo: {wp['scene']} (base fixed)", "",
              "With the base welded in place nothing is constrained, so MuJoCo steps exactly our system "

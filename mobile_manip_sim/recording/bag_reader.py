@@ -34,6 +34,7 @@ from mcap.writer import MCAP0_MAGIC as MCAP_MAGIC
 
 from mobile_manip_sim import schema
 from mobile_manip_sim.errors import UserError
+from mobile_manip_sim.recording.rosbag2_metadata import bag_information
 
 # What the mcap library raises on damaged input (lz4 raises RuntimeError, CRC mismatch is a
 # ValueError, a short read an EndOfFile or struct.error, a huge garbage length OverflowError).
@@ -185,9 +186,10 @@ def _mcap_files(path: Path) -> list[Path]:
 
 def _bag_information(metadata_path: Path) -> dict:
     """The ``rosbag2_bagfile_information`` map of a metadata.yaml, read with the schema's
-    limits (a regular file, size, nesting, aliases, duplicate keys) and checked key by key."""
+    limits (a regular file, size, nesting, aliases, duplicate keys) and checked key by key
+    (`rosbag2_metadata`)."""
     what = str(metadata_path)
-    return schema.bag_information(schema.load_yaml(metadata_path, what=what), what)
+    return bag_information(schema.load_yaml(metadata_path, what=what), what)
 
 
 def _check_header(path: Path, stream) -> None:

@@ -13,12 +13,12 @@ CDR reader — and equal messages always give equal bytes.
 """
 from __future__ import annotations
 
-import functools
-import importlib
 import struct
 
 from rclpy.serialization import serialize_message
 from rosidl_parser import definition
+
+from mobile_manip_sim.recording.bag_format import message_class
 
 ENCAPSULATION_HEADER = 4
 _MAX_ALIGNMENT = 8  # XCDR1
@@ -102,7 +102,7 @@ class _Walker:
             self.position += size
             self.check()
         elif isinstance(slot_type, definition.NamespacedType):
-            self.structure(_message_class(tuple(slot_type.namespaces), slot_type.name))
+            self.structure(message_class("/".join((*slot_type.namespaces, slot_type.name))))
         elif isinstance(slot_type, definition.Array):
             self.elements(slot_type.value_type, slot_type.size)
         elif isinstance(slot_type, definition.AbstractSequence):
@@ -135,11 +135,6 @@ class _Walker:
 
 def _slot_types(message_type) -> tuple:
     return tuple(getattr(message_type, "SLOT_TYPES", ()))
-
-
-@functools.lru_cache(maxsize=None)
-def _message_class(namespaces: tuple, name: str):
-    return getattr(importlib.import_module(".".join(namespaces)), name)
 
 
 TF_MESSAGE_TYPE = "tf2_msgs/msg/TFMessage"

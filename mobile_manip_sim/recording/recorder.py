@@ -11,10 +11,9 @@ time from which the engine held it. Commands are written as applied (after the c
 and the effort limits), at t = 0 and then only when they change, so the bag determines the
 whole command sequence (zero-order hold between records, `timeline.CommandHistory`).
 
-Self-describing: attachment ``scene.yaml`` (the full scene, defaults applied), written first;
-MCAP metadata ``mobile_manip_sim`` (package version, integrator settings, rates, scene name,
-source; floats as ``repr``, exact); attachment ``impacts.json`` (the end-stop impacts up to the
-last recorded state), written at close.
+Self-describing (``bag_format``): attachment ``scene.yaml``, written first; MCAP metadata
+``mobile_manip_sim`` (`bag_format.run_metadata`); attachment ``impacts.json`` (the end-stop
+impacts up to the last recorded state), written at close.
 
 Payloads are the exact CDR of rclpy's serialisation (``cdr.exact_cdr``): equal runs give equal
 bags, byte for byte. Errors are ``UserError`` from the ``BagWriter``; after one the recorder is
@@ -28,19 +27,15 @@ import time
 
 import numpy as np
 
-from mobile_manip_sim import __version__
 from mobile_manip_sim.errors import UserError
 from mobile_manip_sim.messages import command_message
 from mobile_manip_sim.topics import (ARM_TOPIC, BASE_COMMAND_TOPICS, COMMAND_QOS_DEPTH,
                                      COMMAND_TOPICS, LATCHED_TOPICS, STATE_QOS_DEPTH,
                                      STATE_TOPICS, TF_TOPIC, recorded_topics)
+from mobile_manip_sim.recording.bag_format import (IMPACTS_ATTACHMENT, METADATA_NAME,
+                                                   SCENE_ATTACHMENT, run_metadata)
 from mobile_manip_sim.recording.bag_writer import DEFAULT_CHUNK_SIZE, BagWriter, qos_yaml
 from mobile_manip_sim.recording.cdr import exact_cdr
-
-METADATA_NAME = "mobile_manip_sim"
-SCENE_ATTACHMENT = "scene.yaml"
-IMPACTS_ATTACHMENT = "impacts.json"
-SOURCES = ("node", "simulate")
 
 
 # The order in which one publication's messages are written (the latched ones come first).
@@ -53,17 +48,6 @@ def topic_qos(topic: str) -> str:
         return qos_yaml("reliable", "transient_local", 1)
     return qos_yaml("reliable", "volatile",
                     COMMAND_QOS_DEPTH if topic in COMMAND_TOPICS else STATE_QOS_DEPTH)
-
-
-def run_metadata(scene, settings, extra: dict) -> dict:
-    """The ``mobile_manip_sim`` metadata map: everything besides the scene that a re-run needs."""
-    metadata = {"version": __version__, "integrator_method": settings.method,
-                "dt": repr(float(settings.dt)), "rtol": repr(float(settings.rtol)),
-                "atol": repr(float(settings.atol)), "scene_name": scene.name}
-    metadata.update({key: str(value) for key, value in extra.items()})
-    if metadata.get("source") not in SOURCES:
-        raise UserError("source", f"{metadata.get('source')!r} is not one of {SOURCES}")
-    return metadata
 
 
 class RunRecorder:

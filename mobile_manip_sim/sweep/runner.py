@@ -1,6 +1,6 @@
 """One run of a sweep, as `simulate` runs it, and the Dask task that runs a chunk of them.
 
-A run is `simulate.run(scene, duration, sample_rate)` on the scene document with the run's
+A run is `headless.run(scene, duration, sample_rate)` on the scene document with the run's
 overrides, parsed by the scene parser: the final state is bit for bit what
 ``simulate --set PATH=VALUE …`` prints in its last CSV row. Any failure (a bad value, a
 non-finite state, the time limit) becomes the row's ``error``; the sweep goes on.
@@ -14,10 +14,10 @@ from pathlib import Path
 import numpy as np
 from distributed import WorkerPlugin
 
-from .. import simulate
+from .. import headless
 from ..dynamics import constraint_residuals
 from ..errors import UserError
-from .overrides import scene_with
+from ..scene_overrides import scene_with
 
 DEFAULT_SAMPLE_RATE = 100.0   # Hz: simulate's default grid (the runs' numbers depend on it)
 
@@ -27,7 +27,7 @@ class TimeLimit(Exception):
 
 
 def state_columns(n_links: int) -> list[str]:
-    return simulate.csv_columns(n_links)
+    return headless.csv_columns(n_links)
 
 
 def run_one(document: dict, overrides: dict, duration: float, sample_rate: float | None = None,
@@ -42,7 +42,7 @@ def run_one(document: dict, overrides: dict, duration: float, sample_rate: float
     def on_sample(sim):
         samples.append(sim.s.copy())
         if csv_path:
-            csv_rows.append([sim.t, *sim.q.tolist(), *sim.u.tolist(), sim.total_energy()])
+            csv_rows.append(headless.csv_row(sim))
         if time_limit is not None and time.perf_counter() - start_wall > time_limit:
             raise TimeLimit(f"time_limit: stopped after {time_limit:g} s wall at t = {sim.t:.6g} s")
 
@@ -50,7 +50,7 @@ def run_one(document: dict, overrides: dict, duration: float, sample_rate: float
         scene = scene_with(document, overrides)
         if scene.robot.n_links != n_links:
             raise UserError("robot.arm.links", "a sweep cannot change the number of links")
-        sim = simulate.run(scene, duration, rate, None, on_sample)
+        sim = headless.run(scene, duration, rate, None, on_sample)
     except (UserError, TimeLimit) as error:
         row["error"] = str(error)
     except RuntimeError as error:   # SimulationError: the state went non-finite
@@ -68,8 +68,7 @@ def run_one(document: dict, overrides: dict, duration: float, sample_rate: float
 
 def _figures(sim, scene, samples: np.ndarray) -> dict:
     names = state_columns(scene.robot.n_links)
-    final = [sim.t, *sim.q.tolist(), *sim.u.tolist(), sim.total_energy()]
-    figures = dict(zip(names, map(float, final)))
+    figures = dict(zip(names, map(float, headless.csv_row(sim))))
     nq, nu = sim.nq, sim.nu
     residual = 0.0
     for s in samples:

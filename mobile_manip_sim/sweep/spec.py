@@ -24,7 +24,7 @@ import numpy as np
 from .. import schema
 from ..errors import UserError
 from ..scene import load_scene
-from .overrides import check_known
+from ..scene_overrides import check_known
 
 DISTRIBUTIONS = {"uniform": "[low, high]", "normal": "[mean, standard deviation]",
                  "loguniform": "[low, high], both positive", "choice": "[value, …]"}

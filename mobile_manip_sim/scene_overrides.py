@@ -1,16 +1,17 @@
 """Key paths (``robot.arm.links[0].mass_per_length``, ``initial.velocity[2]``) set in a scene's
 YAML document, then validated by the scene parser exactly as a scene file is.
 
-`simulate --set KEY=VALUE` and every run of a sweep go through `scene_with`.
+`simulate --set KEY=VALUE` and every run of a sweep go through `scene_with`; a sweep spec's keys
+are checked by `check_known`.
 """
 from __future__ import annotations
 
 import copy
 import re
 
-from .. import schema
-from ..errors import UserError
-from ..scene import Scene, parse_scene
+from . import schema
+from .errors import UserError
+from .scene import Scene, parse_scene
 
 _SEGMENT = re.compile(r"([A-Za-z_][A-Za-z0-9_]*)((?:\[\d+\])*)$")
 

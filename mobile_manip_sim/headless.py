@@ -1,0 +1,57 @@
+"""The headless run: a scene simulated from its initial state over a grid of sample times, and
+the CSV table of its samples. `simulate` writes it, a sweep runs it on Dask workers, the bench
+and the plots read it.
+
+Columns: t, x, y, yaw, theta_R, theta_L, q1, l1, …, qn, ln, v, omega, qd1, ld1, …, qdn, ldn,
+energy (T + V, J): the time, q, u and the total energy (`csv_row`).
+"""
+from __future__ import annotations
+
+import time
+
+from .engine.simulation import Simulation
+from .scene import Scene
+from .timeline import sample_times
+
+
+def csv_columns(n_links: int) -> list[str]:
+    """The header of a run's CSV table (see the module docstring)."""
+    arm_q = [name for i in range(1, n_links + 1) for name in (f"q{i}", f"l{i}")]
+    arm_u = [name for i in range(1, n_links + 1) for name in (f"qd{i}", f"ld{i}")]
+    return ["t", "x", "y", "yaw", "theta_R", "theta_L", *arm_q, "v", "omega", *arm_u, "energy"]
+
+
+def csv_row(sim: Simulation) -> list:
+    """The simulation's present sample, in `csv_columns` order (written with ``repr``: exact)."""
+    return [sim.t, *sim.q.tolist(), *sim.u.tolist(), sim.total_energy()]
+
+
+def summary_line(sim: Simulation, wall: float, simulated: float | None = None) -> str:
+    """`wall` s of wall time spent on `simulated` s of simulated time (default: all of it)."""
+    simulated = sim.t if simulated is None else simulated
+    rtf = simulated / wall if wall > 0 else float("inf")
+    return (f"simulated {sim.t:.6g} s in {wall:.4g} s wall (real-time factor {rtf:.1f}), "
+            f"{sim.steps} steps, {sim.rhs_evaluations} rhs evaluations, {len(sim.impacts)} impacts, "
+            f"energy error {sim.energy_error():.3e} J")
+
+
+def run(scene: Scene, duration: float, sample_rate: float, settings=None, on_sample=None,
+        progress=None) -> Simulation:
+    """Simulate `duration` s from the scene's initial state with its constant efforts, calling
+    ``on_sample(sim)`` at every sample time (and ``progress.update(t)`` after it, if given);
+    returns the finished simulation. Its ``timing`` is (simulated s, wall s) from the end of the
+    first sample that advanced time on, or None."""
+    sim = Simulation(scene, settings)
+    timing_from = None
+    for t in sample_times(duration, sample_rate):
+        sim.advance_to(t)
+        if timing_from is None and sim.t > 0:
+            timing_from = (sim.t, time.perf_counter())
+        if on_sample:
+            on_sample(sim)
+        if progress:
+            progress.update(t)
+    sim.timing = None
+    if timing_from is not None and sim.t > timing_from[0]:
+        sim.timing = (sim.t - timing_from[0], time.perf_counter() - timing_from[1])
+    return sim

@@ -1,0 +1,137 @@
+"""The node's parameters: their table (the one owner: the shell declares it, the shipped params
+file is checked against it, `--help` prints it) and `read`, which validates the values once into
+a `NodeParameters` record. No ROS: the shell hands in the values rclpy parsed."""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Mapping, NamedTuple
+
+from ..engine.simulation import DEFAULT_WHEEL_SPEED_GAINS
+from ..errors import UserError
+from ..scene import METHODS
+
+NODE_NAME = "mobile_manip_sim"
+BASE_COMMANDS = ("effort", "velocity")
+
+
+class Parameter(NamedTuple):
+    default: object
+    description: str
+    range: tuple[float, float] | None = None   # floats: the declared [low, high]
+    dynamic: bool = False                      # may be set while the node runs
+
+
+PARAMETERS = {
+    "scene": Parameter("", "Scene YAML file; empty = the embedded paper scene."),
+    "publish_rate": Parameter(100.0, "Publications per second of SIMULATED time (Hz).",
+                              (0.001, 100000.0)),
+    "real_time_factor": Parameter(1.0, "Simulated seconds per wall second; 0 = as fast as "
+                                       "possible.", (0.0, 10000.0), True),
+    "command_timeout": Parameter(0.5, "Seconds of SIMULATED time after the last command of a "
+                                      "group (wheels, arm) before its efforts fall to zero; 0 "
+                                      "disables.", (0.0, 1.0e6), True),
+    "odom_frame": Parameter("odom", "frame_id of /odom and parent frame of /tf."),
+    "base_frame": Parameter("base_footprint", "child_frame_id of /odom and /tf, and the URDF's "
+                                              "root: the frame on the ground under the axle "
+                                              "midpoint (base_link is fixed at wheel-radius "
+                                              "height above it)."),
+    "publish_tf": Parameter(True, "Publish odom_frame → base_frame on tf at the publication "
+                                  "rate (needs tf2_msgs)."),
+    "record": Parameter("", "Record a rosbag2 (MCAP) bag to this new directory; empty = off."),
+    "synchronous": Parameter(False, "Lockstep: after publishing state k, compute segment k only "
+                                    "once a new command has arrived (or sync_timeout has "
+                                    "passed); the first state waits for a state subscriber and "
+                                    "a command publisher."),
+    "base_command": Parameter("effort", "effort: the wheels take torques from "
+                                        "wheel_effort_controller/commands; velocity: the base "
+                                        "takes cmd_vel, turned into wheel torques by a "
+                                        "wheel-speed PI loop inside the simulated system."),
+    "cmd_vel_stamped": Parameter(False, "Velocity mode: cmd_vel is geometry_msgs/TwistStamped "
+                                        "(as Jazzy's diff_drive_controller takes it) rather "
+                                        "than Twist."),
+    "wheel_speed.kp": Parameter(DEFAULT_WHEEL_SPEED_GAINS[0], "Velocity mode: proportional gain "
+                                "of the wheel-speed loop (N·m·s/rad).", (0.0, 1.0e6)),
+    "wheel_speed.ki": Parameter(DEFAULT_WHEEL_SPEED_GAINS[1], "Velocity mode: integral gain of "
+                                "the wheel-speed loop (N·m/rad).", (0.0, 1.0e6)),
+    "sync_timeout": Parameter(1.0, "Synchronous mode: wall seconds to wait for a command before "
+                                   "holding the last one (and saying so).", (0.001, 3600.0)),
+    "integrator.method": Parameter("", f"Integrator overriding the scene's ({', '.join(METHODS)}"
+                                       f"); empty = the scene's."),
+    "integrator.dt": Parameter(0.0, "Fixed step (s) overriding the scene's; 0 = the scene's.",
+                               (0.0, 1.0)),
+    "integrator.rtol": Parameter(0.0, "Relative tolerance overriding the scene's; 0 = the "
+                                      "scene's.", (0.0, 1.0)),
+    "integrator.atol": Parameter(0.0, "Absolute tolerance overriding the scene's; 0 = the "
+                                      "scene's.", (0.0, 1.0)),
+}
+
+
+def expected_kind(name: str) -> str:
+    """What a value of parameter ``name`` must be written as, for error messages."""
+    default = PARAMETERS[name].default
+    if isinstance(default, bool):
+        return "true or false"
+    if isinstance(default, float):
+        return "a floating-point number (write 1.0, not 1)"
+    return "a string"
+
+
+@dataclass(frozen=True)
+class NodeParameters:
+    """The node's parameters as read at start-up, validated."""
+    scene: str                     # "" = the embedded paper scene
+    publish_rate: float            # Hz of simulated time
+    real_time_factor: float
+    command_timeout: float         # s of simulated time, 0 = off
+    odom_frame: str
+    base_frame: str
+    publish_tf: bool
+    record: str                    # "" = off
+    synchronous: bool
+    sync_timeout: float            # wall s
+    base_command: str              # one of BASE_COMMANDS
+    cmd_vel_stamped: bool
+    wheel_speed_gains: tuple[float, float]   # (kp, ki)
+    method: str | None             # integrator overrides; None = the scene's
+    dt: float | None
+    rtol: float | None
+    atol: float | None
+
+    @property
+    def velocity_mode(self) -> bool:
+        return self.base_command == "velocity"
+
+
+def value_problem(name: str, value) -> str | None:
+    """Why ``value`` cannot be parameter ``name`` (beyond its declared type and range), or None.
+    Checked at start-up and for every change while running."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return f"must be finite, got {value}"
+    return None
+
+
+def read(values: Mapping[str, object]) -> NodeParameters:
+    """The record of the parameter ``values`` (name → value, every name of PARAMETERS);
+    UserError naming the first that is wrong."""
+    for name in PARAMETERS:
+        problem = value_problem(name, values[name])
+        if problem is not None:
+            raise UserError(name, problem)
+    odom, base = values["odom_frame"], values["base_frame"]
+    for name in ("odom_frame", "base_frame"):
+        if not values[name] or values[name] == "base_link" or odom == base:
+            raise UserError(name, f"{values[name]!r}: frame names must be non-empty, distinct, "
+                                  f"and not base_link (the URDF's body frame)")
+    if values["base_command"] not in BASE_COMMANDS:
+        raise UserError("base_command", f"{values['base_command']!r} is not effort or velocity")
+    return NodeParameters(
+        scene=values["scene"], publish_rate=values["publish_rate"],
+        real_time_factor=values["real_time_factor"], command_timeout=values["command_timeout"],
+        odom_frame=odom, base_frame=base, publish_tf=values["publish_tf"],
+        record=values["record"], synchronous=values["synchronous"],
+        sync_timeout=values["sync_timeout"], base_command=values["base_command"],
+        cmd_vel_stamped=values["cmd_vel_stamped"],
+        wheel_speed_gains=(values["wheel_speed.kp"], values["wheel_speed.ki"]),
+        method=values["integrator.method"] or None, dt=values["integrator.dt"] or None,
+        rtol=values["integrator.rtol"] or None, atol=values["integrator.atol"] or None)

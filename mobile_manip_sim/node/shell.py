@@ -1,0 +1,286 @@
+"""`SimulatorNode`: the ROS side of the node — its publishers, command subscriptions, services
+and parameters around a `Simulation`, stepped by a `SteppingLoop` — and `main`. The interface is
+documented in the README ("The ROS 2 node"); topic names, types and QoS are topics.py's."""
+from __future__ import annotations
+
+import re
+import threading
+import time
+
+import rclpy
+import rclpy.logging
+from nav_msgs.msg import Odometry
+from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, SetParametersResult
+from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState
+from std_msgs.msg import String
+from std_srvs.srv import SetBool, Trigger
+
+from .. import cli
+from ..engine.simulation import Simulation
+from ..errors import UserError
+from ..memory import CompilerPages, release_compiler_pages
+from ..messages import state_messages, transform
+from ..pacing import Pacer
+from ..scene import load_scene, make_integrator
+from ..timeline import Grid, apply_commands, start_node_time_line
+from ..topics import (
+    CLOCK_TOPIC,
+    DESCRIPTION_TOPIC,
+    JOINT_STATES_TOPIC,
+    ODOM_TOPIC,
+    TF_TOPIC,
+    latched_qos,
+    relative,
+    state_qos,
+)
+from ..urdf import robot_description
+from . import parameters
+from .arguments import check_params_files
+from .commands import CommandIntake
+from .lockstep import Lockstep
+from .loop import SteppingLoop
+from .parameters import NODE_NAME, PARAMETERS
+from .recording import NodeRecording
+from .throttle import Throttle
+
+SHUTDOWN_POLL = 0.2        # s: how often the executor checks for an external shutdown
+STEP_TIMEOUT = 30.0        # s of wall time a ~/step call waits for its state
+STOP_TIMEOUT = 2.0         # s of wall time shutdown waits for the stepping thread
+STATE_TYPES = {JOINT_STATES_TOPIC: JointState, ODOM_TOPIC: Odometry, CLOCK_TOPIC: Clock}
+
+
+class SimulatorNode(Node):
+    """The scene's simulation behind ROS topics; `start` starts stepping."""
+
+    def __init__(self, **node_options):
+        super().__init__(NODE_NAME, **node_options)
+        self.params = p = parameters.read(self._declared_parameters())
+        self.scene = load_scene(p.scene or None)
+        self._settings = make_integrator(self.scene.integrator, p.method, p.dt, p.rtol, p.atol,
+                                         prefix="integrator")
+        self.sim = Simulation(self.scene, self._settings)
+        self.sim.set_wheel_speed_gains(*p.wheel_speed_gains)
+        self.joint_names = self.scene.robot.joint_names()
+        self.grid = Grid(p.publish_rate)   # publication k at t_k, segment k → k + 1
+        self._compiler_pages = CompilerPages()   # given back after a segment loaded a kernel
+        self._recording: NodeRecording | None = None
+        log = self.get_logger()
+        throttle = Throttle(log.warning)
+
+        # Relative names: a namespace (__ns:=/robot1) or a remap moves every topic.
+        self._state_pubs = {topic: self.create_publisher(kind, relative(topic), state_qos())
+                            for topic, kind in STATE_TYPES.items()}
+        self._tf_pub = self._tf_publisher() if p.publish_tf else None
+        self._description_pub = self.create_publisher(String, relative(DESCRIPTION_TOPIC),
+                                                      latched_qos())
+        self._description = robot_description(self.scene, root=p.base_frame)
+        self.commands = CommandIntake(self, p.velocity_mode, p.cmd_vel_stamped,
+                                      len(self.joint_names) - 2, p.command_timeout, throttle,
+                                      log.warning)
+        lockstep = None
+        if p.synchronous:
+            lockstep = Lockstep(self.commands, self._listening, p.sync_timeout, throttle)
+        self.loop = SteppingLoop(
+            self.grid, Pacer(p.real_time_factor, 1.0 / self.grid.hz), restart=self._restart,
+            compute=self._compute, publish=self._publish, record=self._record,
+            failed=log.error, warn=throttle.warn, lockstep=lockstep, wake=self.commands.wake,
+            alive=lambda: rclpy.ok(context=self.context))
+        self.create_service(Trigger, "~/reset", self._on_reset)
+        self.create_service(SetBool, "~/pause", self._on_pause)
+        self.create_service(Trigger, "~/step", self._on_step)
+        self.add_on_set_parameters_callback(self._validate_parameters)
+        self.add_post_set_parameters_callback(self._apply_parameters)
+        self._thread = threading.Thread(target=self.loop.run, name="stepping", daemon=True)
+        if p.record:   # last: nothing after this may fail and leave an unfinished bag
+            self._recording = NodeRecording(p.record, self.sim, self._settings, p, log.info,
+                                            log.error)
+        s = self._settings
+        log.info(f"scene '{self.scene.name}', integrator {s.method} "
+                 f"({'dt ' + str(s.dt) if s.fixed_step else f'rtol {s.rtol}'}), publishing at "
+                 f"{self.grid.hz:g} Hz of simulated time, real-time factor "
+                 f"{p.real_time_factor:g}{' (free-running)' if not p.real_time_factor else ''}")
+        if p.publish_tf and self._tf_pub is None:
+            log.warning("publish_tf: tf2_msgs does not import (source a ROS install, or build "
+                        "it with tools/build_tf2_msgs.sh); no /tf")
+
+    def _tf_publisher(self):
+        try:
+            from tf2_msgs.msg import TFMessage
+        except ImportError:
+            return None   # said once the node has started (__init__'s last line)
+        return self.create_publisher(TFMessage, relative(TF_TOPIC), state_qos())
+
+    # --- parameters ------------------------------------------------------------------------
+    def _declared_parameters(self) -> dict:
+        """Declare PARAMETERS; their values (rclpy checks types and ranges: UserError)."""
+        for name, spec in PARAMETERS.items():
+            descriptor = ParameterDescriptor(description=spec.description,
+                                             read_only=not spec.dynamic)
+            if spec.range:
+                descriptor.floating_point_range = [FloatingPointRange(
+                    from_value=spec.range[0], to_value=spec.range[1], step=0.0)]
+            try:
+                self.declare_parameter(name, spec.default, descriptor)
+            except InvalidParameterTypeException:
+                raise UserError(name, f"expected {parameters.expected_kind(name)}") from None
+            except InvalidParameterValueException:
+                override = self._parameter_overrides.get(name)
+                value = override.value if override is not None else spec.default
+                raise UserError(name, f"{value} is outside [{spec.range[0]:g}, "
+                                      f"{spec.range[1]:g}]") from None
+        # A parameter given for this node that it does not declare is a mistake (a typo such
+        # as real_time_facter would otherwise be silently ignored).
+        unknown = sorted(set(self._parameter_overrides) - set(self._parameters))
+        if unknown:
+            raise UserError(unknown[0], f"unknown parameter of {NODE_NAME} (known: "
+                                        f"{', '.join(PARAMETERS)})")
+        return {name: self.get_parameter(name).value for name in PARAMETERS}
+
+    def _validate_parameters(self, changes) -> SetParametersResult:
+        for change in changes:
+            problem = parameters.value_problem(change.name, change.value)
+            if problem is not None:
+                return SetParametersResult(successful=False, reason=f"{change.name} {problem}")
+        return SetParametersResult(successful=True)
+
+    def _apply_parameters(self, changes) -> None:
+        for change in changes:
+            if change.name == "real_time_factor":
+                self.loop.set_real_time_factor(change.value)
+            elif change.name == "command_timeout":
+                self.commands.set_timeout(change.value)
+
+    # --- services (executor thread): the loop acts on them ----------------------------------
+    def _on_reset(self, request, response):
+        self.commands.forget(time.time_ns())   # commands sent after this call are kept
+        self.loop.reset()
+        self.get_logger().info("reset to the initial state, t = 0")
+        response.success, response.message = True, "reset to the initial state at t = 0"
+        return response
+
+    def _on_pause(self, request, response):
+        response.success, response.message = self.loop.pause(request.data)
+        self.get_logger().info(response.message)
+        return response
+
+    def _on_step(self, request, response):
+        response.success, response.message = self.loop.step(STEP_TIMEOUT)
+        return response
+
+    # --- the loop's callables (stepping thread) ---------------------------------------------
+    def _messages(self, k: int) -> dict:
+        """/joint_states, /odom and /clock for the engine's current state, stamped t_k."""
+        return state_messages(self.sim, self.grid.stamp(k), self.joint_names,
+                              self.params.odom_frame, self.params.base_frame)
+
+    def _restart(self) -> dict:
+        """t = 0: the scene's initial state, zero efforts."""
+        start_node_time_line(self.sim)
+        self.commands.restart()
+        return self._messages(0)
+
+    def _compute(self, k: int, start_ns: int) -> dict:
+        base, joints = self.commands.held(start_ns)
+        applied = apply_commands(self.sim, base, joints, self.params.velocity_mode)
+        if self._recording is not None:
+            self._recording.commands(start_ns, *applied)
+        self.sim.advance_to(self.grid.time(k + 1))
+        self._compiler_pages.release_if_used()
+        return self._messages(k + 1)
+
+    def _publish(self, k: int, messages: dict) -> None:
+        if k == 0:   # a time line starts: the robot description goes out first
+            self._description_pub.publish(String(data=self._description))
+        published = {}
+        try:
+            for topic, publisher in self._state_pubs.items():
+                publisher.publish(messages[topic])
+                published[topic] = messages[topic]
+            if self._tf_pub is not None:
+                self._tf_pub.publish(transform(messages[ODOM_TOPIC]))
+        finally:
+            # What went out is recorded, even when a shutdown fails the rest of the group.
+            if published and self._recording is not None:
+                self._recording.published(self.grid.stamp(k), published)
+
+    def _record(self) -> None:
+        if self._recording is not None:
+            self._recording.record()
+
+    def _listening(self) -> bool:
+        return any(pub.get_subscription_count() > 0 for pub in self._state_pubs.values())
+
+    # --- life cycle --------------------------------------------------------------------------
+    def start(self) -> None:
+        """Start the stepping thread. Nothing is computed here, before the executor spins."""
+        self._thread.start()
+
+    def stop(self) -> None:
+        """Stop the stepping thread (idempotent); nothing is published afterwards."""
+        self.loop.stop()
+        if self._thread.is_alive():
+            self._thread.join(timeout=STOP_TIMEOUT)
+        if self._thread.is_alive():   # inside a long segment: the bag is closed regardless
+            rclpy.logging.get_logger(NODE_NAME).warning(
+                f"the stepping thread did not stop within {STOP_TIMEOUT:g} s; exiting anyway")
+
+    def close(self) -> None:
+        """After `stop`, before the node is destroyed (SIGINT, SIGTERM, normal exit)."""
+        if self._recording is not None:
+            # While the context is up the node's logger; after SIGINT/SIGTERM shut it down, one
+            # without /rosout (the node's would fail to publish and say so).
+            logger = (self.get_logger() if rclpy.ok(context=self.context)
+                      else rclpy.logging.get_logger(f"{NODE_NAME}_recording"))
+            self._recording.close(logger.info, logger.error)
+
+
+def _init(argv) -> None:
+    """rclpy.init; bad --ros-args (a missing or unparsable --params-file, ...) is a UserError."""
+    check_params_files(argv)
+    try:
+        rclpy.init(args=argv)
+    except Exception as error:   # RCLError, whose text names rcl's source lines
+        text = re.sub(r",? at /\S+:\d+", "", str(error)).replace("failed to initialize rcl: ", "")
+        key = "--params-file" if "params file" in text else "--ros-args"
+        raise UserError(key, text.strip()) from None
+
+
+def _main(argv) -> int:
+    release_compiler_pages()   # those numba's import touched; loading the kernels needs few
+    _init(argv)
+    node = None
+    try:
+        node = SimulatorNode()
+        executor = SingleThreadedExecutor()
+        executor.add_node(node)
+        node.start()
+        # spin_once with a timeout rather than spin(): a signal that shuts the context down
+        # while the executor is between waits could otherwise leave it waiting forever.
+        while rclpy.ok(context=node.context):
+            executor.spin_once(timeout_sec=SHUTDOWN_POLL)
+    except KeyboardInterrupt:
+        pass
+    except Exception:
+        # ExternalShutdownException, or an RCLError from a wait set or a publication that the
+        # context vanished under: SIGINT/SIGTERM (at start-up too) is a normal exit.
+        if rclpy.ok():
+            raise
+    finally:
+        if node is not None:
+            node.stop()
+            node.close()
+            try:
+                node.destroy_node()
+            except Exception:
+                if rclpy.ok():
+                    raise
+        rclpy.try_shutdown()
+    return 0
+
+
+def main(args=None) -> int:
+    return cli.run(_main, args)

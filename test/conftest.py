@@ -1,0 +1,10 @@
+"""What the test modules share: the engine kernels warmed once per session (ros_harness.py holds
+the ROS harness itself; waiting.py the one `wait_for`)."""
+import pytest
+
+
+@pytest.fixture(scope="session")
+def warm_kernels():
+    """The kernels of a node at rk4, dt = 1 ms, compiled or loaded before any node starts."""
+    import ros_harness
+    ros_harness.warm_kernels(("rk4", 0.001))
