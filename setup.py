@@ -19,7 +19,7 @@ setup(
     python_requires=">=3.10",
     install_requires=[
         "setuptools", "numpy", "scipy", "pyyaml", "mcap", "numba", "matplotlib",
-        "dask[distributed]", "pyarrow",
+        "dask[distributed]", "pyarrow", "foxglove-sdk",
         # ROS 2 Jazzy from PyPI wheels; on a ROS install these are already there (colcon does
         # not pip-install them).
         "ros-jazzy-rclpy", "ros-jazzy-common-interfaces", "ros-jazzy-rosgraph-msgs",

@@ -14,8 +14,10 @@ from builtin_interfaces.msg import Time
 from geometry_msgs.msg import Quaternion, Twist
 from nav_msgs.msg import Odometry
 from rosgraph_msgs.msg import Clock
-from sensor_msgs.msg import JointState
-from std_msgs.msg import Float64MultiArray
+from sensor_msgs.msg import Imu, JointState
+from std_msgs.msg import Float64MultiArray, String
+
+from .recording.cdr import tf_message_cdr
 
 # Stamps come from the time line (timeline.py); topic names, types and QoS live in topics.py,
 # re-exported here for the message builders' users.
@@ -132,3 +134,53 @@ def state_messages(state, stamp: int, names, odom_frame: str = "odom",
     return {JOINT_STATES_TOPIC: joint_state(state, stamp, names),
             ODOM_TOPIC: odometry(state, stamp, odom_frame, base_frame),
             CLOCK_TOPIC: clock(stamp)}
+
+
+# --- what a viewer draws (frames.py's tree) and the IMU ----------------------------------------
+
+def tf_cdr(tree, q, stamp: int, odom_frame: str = "odom", moving: bool = True) -> bytes:
+    """/tf at configuration ``q``: odom_frame → the tree's root, then (``moving``) every moving
+    joint, all stamped ``stamp``; the exact CDR of the TFMessage (`cdr.tf_message_cdr`)."""
+    transforms = [tree.base_transform(q, odom_frame)]
+    if moving:
+        transforms += tree.moving_transforms(q)
+    return tf_message_cdr(stamp, transforms)
+
+
+def tf_static_cdr(tree, stamp: int) -> bytes:
+    """/tf_static: every fixed joint in ONE message (a late joiner gets only the last one)."""
+    return tf_message_cdr(stamp, tree.static_transforms())
+
+
+def description(urdf: str) -> String:
+    return String(data=urdf)
+
+
+def imu(reading, stamp: int, frame_id: str, noise) -> Imu:
+    """sensor_msgs/Imu of an `imu.ImuReading`; covariances: the noise settings' σ² per axis
+    (at least GROUND_TRUTH_VARIANCE, as for every exactly known quantity), orientation exact."""
+    message = Imu()
+    message.header.stamp = time_msg(stamp)
+    message.header.frame_id = frame_id
+    x, y, z, w = reading.orientation
+    message.orientation.x, message.orientation.y = x, y
+    message.orientation.z, message.orientation.w = z, w
+    message.orientation_covariance = _diagonal((0.0, 0.0, 0.0))
+    for field in ("angular_velocity", "linear_acceleration"):
+        vector = getattr(message, field)
+        vector.x, vector.y, vector.z = getattr(reading, field)
+        setattr(message, f"{field}_covariance", _diagonal(noise.variances(field)))
+    return message
+
+
+def _diagonal(variances) -> list[float]:
+    values = [0.0] * 9
+    for i, variance in enumerate(variances):
+        values[4 * i] = max(float(variance), GROUND_TRUTH_VARIANCE)
+    return values
+
+
+def energy(state) -> Float64MultiArray:
+    """[T, V, T + V] in J at the state (``state.dynamics.energy``)."""
+    T, V = state.dynamics.energy(state.q, state.u)
+    return float64_array([T, V, T + V])

@@ -2,6 +2,7 @@
 
     simulate --scene FILE --duration S --sample-rate HZ --out FILE.csv
              [--method NAME] [--dt S] [--rtol R] [--atol A] [--record DIR] [--set KEY=VALUE]…
+             [--view [PORT]]
 
 Columns: t, x, y, yaw, theta_R, theta_L, q1, l1, …, qn, ln, v, omega, qd1, ld1, …, qdn, ldn,
 energy (T + V, J) (`headless.csv_columns`); LF line ends. Without --scene the embedded paper scene runs. End-stop impacts,
@@ -13,6 +14,10 @@ compiling are left out).
 Faults: a write error (disk full, ``/dev/full``) is one line, status 2, and the partial CSV is
 removed; SIGINT (status 130) and SIGTERM (status 143) stop the run, keep the rows written so far
 and close a ``--record`` bag.
+
+``--view [PORT]`` shows the run live in Foxglove (live_view.py: a Foxglove WebSocket server on
+PORT, default 8765, no ROS needed): every sample is published when the wall clock reaches it,
+the run paced to real time, so the CSV and the bag are the same as without it.
 """
 from __future__ import annotations
 
@@ -29,6 +34,8 @@ from .headless import csv_columns, csv_row, run, summary_line
 from .limits import DURATION, SAMPLE_RATE
 from .scene import check_work, load_scene, make_integrator
 from .scene_overrides import parse_assignments, scene_with
+
+DEFAULT_VIEW_PORT = 8765           # --view without a port: Foxglove's default
 
 
 class Progress:
@@ -65,6 +72,10 @@ def _main(argv) -> int:
     parser.add_argument("--rtol", type=float, help="relative tolerance of adaptive methods")
     parser.add_argument("--atol", type=float, help="absolute tolerance of adaptive methods")
     parser.add_argument("--record", metavar="DIR", help="also record a rosbag2 (MCAP) bag to DIR")
+    parser.add_argument("--view", type=int, nargs="?", const=DEFAULT_VIEW_PORT, metavar="PORT",
+                        help="show the run live in Foxglove: a WebSocket server on PORT "
+                             f"(default {DEFAULT_VIEW_PORT}; 0: any free port), the run paced "
+                             "to real time")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="set a scene key path, e.g. robot.arm.links[0].mass_per_length=1.2 "
                              "(value read as YAML; repeatable)")
@@ -83,6 +94,13 @@ def _main(argv) -> int:
     check_work(duration, settings, duration_key, "--dt" if args.dt is not None else "integrator.dt",
                rate, "--sample-rate")
     out = Path(args.out)
+    view = None
+    if args.view is not None:
+        from .live_view import PacedView
+        schema.integer(args.view, "--view", lo=0, hi=65535)
+        view = PacedView(args.view, scene, rate, duration)
+        print(f"live view: {view.url} (Foxglove: open connection, Foxglove WebSocket)",
+              flush=True)
     with CsvOutput(out) as output:
         recorder = None
         if args.record:
@@ -92,6 +110,8 @@ def _main(argv) -> int:
 
         def on_sample(sim):
             row = [repr(value) for value in csv_row(sim)]
+            if view:
+                view.sample(sim)
             with cli.critical():   # a signal stops the run between samples' writes, not inside
                 output.writerow(row)
                 if recorder:
@@ -105,6 +125,8 @@ def _main(argv) -> int:
             progress.close()
             if recorder:
                 recorder.close()
+            if view:
+                view.close()
         wall = time.perf_counter() - start
         if sim.impacts and output.regular:
             output.write_impacts(out.with_suffix(".impacts.csv"), sim.impacts)

@@ -7,13 +7,19 @@ creates every topic under its RELATIVE name (``odom``), so ``__ns:=/robot1`` put
   joint_states                      sensor_msgs/msg/JointState      state, reliable, depth 100
   odom                              nav_msgs/msg/Odometry           state
   clock                             rosgraph_msgs/msg/Clock         state
-  tf                                tf2_msgs/msg/TFMessage          state (when tf2_msgs imports)
+  tf                                tf2_msgs/msg/TFMessage          state: odom → root, every moving joint
+  tf_static                         tf2_msgs/msg/TFMessage          latched: every fixed joint, one message
   robot_description                 std_msgs/msg/String             latched (transient local, 1)
+  imu                               sensor_msgs/msg/Imu             state (imu.py)
+  energy                            std_msgs/msg/Float64MultiArray  state: [T, V, T + V] (J), live view only
   wheel_effort_controller/commands  std_msgs/msg/Float64MultiArray  command, depth 10
   arm_effort_controller/commands    std_msgs/msg/Float64MultiArray  command
   cmd_vel                           geometry_msgs/msg/Twist (or TwistStamped)  command, velocity mode
 
-A bag holds the state topics and the command topics of its run's mode (`recorded_topics`).
+A bag holds the state topics, the view topics (what a viewer needs to draw the robot: /tf,
+/tf_static, /robot_description; the latched ones with their transient-local QoS) and the command
+topics of its run's mode (`recorded_topics`). A bag recorded before the view topics existed has
+none of them; replay and plot do not need them.
 """
 from __future__ import annotations
 
@@ -21,11 +27,18 @@ JOINT_STATES_TOPIC = "/joint_states"
 ODOM_TOPIC = "/odom"
 CLOCK_TOPIC = "/clock"
 TF_TOPIC = "/tf"
+TF_STATIC_TOPIC = "/tf_static"
 DESCRIPTION_TOPIC = "/robot_description"
+IMU_TOPIC = "/imu"
+ENERGY_TOPIC = "/energy"
+TF_TYPE = "tf2_msgs/msg/TFMessage"
 WHEEL_TOPIC = "/wheel_effort_controller/commands"
 CMD_VEL_TOPIC = "/cmd_vel"
 ARM_TOPIC = "/arm_effort_controller/commands"
 STATE_TOPICS = (JOINT_STATES_TOPIC, ODOM_TOPIC, CLOCK_TOPIC)
+# Published once (at start and on reset), transient local, depth 1: late joiners get them.
+LATCHED_TOPICS = (TF_STATIC_TOPIC, DESCRIPTION_TOPIC)
+VIEW_TOPICS = (TF_TOPIC, TF_STATIC_TOPIC, DESCRIPTION_TOPIC)
 COMMAND_TOPICS = (WHEEL_TOPIC, ARM_TOPIC, CMD_VEL_TOPIC)
 # The base's command modes (the node's base_command parameter, a bag's base_command metadata)
 # and the topic that commands the base in each.
@@ -43,16 +56,26 @@ TOPIC_TYPES = {
     CLOCK_TOPIC: "rosgraph_msgs/msg/Clock",
     WHEEL_TOPIC: "std_msgs/msg/Float64MultiArray",
     ARM_TOPIC: "std_msgs/msg/Float64MultiArray",
+    TF_TOPIC: TF_TYPE,
+    TF_STATIC_TOPIC: TF_TYPE,
+    DESCRIPTION_TOPIC: "std_msgs/msg/String",
 }
+# The live view's channels (live_view.py): the states, the view topics, the IMU and the energy.
+LIVE_TOPIC_TYPES = {topic: TOPIC_TYPES[topic] for topic in (*VIEW_TOPICS, JOINT_STATES_TOPIC,
+                                                            ODOM_TOPIC)}
+LIVE_TOPIC_TYPES.update({IMU_TOPIC: "sensor_msgs/msg/Imu",
+                         ENERGY_TOPIC: "std_msgs/msg/Float64MultiArray"})
 # Every topic one of our bags may hold.
 BAG_TOPIC_TYPES = {**TOPIC_TYPES, CMD_VEL_TOPIC: CMD_VEL_TYPE}
 
 
-def recorded_topics(base_command: str = "effort") -> dict:
-    """Topic → type of the bag of a run whose base takes ``base_command`` (effort|velocity)."""
+def recorded_topics(base_command: str = "effort", view: bool = True) -> dict:
+    """Topic → type of the bag of a run whose base takes ``base_command`` (effort|velocity),
+    with the view topics unless ``view`` is false."""
     base = BASE_COMMAND_TOPICS[base_command]
     return {topic: kind for topic, kind in BAG_TOPIC_TYPES.items()
-            if topic not in BASE_COMMAND_TOPICS.values() or topic == base}
+            if (topic not in BASE_COMMAND_TOPICS.values() or topic == base)
+            and (view or topic not in VIEW_TOPICS)}
 STATE_QOS_DEPTH = 100      # the node's state publishers: room for slow subscribers
 COMMAND_QOS_DEPTH = 10     # rclpy's default publisher depth, what command senders use
 

@@ -2,17 +2,8 @@
 
 The URDF describes the same multibody the simulator integrates (MODEL.md), so Pinocchio's URDF
 parser with a planar root joint at ``base_link`` gives the core's mass matrix
-(``M = Sᵀ M_full S``, see test/test_urdf.py). Tree and names:
-
-    base_footprint                  on the ground under A; the root (the node's ``base_frame``)
-    └─ base_footprint_joint (fixed, z = wheel radius r)
-    base_link                       origin A (axle midpoint); x forward, y left, z up
-    ├─ right_wheel_joint  (continuous, axis +y, at y = −b)  → right_wheel
-    ├─ left_wheel_joint   (continuous, axis +y, at y = +b)  → left_wheel
-    └─ arm_revolute_1     (continuous, axis +z; origin = mount, rpy = joint_rpy_1) → arm_link_1
-       └─ arm_prismatic_1 (prismatic, axis +x; value l_1, limits = stroke)        → arm_rod_1
-          └─ arm_revolute_2 (origin at the distal end of rod 1, rpy = joint_rpy_2) → arm_link_2 …
-             … → arm_rod_n ─ tip_joint (fixed) → tip
+(``M = Sᵀ M_full S``, see test/test_urdf.py). The tree — links, joints, origins, axes, the
+frame prefix — is `frames.FrameTree`'s; this module adds the bodies, drawings and limits:
 
 - ``arm_link_k`` is joint frame k of MODEL.md (origin O_k, x along rod k, z the joint axis); it
   is massless, so it has no ``<inertial>``.
@@ -33,7 +24,7 @@ parser with a planar root joint at ``base_link`` gives the core's mass matrix
   for tools that want one; the planar model never uses them (the base cannot roll or pitch).
 - ``base_footprint`` is the massless root, on the floor (z = 0) under the axle midpoint, so the
   wheels touch the ground in a viewer; ``base_link`` sits r above it. The TF tree is
-  ``odom → base_footprint`` (the simulator's /tf) ``→ base_link → …`` (robot_state_publisher).
+  ``odom → base_footprint → base_link → …``, every transform from `frames.FrameTree`.
   The core's heights are measured from the axle: a URDF point is the core's point + r·z.
 
 Joint names equal `RobotModel.joint_names()`, i.e. the names in /joint_states.
@@ -46,6 +37,7 @@ import xml.etree.ElementTree as ET
 import numpy as np
 
 from .effects import settings as effect_settings
+from .frames import BASE_LINK, FOOTPRINT, TIP, FrameTree
 from .scene import Scene
 
 UNLIMITED = 1.0e6          # effort (N·m or N) and velocity placeholder where the scene sets none
@@ -110,18 +102,16 @@ def _damping(joint: ET.Element, damping) -> None:
         ET.SubElement(joint, "dynamics", damping=_num(damping))
 
 
-FOOTPRINT = "base_footprint"
-
-
-def robot_description(scene: Scene, root: str = FOOTPRINT) -> str:
+def robot_description(scene: Scene, root: str = FOOTPRINT, prefix: str = "") -> str:
     """The URDF (XML text) of `scene`'s robot with the scene's effects (payload, wheel inertia,
     damping, effort limits) applied as the simulator applies them; `root` names the link on the
-    ground under the axle midpoint."""
+    ground under the axle midpoint. The joints, their origins and axes are `frames.FrameTree`'s;
+    every link name carries ``prefix`` (joint names stay those of /joint_states)."""
     model, effects = scene.robot, effect_settings(scene)
+    tree = FrameTree(model, root, prefix)
     base = model.base
     n = model.n_links
     d, r, b = base.com_offset, base.wheel_radius, base.half_track
-    names = model.joint_names()
     # the scene's bounds (None where it sets none) and damping, as the simulator applies them
     limits = effects.effort_limits
     efforts = [None if limits is None or math.isinf(limits[j]) else limits[j] for j in range(2 + 2 * n)]
@@ -131,66 +121,48 @@ def robot_description(scene: Scene, root: str = FOOTPRINT) -> str:
     for name, rgba in (("chassis", (0.3, 0.3, 0.35, 1.0)), ("wheel", (0.1, 0.1, 0.1, 1.0)),
                        ("rod", (0.85, 0.45, 0.1, 1.0)), ("payload", (0.2, 0.4, 0.8, 1.0))):
         ET.SubElement(ET.SubElement(robot, "material", name=name), "color", rgba=_vec(rgba))
-
-    # Base: body = base + wheels, mass M_pw at G = (d, 0, 0), yaw inertia I_pw about G.
+    ET.SubElement(robot, "link", name=tree.frame(root))
     wheel_width = min(0.5 * r, b)
-    ET.SubElement(robot, "link", name=root)
-    base_link = ET.SubElement(robot, "link", name="base_link")
-    _joint(robot, "base_footprint_joint", "fixed", root, "base_link", xyz=(0.0, 0.0, r))
-    _visual(base_link, "box", "chassis", xyz=(d, 0.0, 0.0),
-            size=(2.0 * (abs(d) + r), 2.0 * b - wheel_width, r))
-    _inertial(base_link, base.mass, (d, 0.0, 0.0), base.yaw_inertia * np.eye(3))
-
-    # Wheels: a positive angle about +y rolls the robot forward (MODEL.md).
     I_w = base.wheel_inertia if effects.wheel_inertia else 0.0
-    for index, (side, sign) in enumerate((("right", -1.0), ("left", 1.0))):
-        link = ET.SubElement(robot, "link", name=f"{side}_wheel")
-        _visual(link, "cylinder", "wheel", rpy=(math.pi / 2, 0.0, 0.0), radius=r,
-                length=wheel_width)
-        if I_w > 0.0:
-            _inertial(link, 0.0, (0.0, 0.0, 0.0), np.diag([0.0, I_w, 0.0]))
-        joint = _joint(robot, names[index], "continuous", "base_link", link.get("name"),
-                       xyz=(0.0, sign * b, 0.0), axis=(0.0, 1.0, 0.0))
-        if efforts[index] is not None:
-            _limit(joint, efforts[index])
-        _damping(joint, damping[index])
 
-    # Arm: R_k = R_{k−1} · R0_k · Rz(q_k) is the URDF joint transform origin(rpy_k) · Rz(q_k);
-    # O_{k+1} = O_k + l_k x_k is the prismatic joint's translation l_k along x.
-    parent, xyz = "base_link", model.mount
-    for k in range(n):
-        L, mu = float(model.length[k]), float(model.mass_per_length[k])
-        J = np.asarray(model.inertia_per_length[k], dtype=float)
-        revolute, prismatic = names[2 + 2 * k], names[3 + 2 * k]
-
-        joint_link = ET.SubElement(robot, "link", name=f"arm_link_{k + 1}")
-        joint = _joint(robot, revolute, "continuous", parent, joint_link.get("name"), xyz=xyz,
-                       rpy=model.joint_rpy[k], axis=(0.0, 0.0, 1.0))
-        if efforts[2 + 2 * k] is not None:
-            _limit(joint, efforts[2 + 2 * k])
-        _damping(joint, damping[2 + 2 * k])
-
-        rod = ET.SubElement(robot, "link", name=f"arm_rod_{k + 1}")
-        # A solid round rod has J_xx = μ ρ²/2 per unit length: draw it with that radius ρ.
-        radius = math.sqrt(2.0 * J[0, 0] / mu) if J[0, 0] > 0.0 else DEFAULT_ROD_RADIUS
-        _visual(rod, "cylinder", "rod", xyz=(-0.5 * L, 0.0, 0.0), rpy=(0.0, math.pi / 2, 0.0),
-                radius=min(radius, 0.25 * L), length=L)
-        mass = mu * L
-        bending = mass * L ** 2 / 12.0
-        _inertial(rod, mass, (-0.5 * L, 0.0, 0.0), np.diag([0.0, bending, bending]) + J * L)
-        joint = _joint(robot, prismatic, "prismatic", joint_link.get("name"), rod.get("name"),
-                       axis=(1.0, 0.0, 0.0))
-        _limit(joint, efforts[3 + 2 * k], lower=model.stroke[k][0], upper=model.stroke[k][1])
-        _damping(joint, damping[3 + 2 * k])
-
-        parent, xyz = rod.get("name"), (0.0, 0.0, 0.0)
-
-    # Tip: the distal end of the last rod (the rod frame's origin), or the mount point.
-    tip = ET.SubElement(robot, "link", name="tip")
-    if effects.tip_mass:
-        _visual(tip, "sphere", "payload", radius=PAYLOAD_RADIUS)
-        _inertial(tip, effects.tip_mass, (0.0, 0.0, 0.0), np.zeros((3, 3)))
-    _joint(robot, "tip_joint", "fixed", parent, "tip", xyz=xyz)
+    for joint in tree.joints:   # each child link, then the joint that carries it
+        link = ET.SubElement(robot, "link", name=tree.frame(joint.child))
+        if joint.child == BASE_LINK:
+            # Base: body = base + wheels, mass M_pw at G = (d, 0, 0), yaw inertia I_pw about G.
+            _visual(link, "box", "chassis", xyz=(d, 0.0, 0.0),
+                    size=(2.0 * (abs(d) + r), 2.0 * b - wheel_width, r))
+            _inertial(link, base.mass, (d, 0.0, 0.0), base.yaw_inertia * np.eye(3))
+        elif joint.index is not None and joint.index < 2:
+            # Wheels: a positive angle about +y rolls the robot forward (MODEL.md).
+            _visual(link, "cylinder", "wheel", rpy=(math.pi / 2, 0.0, 0.0), radius=r,
+                    length=wheel_width)
+            if I_w > 0.0:
+                _inertial(link, 0.0, (0.0, 0.0, 0.0), np.diag([0.0, I_w, 0.0]))
+        elif joint.kind == "prismatic":
+            k = (joint.index - 2) // 2
+            L, mu = float(model.length[k]), float(model.mass_per_length[k])
+            J = np.asarray(model.inertia_per_length[k], dtype=float)
+            # A solid round rod has J_xx = μ ρ²/2 per unit length: draw it with that radius ρ.
+            radius = math.sqrt(2.0 * J[0, 0] / mu) if J[0, 0] > 0.0 else DEFAULT_ROD_RADIUS
+            _visual(link, "cylinder", "rod", xyz=(-0.5 * L, 0.0, 0.0),
+                    rpy=(0.0, math.pi / 2, 0.0), radius=min(radius, 0.25 * L), length=L)
+            mass = mu * L
+            bending = mass * L ** 2 / 12.0
+            _inertial(link, mass, (-0.5 * L, 0.0, 0.0), np.diag([0.0, bending, bending]) + J * L)
+        elif joint.child == TIP and effects.tip_mass:
+            # Tip: the distal end of the last rod (the rod frame's origin), or the mount point.
+            _visual(link, "sphere", "payload", radius=PAYLOAD_RADIUS)
+            _inertial(link, effects.tip_mass, (0.0, 0.0, 0.0), np.zeros((3, 3)))
+        element = _joint(robot, joint.name, joint.kind, tree.frame(joint.parent),
+                         tree.frame(joint.child), xyz=joint.xyz, rpy=joint.rpy, axis=joint.axis)
+        if joint.kind == "prismatic":
+            k = (joint.index - 2) // 2
+            _limit(element, efforts[joint.index], lower=model.stroke[k][0],
+                   upper=model.stroke[k][1])
+        elif joint.index is not None and efforts[joint.index] is not None:
+            _limit(element, efforts[joint.index])
+        if joint.index is not None:
+            _damping(element, damping[joint.index])
 
     ET.indent(robot)
     return '<?xml version="1.0"?>\n' + ET.tostring(robot, encoding="unicode") + "\n"

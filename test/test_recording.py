@@ -35,7 +35,8 @@ from ros_harness import child_env as ros_child_env
 from ros_harness import wait_for as harness_wait_for
 from mobile_manip_sim import __version__
 from mobile_manip_sim.engine.simulation import Simulation
-from mobile_manip_sim.messages import TOPIC_TYPES, float64_array
+from mobile_manip_sim.messages import float64_array
+from mobile_manip_sim.topics import recorded_topics
 from mobile_manip_sim.recording.bag_reader import open_bag
 from mobile_manip_sim.recording.bag_writer import DEFAULT_CHUNK_SIZE
 from mobile_manip_sim.recording.cdr import exact_cdr
@@ -50,6 +51,8 @@ PERIOD_NS = 10 ** 7                    # the node's default 100 Hz
 TIMEOUT = 20.0
 STARTUP_TIMEOUT = 60.0
 WHEELS, ARM = "/wheel_effort_controller/commands", "/arm_effort_controller/commands"
+# The topics of a node's bag (effort mode): the node does not record the view topics yet.
+TOPIC_TYPES = recorded_topics("effort", view=False)
 STATE_TOPICS = ("/joint_states", "/odom", "/clock")
 # The headless run used for replay and determinism: 20 Hz samples and a last one off the grid.
 HEADLESS = ["--duration", "2.005", "--sample-rate", "20", "--method", "rk4", "--dt", "0.001"]
@@ -418,7 +421,7 @@ def test_recording_memory_is_bounded_by_the_chunk_size(tmp_path):
     writer.write = write
     simulate_run(scene, 60.0, 100.0, settings, recorder.sample)
     recorder.close()
-    assert worst["messages"] == 3 * 6001 + 2
+    assert worst["messages"] == 4 * 6001 + 2 + 2   # states and /tf, commands, latched
     assert worst["excess"] <= 0, worst
     assert DEFAULT_CHUNK_SIZE // 2 < worst["buffered"] <= DEFAULT_CHUNK_SIZE + 1024
     assert sizes == sorted(sizes) and sizes[-1] > sizes[0] > 0   # streamed, not held back
@@ -485,7 +488,8 @@ def test_replay_publishes_the_recorded_messages_in_order_at_the_recorded_rate(pr
     assert span * 0.8 - 0.02 <= arrivals[-1] - arrivals[0] <= span * 1.25 + 0.1
     gaps = sorted(b - a for a, b in zip(arrivals, arrivals[1:]))
     assert abs(gaps[len(gaps) // 2] - 0.05 / rate) < 0.01   # median spacing: 50 ms / rate
-    assert f"played {sum(len(v) for v in recorded.values())} messages" in result.stdout
+    # … and /robot_description, latched, played first (its t = 0 message, before the start)
+    assert f"played {sum(len(v) for v in recorded.values()) + 1} messages" in result.stdout
 
 
 def test_replay_without_waiting_still_reaches_a_subscriber_that_already_runs(probe,
@@ -614,8 +618,8 @@ def test_replay_rejects_bad_bags_with_one_line(headless_bags, tmp_path):
         for mode in ([], ["--resimulate"]):
             line = one_error_line(run_cli("replay", str(truncated), *mode), "replay")
             assert expected in line, line
-    line = one_error_line(run_cli("replay", str(bag), "--topics", "/odom", "/tf"), "replay")
-    assert line.startswith("replay: error: /tf: not in bag") and "/joint_states" in line
+    line = one_error_line(run_cli("replay", str(bag), "--topics", "/odom", "/scan"), "replay")
+    assert line.startswith("replay: error: /scan: not in bag") and "/joint_states" in line
 
 
 def test_replay_rejects_a_bag_from_another_robot(headless_bags, tmp_path):

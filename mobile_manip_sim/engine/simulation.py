@@ -163,6 +163,15 @@ class Simulation:
     def qdot(self) -> np.ndarray:
         return self.dynamics.configuration_rate(self.q, self.u)
 
+    def acceleration(self) -> np.ndarray:
+        """u̇ now: the right-hand side the integrator follows at the current state, with the
+        efforts held and the rods at rest locked (the IMU's source). Not counted among the
+        evaluations, and it leaves the run untouched (its scratch is rewritten by every step)."""
+        counters = self.system.counters.copy()
+        ds = self.system.derivative(self.s)
+        self.system.counters[:] = counters
+        return ds[self.nq:self.nq + self.nu]
+
     @property
     def rhs_evaluations(self) -> int:
         return int(self.system.counters[RHS_EVALS])

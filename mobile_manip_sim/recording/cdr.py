@@ -135,3 +135,34 @@ class _Walker:
 
 def _slot_types(message_type) -> tuple:
     return tuple(getattr(message_type, "SLOT_TYPES", ()))
+
+
+TF_MESSAGE_TYPE = "tf2_msgs/msg/TFMessage"
+
+
+def tf_message_cdr(stamp_ns: int, transforms) -> bytes:
+    """The exact CDR (little endian, padding zeroed) of a tf2_msgs/TFMessage holding
+    ``transforms`` (`frames.Transform`: parent, child, translation, rotation x y z w), all stamped
+    ``stamp_ns``. Encoded here because PyPI has no tf2_msgs for rclpy to serialise with; equal to
+    ``exact_cdr`` of the same message where tf2_msgs is installed (test_tf_messages)."""
+    out = bytearray(b"\0\1\0\0")            # CDR_LE encapsulation, options zero
+
+    def align(size):
+        out.extend(bytes(-(len(out) - ENCAPSULATION_HEADER) % size))
+
+    def string(text):
+        data = text.encode("utf-8") + b"\0"
+        align(4)
+        out.extend(struct.pack("<I", len(data)) + data)
+
+    sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
+    align(4)
+    out.extend(struct.pack("<I", len(transforms)))
+    for transform in transforms:
+        align(4)
+        out.extend(struct.pack("<iI", sec, nanosec))   # header.stamp
+        string(transform.parent)                       # header.frame_id
+        string(transform.child)                        # child_frame_id
+        align(8)
+        out.extend(struct.pack("<7d", *transform.translation, *transform.rotation))
+    return bytes(out)

@@ -1,5 +1,6 @@
 """`simulate --record DIR`: the headless run recorded like a node run (same topics, same
-message contents for the same states), through `RunRecorder`.
+message contents for the same states), through `RunRecorder`: what a viewer needs to draw the
+robot too (/tf with every link at each sample; /tf_static and /robot_description at t = 0).
 
 Sample k is stamped by the run's time line (`timeline.Grid`): like the node's publication k,
 and a last sample off the rate's grid (at ``duration``) with the duration in nanoseconds. The
@@ -7,10 +8,13 @@ commands are the scene's constant efforts (after its effort limits), recorded on
 """
 from __future__ import annotations
 
-from mobile_manip_sim.messages import state_messages
+from mobile_manip_sim.frames import FrameTree
+from mobile_manip_sim.messages import description, state_messages, tf_cdr, tf_static_cdr
 from mobile_manip_sim.recording.bag_writer import DEFAULT_CHUNK_SIZE
 from mobile_manip_sim.recording.recorder import RunRecorder
 from mobile_manip_sim.timeline import Grid
+from mobile_manip_sim.topics import DESCRIPTION_TOPIC, TF_STATIC_TOPIC, TF_TOPIC
+from mobile_manip_sim.urdf import robot_description
 
 
 class HeadlessRecorder:
@@ -21,9 +25,13 @@ class HeadlessRecorder:
         extra = {"source": "simulate", "sample_rate": repr(float(sample_rate))}
         if duration is not None:
             extra["duration"] = repr(float(duration))
-        self.recorder = RunRecorder(path, scene, settings, extra, chunk_size=chunk_size)
+        self.recorder = RunRecorder(path, scene, settings, extra, chunk_size=chunk_size,
+                                    view=True)
         self.writer = self.recorder.writer
         self._names = scene.robot.joint_names()
+        self._tree = FrameTree(scene.robot)
+        self._latched = {TF_STATIC_TOPIC: tf_static_cdr(self._tree, 0),
+                         DESCRIPTION_TOPIC: description(robot_description(scene))}
         self._grid = Grid(sample_rate, duration)
         self._k = 0
 
@@ -31,7 +39,11 @@ class HeadlessRecorder:
         k = self._k
         stamp = self._grid.stamp(k)
         try:
-            self.recorder.states(stamp, state_messages(sim, stamp, self._names))
+            messages = state_messages(sim, stamp, self._names)
+            messages[TF_TOPIC] = tf_cdr(self._tree, sim.q, stamp)
+            if k == 0:
+                messages.update(self._latched)
+            self.recorder.states(stamp, messages)
             if k == 0:
                 self.recorder.commands(0, sim.wheel_efforts, sim.joint_efforts)
             self.recorder.impacts(sim.impacts)

@@ -20,6 +20,17 @@ PRIMITIVE_TYPES = frozenset({
     "int32", "uint32", "int64", "uint64", "string", "wstring",
 })
 
+# Types our bags and live view carry from packages that PyPI has no wheel of (every ROS install
+# has them), and whose payloads we encode ourselves (`cdr.tf_message_cdr`): full name → (.msg
+# text, exactly the upstream definition; rosidl's type hash, which test_tf_messages checks
+# against the package built from that text). Always these, installed or not: a bag's schema
+# does not depend on the machine that recorded it.
+BUNDLED = {
+    "tf2_msgs/msg/TFMessage": (
+        "geometry_msgs/TransformStamped[] transforms\n",
+        "RIHS01_e369d0f05a23ae52508854b66f6aa0437f3449d652e8cbf22d5abe85d020f087"),
+}
+
 # "pkg/msg/Type" or "pkg/Type"; the interface kind must be msg.
 _TYPE_NAME = re.compile(r"^([A-Za-z][A-Za-z0-9_]*)/(?:msg/)?([A-Za-z][A-Za-z0-9_]*)$")
 # The field type is the first token, without array ("[]", "[3]", "[<=3]") or bound ("<=10").
@@ -70,7 +81,10 @@ def _dependencies(package: str, text: str) -> list[tuple[str, str]]:
 @functools.lru_cache(maxsize=None)
 def _msg_text(package: str, name: str) -> str:
     """The ``.msg`` file of ``package/msg/name``, ending in exactly one newline."""
-    path = _share_directory(package, f"{package}/msg/{name}") / "msg" / f"{name}.msg"
+    full_name = f"{package}/msg/{name}"
+    if full_name in BUNDLED:
+        return BUNDLED[full_name][0]
+    path = _share_directory(package, full_name) / "msg" / f"{name}.msg"
     try:
         text = path.read_text(encoding="utf-8")
     except OSError as error:
@@ -103,6 +117,8 @@ def type_hash(type_name: str) -> str:
 
     package, name = split_type_name(type_name)
     full_name = f"{package}/msg/{name}"
+    if full_name in BUNDLED:
+        return BUNDLED[full_name][1]
     path = _share_directory(package, full_name) / "msg" / f"{name}.json"
     try:
         hashes = json.loads(path.read_text(encoding="utf-8")).get("type_hashes", [])

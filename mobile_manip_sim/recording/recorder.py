@@ -1,7 +1,9 @@
 """`RunRecorder`: one simulated run (one time line) → one self-describing rosbag2 bag.
 
 Topics (types and offered QoS as the node publishes them, see ``topics.py``):
-/joint_states, /odom, /clock (reliable, volatile, keep_last 100) and the run's command topics
+/joint_states, /odom, /clock, /tf (reliable, volatile, keep_last 100), /tf_static and
+/robot_description (reliable, transient local, keep_last 1: written at t = 0, before the first
+state, and again on a reset) and the run's command topics
 (reliable, volatile, keep_last 10): the arm's efforts and the base's command, wheel torques or,
 with base_command velocity, /cmd_vel (a Twist: v, ω). Every record's log_time and publish_time
 is the simulated time it belongs to: a state's stamp; a command's segment start, the simulated
@@ -28,16 +30,22 @@ import numpy as np
 from mobile_manip_sim.errors import UserError
 from mobile_manip_sim.messages import command_message
 from mobile_manip_sim.topics import (ARM_TOPIC, BASE_COMMAND_TOPICS, COMMAND_QOS_DEPTH,
-                                     COMMAND_TOPICS, STATE_QOS_DEPTH, STATE_TOPICS,
-                                     recorded_topics)
+                                     COMMAND_TOPICS, LATCHED_TOPICS, STATE_QOS_DEPTH,
+                                     STATE_TOPICS, TF_TOPIC, recorded_topics)
 from mobile_manip_sim.recording.bag_format import (IMPACTS_ATTACHMENT, METADATA_NAME,
                                                    SCENE_ATTACHMENT, run_metadata)
 from mobile_manip_sim.recording.bag_writer import DEFAULT_CHUNK_SIZE, BagWriter, qos_yaml
 from mobile_manip_sim.recording.cdr import exact_cdr
 
 
+# The order in which one publication's messages are written (the latched ones come first).
+WRITTEN_TOPICS = (*LATCHED_TOPICS, *STATE_TOPICS, TF_TOPIC)
+
+
 def topic_qos(topic: str) -> str:
-    """The offered QoS YAML of one of our topics."""
+    """The offered QoS YAML of one of our topics (the latched ones: transient local, depth 1)."""
+    if topic in LATCHED_TOPICS:
+        return qos_yaml("reliable", "transient_local", 1)
     return qos_yaml("reliable", "volatile",
                     COMMAND_QOS_DEPTH if topic in COMMAND_TOPICS else STATE_QOS_DEPTH)
 
@@ -50,10 +58,12 @@ class RunRecorder:
     (effort|velocity, default effort), which chooses the base's command topic. ``flush_interval`` (wall seconds, None = off)
     closes the open chunk that often, bounding what a SIGKILL loses in a slow run; headless runs
     leave it off so that their chunks, and hence their bags, do not depend on the wall clock.
+    ``view`` adds the view topics (/tf, /tf_static, /robot_description) to the bag.
     """
 
     def __init__(self, path, scene, settings, extra_metadata: dict, *,
-                 chunk_size: int = DEFAULT_CHUNK_SIZE, flush_interval: float | None = None):
+                 chunk_size: int = DEFAULT_CHUNK_SIZE, flush_interval: float | None = None,
+                 view: bool = False):
         metadata = run_metadata(scene, settings, extra_metadata)
         base_command = metadata.get("base_command", "effort")
         if base_command not in BASE_COMMAND_TOPICS:
@@ -62,7 +72,7 @@ class RunRecorder:
         self.writer = BagWriter(path, chunk_size=chunk_size)
         self.path = self.writer.path
         try:
-            for topic, type_name in recorded_topics(base_command).items():
+            for topic, type_name in recorded_topics(base_command, view).items():
                 self.writer.add_topic(topic, type_name, topic_qos(topic))
             self.writer.add_attachment(SCENE_ATTACHMENT, "application/yaml",
                                        scene.to_yaml().encode())
@@ -77,11 +87,13 @@ class RunRecorder:
         self._flushed_at = time.monotonic()
 
     def states(self, stamp: int, messages: dict) -> None:
-        """Write the state messages (topic → rclpy message) published at ``stamp`` ns."""
-        for topic in STATE_TOPICS:
+        """Write the messages published at ``stamp`` ns (topic → rclpy message, or its CDR
+        bytes): states, /tf, and the latched ones when they are (re)published."""
+        for topic in WRITTEN_TOPICS:
             message = messages.get(topic)
             if message is not None:
-                self.writer.write(topic, exact_cdr(message), stamp, stamp)
+                data = message if isinstance(message, bytes) else exact_cdr(message)
+                self.writer.write(topic, data, stamp, stamp)
         self._last_stamp = max(self._last_stamp, stamp)
         self._maybe_flush()
 

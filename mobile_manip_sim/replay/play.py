@@ -1,15 +1,18 @@
 """Playback (like ``ros2 bag play --clock``): every recorded message is published as recorded (its
 serialized CDR, untouched) when the wall clock reaches its log time, counted from the first
 played message and divided by the rate; each topic gets the QoS the bag says its publisher
-offered. ``/clock`` comes from the bag and is always played, whatever the topics selected; a
-bag without it gets one ``rosgraph_msgs/Clock`` per distinct log time. With
-``wait_for_subscribers`` playback is held until every played topic has a subscriber (for
-scripts and tests). Without it, playback still waits (at most DISCOVERY_TIMEOUT s) until the
+offered. The latched topics (/robot_description, /tf_static: transient local) go first, at
+once: their last message at or before the start. A topic whose message type is not installed
+(tf2_msgs on a pip install) is left out with a warning. ``/clock`` comes from the bag and is
+always played, whatever the topics selected; a bag without it gets one ``rosgraph_msgs/Clock``
+per distinct log time. With ``wait_for_subscribers`` playback is held until every played topic
+but the latched ones has a subscriber (for scripts and tests). Without it, playback still waits (at most DISCOVERY_TIMEOUT s) until the
 subscribers that already run are matched: a reliable subscriber matched late would miss the
 first ~0.4 s of the bag.
 """
 from __future__ import annotations
 
+import sys
 import time
 
 from mobile_manip_sim import schema
@@ -17,6 +20,7 @@ from mobile_manip_sim.errors import UserError
 from mobile_manip_sim.messages import CLOCK_TOPIC, JOINT_STATES_TOPIC, NS, clock
 from mobile_manip_sim.recording.bag_format import (SCENE_ATTACHMENT, RecordedRun, decode,
                                                    first_message, message_class)
+from mobile_manip_sim.topics import LATCHED_TOPICS, TF_TYPE
 
 ACK_TIMEOUT = 2.0          # s: how long to wait at the end for reliable subscribers to ack
 # Discovery: with subscribers on the played topics known and matched, and the graph unchanged
@@ -78,7 +82,7 @@ def play(bag, topics=None, rate: float = 1.0, loop: bool = False, start_offset: 
         if CLOCK_TOPIC in topics and CLOCK_TOPIC not in selected:
             selected.append(CLOCK_TOPIC)
     else:
-        selected = list(topics)
+        selected = _installed(topics)
     classes = {topic: message_class(topics[topic]) for topic in selected}
     first = first_message(bag, selected).log_time_ns
     start = first + round(start_offset * NS)
@@ -103,7 +107,9 @@ def play(bag, topics=None, rate: float = 1.0, loop: bool = False, start_offset: 
         if CLOCK_TOPIC not in topics:
             clock_publisher = node.create_publisher(
                 Clock, CLOCK_TOPIC, QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))
-        waiting = dict(publishers)
+        # Latched topics keep their message for subscribers that come later: no need to wait.
+        waiting = {topic: publisher for topic, publisher in publishers.items()
+                   if topic not in LATCHED_TOPICS}
         if clock_publisher is not None:
             waiting[CLOCK_TOPIC] = clock_publisher
         if wait_for_subscribers:
@@ -114,6 +120,7 @@ def play(bag, topics=None, rate: float = 1.0, loop: bool = False, start_offset: 
         played = 0
         wall_start = time.monotonic()
         while rclpy.ok():
+            played += _play_latched(bag, selected, start, publishers)
             played += _play_once(bag, selected, start, rate, publishers, clock_publisher)
             if not loop:
                 break
@@ -156,6 +163,38 @@ def _await_discovery(node, publishers: dict) -> None:
         time.sleep(0.02)
 
 
+def _installed(topics: dict) -> list[str]:
+    """The bag's topics whose message types import here; the others are left out with one
+    warning (tf2_msgs, which PyPI has no wheel of, is the usual one)."""
+    played, missing = [], {}
+    for topic, type_name in topics.items():
+        try:
+            message_class(type_name)
+            played.append(topic)
+        except UserError:
+            missing.setdefault(type_name, []).append(topic)
+    for type_name, left_out in missing.items():
+        hint = " (build it with tools/build_tf2_msgs.sh, or source a ROS install)" \
+            if type_name == TF_TYPE else ""
+        print(f"replay: warning: {', '.join(left_out)} not played: {type_name} is not "
+              f"installed{hint}", file=sys.stderr)
+    return played
+
+
+def _play_latched(bag, topics, start: int, publishers) -> int:
+    """The latched topics (transient local) first: for each, its last message at or before
+    ``start``, published at once, so a subscriber of any time gets the robot description and
+    the fixed frames before the first state."""
+    latest = {}
+    for message in bag.messages([t for t in topics if t in LATCHED_TOPICS]):
+        if message.log_time_ns > start:
+            break
+        latest[message.topic] = message
+    for message in latest.values():
+        publishers[message.topic].publish(bytes(message.data))
+    return len(latest)
+
+
 def _first_at(bag, topics, start: int):
     for message in bag.messages(topics):
         if message.log_time_ns >= start:
@@ -171,8 +210,9 @@ def _play_once(bag, topics, start: int, rate: float, publishers, clock_publisher
     played = 0
     last_clock = None
     for message in bag.messages(topics):
-        if message.log_time_ns < start:
-            continue
+        if message.log_time_ns < start or (message.log_time_ns == start
+                                           and message.topic in LATCHED_TOPICS):
+            continue   # before the start, or played already (`_play_latched`)
         due = wall_start + (message.log_time_ns - start) / NS / rate
         while True:
             if not rclpy.ok():

@@ -1,0 +1,165 @@
+"""The live view: a Foxglove WebSocket server (PyPI ``foxglove-sdk``) carrying the simulator's
+topics as foxglove_bridge advertises ROS 2 topics — each channel with its ROS 2 schema (schema
+encoding ``ros2msg``: the full message definition, as bags store it) and ``cdr`` payloads (the
+same bytes a bag holds) — so Foxglove's 3D, plot and raw-message panels work unchanged, with no
+ROS install and no bridge.
+
+Channels (topics.LIVE_TOPIC_TYPES): /tf, /tf_static, /robot_description, /joint_states, /odom,
+/imu, /energy. /tf_static and /robot_description are latched: the view keeps their last message
+and sends it again to every new subscriber, so a client that connects late still draws the
+robot. Message times (log time, and the server time the view broadcasts) are the simulated
+stamps, the clock the messages' headers use.
+
+    view = LiveView(8765)                 # 0: any free port (see view.port)
+    view.publish(stamp_ns, {"/tf": cdr_bytes, "/joint_states": rclpy_message, ...})
+    view.close()
+
+`HeadlessSource` composes one sample's messages for `simulate --view`.
+"""
+from __future__ import annotations
+
+import threading
+import time
+
+from .errors import UserError
+from .frames import FrameTree
+from .imu import Imu
+from .pacing import Pacer
+from .timeline import Grid
+from .messages import description, energy, imu, state_messages, tf_cdr, tf_static_cdr
+from .recording.cdr import exact_cdr
+from .recording.message_definitions import definition_text
+from .topics import (CLOCK_TOPIC, DESCRIPTION_TOPIC, ENERGY_TOPIC, IMU_TOPIC, LATCHED_TOPICS,
+                     LIVE_TOPIC_TYPES, TF_STATIC_TOPIC, TF_TOPIC)
+from .urdf import robot_description
+
+DEFAULT_PORT = 8765
+SERVER_NAME = "mobile_manip_sim"
+
+
+class LiveView:
+    """A Foxglove WebSocket server on ``host:port`` with one channel per live topic."""
+
+    def __init__(self, port: int = DEFAULT_PORT, host: str = "127.0.0.1",
+                 name: str = SERVER_NAME):
+        try:
+            import foxglove
+            from foxglove.websocket import Capability
+        except ImportError:
+            raise UserError("live view", "the Python package foxglove-sdk is not installed "
+                                         "(pip install foxglove-sdk)") from None
+        if isinstance(port, bool) or not isinstance(port, int) or not 0 <= port <= 65535:
+            raise UserError("port", f"{port!r} is not a port number (0 to 65535; 0: any free one)")
+        self._lock = threading.Lock()
+        self._latched: dict[str, tuple[int, bytes]] = {}
+        self._context = foxglove.Context()
+        self.channels = {
+            topic: foxglove.Channel(
+                topic, message_encoding="cdr", context=self._context,
+                schema=foxglove.Schema(name=type_name, encoding="ros2msg",
+                                       data=definition_text(type_name).encode()))
+            for topic, type_name in LIVE_TOPIC_TYPES.items()}
+        self._by_id = {channel.id(): topic for topic, channel in self.channels.items()}
+        try:
+            self.server = foxglove.start_server(
+                name=name, host=host, port=port, context=self._context,
+                server_listener=_Listener(self._on_subscribe),
+                capabilities=[Capability.Time], supported_encodings=["cdr"])
+        except Exception as error:   # the SDK's own error type: port in use, bad host
+            raise UserError(f"port {port}", f"cannot start the Foxglove server on {host} "
+                                            f"({error})") from None
+        self.port = self.server.port
+
+    @property
+    def url(self) -> str:
+        return f"ws://localhost:{self.port}"
+
+    def publish(self, stamp: int, messages: dict) -> None:
+        """Send the messages of one publication (topic → rclpy message, or its CDR bytes),
+        stamped ``stamp`` ns of simulated time; topics without a channel are left out."""
+        self.server.broadcast_time(stamp)
+        for topic, message in messages.items():
+            channel = self.channels.get(topic)
+            if channel is None:
+                continue
+            data = message if isinstance(message, bytes) else exact_cdr(message)
+            if topic in LATCHED_TOPICS:
+                with self._lock:
+                    self._latched[topic] = (stamp, data)
+            channel.log(data, log_time=stamp)
+
+    def _on_subscribe(self, channel) -> None:
+        """A new subscriber of a latched topic gets its last message at once (on the
+        server's thread)."""
+        topic = self._by_id.get(channel.id)
+        with self._lock:
+            latched = self._latched.get(topic)
+        if latched is not None:
+            self.channels[topic].log(latched[1], log_time=latched[0])
+
+    def close(self) -> None:
+        self.server.stop()
+
+
+def _Listener(on_subscribe):
+    """A foxglove.websocket.ServerListener (its other callbacks: the SDK's defaults)."""
+    from foxglove.websocket import ServerListener
+
+    class Listener(ServerListener):
+        def on_subscribe(self, client, channel) -> None:
+            on_subscribe(channel)
+
+    return Listener()
+
+
+class HeadlessSource:
+    """What `simulate --view` publishes at each sample of a run: the states (as the node
+    publishes them), /tf with every link, /imu, /energy, and the latched ones at sample 0."""
+
+    def __init__(self, scene, odom_frame: str = "odom"):
+        self.tree = FrameTree(scene.robot)
+        self.names = scene.robot.joint_names()
+        self.odom_frame = odom_frame
+        self.imu = Imu()
+        self.latched = {TF_STATIC_TOPIC: tf_static_cdr(self.tree, 0),
+                        DESCRIPTION_TOPIC: description(robot_description(scene))}
+
+    def messages(self, sim, k: int, stamp: int) -> dict:
+        messages = state_messages(sim, stamp, self.names, self.odom_frame)
+        del messages[CLOCK_TOPIC]   # the view broadcasts its time instead
+        messages[TF_TOPIC] = tf_cdr(self.tree, sim.q, stamp, self.odom_frame)
+        messages[IMU_TOPIC] = imu(self.imu.read(sim, k), stamp, self.tree.frame("base_link"),
+                                  self.imu.noise)
+        messages[ENERGY_TOPIC] = energy(sim)
+        if k == 0:
+            messages.update(self.latched)
+        return messages
+
+
+class PacedView:
+    """`simulate --view`: a `LiveView` fed by a `HeadlessSource`, each sample published when the
+    wall clock reaches it (real-time factor 1, `pacing.Pacer`; a run that cannot keep up paces
+    on from where it is, without bursts). Stamps are the run's time line (`timeline.Grid`)."""
+
+    def __init__(self, port: int, scene, sample_rate: float, duration: float | None = None):
+        self.view = LiveView(port)
+        self.url = self.view.url
+        self.source = HeadlessSource(scene)
+        self.grid = Grid(sample_rate, duration)
+        self.pacer = Pacer(1.0, 1.0 / sample_rate)
+        self._k = 0
+
+    def sample(self, sim) -> None:
+        k, stamp = self._k, self.grid.stamp(self._k)
+        if k == 0:
+            self.pacer.reanchor(stamp)
+        delay = self.pacer.delay(stamp)
+        if delay > 0:
+            time.sleep(delay)
+        else:
+            self.pacer.late(stamp, -delay)
+        self.view.publish(stamp, self.source.messages(sim, k, stamp))
+        self._k += 1
+
+    def close(self) -> None:
+        self.view.close()
