@@ -109,6 +109,7 @@ EFFORT = 1e6                       # N or N·m, |efforts| and effort limits
 GRAVITY = (0.0, 100.0)             # m/s²
 DAMPING = (0.0, 1e6)               # N·m·s/rad, N·s/m
 DURATION = (0.0, 1e6)              # s (exclusive lower end)
+SAMPLE_RATE = (1e-6, 1e6)          # Hz, samples per simulated second (simulate, sweep)
 DT = (1e-9, 1.0)                   # s, the fixed step
 RTOL = (1e-14, 1.0)
 ATOL = (1e-20, 1.0)
@@ -250,6 +251,8 @@ def _effects(doc, robot: RobotModel) -> Effects:
             if name not in arm_names:
                 raise UserError(f"effects.locked_joints[{i}]",
                                 f"no arm joint named {schema.short(name)} (joints: {', '.join(arm_names) or 'none'})")
+            if name in names[:i]:
+                raise UserError(f"effects.locked_joints[{i}]", f"{name} is listed twice")
         effects["locked_joints"] = tuple(names)
     if "fixed_base" in doc:
         effects["fixed_base"] = _flag(doc["fixed_base"], "effects.fixed_base")

@@ -26,11 +26,9 @@ from pathlib import Path
 from . import cli, schema
 from .engine.simulation import Simulation
 from .errors import UserError
-from .scene import DURATION, Scene, check_work, load_scene, make_integrator
+from .scene import DURATION, SAMPLE_RATE, Scene, check_work, load_scene, make_integrator
 from .sweep.overrides import parse_assignments, scene_with
 from .timeline import sample_times
-
-SAMPLE_RATE = (1e-6, 1e6)          # Hz, --sample-rate
 
 
 def csv_columns(n_links: int) -> list[str]:
@@ -94,15 +92,15 @@ def run(scene: Scene, duration: float, sample_rate: float, settings=None, on_sam
 
 def _main(argv) -> int:
     parser = cli.ArgumentParser(prog="simulate", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--scene", help="scene YAML (default: the embedded paper scene)")
+    parser.add_argument("--scene", type=cli.path, help="scene YAML (default: the embedded paper scene)")
     parser.add_argument("--duration", type=float, help="simulated seconds (default: the scene's)")
     parser.add_argument("--sample-rate", type=float, default=100.0, help="CSV rows per second")
-    parser.add_argument("--out", default="run.csv", help="CSV file to write (default run.csv)")
+    parser.add_argument("--out", type=cli.path, default="run.csv", help="CSV file to write (default run.csv)")
     parser.add_argument("--method", help="integrator (overrides the scene)")
     parser.add_argument("--dt", type=float, help="fixed step (s)")
     parser.add_argument("--rtol", type=float, help="relative tolerance of adaptive methods")
     parser.add_argument("--atol", type=float, help="absolute tolerance of adaptive methods")
-    parser.add_argument("--record", metavar="DIR", help="also record a rosbag2 (MCAP) bag to DIR")
+    parser.add_argument("--record", type=cli.path, metavar="DIR", help="also record a rosbag2 (MCAP) bag to DIR")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="set a scene key path, e.g. robot.arm.links[0].mass_per_length=1.2 "
                              "(value read as YAML; repeatable)")
