@@ -18,6 +18,14 @@ class ArgumentParser(argparse.ArgumentParser):
         raise UserError(self.prog, message)
 
 
+def path(text: str) -> str:
+    """An argparse ``type`` for file and directory arguments: an empty path is refused (``--record
+    ''`` silently recorded nothing, ``--out ''`` wrote into the working directory)."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError(f"an empty path ({text!r})")
+    return text
+
+
 class Terminated(BaseException):
     """SIGTERM, raised in the main thread like KeyboardInterrupt so that `finally` blocks close
     what is open (a bag, a CSV); the process then exits with 128 + SIGTERM."""

@@ -232,6 +232,8 @@ def _effects(doc, robot: RobotModel) -> Effects:
             if name not in arm_names:
                 raise UserError(f"effects.locked_joints[{i}]",
                                 f"no arm joint named {schema.short(name)} (joints: {', '.join(arm_names) or 'none'})")
+            if name in names[:i]:
+                raise UserError(f"effects.locked_joints[{i}]", f"{name} is listed twice")
         effects["locked_joints"] = tuple(names)
     if "fixed_base" in doc:
         effects["fixed_base"] = _flag(doc["fixed_base"], "effects.fixed_base")

@@ -28,7 +28,8 @@ def parse_path(path: str) -> list:
     return parts
 
 
-def _label(parts: list) -> str:
+def path_label(parts: list) -> str:
+    """["a", "b", 0, "c"] → ``a.b[0].c``: the one spelling of a key path."""
     text = ""
     for part in parts:
         text += f"[{part}]" if isinstance(part, int) else (f".{part}" if text else part)
@@ -41,15 +42,15 @@ def set_path(document: dict, path: str, value) -> None:
     parts = parse_path(path)
     node = document
     for depth, part in enumerate(parts):
-        here = _label(parts[:depth + 1])
+        here = path_label(parts[:depth + 1])
         last = depth == len(parts) - 1
         if isinstance(part, int):
             if not isinstance(node, list):
-                raise UserError(here, f"unknown key path: {_label(parts[:depth]) or 'the scene'} is not a list")
+                raise UserError(here, f"unknown key path: {path_label(parts[:depth]) or 'the scene'} is not a list")
             if part >= len(node):
                 raise UserError(here, f"unknown key path: index {part} out of range (the list has {len(node)} entries)")
         elif not isinstance(node, dict):
-            raise UserError(here, f"unknown key path: {_label(parts[:depth])} is a value, not a mapping")
+            raise UserError(here, f"unknown key path: {path_label(parts[:depth])} is a value, not a mapping")
         elif part not in node and not last:
             if isinstance(parts[depth + 1], int):
                 raise UserError(here, f"unknown key path: the scene has no list {here} "

@@ -11,7 +11,11 @@ decimal, not YAML 1.1 booleans, octals or sexagesimals) with these limits:
 - at most MAX_NODES nodes once aliases are expanded (a "billion laughs" bomb is refused before
   anything is built), and no recursive aliases;
 - no duplicate keys in a mapping;
-- integers of more than MAX_INT_DIGITS digits are kept as `HugeNumber` and refused by `number`.
+- integers of more than MAX_INT_DIGITS digits are kept as `HugeNumber` and refused by `number`;
+- an explicit tag must be one of the core schema's (``!!str !!int !!float !!bool !!null !!seq
+  !!map``) and its value must be of that kind (``!!float abc``, ``!!int 1.5``, ``!!bool yes`` are
+  refused), and a ``%YAML`` directive other than ``%YAML 1.2`` is refused (YAML 1.1 would read
+  ``yes`` as true: we do not).
 """
 from __future__ import annotations
 
@@ -85,6 +89,15 @@ class _Loader(yaml.SafeLoader):
         finally:
             self._depth -= 1
 
+    def process_directives(self):
+        value = super().process_directives()
+        if self.yaml_version not in (None, (1, 2)):
+            major, minor = self.yaml_version
+            raise yaml.parser.ParserError(None, None, f"a %YAML {major}.{minor} directive: these "
+                                          f"files are read as YAML 1.2 (remove the directive)",
+                                          self.peek_token().start_mark)
+        return value
+
     def compose_document(self):
         node = super().compose_document()
         _check_expansion(node, self.what)
@@ -143,8 +156,18 @@ def _children(node):
     return []
 
 
+def _core_scalar(loader, node, kind: str) -> str:
+    """The text of a scalar node tagged !!<kind>, which must match the core schema's pattern for
+    that kind (an explicit tag on a value of another kind is refused, naming the line)."""
+    text = loader.construct_scalar(node)
+    if not isinstance(node, yaml.ScalarNode) or not _CORE_PATTERNS[kind].match(text):
+        raise yaml.constructor.ConstructorError(
+            None, None, f"!!{kind} {clip(repr(text), 40)} is not a YAML 1.2 {kind}", node.start_mark)
+    return text
+
+
 def _int(loader, node):
-    text = loader.construct_scalar(node).replace("_", "")
+    text = _core_scalar(loader, node, "int")
     sign, digits = (text[0], text[1:]) if text[:1] in "+-" else ("", text)
     if len(digits) > MAX_INT_DIGITS:
         return HugeNumber(text)
@@ -154,12 +177,27 @@ def _int(loader, node):
 
 
 def _float(loader, node):
-    text = loader.construct_scalar(node).lower()
+    text = _core_scalar(loader, node, "float").lower()
     if text.lstrip("+-") in (".inf",):
         return -math.inf if text.startswith("-") else math.inf
     if text == ".nan":
         return math.nan
     return float(text)
+
+
+def _bool(loader, node):
+    return _core_scalar(loader, node, "bool").lower() == "true"
+
+
+def _null(loader, node):
+    _core_scalar(loader, node, "null")
+
+
+def _not_core(loader, node):
+    tag = node.tag.replace("tag:yaml.org,2002:", "!!")
+    raise yaml.constructor.ConstructorError(
+        None, None, f"the tag {clip(tag, 40)} is not one of YAML 1.2's core schema "
+        f"(!!str, !!int, !!float, !!bool, !!null, !!seq, !!map)", node.start_mark)
 
 
 _RESOLVERS = [  # YAML 1.2 core schema (https://yaml.org/spec/1.2.2/#1032-tag-resolution)
@@ -170,11 +208,17 @@ _RESOLVERS = [  # YAML 1.2 core schema (https://yaml.org/spec/1.2.2/#1032-tag-re
      r"^(?:[-+]?(?:\.[0-9]+|[0-9]+(?:\.[0-9]*)?)(?:[eE][-+]?[0-9]+)?"
      r"|[-+]?\.(?:inf|Inf|INF)|\.nan|\.NaN|\.NAN)$", list("-+.0123456789")),
 ]
+_CORE_PATTERNS = {tag.rsplit(":", 1)[1]: re.compile(pattern) for tag, pattern, _ in _RESOLVERS}
+_CORE_PATTERNS["float"] = re.compile(f"{_RESOLVERS[2][1]}|{_RESOLVERS[3][1]}")  # !!float 1 is 1.0
 for _tag, _pattern, _first in _RESOLVERS:
     _Loader.add_implicit_resolver(_tag, re.compile(_pattern), _first)
 _Loader.add_implicit_resolver("tag:yaml.org,2002:merge", re.compile(r"^(?:<<)$"), ["<"])
 _Loader.add_constructor("tag:yaml.org,2002:int", _int)
 _Loader.add_constructor("tag:yaml.org,2002:float", _float)
+_Loader.add_constructor("tag:yaml.org,2002:bool", _bool)
+_Loader.add_constructor("tag:yaml.org,2002:null", _null)
+for _tag in ("timestamp", "binary", "set", "omap", "pairs"):
+    _Loader.add_constructor(f"tag:yaml.org,2002:{_tag}", _not_core)
 
 
 def read_text_file(path, what: str | None = None, limit: int = MAX_FILE_BYTES,

@@ -63,15 +63,15 @@ class Progress:
 
 def _main(argv) -> int:
     parser = cli.ArgumentParser(prog="simulate", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--scene", help="scene YAML (default: the embedded paper scene)")
+    parser.add_argument("--scene", type=cli.path, help="scene YAML (default: the embedded paper scene)")
     parser.add_argument("--duration", type=float, help="simulated seconds (default: the scene's)")
     parser.add_argument("--sample-rate", type=float, default=100.0, help="CSV rows per second")
-    parser.add_argument("--out", default="run.csv", help="CSV file to write (default run.csv)")
+    parser.add_argument("--out", type=cli.path, default="run.csv", help="CSV file to write (default run.csv)")
     parser.add_argument("--method", help="integrator (overrides the scene)")
     parser.add_argument("--dt", type=float, help="fixed step (s)")
     parser.add_argument("--rtol", type=float, help="relative tolerance of adaptive methods")
     parser.add_argument("--atol", type=float, help="absolute tolerance of adaptive methods")
-    parser.add_argument("--record", metavar="DIR", help="also record a rosbag2 (MCAP) bag to DIR")
+    parser.add_argument("--record", type=cli.path, metavar="DIR", help="also record a rosbag2 (MCAP) bag to DIR")
     parser.add_argument("--view", type=int, nargs="?", const=DEFAULT_VIEW_PORT, metavar="PORT",
                         help="show the run live in Foxglove: a WebSocket server on PORT "
                              f"(default {DEFAULT_VIEW_PORT}; 0: any free port), the run paced "

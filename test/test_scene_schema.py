@@ -188,6 +188,12 @@ YAML_CASES = {
     "an unknown tag": "robot: !!python/object:os.system echo\n",
     "a python tag": "robot: !!python/name:os.system\n",
     "a custom tag": "robot: !mine 1\n",
+    "a float tag on a word": PAPER_TEXT.replace("duration: 1.5", "duration: !!float abc"),
+    "an int tag on a fraction": PAPER_TEXT.replace("duration: 1.5", "duration: !!int 1.5"),
+    "a bool tag on yes": "robot: !!bool yes\n",
+    "a null tag on a word": "robot: !!null abc\n",
+    "a timestamp tag": "duration: !!timestamp 2001-12-14\n",
+    "a YAML 1.1 directive": "%YAML 1.1\n---\n" + PAPER_TEXT,
     "a top-level list": "- 1\n- 2\n",
     "a top-level scalar": "42\n",
     "a top-level string": "hello\n",
@@ -230,6 +236,21 @@ def test_duplicate_keys_name_the_key():
     ("~", None), ("null", None), ("True", True), (".inf", math.inf)])
 def test_yaml_1_2_core_scalars(text, value):
     assert schema.load_yaml(f"v: {text}\n")["v"] == value
+
+
+@pytest.mark.parametrize("text, value", [("!!float 1", 1.0), ("!!float .inf", math.inf),
+                                         ("!!int 0x1f", 31), ("!!str 1.5", "1.5"),
+                                         ("!!bool false", False), ("!!null ~", None)])
+def test_explicit_core_tags_that_fit_their_value(text, value):
+    assert schema.load_yaml(f"v: {text}\n")["v"] == value
+    assert schema.load_yaml(f"%YAML 1.2\n---\nv: {text}\n")["v"] == value
+
+
+def test_a_joint_locked_twice_is_refused():
+    doc = replaced(PAPER, "effects", {"locked_joints": ["arm_revolute_1", "arm_revolute_1"]})
+    with pytest.raises(UserError) as caught:
+        parse_scene(doc)
+    assert_one_line(caught.value, "effects.locked_joints[1]")
 
 
 def test_yaml_1_2_exponent_without_a_dot_is_a_valid_tolerance():

@@ -41,6 +41,8 @@ def assert_one_line(result, key):
     (["--method", "rk4", "--dt", "1e308"], "--dt"), (["--method", "rk4", "--dt", "0.05"], "--dt"),
     (["--method", "rk4", "--dt", "1e-8", "--duration", "1"], "--dt"),
     (["--rtol", "1e-300"], "--rtol"), (["--sample-rate", "nan"], "--sample-rate"),
+    (["--record", ""], "simulate: argument --record: an empty path"),
+    (["--scene", ""], "simulate: argument --scene: an empty path"),
 ], ids=lambda value: " ".join(value) if isinstance(value, list) else value)
 def test_work_beyond_the_limits_is_one_line_naming_the_flag_at_once(tmp_path, flags, key):
     start = time.monotonic()

@@ -263,6 +263,27 @@ def test_resume_after_sigint_gives_the_same_table_without_redoing_a_run(long_spe
     ("random:\n  count: 0\n  vary:\n    initial.velocity[2]: {normal: [0, 1]}\n",
      "random.count: expected a whole number"),
     ("duration: 1\n", "grid: nothing to sweep"),
+    # simulate's bounds and work limits (issue 22)
+    ("duration: 1e300\ngrid: {integrator.method: [rk4]}\n", "duration: must be in (0, 1e+06]"),
+    ("sample_rate: 1e9\ngrid: {integrator.method: [rk4]}\n", "sample_rate: must be in [1e-06, 1e+06]"),
+    ("duration: 100000\nsample_rate: 100\ngrid: {integrator.method: [dop853]}\n",
+     "sample_rate: 100000 s × 100 Hz is more than 1000000 samples"),
+    ("duration: 100000\ngrid: {integrator.method: [dop853]}\n",
+     "sample_rate: 100000 s × 100 Hz is more than 1000000 samples"),
+    ("random:\n  count: 1000000000\n  vary:\n    initial.velocity[2]: {normal: [0, 1]}\n",
+     "random.count: expected a whole number from 1 to 1000000"),
+    ("grid:\n" + "".join(f"  initial.{name}: [0, 1, 2, 3, 4, 5, 6, 7, 8, 9]\n" for name in (
+        "velocity[0]", "velocity[1]", "velocity[2]", "velocity[3]", "velocity[4]", "velocity[5]",
+        "pose[0]", "pose[1]", "pose[2]", "wheels[0]")), "grid: 1e+10 runs (grid points × draws)"),
+    ("grid:\n  initial.velocity[2]: [0, 1]\nrandom:\n  count: 1000000\n  vary:\n"
+     "    initial.velocity[3]: {normal: [0, 1]}\n", "grid: 2e+06 runs (grid points × draws)"),
+    ("random:\n  count: 3\n  vary:\n    initial.velocity[2]: {uniform: [-1.7e308, 1.7e308]}\n",
+     "random.vary.initial.velocity[2].uniform: the range [-1.7e+308, 1.7e+308] is wider"),
+    ("grid: {integrator.method: [rk4, rk4]}\n", "grid.integrator.method[1]: 'rk4' is listed twice"),
+    ("grid:\n  initial.velocity[2]: [0, 1]\nrandom:\n  count: 2\n  vary:\n"
+     "    initial.velocity[02]: {normal: [0, 1]}\n", "random.vary.initial.velocity[02]: varies "
+     "initial.velocity[2] again (already in grid.initial.velocity[2])"),
+    ("chunk: 10000000\ngrid: {integrator.method: [rk4]}\n", "chunk: expected a whole number"),
 ])
 def test_bad_specs_are_one_line_naming_the_key(tmp_path, text, key):
     spec = tmp_path / "bad.yaml"
@@ -280,6 +301,8 @@ def test_bad_specs_are_one_line_naming_the_key(tmp_path, text, key):
     (b"grid: \xff\n", "not UTF-8"), ("#" * (2 << 20), "larger than"),
     ("fifo", "not a regular file"), ("/dev/zero", "not a regular file"),
     ("grid: !!python/object:os.system {}\n", "not valid YAML"),
+    ("duration: !!float abc\ngrid: {integrator.method: [rk4]}\n", "line 1: !!float 'abc' is not a YAML 1.2 float"),
+    ("%YAML 1.1\n---\ngrid: {integrator.method: [rk4]}\n", "a %YAML 1.1 directive"),
 ])
 def test_hostile_spec_files_are_one_line_without_reading_on(tmp_path, content, problem):
     """Spec files go through the scene's loader: its limits, refused in one line at once."""

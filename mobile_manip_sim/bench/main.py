@@ -37,7 +37,7 @@ class Progress:
 
 def _main(argv) -> int:
     parser = cli.ArgumentParser(prog="bench", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--out", default="bench", help="directory for REPORT.md and the plots (default bench)")
+    parser.add_argument("--out", type=cli.path, default="bench", help="directory for REPORT.md and the plots (default bench)")
     parser.add_argument("--quick", action="store_true", help="a smoke run: short sweeps, one repeat")
     parser.add_argument("--only", choices=("mujoco",), help="run one section alone (REPORT.md holds only it)")
     args = parser.parse_args(argv)

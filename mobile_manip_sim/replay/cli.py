@@ -28,7 +28,7 @@ def main(argv=None) -> int:
 
 def _main(argv) -> int:
     parser = cli.ArgumentParser(prog="replay", description=__doc__.split("\n\n")[0])
-    parser.add_argument("bag", help="bag directory (or its .mcap file)")
+    parser.add_argument("bag", type=cli.path, help="bag directory (or its .mcap file)")
     parser.add_argument("--rate", type=float, default=1.0, help="playback speed factor (> 0)")
     parser.add_argument("--loop", action="store_true", help="play again from the start, forever")
     parser.add_argument("--topics", nargs="+", metavar="T", help="play only these topics")

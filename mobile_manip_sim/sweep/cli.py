@@ -23,8 +23,8 @@ from .spec import Spec, load_spec
 
 def _main(argv) -> int:
     parser = cli.ArgumentParser(prog="sweep", description=__doc__.split("\n\n")[0])
-    parser.add_argument("spec", help="the sweep file (YAML)")
-    parser.add_argument("--out", required=True, metavar="DIR", help="directory for runs.parquet and REPORT.md")
+    parser.add_argument("spec", type=cli.path, help="the sweep file (YAML)")
+    parser.add_argument("--out", type=cli.path, required=True, metavar="DIR", help="directory for runs.parquet and REPORT.md")
     parser.add_argument("--scheduler", metavar="ADDRESS", help="a running Dask scheduler (tcp://host:port)")
     parser.add_argument("--workers", type=int, help="LocalCluster worker processes (default: the cores)")
     parser.add_argument("--connect-timeout", type=float, default=10.0, metavar="S",

@@ -18,9 +18,9 @@ from .. import headless
 from ..dynamics import constraint_residuals
 from ..errors import UserError
 from ..methods import METHODS
+from ..scene import check_work
 from ..scene_overrides import scene_with
-
-DEFAULT_SAMPLE_RATE = 100.0   # Hz: simulate's default grid (the runs' numbers depend on it)
+from .spec import DEFAULT_SAMPLE_RATE
 
 
 class TimeLimit(Exception):
@@ -51,6 +51,7 @@ def run_one(document: dict, overrides: dict, duration: float, sample_rate: float
         scene = scene_with(document, overrides)
         if scene.robot.n_links != n_links:
             raise UserError("robot.arm.links", "a sweep cannot change the number of links")
+        check_work(duration, scene.integrator, "duration", "integrator.dt", rate, "sample_rate")
         sim = headless.run(scene, duration, rate, None, on_sample)
     except (UserError, TimeLimit) as error:
         row["error"] = str(error)

@@ -11,6 +11,12 @@
 
 Runs are numbered grid point by grid point (the grid's first key varies slowest), each grid point
 with draws 0 … count − 1; the draws are the same at every grid point.
+
+The limits are `simulate`'s: duration and sample rate within its bounds, and no run of more than
+its fixed steps or samples (`scene.check_work`, for the base scene here and for every run's own
+integrator when it runs); at most MAX_RUNS runs (grid points × draws); a key path varied once
+(in the grid or in random.vary, not both; no value twice in a grid list); a uniform draw whose
+range is a finite number.
 """
 from __future__ import annotations
 
@@ -23,12 +29,15 @@ import numpy as np
 
 from .. import schema
 from ..errors import UserError
-from ..scene import load_scene
-from ..scene_overrides import check_known
+from ..limits import DURATION, SAMPLE_RATE
+from ..scene import check_work, load_scene
+from ..scene_overrides import check_known, parse_path, path_label
 
 DISTRIBUTIONS = {"uniform": "[low, high]", "normal": "[mean, standard deviation]",
                  "loguniform": "[low, high], both positive", "choice": "[value, …]"}
 KEYS = ("scene", "duration", "sample_rate", "time_limit", "chunk", "grid", "random")
+MAX_RUNS = 1_000_000   # runs of one sweep: a row each in runs.parquet, held in memory
+DEFAULT_SAMPLE_RATE = 100.0   # Hz: simulate's default grid (the runs' numbers depend on it)
 
 
 @dataclass(frozen=True)
@@ -99,13 +108,23 @@ def parse_spec(doc, base_dir: Path = Path(".")) -> Spec:
     except UserError as error:
         raise UserError("scene", str(error)) from None
     document = scene.document
+    duration = schema.number(doc.get("duration", scene.duration), "duration", positive=True,
+                             hi=DURATION[1])
+    sample_rate = doc.get("sample_rate")
+    if sample_rate is not None:
+        sample_rate = schema.number(sample_rate, "sample_rate", lo=SAMPLE_RATE[0], hi=SAMPLE_RATE[1])
+    check_work(duration, scene.integrator, "duration", "integrator.dt",
+               sample_rate or DEFAULT_SAMPLE_RATE, "sample_rate")
     grid = _grid(doc.get("grid"), document)
     count, seed, vary = _random(doc.get("random"), document)
     if not grid and not count:
         raise UserError("grid", "nothing to sweep: give a grid, a random section, or both")
-    return Spec(scene_path=scene_path, document=document,
-                duration=_positive(doc.get("duration", scene.duration), "duration"),
-                sample_rate=None if doc.get("sample_rate") is None else _positive(doc["sample_rate"], "sample_rate"),
+    _check_varied_once(grid, vary)
+    runs = math.prod(len(values) for values in grid.values()) * max(1, count)
+    if runs > MAX_RUNS:
+        raise UserError("grid" if grid else "random.count",
+                        f"{runs:.6g} runs (grid points × draws) is more than {MAX_RUNS}")
+    return Spec(scene_path=scene_path, document=document, duration=duration, sample_rate=sample_rate,
                 time_limit=None if doc.get("time_limit") is None else _positive(doc["time_limit"], "time_limit"),
                 chunk=None if doc.get("chunk") is None else _count(doc["chunk"], "chunk"),
                 grid=grid, count=count, seed=seed, vary=vary)
@@ -118,9 +137,24 @@ def _positive(value, key) -> float:
 
 
 def _count(value, key) -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-        raise UserError(key, f"expected a whole number ≥ 1, got {schema.short(value)}")
+    if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= MAX_RUNS:
+        raise UserError(key, f"expected a whole number from 1 to {MAX_RUNS}, got {schema.short(value)}")
     return value
+
+
+def _check_varied_once(grid: dict, vary: dict) -> None:
+    """Each key path varied by one entry (``initial.velocity[2]`` and ``[02]`` are one path),
+    each grid value given once: a path varied twice runs the same run again, or hides one."""
+    seen = {}
+    for key, path in [(f"grid.{path}", path) for path in grid] + [(f"random.vary.{path}", path) for path in vary]:
+        canonical = path_label(parse_path(path))
+        if canonical in seen:
+            raise UserError(key, f"varies {canonical} again (already in {seen[canonical]})")
+        seen[canonical] = key
+    for path, values in grid.items():
+        for i, value in enumerate(values):
+            if any(type(value) is type(other) and value == other for other in values[:i]):
+                raise UserError(f"grid.{path}[{i}]", f"{schema.short(value)} is listed twice")
 
 
 def _grid(grid, document) -> dict:
@@ -180,6 +214,9 @@ def _distribution(value, key) -> tuple[str, list]:
     if not numbers:
         raise UserError(f"{key}.{name}", f"expected {DISTRIBUTIONS[name]}, got {schema.short(params)}")
     low, high = params
+    if name == "uniform" and not math.isfinite(high - low):
+        raise UserError(f"{key}.{name}", f"the range {schema.short(params)} is wider than the "
+                                         f"largest float")
     if name == "normal" and high < 0 or name != "normal" and low > high:
         raise UserError(f"{key}.{name}", f"expected {DISTRIBUTIONS[name]}, got {schema.short(params)}")
     if name == "loguniform" and low <= 0:
