@@ -383,14 +383,17 @@ def impact(system, stops, s, k, side, t, scratch, ds, forces):
         contact_impulses(system, stops, s, m, scratch)
     for i in range(first, row):
         r = int(stops.log[i, LOG_LINK])
-        after = s[nq + layout.u_l(r)]
-        stops.log[i, LOG_LD_AFTER] = after
-        stops.log[i, LOG_LOST] = 0.0
-        stops.log[i, LOG_RESTING] = 1.0 if after == 0.0 else 0.0
-        if after == 0.0:   # stopped dead (e = 0 on an active contact): held at its stop
-            s[nq + layout.u_l(r)] = 0.0
+        if s[nq + layout.u_l(r)] == 0.0:   # stopped dead (e = 0, active): held at its stop
+            s[nq + layout.u_l(r)] = 0.0     # (not −0.0)
             stops.resting[r - 1] = hits[r - 1]
             stops.watched[r - 1] = False
+    for i in range(first, row):
+        r = int(stops.log[i, LOG_LINK])
+        stops.log[i, LOG_LD_AFTER] = s[nq + layout.u_l(r)]
+        stops.log[i, LOG_LOST] = 0.0
+        stops.log[i, LOG_RESTING] = 1.0 if stops.resting[r - 1] != 0 else 0.0
+        for j in range(nu):
+            stops.log_u[i, 1, j] = s[nq + j]
     stops.count[0] = row
     relock(system, stops)
     lost = T_before - kinetic_energy(system, s)
