@@ -88,31 +88,38 @@ def random_three_rod_scene(seed):
 
 
 def test_in_random_multi_rod_scenes_no_stop_ever_pulls():
-    """Every impact: impulses P ≥ 0 on each contact (the hit rod and those resting before it),
-    no contact left moving into its stop, energy not increased, and M (u⁺ − u⁻) = E P: the
-    momentum of every free direction that is not a contact is kept. Impacts slower than the rest
-    speed settle every contact (bilateral by design, `contact_impulses`): the sign checks skip
-    them, the others still hold."""
-    pulled_under_the_old_law = checked = 0
+    """Every impact, settling ones (slower than the rest speed) included: impulses P ≥ 0 on each
+    contact (the rods hit and those resting, every rod at a stop in the impact's state), no
+    contact left moving into its stop, energy not increased, and M (u⁺ − u⁻) = E P: the momentum
+    of every free direction that is not a contact is kept. Only an impact held at an
+    accumulation point (the Zeno guard) may hold a contact bilaterally, by at most the momentum
+    of the tail it cuts off. Between impacts, at the end of every step, the stop of every
+    resting rod pushes (its holding force changed sign inside a step: it was released there)."""
+    pulled_under_the_old_law = checked = slow = 0
     for seed in range(12):
         sim = Simulation(random_three_rod_scene(seed))
-        sim.sample(np.arange(1, 101) * 0.02)
+        for t in np.arange(1, 1001) * 0.002:
+            sim.advance_to(t)
+            forces = sim.system.constraint_forces(sim.s)
+            for k in np.flatnonzero(sim.resting) + 1:
+                assert -sim.resting[k - 1] * forces[2 * k + 1] >= -1e-9, (seed, t, k)
         permanent = set(sim.system.permanently_locked)
         for impact, d in zip(sim.impacts, sim.impact_details):
-            k, side = impact.link, (-1 if impact.stop == "lower" else 1)
-            resting_before = [j for j in range(3, sim.nu, 2) if j not in d.free and j not in permanent]
-            contacts = sorted(set(resting_before) | {2 * k + 1})
+            at_stop = {2 * r + 1: (1.0 if d.q[4 + 2 * r] == sim.stroke[r - 1, 0] else -1.0)
+                       for r in range(1, 4) if d.q[4 + 2 * r] in sim.stroke[r - 1]}
+            assert 2 * impact.link + 1 in at_stop
             M = sim.dynamics.mass_matrix(d.q)
             impulse = M @ (d.u_after - d.u_before)
-            others = [j for j in range(sim.nu) if j not in contacts and j not in permanent]
+            others = [j for j in range(sim.nu) if j not in at_stop and j not in permanent]
             assert np.abs(impulse[others]).max(initial=0.0) < 1e-9 * (1 + np.abs(M).max())
-            settling = d.held or abs(impact.ld_before) < 0.01
-            for j in ([] if settling else contacts):
-                rod = (j - 1) // 2
-                sigma = 1.0 if (j == 2 * k + 1 and side < 0) or (j != 2 * k + 1 and d.q[4 + 2 * rod] <= sim.stroke[rod - 1, 0]) else -1.0
-                assert sigma * impulse[j] >= -1e-9                # the stop pushes
-                assert sigma * d.u_after[j] >= -1e-9              # nothing left moving into a stop
+            tol = 1e-4 if d.held else 1e-9
+            for j, sigma in at_stop.items():
+                assert sigma * impulse[j] >= -tol, (seed, impact)       # the stop pushes
+                assert sigma * d.u_after[j] >= -1e-9, (seed, impact)    # none left moving in
             assert impact.energy_lost >= -1e-12
             checked += 1
+            slow += abs(impact.ld_before) < 0.01
+            resting_before = [j for j in at_stop if j not in d.free and j not in permanent]
             pulled_under_the_old_law += any(d.u_after[j] != 0.0 for j in resting_before)
-    assert checked > 30 and pulled_under_the_old_law > 0   # the scenes do exercise the law
+    # the scenes do exercise the law, settling impacts included
+    assert checked > 30 and pulled_under_the_old_law > 0 and slow > 5

@@ -17,8 +17,8 @@ SciPy's radau and bdf use the same bookkeeping from Python (`Simulation._advance
 SciPy step, its interpolant a `dense.POWER` series, becomes the step in hand (`reach`,
 `locate_event`), so every adaptive method shares the event handling and the Zeno guard.
 
-The Zeno guard is `events.zeno_guard`, the fixed-step core's too, with the length of the step in
-hand (the one holding the impact) as its window (`apply_event`).
+The Zeno guard is `events.zeno_guard`, the fixed-step core's too (called by `stops.impact`): it
+reads the impact times alone, never the step.
 
 The simulated time is clock[T0] of `stepping.py`'s clock (K stays 0); STEPS and LOST as there.
 """
@@ -31,8 +31,7 @@ from ..dynamics.jit import jit
 from . import layout
 from . import runge_kutta as rk
 from .dense import Interpolant, interpolate
-from .events import (RELEASE, crossing_in_step, first_crossing, holding_margin_after, locate,
-                     zeno_guard)
+from .events import RELEASE, crossing_in_step, first_crossing, holding_margin_after, locate
 from .stepping import (BUDGET, DONE, LOG_FULL, LOST, NOT_FINITE, STEPS, T0, any_watched, copy_into,
                        finite, total_energy)
 from .step_watch import make_watch, watch_step
@@ -174,12 +173,10 @@ def apply_event(system, stops, scr, solve, s, clock):
     copy_into(solve.event, s)
     clock[T0] = t
     if status[EVENT] == IMPACT:
-        k, side = int(status[EVENT_K]), int(status[EVENT_SIDE])
-        hold = zeno_guard(stops.run, k, side, t, status[STEP_H])
-        clock[LOST] += impact(system, stops, s, k, side, t, hold, scr.impact, scr.stages[3],
-                              scr.forces)
+        clock[LOST] += impact(system, stops, s, int(status[EVENT_K]), int(status[EVENT_SIDE]), t,
+                              scr.impact, scr.stages[3], scr.forces)
     else:
-        release(system, stops, s, scr.stages[3], scr.forces, True)
+        release(system, stops, s, scr.impact, scr.stages[3], scr.forces, True)
     restart(solve)
 
 

@@ -1,4 +1,5 @@
-"""Events inside a step, compiled: a rod reaching an end stop, a resting rod pulled off its stop.
+"""Events inside a step, compiled: a rod reaching an end stop, a resting rod pulled off its stop
+(the semantics in docs/events.md).
 
 Both are roots in h' ∈ (0, h] of an event function of the state h' into the step (`step_state`):
 for the fixed-step methods the integrator's *own* step ``step(s0, h')`` — so the state at the
@@ -19,16 +20,21 @@ turning points, then located by the Illinois method.
 `step_state(...)` is the one place that evaluates the state inside a step for the event
 functions, so one Illinois root finder (`locate`) serves every method.
 
-The Zeno guard (`zeno_guard`), the one for every method, fixed-step and adaptive: a rod hitting
-the same stop ZENO_IMPACTS times within one step length of the first of those impacts is
-chattering with ever smaller rebounds (an accumulation of impacts, down to round-off and on
-forever) and is held there at the impact that completes the run. Each rod and stop keeps its
-own run (`stops.StopsData.run`), so impacts of other rods in between neither break a run nor
-count towards it: two rods trading ever smaller impacts each fill their own run and are held,
-while a rod bouncing normally is never held because another one chatters. The step length is
-dt for the fixed-step methods and the length of the step in hand for the adaptive ones. The
-last resort when rods are released and hit again without end is the fixed-step core's
-log-room exit (`stepping.CHATTER`).
+Simultaneous impacts (`simultaneous_hits`): rods that reach their stops within SIMULTANEOUS
+(s) of each other take part in one impact, solved together by the multi-contact law
+(`stops.impact`): at the located instant, a rod moving into its stop closer to it than its speed
+times SIMULTANEOUS (or already past it) is moved onto it and hit with the rest, so the result
+does not depend on which crossing round-off places first.
+
+The Zeno guard (`zeno_guard`), the one for every method, fixed-step and adaptive, reads the
+impact times alone, never the step: the impacts of one rod at one stop whose intervals shrink
+accumulate at a finite time; once the tail still to come, estimated from the last two
+intervals as a geometric series, is shorter than ZENO_TAIL (or an interval itself is), the
+rest of the series is one event and the rod is held there. Each rod and stop keeps its own
+record (`stops.StopsData.run`), so impacts of other rods in between neither break it nor count
+towards it. A rod bouncing faster than ``rest_speed`` is held only there, so its impact count
+does not depend on the method or the tolerance. The last resort when rods are released and hit
+again without end is the fixed-step core's log-room exit (`stepping.CHATTER`).
 """
 import math
 
@@ -40,24 +46,57 @@ from .system import CROSSING_CHECKS, derivative, slide_holding_forces
 
 CROSSING, RELEASE = 0, 1
 N_SAMPLES = 16
-ZENO_IMPACTS = 64   # the Zeno guard: a run of this many impacts holds the rod at its stop
-RUN_COUNT, RUN_T = 0, 1   # stops.run[k − 1, stop, ...]: impacts in the run, time of its first (s)
+SIMULTANEOUS = 1e-9   # s: stops reached this close together in time are one impact
+ZENO_TAIL = 1e-6      # s: a run of impacts whose remaining tail is shorter than this is held
+RUN_COUNT, RUN_LAST, RUN_INTERVAL = 0, 1, 2   # stops.run[k − 1, stop, ...]
 
 
 @jit
-def zeno_guard(run, k, side, t, window):
+def zeno_guard(run, k, side, t):
     """The Zeno guard of the module doc: rod k (1-based) meets its lower (side −1) or upper (+1)
-    stop at time t (s). Counts the impact into the run of that rod at that stop — a new run when
-    the first of the current one lies window (s) or more before t — and returns True from the
-    ZENO_IMPACTS-th impact of the run on, i.e. when the rod is to be held (a rod released and
-    back within the window is still chattering). ``run`` is
-    (n, 2, 2): [RUN_COUNT, RUN_T] per rod and stop (0 lower, 1 upper); zeros: no run."""
-    j = 0 if side < 0 else 1
-    if run[k - 1, j, RUN_COUNT] > 0.0 and t - run[k - 1, j, RUN_T] < window:
-        run[k - 1, j, RUN_COUNT] += 1.0
-    else:
-        run[k - 1, j, RUN_COUNT], run[k - 1, j, RUN_T] = 1.0, t
-    return run[k - 1, j, RUN_COUNT] >= ZENO_IMPACTS
+    stop at time t (s). Records the impact in ``run`` ((n, 2, 3): impacts, time of the last,
+    interval before it, per rod and stop) and returns True when the rod is to be held: the
+    interval since its last impact there is within ZENO_TAIL, or it shrank by the ratio r and
+    the tail to come, interval · r / (1 − r), is."""
+    record = run[k - 1, 0 if side < 0 else 1]
+    hold = False
+    if record[RUN_COUNT] > 0.0:
+        interval = t - record[RUN_LAST]
+        hold = interval <= ZENO_TAIL
+        if record[RUN_COUNT] > 1.0 and interval < record[RUN_INTERVAL]:
+            ratio = interval / record[RUN_INTERVAL]
+            hold = hold or interval * ratio <= ZENO_TAIL * (1.0 - ratio)
+        record[RUN_INTERVAL] = interval
+    record[RUN_COUNT] += 1.0
+    record[RUN_LAST] = t
+    return hold
+
+
+@jit
+def simultaneous_hits(system, stops, s, k, side, hits):
+    """The rods hit together with rod k at its stop ``side`` at the located state s: hits[r − 1]
+    = the stop (−1, +1) rod r meets, 0 for none — rod k, and every other watched rod moving into
+    a stop closer to it than |l̇| · SIMULTANEOUS, or already past one. Each is moved exactly
+    onto its stop in s (by at most its speed times SIMULTANEOUS). Returns how many."""
+    nq, _ = layout.sizes(system)
+    count = 0
+    for r in range(1, hits.shape[0] + 1):
+        hits[r - 1] = 0
+        if r == k:
+            hits[r - 1] = side
+        elif stops.watched[r - 1]:
+            lo, hi = stops.stroke[r - 1, 0], stops.stroke[r - 1, 1]
+            l_r, v = s[layout.l(r)], s[layout.ld(nq, r)]
+            reach = abs(v) * SIMULTANEOUS
+            if l_r < lo or v < 0.0 and l_r - lo <= reach:
+                hits[r - 1] = -1
+                s[layout.l(r)] = lo
+            elif l_r > hi or v > 0.0 and hi - l_r <= reach:
+                hits[r - 1] = 1
+                s[layout.l(r)] = hi
+        if hits[r - 1] != 0:
+            count += 1
+    return count
 
 
 @jit_inline

@@ -246,7 +246,8 @@ class Simulation:
         scr = self._scratch
         if self.resting.any() and holding_margin(self.system.data, self.s, self.resting,
                                                  scr.stages[3], scr.forces) < 0.0:
-            release(self.system.data, self.stops, self.s, scr.stages[3], scr.forces, False)
+            release(self.system.data, self.stops, self.s, scr.impact, scr.stages[3], scr.forces,
+                    False)
 
     # --- stepping ------------------------------------------------------------------------
     def advance_to(self, t_end: float) -> None:

@@ -3,9 +3,9 @@ array of samples) with every step, crossing check, event location, impact, rest 
 and the Zeno guard inside compiled code. Python is entered once per call — and, so that signals,
 `~/pause` and `~/reset` act promptly, whenever a call has used its step budget.
 
-The Zeno guard is `events.zeno_guard`, the adaptive core's too, with dt as its window. A step
-whose impacts would overflow the impact log (rods released by the guard and hitting again
-without end) ends the call with CHATTER, the last resort.
+The Zeno guard is `events.zeno_guard`, the adaptive core's too (called by `stops.impact`). A
+step whose impacts would overflow the impact log (rods released and hitting again without end)
+ends the call with CHATTER, the last resort.
 
 The time line: t = t0 + k·dt with an integer step count k (so that long runs land exactly on
 k·dt); a target off that grid ends in one shorter step, after which the grid restarts there.
@@ -19,7 +19,7 @@ from ..dynamics import kernels
 from ..dynamics.jit import jit, jit_inline
 from . import layout
 from .events import (N_SAMPLES, RELEASE, crossing_in_step, first_crossing, holding_margin, locate,
-                     step_state, zeno_guard)
+                     step_state)
 from .fixed_step import step
 from .stops import any_resting, impact, release
 
@@ -30,7 +30,6 @@ T0, DT, K, STEPS, LOST = range(5)
 
 StepScratch = namedtuple("StepScratch", [
     "out",      # (size,) the step's end state
-    "start",    # (size,) a step's start state, kept while events are located in it
     "trial",    # (size,) trial steps of the event functions
     "stages",   # (4, size) Runge–Kutta stages
     "forces",   # (size,) holding forces (first n_u entries)
@@ -41,7 +40,7 @@ StepScratch = namedtuple("StepScratch", [
 
 
 def make_scratch(size: int, n_links: int, impact_scratch) -> StepScratch:
-    return StepScratch(np.zeros(size), np.zeros(size), np.zeros(size), np.zeros((4, size)),
+    return StepScratch(np.zeros(size), np.zeros(size), np.zeros((4, size)),
                        np.zeros(size), np.zeros(N_SAMPLES + 2 * n_links),
                        np.zeros(max(n_links, 1), dtype=np.int64), impact_scratch)
 
@@ -70,38 +69,53 @@ def any_watched(stops):
 
 @jit
 def step_with_events(method, system, stops, scr, s, h, t, clock):
-    """One step of length h from time t in which end stops may be hit (and hit again): each
-    impact logged and put to the Zeno guard (window dt), the step finished after the last one.
-    CHATTER when the impact log has no room left for the next impact."""
+    """One step of length h from time t in which end stops may be hit and resting rods leave
+    them, again and again: the first event in what is left of the step — a crossing
+    (`first_crossing`) or the instant a resting rod's stop would start to pull (`locate`
+    RELEASE) — is located on the integrator's own step, applied there (`impact`, `release`),
+    and the step goes on from it. CHATTER when the impact log has no room for the next impact."""
     dt = clock[DT]
-    # One impact per round, each taking a row of the log: bounded by the log's room.
-    for _ in range(stops.log.shape[0] - stops.count[0]):
+    capacity = stops.log.shape[0]
+    n = stops.resting.shape[0]
+    for _ in range(2 * capacity):
         step(method, system, s, h, scr.out, scr.stages)
         if not finite(scr.out):
             return NOT_FINITE
-        if not crossing_in_step(s, scr.out, h, system, stops.watched, stops.stroke):
+        h_hit, k, side = -1.0, 0, 0
+        if any_watched(stops) and crossing_in_step(s, scr.out, h, system, stops.watched,
+                                                   stops.stroke):
+            h_hit, k, side = first_crossing(method, system, s, h, stops.watched, stops.resting,
+                                            stops.stroke, scr.samples, scr.crossed, scr.trial,
+                                            scr.stages, scr.forces)
+        h_leave = -1.0
+        if any_resting(stops) and holding_margin(system, scr.out, stops.resting, scr.stages[0],
+                                                 scr.forces) < 0.0:
+            h_leave = locate(RELEASE, method, system, s, 0.0, h, 0, 0, 0.0, stops.resting,
+                             scr.trial, scr.stages, scr.forces)
+        if k == 0 and h_leave < 0.0:   # no event (or the Hermite path dipped, the step did not)
             copy_into(scr.out, s)
             return DONE
-        h_hit, k, side = first_crossing(method, system, s, h, stops.watched, stops.resting,
-                                        stops.stroke, scr.samples, scr.crossed, scr.trial,
-                                        scr.stages, scr.forces)
-        if k == 0:   # the Hermite path dipped, the step itself did not
-            copy_into(scr.out, s)
-            return DONE
-        step_state(method, system, s, h_hit, scr.trial, scr.stages)
-        copy_into(scr.trial, s)
-        s[layout.l(k)] = stops.stroke[k - 1, 0] if side < 0 else stops.stroke[k - 1, 1]
-        h -= h_hit
-        t += h_hit
-        # A chattering rod is held at its stop (it leaves when the net force pulls it away) and
-        # the step finishes with it held; stepping on regardless would carry it through the stop.
-        hold = zeno_guard(stops.run, k, side, t, dt)
-        clock[LOST] += impact(system, stops, s, k, side, t, hold, scr.impact, scr.stages[3],
-                              scr.forces)
+        if k == 0 or 0.0 <= h_leave < h_hit:
+            # A resting rod is pulled off its stop: released at that instant, not a step later.
+            step_state(method, system, s, h_leave, scr.trial, scr.stages)
+            copy_into(scr.trial, s)
+            h -= h_leave
+            t += h_leave
+            release(system, stops, s, scr.impact, scr.stages[3], scr.forces, True)
+        else:
+            if stops.count[0] + n > capacity:
+                # The log is full within one step: rods released and hitting again without end
+                # (or more rods chattering at once than it was sized for): reported, not run on.
+                return CHATTER
+            step_state(method, system, s, h_hit, scr.trial, scr.stages)
+            copy_into(scr.trial, s)
+            s[layout.l(k)] = stops.stroke[k - 1, 0] if side < 0 else stops.stroke[k - 1, 1]
+            h -= h_hit
+            t += h_hit
+            clock[LOST] += impact(system, stops, s, k, side, t, scr.impact, scr.stages[3],
+                                  scr.forces)
         if h <= 1e-15 * dt:
             return DONE
-    # The log is full within one step: rods released and hitting again without end (or more
-    # rods chattering at once than the log was sized for) are reported, not run on.
     return CHATTER
 
 
@@ -114,19 +128,12 @@ def grid_step(method, system, stops, scr, s, clock, k1_ready):
     step(method, system, s, dt, scr.out, scr.stages, k1_ready)
     if not finite(scr.out):
         return NOT_FINITE, False
-    if any_watched(stops) and crossing_in_step(s, scr.out, dt, system, stops.watched, stops.stroke):
-        return step_with_events(method, system, stops, scr, s, dt, t, clock), False
     # The holding forces need f(out), which is the next step's first stage: computed once.
-    if any_resting(stops) and holding_margin(system, scr.out, stops.resting, scr.stages[0],
-                                             scr.forces) < 0.0:
-        # A resting rod is pulled off its stop during the step: locate the instant like an
-        # impact; deciding at the end of the step would hold it up to a step too long.
-        copy_into(s, scr.start)
-        h = locate(RELEASE, method, system, scr.start, 0.0, dt, 0, 0, 0.0, stops.resting,
-                   scr.trial, scr.stages, scr.forces)
-        step_state(method, system, scr.start, h, s, scr.stages)
-        release(system, stops, s, scr.stages[3], scr.forces, True)
-        return step_with_events(method, system, stops, scr, s, dt - h, t + h, clock), False
+    if (any_watched(stops) and crossing_in_step(s, scr.out, dt, system, stops.watched,
+                                                stops.stroke)
+            or any_resting(stops) and holding_margin(system, scr.out, stops.resting,
+                                                     scr.stages[0], scr.forces) < 0.0):
+        return step_with_events(method, system, stops, scr, s, dt, t, clock), False
     copy_into(scr.out, s)
     return DONE, any_resting(stops)
 

@@ -1,15 +1,20 @@
-"""Stroke end stops, compiled: the impact law, resting at a stop and leaving it.
+"""Stroke end stops, compiled: the impact law, resting at a stop and leaving it (the semantics
+in docs/events.md).
 
 - Impact (`impact`): MODEL.md's unilateral impact law — one solve for every stop in contact at
-  that instant, the one hit and those resting, each stop only pushing (`contact_impulses`,
-  `solve_contacts`) — or the paper's `reflect` law; the record of every impact
-  goes to the stop log (`StopsData.log`), from which `Simulation` builds its `Impact` list.
-- Resting: a rod whose rebound speed is below ``rest_speed`` is held at the stop (its l̇ degree
-  of freedom is locked, not stiffly pushed back), and so is a rod whose rebounds are too small
-  to resolve (the Zeno guard, `events.zeno_guard`, called by both cores at each impact, its
-  runs kept here in `StopsData.run`). It leaves when the stop would have to pull to hold it
-  (`release`: the holding force changes sign), located inside the step like an impact
-  (`events.py`) and checked whenever the command changes.
+  that instant: the rods reaching their stops within `events.SIMULTANEOUS` of each other (each
+  with its restitution, 0 for one arriving slower than rebounds are kept) and those resting
+  (e = 0), each stop only pushing (`contact_impulses`, `solve_contacts`) — or the paper's
+  `reflect` law; one row per rod hit goes to the stop log (`StopsData.log`), from which
+  `Simulation` builds its `Impact` list.
+- Resting: a rod whose rebound would be slower than ``rest_speed`` stops dead at its stop (e = 0)
+  and is held there (its l̇ degree of freedom is locked, not stiffly pushed back). At an
+  accumulation point of impacts (the Zeno guard, `events.zeno_guard`, on the impact times alone)
+  every contact of the impact is held.
+- Leaving (`release`): a resting rod leaves when its stop would have to pull to hold it — at an
+  impact, at a command change, or at the instant located inside a step where its holding force
+  changes sign (`events.py`); which rods leave together is decided by the same contact law at
+  the level of accelerations, so freeing one never leaves another one pulled.
 """
 from __future__ import annotations
 
@@ -22,7 +27,7 @@ import numpy as np
 from ..dynamics import kernels
 from ..dynamics.jit import jit, jit_inline
 from . import layout
-from .events import ZENO_IMPACTS, holding_margin
+from .events import simultaneous_hits, zeno_guard
 from .system import derivative, slide_holding_forces
 
 IMPULSE, REFLECT = 0, 1
@@ -30,6 +35,7 @@ LAW_IDS = {"impulse": IMPULSE, "reflect": REFLECT}
 # log[i, ...] columns
 LOG_TIME, LOG_LINK, LOG_SIDE, LOG_LD_BEFORE, LOG_LD_AFTER, LOG_LOST, LOG_RESTING, LOG_HELD = range(8)
 LOG_COLUMNS = 8
+LOG_ROOM = 64   # rows of the impact log per stop (see `make_stops`)
 
 StopsData = namedtuple("StopsData", [
     "watched",    # (n,) bool: rod k's stops are checked for crossings (not while it rests)
@@ -42,14 +48,14 @@ StopsData = namedtuple("StopsData", [
     "log_u",      # (capacity, 2, n_u) u⁻ and u⁺ of each impact
     "log_free",   # (capacity, n_u) bool: the pseudo-velocities free at each impact
     "count",      # (1,) int64: rows of the log in use
-    "run",        # (n, 2, 2) the Zeno guard's run per rod and stop (0 lower, 1 upper): impacts,
-                  # time of the first (s) (`events.zeno_guard`); zeros: none; cleared on reset
+    "run",        # (n, 2, 3) the Zeno guard's record per rod and stop (0 lower, 1 upper): impacts,
+                  # time of the last (s), interval before it (s) (`events.zeno_guard`); cleared on reset
 ])
 
 StopLaw = namedtuple("StopLaw", [
     "kind",         # IMPULSE (MODEL.md's unilateral law) or REFLECT (the paper's: l̇ reversed alone)
     "restitution",  # e ∈ [0, 1]
-    "rest_speed",   # m/s: a rod rebounding slower than this is held at its stop
+    "rest_speed",   # m/s: a rod that would rebound slower than this stops dead and is held
 ])
 
 ImpactScratch = namedtuple("ImpactScratch", [
@@ -57,9 +63,10 @@ ImpactScratch = namedtuple("ImpactScratch", [
     "L",         # (n_u, n_u) its Cholesky factor
     "vectors",   # (4, n_u) scratch for the mass-matrix kernel and the solve
     "free",      # (n_u,) int64: the free pseudo-velocities, padded with −1
-    "rods",      # (n,) int64: the rods in contact (the one hit first)
+    "rods",      # (n,) int64: the rods in contact (those hit first)
+    "hits",      # (n,) int64: the stop (−1, +1) each rod meets at this impact, 0 none
     "index",     # (n,) int64: the solve's active contacts
-    "flags",     # (2, n) bool: each contact bilateral, active
+    "flags",     # (2, n) bool: each contact bilateral (held), active
     "contact",   # (6, n) per contact: σ, e, c⁻, (1 + e) c⁻, impulse P, w = W P + q
     "MinvE",     # (n, n_u) M⁻¹ E, one row per contact
     "W",         # (n, n) the Delassus matrix Eᵀ M⁻¹ E
@@ -70,10 +77,10 @@ ImpactScratch = namedtuple("ImpactScratch", [
 def make_stops(model, stop_law, permanently_locked) -> StopsData:
     """The stops of `model` under the scene's `StrokeLimits` (None: no stops, never watched)."""
     n, nq, nu = model.n_links, model.n_q, model.n_u
-    # Half of it is room for one step's impacts: a run of ZENO_IMPACTS at each stop of every
-    # rod (the Zeno guard holds the rod at the last) and 4·ZENO_IMPACTS more, so that the
-    # log-room exit (`stepping.CHATTER`) is a last resort.
-    capacity = 4 * ZENO_IMPACTS * (n + 2)
+    # Half of it is room for one step's impacts: LOG_ROOM at each stop of every rod and
+    # 4·LOG_ROOM more — far more than a run of impacts takes to reach its accumulation point
+    # (`events.zeno_guard`), so that the log-room exit (`stepping.CHATTER`) is a last resort.
+    capacity = 4 * LOG_ROOM * (n + 2)
     permanent = np.zeros(nu, dtype=np.bool_)
     permanent[list(permanently_locked)] = True
     return StopsData(np.zeros(n, dtype=np.bool_), np.zeros(n, dtype=np.int64),
@@ -82,7 +89,7 @@ def make_stops(model, stop_law, permanently_locked) -> StopsData:
                              float(stop_law.rest_speed)) if stop_law else StopLaw(IMPULSE, 0.0, 0.0),
                      np.zeros((capacity, LOG_COLUMNS)), np.zeros((capacity, nq)),
                      np.zeros((capacity, 2, nu)), np.zeros((capacity, nu), dtype=np.bool_),
-                     np.zeros(1, dtype=np.int64), np.zeros((n, 2, 2)))
+                     np.zeros(1, dtype=np.int64), np.zeros((n, 2, 3)))
 
 
 def make_impact_scratch(nu: int, n: int) -> ImpactScratch:
@@ -90,7 +97,8 @@ def make_impact_scratch(nu: int, n: int) -> ImpactScratch:
     n = max(n, 1)
     return ImpactScratch(np.zeros((nu, nu)), np.zeros((nu, nu)), np.zeros((4, nu)),
                          np.zeros(nu, dtype=np.int64), np.zeros(n, dtype=np.int64),
-                         np.zeros(n, dtype=np.int64), np.zeros((2, n), dtype=np.bool_),
+                         np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64),
+                         np.zeros((2, n), dtype=np.bool_),
                          np.zeros((6, n)), np.zeros((n, nu)), np.zeros((n, n)), np.zeros((n, n + 1)))
 
 
@@ -111,20 +119,53 @@ def relock(system, stops):
 
 
 @jit
-def release(system, stops, s, ds, forces, at_root):
-    """Free every resting rod whose stop would have to pull at s; ``at_root`` (s is a located
-    release instant): also those whose stop no longer pushes (force ≥ 0). Returns how many."""
+def release(system, stops, s, scratch, ds, forces, at_root):
+    """Free the resting rods that their stops would have to pull at s (``at_root``, s a located
+    release instant: also one whose stop no longer pushes). With several resting rods, which
+    ones leave is MODEL.md's contact law at the level of accelerations: holding forces λ ≥ 0,
+    contact accelerations a = a₀ + W λ ≥ 0, λ ⊥ a, a₀ those with every resting rod free
+    (`solve_contacts`), so freeing one never leaves another one pulled. Returns how many left."""
     derivative(system, s, ds)
     slide_holding_forces(system, stops.resting, forces)
-    freed = 0
+    nq, _ = layout.sizes(system)
+    rods, sigma, sides = scratch.rods, scratch.contact[0], scratch.hits
+    pulled = False
+    m = 0
     for k in range(1, stops.resting.shape[0] + 1):
-        pull = stops.resting[k - 1] * forces[layout.u_l(k)]
-        if stops.resting[k - 1] != 0 and (pull > 0.0 or at_root and pull >= 0.0):
-            stops.resting[k - 1] = 0
-            stops.watched[k - 1] = True
-            freed += 1
-    if freed:
+        if stops.resting[k - 1] != 0:
+            pull = stops.resting[k - 1] * forces[layout.u_l(k)]
+            pulled = pulled or pull > 0.0 or at_root and pull >= 0.0
+            rods[m], sigma[m], sides[m] = k, -float(stops.resting[k - 1]), stops.resting[k - 1]
+            m += 1
+    if not pulled:
+        return 0
+    for c in range(m):
+        stops.resting[rods[c] - 1] = 0
+    if m > 1:
         relock(system, stops)
+        derivative(system, s, ds)
+        a0, P, w = scratch.contact[2], scratch.contact[4], scratch.contact[5]
+        for c in range(m):
+            a0[c] = sigma[c] * ds[nq + layout.u_l(rods[c])]
+        contact_matrix(system, stops, s, m, scratch)
+        bilateral, active = scratch.flags[0, :m], scratch.flags[1, :m]
+        for c in range(m):
+            bilateral[c] = False
+        solve_contacts(scratch.W[:m, :m], a0[:m], bilateral, active, P[:m], w[:m],
+                       scratch.cholesky[:m, :m + 1], scratch.index[:m])
+        largest = 0.0
+        for c in range(m):
+            largest = max(largest, abs(P[c]))
+        for c in range(m):
+            # at a located root, the force that crossed zero is zero up to round-off
+            if active[c] and P[c] > (1e-12 * largest if at_root else 0.0):
+                stops.resting[rods[c] - 1] = sides[c]
+    freed = 0
+    for c in range(m):
+        if stops.resting[rods[c] - 1] == 0:
+            stops.watched[rods[c] - 1] = True
+            freed += 1
+    relock(system, stops)
     return freed
 
 
@@ -212,33 +253,14 @@ def solve_contacts(W, q, bilateral, active, P, w, scratch, idx):
 
 
 @jit
-def contact_impulses(system, stops, s, k_hit, side_hit, restitution, settling, scratch):
-    """One impact with every stop in contact at this instant: the one rod k_hit meets (Newton
-    restitution e) and those resting (e = 0), each stop only pushing (MODEL.md "Several stops at
-    once"): u⁺ = u⁻ + M⁻¹ E P, in place on s. Rods are unlocked for the impulse; afterwards a
-    resting rod whose stop gave no impulse and that moves away leaves it (resting → 0).
-
-    ``settling``: the rod arrives slower than the rest speed (or the Zeno guard holds it): every
-    contact is then held (bilateral, c⁺ = 0) — below the rest speed, rods touching their stops are
-    in persistent contact, and the holding forces decide when each leaves (`release`). Solving
-    such an impact unilaterally instead would throw a pressed neighbour off with a speed below
-    the rest speed, to land again at once: two rods trading impacts without end (Zeno)."""
+def contact_matrix(system, stops, s, m, scratch):
+    """W = Eᵀ M⁻¹ E (into scratch.W[:m, :m]) and M⁻¹ E (scratch.MinvE, one row per contact, over
+    the free DOFs in free order) for the m contacts scratch.rods[:m] with directions σ in
+    scratch.contact[0], every DOF free but the scene's locked ones (into scratch.free). Returns
+    how many DOFs are free."""
     nq, nu = layout.sizes(system)
-    n = stops.resting.shape[0]
     q = s[:nq]
-    # contacts: the rod hit first, then the resting ones; σ = +1 at a lower stop (away = +l)
-    rods, free = scratch.rods, scratch.free
-    sigma, e, c_minus, qv, P, w = (scratch.contact[0], scratch.contact[1], scratch.contact[2],
-                                   scratch.contact[3], scratch.contact[4], scratch.contact[5])
-    for i in range(n):
-        e[i] = 0.0
-    rods[0], sigma[0], e[0] = k_hit, -float(side_hit), restitution
-    m = 1
-    for k in range(1, n + 1):
-        if k != k_hit and stops.resting[k - 1] != 0:
-            rods[m], sigma[m] = k, -float(stops.resting[k - 1])
-            m += 1
-    # free DOFs for the impulse: all but the scene's locked ones
+    rods, free, sigma = scratch.rods, scratch.free, scratch.contact[0]
     for j in range(nu):
         free[j] = -1
     n_free = 0
@@ -251,31 +273,44 @@ def contact_impulses(system, stops, s, k_hit, side_hit, restitution, settling, s
     for i in range(nu):
         zeros[i] = 0.0
     kernels.mass_matrix(system.model, q, system.ws, zeros, unit, column, scratch.M)
-    # M⁻¹ E, one column per contact (over the free DOFs, in free order)
     MinvE = scratch.MinvE
     for c in range(m):
-        j = layout.u_l(rods[c])
         for i in range(nu):
             unit[i] = 0.0
-        unit[j] = sigma[c]
+        unit[layout.u_l(rods[c])] = sigma[c]
         kernels.cholesky_solve(scratch.M, unit, free, n_free, scratch.L, MinvE[c])
-    W = scratch.W[:m, :m]
+    W = scratch.W
     for a in range(m):
-        c_minus[a] = sigma[a] * s[nq + layout.u_l(rods[a])]
+        # W_ab = E_aᵀ M⁻¹ E_b: row a of E picks DOF j_a, which sits at position pos in free
+        j = layout.u_l(rods[a])
+        pos = 0
+        while free[pos] != j:
+            pos += 1
         for b in range(m):
-            # W_ab = E_aᵀ M⁻¹ E_b: row a of E picks DOF j_a, which sits at position pos in free
-            j = layout.u_l(rods[a])
-            pos = 0
-            while free[pos] != j:
-                pos += 1
             W[a, b] = sigma[a] * MinvE[b, pos]
+    return n_free
+
+
+@jit
+def contact_impulses(system, stops, s, m, scratch):
+    """One impact of the m contacts set up in scratch (rods, σ = +1 at a lower stop: away = +l,
+    restitution e, bilateral flag): MODEL.md "Several stops at once", u⁺ = u⁻ + M⁻¹ E P with
+    P ≥ 0 ⊥ c⁺ + e c⁻ ≥ 0, in place on s. Rods are unlocked for the impulse; afterwards a
+    resting rod whose stop gave no impulse and that moves away leaves it (resting → 0). A
+    bilateral contact (held: the Zeno guard, or a rod found at its stop not moving into it)
+    takes an impulse of either sign and ends with c⁺ = 0."""
+    nq, _ = layout.sizes(system)
+    rods = scratch.rods
+    sigma, e, c_minus, qv, P, w = (scratch.contact[0], scratch.contact[1], scratch.contact[2],
+                                   scratch.contact[3], scratch.contact[4], scratch.contact[5])
+    n_free = contact_matrix(system, stops, s, m, scratch)
+    free, MinvE = scratch.free, scratch.MinvE
     bilateral, active = scratch.flags[0, :m], scratch.flags[1, :m]
     for a in range(m):
+        c_minus[a] = sigma[a] * s[nq + layout.u_l(rods[a])]
         qv[a] = (1.0 + e[a]) * c_minus[a]
-        bilateral[a] = settling
-        active[a] = False
-    solve_contacts(W, qv[:m], bilateral, active, P[:m], w[:m], scratch.cholesky[:m, :m + 1],
-                   scratch.index[:m])
+    solve_contacts(scratch.W[:m, :m], qv[:m], bilateral, active, P[:m], w[:m],
+                   scratch.cholesky[:m, :m + 1], scratch.index[:m])
     for c in range(m):
         if P[c] != 0.0:
             for a in range(n_free):
@@ -284,61 +319,88 @@ def contact_impulses(system, stops, s, k_hit, side_hit, restitution, settling, s
         j = nq + layout.u_l(rods[c])
         if active[c]:
             s[j] = -e[c] * c_minus[c] * sigma[c]   # exact: c⁺ = −e c⁻ on an active contact
-        elif c > 0 and stops.resting[rods[c] - 1] != 0:
+        elif stops.resting[rods[c] - 1] != 0:
             stops.resting[rods[c] - 1] = 0          # its stop would have had to pull: it leaves
             stops.watched[rods[c] - 1] = True
     relock(system, stops)
 
 
 @jit
-def impact(system, stops, s, k, side, t, hold, scratch, ds, forces):
-    """Rod k (1-based) meets its lower (side −1) or upper (+1) stop at time t (s): the impact
-    law, then a rebound or rest, logged. ``hold`` stops it at rest whatever its speed."""
+def impact(system, stops, s, k, side, t, scratch, ds, forces):
+    """Rod k (1-based) meets its lower (side −1) or upper (+1) stop at time t (s), s the located
+    state (l_k at the stop): one impact of every rod reaching its stop within
+    `events.SIMULTANEOUS` of t (`events.simultaneous_hits`) and every resting rod; a rod whose
+    rebound would be slower than rest_speed stops dead (e = 0) and rests, the others rebound.
+    One log row per rod hit (the impact's whole energy loss on the first). Then a resting rod
+    that its stop would have to pull leaves (`release`). Returns the energy lost (J)."""
     nq, nu = layout.sizes(system)
-    j = layout.u_l(k)
+    n = stops.resting.shape[0]
     law, restitution, rest_speed = stops.law.kind, stops.law.restitution, stops.law.rest_speed
-    u_before = s[nq + j]
+    hits = scratch.hits
+    simultaneous_hits(system, stops, s, k, side, hits)
+    hold = False   # an accumulation point at any stop hit: every contact is held
+    for r in range(1, n + 1):
+        if hits[r - 1] != 0 and zeno_guard(stops.run, r, hits[r - 1], t):
+            hold = True
     row = stops.count[0]
-    held = hold or side * u_before <= 0.0
-    # A crossing located with the rod at the stop but not moving into it is found at the very
-    # instant the rod left: its rebound is too small to resolve in time, i.e. the rod is
-    # pressed against the stop. Hold it there; ignoring the crossing would restart the event
-    # loop at this same instant forever (a Zeno stall, e.g. with rest_speed 0).
-    for i in range(nq):
-        stops.log_q[row, i] = s[i]
-    for i in range(nu):
-        stops.log_u[row, 0, i] = s[nq + i]
-        stops.log_free[row, i] = False
-    for a in range(nu):
-        if system.free[a] >= 0:
-            stops.log_free[row, system.free[a]] = True
+    first = row
+    for r in range(1, n + 1):
+        if hits[r - 1] != 0:
+            for i in range(nq):
+                stops.log_q[row, i] = s[i]
+            for i in range(nu):
+                stops.log_u[row, 0, i] = s[nq + i]
+                stops.log_free[row, i] = False
+            for a in range(nu):
+                if system.free[a] >= 0:
+                    stops.log_free[row, system.free[a]] = True
+            log = stops.log[row]
+            log[LOG_TIME], log[LOG_LINK], log[LOG_SIDE] = t, r, hits[r - 1]
+            log[LOG_LD_BEFORE] = s[nq + layout.u_l(r)]
+            # A crossing located with the rod at the stop but not moving into it is found at
+            # the very instant the rod left: its rebound is too small to resolve in time, i.e.
+            # the rod is pressed against the stop. Hold it there; ignoring the crossing would
+            # restart the event loop at this same instant forever (a Zeno stall).
+            log[LOG_HELD] = 1.0 if hold or hits[r - 1] * log[LOG_LD_BEFORE] <= 0.0 else 0.0
+            row += 1
     T_before = kinetic_energy(system, s)
-    e = restitution
-    if held or law == IMPULSE and abs(restitution * u_before) < rest_speed:
-        e = 0.0
-    if law == REFLECT:
-        s[nq + j] = -e * u_before
-    else:
-        contact_impulses(system, stops, s, k, side, e, held or abs(u_before) < rest_speed, scratch)
-    resting = held or abs(s[nq + j]) < rest_speed
-    if resting:
-        s[nq + j] = 0.0
-    T_after = kinetic_energy(system, s)
-    for i in range(nu):
-        stops.log_u[row, 1, i] = s[nq + i]
-    log = stops.log[row]
-    log[LOG_TIME], log[LOG_LINK], log[LOG_SIDE] = t, k, side
-    log[LOG_LD_BEFORE], log[LOG_LD_AFTER], log[LOG_LOST] = u_before, s[nq + j], T_before - T_after
-    log[LOG_RESTING] = 1.0 if resting else 0.0
-    log[LOG_HELD] = 1.0 if held else 0.0
-    stops.count[0] = row + 1
-    if resting:
-        stops.resting[k - 1] = side
-        stops.watched[k - 1] = False
-        relock(system, stops)
-        if holding_margin(system, s, stops.resting, ds, forces) < 0.0:
-            release(system, stops, s, ds, forces, False)
-    return T_before - T_after
+    rods, sigma, e = scratch.rods, scratch.contact[0], scratch.contact[1]
+    bilateral = scratch.flags[0]
+    m = 0
+    for i in range(first, row):
+        r, u_before = int(stops.log[i, LOG_LINK]), stops.log[i, LOG_LD_BEFORE]
+        held = stops.log[i, LOG_HELD] != 0.0
+        e_r = 0.0 if held or abs(restitution * u_before) < rest_speed else restitution
+        if law == REFLECT:
+            s[nq + layout.u_l(r)] = -e_r * u_before
+        rods[m], sigma[m], e[m], bilateral[m] = r, -float(stops.log[i, LOG_SIDE]), e_r, held
+        m += 1
+    if law == IMPULSE:
+        for r in range(1, n + 1):
+            if stops.resting[r - 1] != 0:
+                rods[m], sigma[m], e[m], bilateral[m] = r, -float(stops.resting[r - 1]), 0.0, hold
+                m += 1
+        contact_impulses(system, stops, s, m, scratch)
+    for i in range(first, row):
+        r = int(stops.log[i, LOG_LINK])
+        if s[nq + layout.u_l(r)] == 0.0:   # stopped dead (e = 0, active): held at its stop
+            s[nq + layout.u_l(r)] = 0.0     # (not −0.0)
+            stops.resting[r - 1] = hits[r - 1]
+            stops.watched[r - 1] = False
+    for i in range(first, row):
+        r = int(stops.log[i, LOG_LINK])
+        stops.log[i, LOG_LD_AFTER] = s[nq + layout.u_l(r)]
+        stops.log[i, LOG_LOST] = 0.0
+        stops.log[i, LOG_RESTING] = 1.0 if stops.resting[r - 1] != 0 else 0.0
+        for j in range(nu):
+            stops.log_u[i, 1, j] = s[nq + j]
+    stops.count[0] = row
+    relock(system, stops)
+    lost = T_before - kinetic_energy(system, s)
+    stops.log[first, LOG_LOST] = lost
+    if any_resting(stops):
+        release(system, stops, s, scratch, ds, forces, False)
+    return lost
 
 
 @dataclass(frozen=True)
