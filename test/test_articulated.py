@@ -15,10 +15,7 @@ import pytest
 from mobile_manip_sim.dynamics import Dynamics, articulated, kernels
 from mobile_manip_sim.model import Base, RobotModel
 
-try:
-    from .pinocchio_reference import build_projected_model
-except ImportError:  # test/ is not a package: pytest puts it on sys.path
-    from pinocchio_reference import build_projected_model
+from pinocchio_reference import build_projected_model
 
 LINK_COUNTS = [0, 1, 2, 3, 4, 5, 8, 12, 16, 20, 24, 32]
 EPS = np.finfo(float).eps

@@ -11,10 +11,7 @@ import pytest
 from mobile_manip_sim.dynamics import Dynamics
 from mobile_manip_sim.model import Base, RobotModel
 
-try:
-    from .pinocchio_reference import build_projected_model
-except ImportError:  # test/ is not a package: pytest puts it on sys.path
-    from pinocchio_reference import build_projected_model
+from pinocchio_reference import build_projected_model
 
 SEEDS = list(range(60))
 TOL = 1e-9
