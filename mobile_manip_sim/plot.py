@@ -57,9 +57,9 @@ DPI = 120
 
 @dataclass
 class Run:
-    """One run, sampled: what every figure is drawn from (SI units, MODEL.md's vectors).
+    """One run, sampled: what every figure is drawn from (SI units, docs/model.md's vectors).
 
-    ``q`` (N, n_q) and ``u`` (N, n_u) as in MODEL.md; ``qdot`` (N, n_q) the configuration rates
+    ``q`` (N, n_q) and ``u`` (N, n_u) as in docs/model.md; ``qdot`` (N, n_q) the configuration rates
     (from a CSV: computed from ``u`` through the constraints; from a bag: as recorded — odometry
     twist and wheel velocities); ``energy`` T + V (J); ``efforts`` (N, 2 + 2n) the efforts in
     /joint_states order (τ_R, τ_L, τ_1, F_1, …; N·m or N) acting from each sample to the next
@@ -407,7 +407,7 @@ def _loop_torques(bag, torques: np.ndarray, sample_ns, scene, decode) -> np.ndar
 # --- quantities derived from a run ------------------------------------------------------------
 
 def residuals(run: Run) -> np.ndarray:
-    """(N, 2) MODEL.md's constraint residuals (no skid, no slip) at each sample, m/s."""
+    """(N, 2) docs/model.md's constraint residuals (no skid, no slip) at each sample, m/s."""
     return np.array([constraint_residuals(run.scene.robot, q_k, qdot_k)
                      for q_k, qdot_k in zip(run.q, run.qdot)])
 
@@ -612,7 +612,7 @@ def heading_marks(x: np.ndarray, y: np.ndarray, count: int = HEADING_MARKS) -> n
 
 
 def figure_constraints(run: Run) -> Figure:
-    """|no-skid| and |no-slip| residuals (MODEL.md) on a log scale, floored at 1e-17."""
+    """|no-skid| and |no-slip| residuals (docs/model.md) on a log scale, floored at 1e-17."""
     figure, axes = _figure(run, "nonholonomic constraints")
     values = np.maximum(np.abs(residuals(run)), RESIDUAL_FLOOR)
     axes.semilogy(run.t, values[:, 0], color="C0",

@@ -1,6 +1,6 @@
 """A URDF of a scene's robot, for `robot_state_publisher` (/robot_description) and viewers.
 
-The URDF describes the same multibody the simulator integrates (MODEL.md), so Pinocchio's URDF
+The URDF describes the same multibody the simulator integrates (docs/model.md), so Pinocchio's URDF
 parser with a planar root joint at ``base_link`` gives the core's mass matrix
 (``M = Sᵀ M_full S``, see test/test_urdf.py). Tree and names:
 
@@ -14,7 +14,7 @@ parser with a planar root joint at ``base_link`` gives the core's mass matrix
           └─ arm_revolute_2 (origin at the distal end of rod 1, rpy = joint_rpy_2) → arm_link_2 …
              … → arm_rod_n ─ tip_joint (fixed) → tip
 
-- ``arm_link_k`` is joint frame k of MODEL.md (origin O_k, x along rod k, z the joint axis); it
+- ``arm_link_k`` is joint frame k of docs/model.md (origin O_k, x along rod k, z the joint axis); it
   is massless, so it has no ``<inertial>``.
 - ``arm_rod_k`` has its frame at the rod's DISTAL end (η = l_k, where joint k+1 sits); the rod
   occupies x ∈ [−L_k, 0] in it: mass μL at (−L/2, 0, 0), inertia of a uniform slender rod
@@ -141,7 +141,7 @@ def robot_description(scene: Scene, root: str = FOOTPRINT) -> str:
             size=(2.0 * (abs(d) + r), 2.0 * b - wheel_width, r))
     _inertial(base_link, base.mass, (d, 0.0, 0.0), base.yaw_inertia * np.eye(3))
 
-    # Wheels: a positive angle about +y rolls the robot forward (MODEL.md).
+    # Wheels: a positive angle about +y rolls the robot forward (docs/model.md).
     I_w = base.wheel_inertia if effects.wheel_inertia else 0.0
     for index, (side, sign) in enumerate((("right", -1.0), ("left", 1.0))):
         link = ET.SubElement(robot, "link", name=f"{side}_wheel")

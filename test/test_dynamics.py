@@ -1,4 +1,4 @@
-"""Facts of MODEL.md that the dynamics core must satisfy, checked on random robots."""
+"""Facts of docs/model.md that the dynamics core must satisfy, checked on random robots."""
 import numpy as np
 import pytest
 

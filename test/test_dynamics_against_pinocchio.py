@@ -1,4 +1,4 @@
-"""MODEL.md fact: an independent formulation gives the same M and h.
+"""docs/model.md fact: an independent formulation gives the same M and h.
 
 The Gibbs–Appell core (`mobile_manip_sim.dynamics`) is compared with the robot built as an
 ordinary multibody in Pinocchio (`pinocchio_reference.py`): M = Sᵀ M_full S, h = Sᵀ h_full(q, S u),

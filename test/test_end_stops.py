@@ -1,4 +1,4 @@
-"""Stroke end stops (MODEL.md "Stroke end stops", engine/stops.py): located impacts, the impulse
+"""Stroke end stops (docs/model.md "Stroke end stops", engine/stops.py): located impacts, the impulse
 law's energy loss, resting and leaving, no tunnelling, no Zeno, impulse vs the paper's reflect.
 
 Several cases have exact answers: a rod whose l̇ row of M is diagonal and whose h_l is constant

@@ -1,6 +1,6 @@
 """Stroke end stops, compiled: the impact law, resting at a stop and leaving it.
 
-- Impact (`impact`): MODEL.md's unilateral impact law — one solve for every stop in contact at
+- Impact (`impact`): docs/model.md's unilateral impact law — one solve for every stop in contact at
   that instant, the one hit and those resting, each stop only pushing (`contact_impulses`,
   `solve_contacts`) — or the paper's `reflect` law; the record of every impact
   goes to the stop log (`StopsData.log`), from which `Simulation` builds its `Impact` list.
@@ -47,7 +47,7 @@ StopsData = namedtuple("StopsData", [
 ])
 
 StopLaw = namedtuple("StopLaw", [
-    "kind",         # IMPULSE (MODEL.md's unilateral law) or REFLECT (the paper's: l̇ reversed alone)
+    "kind",         # IMPULSE (docs/model.md's unilateral law) or REFLECT (the paper's: l̇ reversed alone)
     "restitution",  # e ∈ [0, 1]
     "rest_speed",   # m/s: a rod rebounding slower than this is held at its stop
 ])
@@ -145,7 +145,7 @@ def kinetic_energy(system, s):
 
 @jit
 def solve_contacts(W, q, bilateral, active, P, w, scratch, idx):
-    """The impact LCP of MODEL.md, exactly: P ≥ 0, w = W P + q ≥ 0, Pᵀw = 0 (W m×m symmetric
+    """The impact LCP of docs/model.md, exactly: P ≥ 0, w = W P + q ≥ 0, Pᵀw = 0 (W m×m symmetric
     positive definite, so the solution is unique), by Murty's least-index principal pivoting:
     solve on the active set, toggle the first contact that is wrong (a negative impulse, or an
     inactive one moving into its stop), repeat — finite for a P-matrix. A ``bilateral`` contact
@@ -214,7 +214,7 @@ def solve_contacts(W, q, bilateral, active, P, w, scratch, idx):
 @jit
 def contact_impulses(system, stops, s, k_hit, side_hit, restitution, settling, scratch):
     """One impact with every stop in contact at this instant: the one rod k_hit meets (Newton
-    restitution e) and those resting (e = 0), each stop only pushing (MODEL.md "Several stops at
+    restitution e) and those resting (e = 0), each stop only pushing (docs/model.md "Several stops at
     once"): u⁺ = u⁻ + M⁻¹ E P, in place on s. Rods are unlocked for the impulse; afterwards a
     resting rod whose stop gave no impulse and that moves away leaves it (resting → 0).
 
