@@ -3,7 +3,7 @@ the sample, not from differences of samples. No ROS; messages.imu builds sensor_
 
 REP-145: the accelerometer reads SPECIFIC FORCE, the acceleration minus gravity, so at rest on
 flat ground it reads +g along the body's up axis; the rate gyro reads the body angular velocity.
-The base moves in the plane (MODEL.md, a_A = v̇ x + v ω y), so in base_link
+The base moves in the plane (docs/model.md, a_A = v̇ x + v ω y), so in base_link
 
     linear_acceleration = (v̇, v ω, g),   angular_velocity = (0, 0, ω),   orientation = Rz(yaw),
 

@@ -1,4 +1,4 @@
-"""The immutable robot model: what MODEL.md calls the parameters, in SI units.
+"""The immutable robot model: what docs/model.md calls the parameters, in SI units.
 
 A `RobotModel` is built once from a scene (see `scene.py`) and shared by every simulation of
 that scene; per-simulation scratch space lives in `dynamics.records.Workspace`.
@@ -29,7 +29,7 @@ def rpy_matrix(roll: float, pitch: float, yaw: float) -> np.ndarray:
 
 @dataclass(frozen=True)
 class Base:
-    """Differential-drive base (MODEL.md table): M_pw, I_pw, d, r, b, I_w."""
+    """Differential-drive base (docs/model.md table): M_pw, I_pw, d, r, b, I_w."""
 
     mass: float            # M_pw, kg: base + wheels
     yaw_inertia: float     # I_pw, kg·m²: about the vertical through G
@@ -43,7 +43,7 @@ class Base:
 class RobotModel:
     """Base plus a serial arm of `n_links` revolute–prismatic pairs.
 
-    Per-link arrays are indexed by link (0-based here, 1-based in MODEL.md):
+    Per-link arrays are indexed by link (0-based here, 1-based in docs/model.md):
     ``joint_rotation[i]`` is R0_i (3×3, parent joint frame → joint frame before q_i),
     ``length[i]`` is L_i (m), ``mass_per_length[i]`` μ_i (kg/m),
     ``inertia_per_length[i]`` J_i (3×3 kg·m, link frame), ``stroke[i]`` the [min, max] of l_i (m).

@@ -1,11 +1,11 @@
 """A URDF of a scene's robot, for `robot_state_publisher` (/robot_description) and viewers.
 
-The URDF describes the same multibody the simulator integrates (MODEL.md), so Pinocchio's URDF
+The URDF describes the same multibody the simulator integrates (docs/model.md), so Pinocchio's URDF
 parser with a planar root joint at ``base_link`` gives the core's mass matrix
 (``M = Sᵀ M_full S``, see test/test_urdf.py). The tree — links, joints, origins, axes, the
 frame prefix — is `frames.FrameTree`'s; this module adds the bodies, drawings and limits:
 
-- ``arm_link_k`` is joint frame k of MODEL.md (origin O_k, x along rod k, z the joint axis); it
+- ``arm_link_k`` is joint frame k of docs/model.md (origin O_k, x along rod k, z the joint axis); it
   is massless, so it has no ``<inertial>``.
 - ``arm_rod_k`` has its frame at the rod's DISTAL end (η = l_k, where joint k+1 sits); the rod
   occupies x ∈ [−L_k, 0] in it: mass μL at (−L/2, 0, 0), inertia of a uniform slender rod
@@ -133,7 +133,7 @@ def robot_description(scene: Scene, root: str = FOOTPRINT, prefix: str = "") -> 
                     size=(2.0 * (abs(d) + r), 2.0 * b - wheel_width, r))
             _inertial(link, base.mass, (d, 0.0, 0.0), base.yaw_inertia * np.eye(3))
         elif joint.index is not None and joint.index < 2:
-            # Wheels: a positive angle about +y rolls the robot forward (MODEL.md).
+            # Wheels: a positive angle about +y rolls the robot forward (docs/model.md).
             _visual(link, "cylinder", "wheel", rpy=(math.pi / 2, 0.0, 0.0), radius=r,
                     length=wheel_width)
             if I_w > 0.0:

@@ -1,4 +1,4 @@
-"""An independent formulation of MODEL.md's robot with Pinocchio (PyPI ``pin``).
+"""An independent formulation of docs/model.md's robot with Pinocchio (PyPI ``pin``).
 
 The robot is built as an ordinary tree multibody, with no knowledge of the Gibbs–Appell core:
 

@@ -1,4 +1,4 @@
-"""Facts of MODEL.md that the dynamics core must satisfy, checked on random robots."""
+"""Facts of docs/model.md that the dynamics core must satisfy, checked on random robots."""
 import numpy as np
 import pytest
 
@@ -124,30 +124,3 @@ def test_constraint_residuals_stay_at_round_off_along_the_paper_run():
         sim.advance_to(0.01 * k)
         worst = max(worst, *map(abs, constraint_residuals(sim.model, sim.q, sim.qdot())))
     assert sim.u[0] != 0.0 and worst < 1e-14
-
-
-def test_pure_python_and_compiled_kernels_agree():
-    """The same source run as plain Python (MOBILE_MANIP_SIM_NO_JIT=1) gives the same numbers."""
-    import json
-    import os
-    import subprocess
-    import sys
-    script = ("import json, numpy as np\n"
-              "from mobile_manip_sim.scene import load_scene\n"
-              "from mobile_manip_sim.dynamics import Dynamics\n"
-              "s = load_scene(); d = Dynamics(s.robot, gravity=10.0, tip_mass=0.2)\n"
-              "rng = np.random.default_rng(3); q = rng.normal(size=9); u = rng.normal(size=6)\n"
-              "from mobile_manip_sim.dynamics import jit, vec3\n"
-              "print(json.dumps([d.mass_matrix(q).tolist(), d.bias(q, u).tolist(), list(d.energy(q, u)),\n"
-              "                  [jit.ENABLED, type(vec3.add).__name__]]))\n")
-    results = []
-    for no_jit in ("1", "0"):
-        env = dict(os.environ, MOBILE_MANIP_SIM_NO_JIT=no_jit)
-        out = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True,
-                             check=True).stdout
-        results.append(json.loads(out))
-    (python_jit, python_kind), (compiled_jit, compiled_kind) = results[0].pop(), results[1].pop()
-    assert not python_jit and python_kind == "function"          # really plain Python …
-    assert compiled_jit and compiled_kind == "CPUDispatcher"     # … and really numba
-    for python_value, compiled_value in zip(*results):
-        np.testing.assert_allclose(np.array(python_value), np.array(compiled_value), rtol=1e-13, atol=1e-13)

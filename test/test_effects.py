@@ -16,13 +16,8 @@ from mobile_manip_sim.effects import SETTING_OF_EFFECT, EffectSettings, settings
 from mobile_manip_sim.scene import EFFECT_NAMES, load_scene, make_integrator, parse_scene
 from mobile_manip_sim.engine.simulation import Simulation
 
-try:
-    from .engine_cases import (CONFIG, base_only_doc, ld_index, one_link_doc, paper_doc, sampled,
-                               simulation)
-    from .pinocchio_reference import build_projected_model
-except ImportError:  # test/ is not a package: pytest puts it on sys.path
-    from engine_cases import CONFIG, base_only_doc, ld_index, one_link_doc, paper_doc, sampled, simulation
-    from pinocchio_reference import build_projected_model
+from engine_cases import CONFIG, base_only_doc, ld_index, one_link_doc, paper_doc, sampled, simulation
+from pinocchio_reference import build_projected_model
 
 TIGHT = dict(rtol=1e-12, atol=1e-14)
 PAPER = paper_doc()

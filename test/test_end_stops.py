@@ -1,4 +1,4 @@
-"""Stroke end stops (MODEL.md "Stroke end stops", engine/stops.py): located impacts, the impulse
+"""Stroke end stops (docs/model.md "Stroke end stops", engine/stops.py): located impacts, the impulse
 law's energy loss, resting and leaving, no tunnelling, no Zeno, impulse vs the paper's reflect.
 
 Several cases have exact answers: a rod whose l̇ row of M is diagonal and whose h_l is constant
@@ -17,10 +17,7 @@ from mobile_manip_sim.engine import runge_kutta as rk
 from mobile_manip_sim.engine.simulation import Simulation
 from mobile_manip_sim.scene import load_scene, make_integrator
 
-try:
-    from .engine_cases import l_index, ld_index, one_link_doc, paper_doc, sampled, simulation
-except ImportError:  # test/ is not a package: pytest puts it on sys.path
-    from engine_cases import l_index, ld_index, one_link_doc, paper_doc, sampled, simulation
+from engine_cases import l_index, ld_index, one_link_doc, paper_doc, sampled, simulation
 
 TIGHT = dict(rtol=1e-11, atol=1e-13)
 SCIPY = {"rk45": integrate.RK45, "dop853": integrate.DOP853, "radau": integrate.Radau,

@@ -18,10 +18,7 @@ import yaml
 from mobile_manip_sim import simulate
 from mobile_manip_sim.errors import UserError
 
-try:
-    from .engine_cases import paper_doc, simulation
-except ImportError:  # test/ is not a package: pytest puts it on sys.path
-    from engine_cases import paper_doc, simulation
+from engine_cases import paper_doc, simulation
 
 
 def edit(path, value):

@@ -4,7 +4,7 @@ impact whatever round-off says, settling that never pulls, and a Zeno guard set 
 times, not by the step or the tolerance.
 
 Each case has an answer that cannot be tuned: a closed form (a rigid spin-up at constant angular
-acceleration, a rod bouncing under gravity alone), MODEL.md's multi-contact law worked by hand,
+acceleration, a rod bouncing under gravity alone), docs/model.md's multi-contact law worked by hand,
 or a sign (a stop only pushes).
 """
 import copy
@@ -104,7 +104,7 @@ def collinear_doc(dl2=0.0):
     Rod 1 moves out at 1 m/s, 0.0105 m from its upper stop; rod 2 moves in at 0.5 m/s,
     0.00525 m (+ dl2) from its lower one: both arrive at t = 0.0105 s, e = 0.5.
 
-    MODEL.md by hand: contacts σ = (−1, +1), W = Eᵀ M⁻¹ E = [[1, 1], [1, 2]], c⁻ = (−1, −0.5),
+    docs/model.md by hand: contacts σ = (−1, +1), W = Eᵀ M⁻¹ E = [[1, 1], [1, 2]], c⁻ = (−1, −0.5),
     (1 + e) c⁻ = (−1.5, −0.75). Both active: P = (2.25, −0.75), not ≥ 0; rod 1 alone: P1 = 1.5,
     w2 = 1.5 − 0.75 = 0.75 ≥ 0. So u⁺ = u⁻ + M⁻¹ E P = (−0.5, 1.0) m/s, T: 0.625 → 0.25 J, 0.375 J
     lost. Rod 2 first and then rod 1 would give (−0.3125, 1.1875) and 0.193 J."""

@@ -18,10 +18,7 @@ from mobile_manip_sim.recording import bag_format, rosbag2_metadata
 from mobile_manip_sim.errors import UserError
 from mobile_manip_sim.scene import parse_scene, scene_from_text
 
-try:
-    from .engine_cases import paper_doc
-except ImportError:
-    from engine_cases import paper_doc
+from engine_cases import paper_doc
 
 PAPER = paper_doc()
 PAPER_TEXT = yaml.safe_dump(PAPER, sort_keys=False)

@@ -23,6 +23,7 @@ def assert_within_bounds(case):
     assert not failures, f"{case.name}: " + "; ".join(failures)
 
 
+@pytest.mark.bench_target
 @pytest.mark.hard
 @pytest.mark.parametrize("name, make", CASES, ids=[name.replace(" ", "_") for name, _ in CASES])
 def test_hard_case_stays_within_its_bounds(name, make):

@@ -16,10 +16,7 @@ from mobile_manip_sim import methods
 from mobile_manip_sim.errors import UserError
 from mobile_manip_sim.scene import FIXED_STEP_METHODS, METHODS
 
-try:
-    from .engine_cases import PAPER_SCENE, paper_doc, sampled, simulation
-except ImportError:  # test/ is not a package: pytest puts it on sys.path
-    from engine_cases import PAPER_SCENE, paper_doc, sampled, simulation
+from engine_cases import PAPER_SCENE, paper_doc, sampled, simulation
 
 ADAPTIVE_METHODS = [m for m in METHODS if m not in FIXED_STEP_METHODS]
 T_END = 0.2

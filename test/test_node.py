@@ -755,6 +755,7 @@ def resident_mb(pid: int) -> tuple[float, float]:
     return total / 1024, llvm / 1024
 
 
+@pytest.mark.bench_target
 def test_at_real_time_factor_1_the_node_holds_at_most_200_mb_and_none_of_llvm(probe, simulator,
                                                                             tmp_path):
     """Issue 10: rk4 at real_time_factor 1, driven into the end stops. Once the kernels are

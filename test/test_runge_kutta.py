@@ -237,6 +237,7 @@ def reference():
                                t_eval=SAMPLES).y.T
 
 
+@pytest.mark.bench_target
 def test_cost_falls_as_rtol_loosens_and_error_follows_rtol(reference):
     """dop853, paper robot without stops, 100 Hz samples. The old engine restarted SciPy at
     each sample and paid the same ~2500 right-hand sides per second at every rtol."""

@@ -17,10 +17,7 @@ from mobile_manip_sim.errors import UserError
 from mobile_manip_sim.recording.bag_format import checked_run_metadata
 from mobile_manip_sim.scene import parse_scene, scene_from_text
 
-try:
-    from .engine_cases import paper_doc
-except ImportError:
-    from engine_cases import paper_doc
+from engine_cases import paper_doc
 
 MAX_MESSAGE = 300
 

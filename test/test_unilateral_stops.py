@@ -1,4 +1,4 @@
-"""Several stops at once (MODEL.md; engine/stops.py `contact_impulses`, `solve_contacts`): each
+"""Several stops at once (docs/model.md; engine/stops.py `contact_impulses`, `solve_contacts`): each
 stop only pushes, restitution on the stop being hit, 0 on resting ones, a resting rod that its
 stop would have to pull leaves it, and energy never rises in an impact."""
 from importlib import resources

@@ -1,6 +1,6 @@
 """tf2_msgs for the tests: built once by tools/build_tf2_msgs.sh into a cache keyed by the
 script's content (~1 min the first time, then nothing), and the environment a process needs to
-import it. The build's steps and reasons: tools/build_tf2_msgs.sh and shared/TF2_MSGS.md."""
+import it. The build's steps and reasons: tools/build_tf2_msgs.sh and docs/interfaces.md."""
 import hashlib
 import os
 import pathlib

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Build tf2_msgs' Python messages (TFMessage, TF2Error) from their two message definitions, for
 # machines with ROS 2 from PyPI wheels only (PyPI has no tf2_msgs; every ROS install has it).
-# How and why: /work/shared/TF2_MSGS.md. Usage:
+# How and why: docs/interfaces.md. Usage:
 #     tools/build_tf2_msgs.sh OUT_DIR [PYTHON]
 # builds in OUT_DIR (its own venv with the rosidl/ament_cmake generator wheels, so the project's
 # venv is left alone) and leaves OUT_DIR/install; then put

@@ -1,4 +1,4 @@
-"""The peer: MODEL.md's projected Pinocchio model, driven from Python as a user would.
+"""The peer: docs/model.md's projected Pinocchio model, driven from Python as a user would.
 
 The robot as an ordinary multibody (planar base joint at A, two wheel spin joints, per link a
 revolute then a prismatic joint carrying the rod), with the constant map S from u to the full

@@ -7,7 +7,7 @@
     M = dyn.mass_matrix(q); h = dyn.bias(q, u)   # composite rigid bodies, O(n²)
     dyn.energy(q, u) -> (T, V)
 
-Vectors follow MODEL.md: ``q = (x, y, yaw, θ_R, θ_L, q_1, l_1, …)`` (m, rad),
+Vectors follow docs/model.md: ``q = (x, y, yaw, θ_R, θ_L, q_1, l_1, …)`` (m, rad),
 ``u = (v, ω, q̇_1, l̇_1, …)`` (m/s, rad/s); generalized forces ``Q = (Q_v, Q_ω, τ_1, F_1, …)``
 with ``Q_v = (τ_R + τ_L)/r`` and ``Q_ω = b (τ_R − τ_L)/r`` (see `wheel_forces`).
 """
@@ -44,7 +44,7 @@ class Dynamics:
         kernels.frames(self.model_record, np.asarray(q, dtype=float), self.ws)
 
     def inverse_dynamics(self, q, u, ud, gravity: float | None = None) -> np.ndarray:
-        """Q = M(q) u̇ + h(q, u): the recursive Gibbs–Appell pass (MODEL.md ∂S/∂u̇_k = Q_k)."""
+        """Q = M(q) u̇ + h(q, u): the recursive Gibbs–Appell pass (docs/model.md ∂S/∂u̇_k = Q_k)."""
         q = np.asarray(q, dtype=float)
         g = self.gravity if gravity is None else gravity
         Q = np.empty(self.model.n_u)
@@ -113,7 +113,7 @@ class Dynamics:
 
 
 def constraint_residuals(model: RobotModel, q, qdot) -> tuple[float, float]:
-    """MODEL.md's checks: no skid ẋ sin yaw − ẏ cos yaw, no slip ẋ cos yaw + ẏ sin yaw − r(θ̇_R + θ̇_L)/2."""
+    """docs/model.md's checks: no skid ẋ sin yaw − ẏ cos yaw, no slip ẋ cos yaw + ẏ sin yaw − r(θ̇_R + θ̇_L)/2."""
     s, c = np.sin(q[2]), np.cos(q[2])
     r = model.base.wheel_radius
     return (qdot[0] * s - qdot[1] * c,

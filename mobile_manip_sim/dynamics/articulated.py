@@ -1,5 +1,5 @@
 """Forward dynamics in O(n): the articulated-body algorithm (Featherstone, *Rigid Body Dynamics
-Algorithms*, §7.3; Pinocchio's ``aba.hxx``) for MODEL.md's chain.
+Algorithms*, §7.3; Pinocchio's ``aba.hxx``) for docs/model.md's chain.
 
 Bodies and joints, spatial vectors in the world frame about A (see `spatial.py`), so that no
 coordinate transform is ever needed:

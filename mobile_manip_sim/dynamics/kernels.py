@@ -1,6 +1,6 @@
-"""The recursive Gibbs–Appell dynamics of MODEL.md, as compiled kernels.
+"""The recursive Gibbs–Appell dynamics of docs/model.md, as compiled kernels.
 
-Notation follows MODEL.md, with links numbered 1..n and index 0 for the base:
+Notation follows docs/model.md, with links numbered 1..n and index 0 for the base:
 ``q = (x, y, yaw, θ_R, θ_L, q_1, l_1, …, q_n, l_n)``, ``u = (v, ω, q̇_1, l̇_1, …)``.
 
 The kernels take the model record ``model`` (`records.Model`: base, mount, R0, L, mu, J,
@@ -25,7 +25,7 @@ from .vec3 import add, axpy, cross, dot, matvec, put, row, scale, sub, tmatvec
 
 @jit_inline
 def frames(model, q, ws):
-    """Position pass: R_k = R_{k−1} · R0_k · Rz(q_k), O_{k+1} = O_k + l_k x_k (MODEL.md frames)."""
+    """Position pass: R_k = R_{k−1} · R0_k · Rz(q_k), O_{k+1} = O_k + l_k x_k (docs/model.md frames)."""
     mount, R0 = model.mount, model.R0
     R, O, x, z = ws.R, ws.O, ws.x, ws.z
     n = R0.shape[0]
@@ -83,7 +83,7 @@ def gibbs_appell(model, q, u, ud, g, ws, Q):
     y0 = (-x0[1], x0[0], 0.0)
     omega = (0.0, 0.0, om)
     alpha = (0.0, 0.0, omd)
-    # a_A = v̇ x + v ω y, plus g z: gravity as an acceleration of the root (MODEL.md).
+    # a_A = v̇ x + v ω y, plus g z: gravity as an acceleration of the root (docs/model.md).
     a_A = axpy(vd, x0, scale(v * om, y0))
     a_A = (a_A[0], a_A[1], a_A[2] + g)
     m_w = sub(row(O, 1), row(O, 0))
@@ -95,7 +95,7 @@ def gibbs_appell(model, q, u, ud, g, ws, Q):
         xk, zk = row(x, k), row(z, k)
         alpha = add(alpha, axpy(qdd, zk, cross(omega, scale(qd, zk))))
         omega = axpy(qd, zk, omega)
-        # a(η) = b + η c along the rod (MODEL.md kinematics of a rod point)
+        # a(η) = b + η c along the rod (docs/model.md kinematics of a rod point)
         b = add(a_O, axpy(2.0 * ld, cross(omega, xk), scale(ldd, xk)))
         c = add(cross(alpha, xk), cross(omega, cross(omega, xk)))
         s1, s2 = rod_moments(l, Lk)

@@ -1,7 +1,7 @@
 """Stroke end stops, compiled: the impact law, resting at a stop and leaving it (the semantics
 in docs/events.md).
 
-- Impact (`impact`): MODEL.md's unilateral impact law — one solve for every stop in contact at
+- Impact (`impact`): docs/model.md's unilateral impact law — one solve for every stop in contact at
   that instant: the rods reaching their stops within `events.SIMULTANEOUS` of each other (each
   with its restitution, 0 for one arriving slower than rebounds are kept) and those resting
   (e = 0), each stop only pushing (`contact_impulses`, `solve_contacts`) — or the paper's
@@ -53,7 +53,7 @@ StopsData = namedtuple("StopsData", [
 ])
 
 StopLaw = namedtuple("StopLaw", [
-    "kind",         # IMPULSE (MODEL.md's unilateral law) or REFLECT (the paper's: l̇ reversed alone)
+    "kind",         # IMPULSE (docs/model.md's unilateral law) or REFLECT (the paper's: l̇ reversed alone)
     "restitution",  # e ∈ [0, 1]
     "rest_speed",   # m/s: a rod that would rebound slower than this stops dead and is held
 ])
@@ -122,7 +122,7 @@ def relock(system, stops):
 def release(system, stops, s, scratch, ds, forces, at_root):
     """Free the resting rods that their stops would have to pull at s (``at_root``, s a located
     release instant: also one whose stop no longer pushes). With several resting rods, which
-    ones leave is MODEL.md's contact law at the level of accelerations: holding forces λ ≥ 0,
+    ones leave is docs/model.md's contact law at the level of accelerations: holding forces λ ≥ 0,
     contact accelerations a = a₀ + W λ ≥ 0, λ ⊥ a, a₀ those with every resting rod free
     (`solve_contacts`), so freeing one never leaves another one pulled. Returns how many left."""
     derivative(system, s, ds)
@@ -186,7 +186,7 @@ def kinetic_energy(system, s):
 
 @jit
 def solve_contacts(W, q, bilateral, active, P, w, scratch, idx):
-    """The impact LCP of MODEL.md, exactly: P ≥ 0, w = W P + q ≥ 0, Pᵀw = 0 (W m×m symmetric
+    """The impact LCP of docs/model.md, exactly: P ≥ 0, w = W P + q ≥ 0, Pᵀw = 0 (W m×m symmetric
     positive definite, so the solution is unique), by Murty's least-index principal pivoting:
     solve on the active set, toggle the first contact that is wrong (a negative impulse, or an
     inactive one moving into its stop), repeat — finite for a P-matrix. A ``bilateral`` contact
@@ -294,7 +294,7 @@ def contact_matrix(system, stops, s, m, scratch):
 @jit
 def contact_impulses(system, stops, s, m, scratch):
     """One impact of the m contacts set up in scratch (rods, σ = +1 at a lower stop: away = +l,
-    restitution e, bilateral flag): MODEL.md "Several stops at once", u⁺ = u⁻ + M⁻¹ E P with
+    restitution e, bilateral flag): docs/model.md "Several stops at once", u⁺ = u⁻ + M⁻¹ E P with
     P ≥ 0 ⊥ c⁺ + e c⁻ ≥ 0, in place on s. Rods are unlocked for the impulse; afterwards a
     resting rod whose stop gave no impulse and that moves away leaves it (resting → 0). A
     bilateral contact (held: the Zeno guard, or a rod found at its stop not moving into it)

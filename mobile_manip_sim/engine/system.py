@@ -6,7 +6,7 @@ wheels take torque commands), and W, the work done on the robot so far by the wh
 efforts and by dissipation (J), so that the energy balance ``T + V − W = const`` (minus impact
 losses) can be checked on any run.
 
-Generalized forces are kept by source, as in MODEL.md: ``Q_cmd`` (commanded efforts, already
+Generalized forces are kept by source, as in docs/model.md: ``Q_cmd`` (commanded efforts, already
 saturated by `effort_limits`), the wheel-speed PI loop's wheel torques when the base takes a
 velocity command, ``Q_damp = −c ⊙ u`` (joint and wheel damping), and the velocity products and
 gravity inside the dynamics. u̇ comes from the articulated-body recursion, O(n)

@@ -27,7 +27,7 @@ DPI = 120
 # --- quantities the figures show -----------------------------------------------------------
 
 def residuals(run: Run) -> np.ndarray:
-    """(N, 2) MODEL.md's constraint residuals (no skid, no slip) at each sample, m/s."""
+    """(N, 2) docs/model.md's constraint residuals (no skid, no slip) at each sample, m/s."""
     return np.array([constraint_residuals(run.scene.robot, q_k, qdot_k)
                      for q_k, qdot_k in zip(run.q, run.qdot)])
 
@@ -168,7 +168,7 @@ def heading_marks(x: np.ndarray, y: np.ndarray, count: int = HEADING_MARKS) -> n
 
 
 def figure_constraints(run: Run) -> Figure:
-    """|no-skid| and |no-slip| residuals (MODEL.md) on a log scale, floored at 1e-17."""
+    """|no-skid| and |no-slip| residuals (docs/model.md) on a log scale, floored at 1e-17."""
     figure, axes = _figure(run, "nonholonomic constraints")
     values = np.maximum(np.abs(residuals(run)), RESIDUAL_FLOOR)
     axes.semilogy(run.t, values[:, 0], color="C0",

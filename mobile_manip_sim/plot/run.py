@@ -27,9 +27,9 @@ from ..topics import WHEEL_TOPIC as WHEEL_COMMANDS
 
 @dataclass
 class Run:
-    """One run, sampled: what every figure is drawn from (SI units, MODEL.md's vectors).
+    """One run, sampled: what every figure is drawn from (SI units, docs/model.md's vectors).
 
-    ``q`` (N, n_q) and ``u`` (N, n_u) as in MODEL.md; ``qdot`` (N, n_q) the configuration rates
+    ``q`` (N, n_q) and ``u`` (N, n_u) as in docs/model.md; ``qdot`` (N, n_q) the configuration rates
     (from a CSV: computed from ``u`` through the constraints; from a bag: as recorded — odometry
     twist and wheel velocities); ``energy`` T + V (J); ``efforts`` (N, 2 + 2n) the efforts in
     /joint_states order (τ_R, τ_L, τ_1, F_1, …; N·m or N) acting from each sample to the next

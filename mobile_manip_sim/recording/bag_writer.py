@@ -1,9 +1,9 @@
 """Write a rosbag2 (Jazzy, metadata version 9) bag directory with one MCAP file.
 
-Layout (see /work/shared/ROSBAG2.md): ``<dir>/<dirname>_0.mcap`` with profile ``ros2``, one
-``ros2msg`` schema per type, one ``cdr`` channel per topic carrying ``offered_qos_profiles``,
-zstd chunks with message indexes, a full summary with statistics and a ``rosbag2`` metadata
-record; beside it ``metadata.yaml``, written at close.
+Layout (rosbag2's own, as ``ros2 bag record -s mcap`` writes it): ``<dir>/<dirname>_0.mcap``
+with profile ``ros2``, one ``ros2msg`` schema per type, one ``cdr`` channel per topic carrying
+``offered_qos_profiles``, zstd chunks with message indexes, a full summary with statistics and a
+``rosbag2`` metadata record; beside it ``metadata.yaml``, written at close.
 
 Crash safety: messages collect in an open chunk in memory; when it exceeds ``chunk_size`` the
 mcap writer compresses it and hands it to the file, and we flush the file right away, so a
