@@ -16,8 +16,8 @@ NODE_RANGES = {"publish_rate": limits.PUBLISH_RATE, "real_time_factor": limits.R
 
 def test_the_node_declares_the_ranges_of_the_limits_module():
     from mobile_manip_sim.node import PARAMETERS
-    declared = {name: (ranges[0].from_value, ranges[0].to_value)
-                for name, (_, _, ranges, _) in PARAMETERS.items() if ranges}
+    declared = {name: parameter.range for name, parameter in PARAMETERS.items()
+                if parameter.range}
     assert declared == NODE_RANGES
 
 

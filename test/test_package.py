@@ -18,6 +18,7 @@ ROSDEP_KEYS = {
     "zstandard": "python3-zstandard", "mcap": "python3-mcap-pip", "pinocchio": "pinocchio",
     "mujoco": "python3-mujoco-pip", "distributed": "python3-dask-distributed-pip",
     "dask": "python3-dask-distributed-pip", "pyarrow": "python3-pyarrow-pip",
+    "foxglove": "python3-foxglove-sdk-pip",
 }
 
 
