@@ -7,7 +7,7 @@
     time_limit: 60                         # wall s per run; beyond it the run is failed
     chunk: 50                              # runs per Dask task (default: chosen from the count)
     grid: {integrator.method: [rk4, dop853], integrator.dt: [0.001, 0.002]}
-    random: {count: 100, seed: 7, vary: {initial.velocity[2]: {normal: [0.0, 0.1]}}}
+    random: {count: 100, seed: 7, vary: {"initial.velocity[2]": {normal: [0.0, 0.1]}}}
 
 Runs are numbered grid point by grid point (the grid's first key varies slowest), each grid point
 with draws 0 … count − 1; the draws are the same at every grid point.
