@@ -5,9 +5,10 @@ import math
 import threading
 
 import pytest
+from waiting import wait_for
 
 from mobile_manip_sim.engine.simulation import SimulationError
-from mobile_manip_sim.node.loop import MAX_WAIT, State, SteppingLoop
+from mobile_manip_sim.node.loop import MAX_WAIT, WATCHDOG_SECONDS, State, SteppingLoop
 from mobile_manip_sim.pacing import Pacer
 from mobile_manip_sim.timeline import Grid
 
@@ -249,3 +250,47 @@ def test_a_failure_outside_a_segment_fails_the_loop_and_the_thread_lives_on():
     finally:
         harness.loop.stop()
         thread.join(timeout=10)
+
+
+def test_a_segment_without_progress_is_reported_once_and_a_reset_abandons_it():
+    """A segment stuck in compiled code (dop853 once spun so on a 1e308 command): the watchdog
+    says so once after WATCHDOG_SECONDS, and ~/reset replaces the engine and goes on from t = 0
+    in a new thread; the stuck thread ends quietly if it ever returns."""
+    harness = Harness(real_time_factor=0.0, threaded=True)
+    stuck, replaced, reports = threading.Event(), [], []
+    first = []
+
+    def compute(k, start_ns):
+        if k == 3 and not first:
+            first.append(k)
+            stuck.wait(60)
+        return ("state", k + 1)
+
+    harness.loop._compute = compute
+    harness.loop._replace = lambda: replaced.append(True)
+    harness.loop._report = reports.append
+    thread = threading.Thread(target=harness.loop.run, daemon=True)
+    thread.start()
+    try:
+        wait_for(lambda: harness.loop.computing is not None and first, "the stuck segment", 10)
+        harness.clock.now += WATCHDOG_SECONDS / 2
+        harness.loop.watch()
+        assert reports == []
+        harness.clock.now += WATCHDOG_SECONDS / 2 + 1
+        harness.loop.watch()
+        harness.loop.watch()
+        assert len(reports) == 1 and reports[0].startswith(
+            "watchdog: the segment after t = 0.030000000 s has made no progress for 11 s")
+        harness.loop.reset()
+        harness.loop.watch()
+        assert replaced == [True] and "abandoned" in reports[-1]
+        wait_for(lambda: harness.ks().count(0) == 2 and harness.ks()[-1] >= 5, "the new time line",
+                 10)
+        stuck.set()
+        thread.join(10)
+        assert not thread.is_alive()
+        ks = harness.ks()
+        assert ks[:5] == [0, 1, 2, 3, 0] and ks[4:] == list(range(len(ks) - 4))
+    finally:
+        stuck.set()
+        harness.loop.stop()

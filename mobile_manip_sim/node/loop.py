@@ -7,6 +7,12 @@ segment), waits until the pacer says state k + 1 is due, then publishes it (unde
 ~/pause or ~/reset has answered, nothing more of the old time line goes out). Computing before
 waiting keeps the compute time out of the publication jitter. A segment computed across a pause
 is published after the resume; one computed across a reset is dropped.
+
+Nothing ends the loop but `stop`: an exception in a segment (or anywhere in a turn) is one line
+and the FAILED state until ~/reset. A segment whose engine time has not moved for
+WATCHDOG_SECONDS of wall time is reported once (`watch`); a ~/reset then abandons it: the engine
+is replaced (``replace()``) and a new stepping thread goes on from t = 0, while the old one, stuck
+inside compiled code that no Python can interrupt, is left to end with the process.
 """
 from __future__ import annotations
 
@@ -19,6 +25,11 @@ from ..timeline import Grid, format_ns
 
 PEER_POLL = 0.01    # s: lockstep's start-up checks for peers this often
 MAX_WAIT = 3600.0   # s: the longest single wait (then the loop looks again)
+WATCHDOG_SECONDS = 10.0   # s of wall time without engine progress before a segment is reported
+
+
+class _Abandoned(Exception):
+    """Raised in a stepping thread whose segment was abandoned: the thread ends quietly."""
 
 
 class State(enum.Enum):
@@ -47,19 +58,25 @@ class SteppingLoop:
     - ``record()``: after a turn, outside the lock: record what was published;
     - ``failed(text)``: log the one line of a failure; ``warn(key, text)``: a throttled warning;
     - ``lockstep``: a `lockstep.Lockstep` in synchronous mode; ``wake()`` interrupts its wait;
-    - ``alive()``: False once the ROS context is down (a publication then fails: no error).
+    - ``alive()``: False once the ROS context is down (a publication then fails: no error);
+    - ``progress()``: the engine's time (s), which the watchdog watches; ``replace()``: a new
+      engine for the one a stuck segment holds; ``report(text)``: the watchdog's warning.
     The services call `pause`, `step`, `reset`, `set_real_time_factor` and `stop` from another
-    thread; `run` is the stepping thread."""
+    thread, a timer calls `watch`; `run` is the stepping thread."""
 
     def __init__(self, grid: Grid, pacer: Pacer, *, restart: Callable, compute: Callable,
                  publish: Callable, record: Callable[[], None], failed: Callable[[str], None],
                  warn: Callable[[tuple, str], bool], lockstep=None,
                  wake: Callable[[], None] = lambda: None, alive: Callable[[], bool] = lambda: True,
+                 progress: Callable[[], float] = lambda: 0.0,
+                 replace: Callable[[], None] = lambda: None,
+                 report: Callable[[str], None] | None = None,
                  wait: Callable[[float | None], object] | None = None):
         self.grid, self.pacer = grid, pacer
         self._restart, self._compute, self._publish = restart, compute, publish
         self._record, self._failed, self._warn = record, failed, warn
         self.lockstep, self._wake, self._alive = lockstep, wake, alive
+        self._progress, self._replace, self._report = progress, replace, report or failed
         self.cv = threading.Condition()   # guards everything below and every publication
         self._wait = wait or self.cv.wait   # under cv: until notified or timeout s
         self.state = State.RUNNING
@@ -72,6 +89,10 @@ class SteppingLoop:
         self.steps = 0              # STEPPING: ~/step calls whose states are not out yet
         self.failure: str | None = None   # FAILED: when and why
         self.time_line = 0          # resets so far: a ~/step answers for its own time line
+        self.thread = 0             # the stepping thread in charge (one more per abandon)
+        # The segment being computed: [thread, start ns, engine time, wall time it was last
+        # seen to move, reported yet], or None.
+        self.computing: list | None = None
 
     # --- the stepping thread ---------------------------------------------------------------
     def run(self) -> None:
@@ -79,13 +100,21 @@ class SteppingLoop:
         wrong in a turn ends it: the loop fails (one line) and waits for ~/reset."""
         try:
             started = self.begin()
+        except _Abandoned:
+            return
         except Exception as error:
             started = self._crashed(error)
-        while started:
+        if started:
+            self._turns()
+
+    def _turns(self) -> None:
+        while True:
             try:
                 if not self.turn():
                     return
                 self._record()
+            except _Abandoned:
+                return
             except Exception as error:
                 if not self._crashed(error):
                     return
@@ -186,13 +215,55 @@ class SteppingLoop:
         self.k, self.now_ns = k, self.grid.stamp(k)
 
     def _segment(self):
-        """Compute segment k → k + 1: (k + 1, messages), or None when it failed."""
-        k, start_ns = self.k, self.now_ns
+        """Compute segment k → k + 1: (k + 1, messages), or None when it failed. _Abandoned
+        when a reset gave up on it meanwhile."""
+        with self.cv:
+            k, start_ns, thread = self.k, self.now_ns, self.thread
+            self.computing = [thread, start_ns, self._progress(), self.pacer.clock(), False]
         try:
-            return k + 1, self._compute(k, start_ns)
+            result = k + 1, self._compute(k, start_ns)
         except Exception as error:
-            self._fail(start_ns, error)
+            result = error
+        with self.cv:
+            if thread != self.thread:
+                raise _Abandoned
+            self.computing = None
+        if isinstance(result, Exception):
+            self._fail(start_ns, result)
             return None
+        return result
+
+    def watch(self) -> None:
+        """The watchdog (a timer calls it about once a second): a segment whose engine time has
+        not moved for WATCHDOG_SECONDS is reported once; while a reset waits for it, it is
+        abandoned."""
+        with self.cv:
+            computing = self.computing
+            if computing is None:
+                return
+            thread, start_ns, seen, since, reported = computing
+            now, progress = self.pacer.clock(), self._progress()
+            if progress != seen:
+                self.computing = [thread, start_ns, progress, now, reported]
+                return
+            stuck = now - since
+            if stuck < WATCHDOG_SECONDS:
+                return
+            if not reported:
+                computing[4] = True
+                self._report(f"watchdog: the segment after t = {format_ns(start_ns)} s has made "
+                             f"no progress for {stuck:.0f} s (engine at t = {progress:.9g} s); "
+                             f"~/reset abandons it")
+            if self.state is not State.RESETTING:
+                return
+            # Give up on the stuck thread: a new engine and a new stepping thread take over.
+            self.thread += 1
+            self.computing = None
+            self._replace()
+            threading.Thread(target=self._turns, name="stepping", daemon=True).start()
+        self._report(f"watchdog: abandoned the segment after t = {format_ns(start_ns)} s; a new "
+                     f"engine starts from t = 0 (the stuck one keeps a core busy until the node "
+                     f"exits)")
 
     def _fail(self, start_ns: int, error: Exception) -> None:
         cause = describe(error)

@@ -13,6 +13,9 @@ from ..scene import METHODS
 
 NODE_NAME = "mobile_manip_sim"
 BASE_COMMANDS = ("effort", "velocity")
+# The slowest pacing the node takes: at 100 Hz a publication every 10 s of wall time. Slower
+# ones (1e-12 once stopped the node for good) are refused; 0 means as fast as possible.
+MIN_REAL_TIME_FACTOR = 1e-3
 
 
 class Parameter(NamedTuple):
@@ -26,8 +29,9 @@ PARAMETERS = {
     "scene": Parameter("", "Scene YAML file; empty = the embedded paper scene."),
     "publish_rate": Parameter(100.0, "Publications per second of SIMULATED time (Hz).",
                               (0.001, 100000.0)),
-    "real_time_factor": Parameter(1.0, "Simulated seconds per wall second; 0 = as fast as "
-                                       "possible.", (0.0, 10000.0), True),
+    "real_time_factor": Parameter(1.0, f"Simulated seconds per wall second: 0 (as fast as "
+                                       f"possible) or at least {MIN_REAL_TIME_FACTOR:g}.",
+                                  (0.0, 10000.0), True),
     "command_timeout": Parameter(0.5, "Seconds of SIMULATED time after the last command of a "
                                       "group (wheels, arm) before its efforts fall to zero; 0 "
                                       "disables.", (0.0, 1.0e6), True),
@@ -108,6 +112,10 @@ def value_problem(name: str, value) -> str | None:
     Checked at start-up and for every change while running."""
     if isinstance(value, float) and not math.isfinite(value):
         return f"must be finite, got {value}"
+    if (name == "real_time_factor" and isinstance(value, (int, float))
+            and 0.0 < value < MIN_REAL_TIME_FACTOR):
+        return (f"must be 0 (as fast as possible) or at least {MIN_REAL_TIME_FACTOR:g}, got "
+                f"{value:g}")
     return None
 
 

@@ -11,8 +11,9 @@ import rclpy
 import rclpy.logging
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, SetParametersResult
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
-from rclpy.executors import SingleThreadedExecutor
+from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
@@ -38,8 +39,7 @@ from ..topics import (
     state_qos,
 )
 from ..urdf import robot_description
-from . import parameters
-from .arguments import check_params_files
+from . import arguments, parameters
 from .commands import CommandIntake
 from .lockstep import Lockstep
 from .loop import SteppingLoop
@@ -50,6 +50,7 @@ from .throttle import Throttle
 SHUTDOWN_POLL = 0.2        # s: how often the executor checks for an external shutdown
 STEP_TIMEOUT = 30.0        # s of wall time a ~/step call waits for its state
 STOP_TIMEOUT = 2.0         # s of wall time shutdown waits for the stepping thread
+WATCH_PERIOD = 1.0         # s: the watchdog and the check for a namesake node run this often
 STATE_TYPES = {JOINT_STATES_TOPIC: JointState, ODOM_TOPIC: Odometry, CLOCK_TOPIC: Clock}
 
 
@@ -88,10 +89,15 @@ class SimulatorNode(Node):
             self.grid, Pacer(p.real_time_factor, 1.0 / self.grid.hz), restart=self._restart,
             compute=self._compute, publish=self._publish, record=self._record,
             failed=log.error, warn=throttle.warn, lockstep=lockstep, wake=self.commands.wake,
-            alive=lambda: rclpy.ok(context=self.context))
+            alive=lambda: rclpy.ok(context=self.context), progress=lambda: self.sim.t,
+            replace=self._replace_engine, report=log.warning)
         self.create_service(Trigger, "~/reset", self._on_reset)
         self.create_service(SetBool, "~/pause", self._on_pause)
-        self.create_service(Trigger, "~/step", self._on_step)
+        # ~/step waits for its state: in a group of its own, ~/pause and ~/reset answer meanwhile
+        self.create_service(Trigger, "~/step", self._on_step,
+                            callback_group=MutuallyExclusiveCallbackGroup())
+        self._namesakes = False   # another node has our name and namespace (said once)
+        self.create_timer(WATCH_PERIOD, self._every_second)
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
         self._thread = threading.Thread(target=self.loop.run, name="stepping", daemon=True)
@@ -214,6 +220,25 @@ class SimulatorNode(Node):
     def _listening(self) -> bool:
         return any(pub.get_subscription_count() > 0 for pub in self._state_pubs.values())
 
+    def _replace_engine(self) -> None:
+        """The watchdog gave up on a stuck segment: a new engine (the old one is left to it)."""
+        self.sim = Simulation(self.scene, self._settings)
+        self.sim.set_wheel_speed_gains(*self.params.wheel_speed_gains)
+        if self._recording is not None:
+            self._recording.sim = self.sim
+
+    def _every_second(self) -> None:
+        self.loop.watch()
+        name, namespace = self.get_name(), self.get_namespace()
+        count = self.get_node_names_and_namespaces().count((name, namespace))
+        if count > 1 and not self._namesakes:
+            full = f"{namespace.rstrip('/')}/{name}"
+            self.get_logger().warning(
+                f"another node named {full} is running: ~/reset, ~/pause and ~/step reach "
+                f"both, and their topics mix; give each its own name (-r __node:=NAME) or "
+                f"namespace (-r __ns:=/NAME)")
+        self._namesakes = count > 1
+
     # --- life cycle --------------------------------------------------------------------------
     def start(self) -> None:
         """Start the stepping thread. Nothing is computed here, before the executor spins."""
@@ -240,7 +265,7 @@ class SimulatorNode(Node):
 
 def _init(argv) -> None:
     """rclpy.init; bad --ros-args (a missing or unparsable --params-file, ...) is a UserError."""
-    check_params_files(argv)
+    arguments.check(argv)
     try:
         rclpy.init(args=argv)
     except Exception as error:   # RCLError, whose text names rcl's source lines
@@ -250,12 +275,15 @@ def _init(argv) -> None:
 
 
 def _main(argv) -> int:
+    if arguments.wants_help(argv):
+        print(arguments.help_text())
+        return 0
     release_compiler_pages()   # those numba's import touched; loading the kernels needs few
     _init(argv)
     node = None
     try:
         node = SimulatorNode()
-        executor = SingleThreadedExecutor()
+        executor = MultiThreadedExecutor(num_threads=2)
         executor.add_node(node)
         node.start()
         # spin_once with a timeout rather than spin(): a signal that shuts the context down
