@@ -9,6 +9,7 @@ or a sign (a stop only pushes).
 """
 import copy
 import math
+import warnings
 
 import numpy as np
 import pytest
@@ -254,3 +255,17 @@ def test_settling_impacts_never_let_a_stop_pull(method, settings):
         pushes_only(sim, detail, impact, 1e-12)
     for impact, detail in zip(sim.impacts, sim.impact_details):
         pushes_only(sim, detail, impact, 1e-12 if not detail.held else 1e-4)
+
+
+# --- semi-implicit Euler with stops that rebound --------------------------------------------
+
+def test_semi_implicit_euler_with_rebounding_stops_warns_in_one_line():
+    with pytest.warns(RuntimeWarning, match="semi_implicit_euler with end stops that rebound") as caught:
+        simulation(collinear_doc(), "semi_implicit_euler", dt=1e-3)
+    assert len(caught) == 1 and "\n" not in str(caught[0].message)
+    plastic = collinear_doc()
+    plastic["effects"]["stroke_limits"]["restitution"] = 0.0
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        simulation(plastic, "semi_implicit_euler", dt=1e-3)     # no rebound: no warning
+        simulation(collinear_doc(), "rk4", dt=1e-3)

@@ -12,6 +12,7 @@ and the command sequence: repeating it gives bit-identical states.
 from __future__ import annotations
 
 import math
+import warnings
 from collections import namedtuple
 
 import numpy as np
@@ -38,6 +39,12 @@ def scipy_solver(method: str):
 
 # The compiled core of each `Method.stepper` (SciPy's solvers have none: stepped from Python).
 CORES = dict(zip(COMPILED_STEPPERS, (stepping, adaptive_stepping)))
+
+# semi-implicit Euler is symplectic between impacts only (bench/REPORT.md, "elastic drift")
+ELASTIC_SEMI_IMPLICIT = ("semi_implicit_euler with end stops that rebound (restitution > 0): its "
+                         "energy is not bounded (each impact moves it by O(dt)); use rk4 or an "
+                         "adaptive method where energy matters")
+
 DEFAULT_WHEEL_SPEED_GAINS = (0.5, 5.0)   # kp N·m·s/rad, ki N·m/rad (see set_wheel_speed_gains)
 SCIPY_MIN_RTOL = 100 * np.finfo(float).eps   # SciPy's own floor; passed as is, it warns on stderr
 
@@ -69,6 +76,9 @@ class Simulation:
         self.system = System(self.dynamics, effects.generalized_damping(model.base), effects.locked)
         self.nq, self.nu = model.n_q, model.n_u
         self.stop_law = effects.stop_law
+        if (self.settings.method == "semi_implicit_euler" and self.stop_law is not None
+                and self.stop_law.restitution > 0.0):
+            warnings.warn(ELASTIC_SEMI_IMPLICIT, RuntimeWarning, stacklevel=2)
         self.stops = make_stops(model, effects.stop_law, self.system.permanently_locked)
         self.watched, self.resting, self.stroke = self.stops.watched, self.stops.resting, self.stops.stroke
         size = layout.state_size(self.nu)
