@@ -2,7 +2,7 @@
 the order conditions of a continuous Runge–Kutta extension (Hairer–Nørsett–Wanner I, §II.2 rooted
 trees, §II.6 dense output), solved for the weights of the 13 stages a step already has.
 
-Not used at run time: `runge_kutta.py` holds the weights written out (deriving them costs a
+Not used at run time: `tableaus.py` holds the weights written out (deriving them costs a
 least-squares solve), and test_runge_kutta checks that they are what this module derives and
 that they satisfy every order condition.
 """
@@ -15,7 +15,7 @@ import numpy as np
 
 
 def free_dense_weights(A: np.ndarray) -> tuple:
-    """(F, F_check) of `runge_kutta._DOP853_FREE_F` and `_DOP853_FREE_CHECK` from DOP853's A[:13, :13]."""
+    """(F, F_check) of `tableaus._DOP853_FREE_F` and `_DOP853_FREE_CHECK` from DOP853's A[:13, :13]."""
     sixth = continuous_extension(A, 6, 7)
     fifth = continuous_extension(A, 5, 6)
     F = np.linalg.solve(hairer_basis().T, sixth)
