@@ -1,4 +1,5 @@
-"""When events happen (docs/events.md; engine/events.py, stops.py, stepping.py): a resting rod
+"""When events happen (docs/model.md, "Resting, leaving, and no Zeno"; engine/events.py, stops.py,
+stepping.py): a resting rod
 released at the located instant inside a step, rods reaching their stops together solved as one
 impact whatever round-off says, settling that never pulls, and a Zeno guard set by the impact
 times, not by the step or the tolerance.

@@ -1,5 +1,5 @@
 """Events inside a step, compiled: a rod reaching an end stop, a resting rod pulled off its stop
-(the semantics in docs/events.md).
+(the semantics in docs/model.md, "Resting, leaving, and no Zeno").
 
 Both are roots in h' ∈ (0, h] of an event function of the state h' into the step (`step_state`):
 for the fixed-step methods the integrator's *own* step ``step(s0, h')`` — so the state at the

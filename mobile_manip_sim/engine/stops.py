@@ -1,5 +1,5 @@
 """Stroke end stops, compiled: the impact law, resting at a stop and leaving it (the semantics
-in docs/events.md).
+in docs/model.md, "Resting, leaving, and no Zeno").
 
 - Impact (`impact`): docs/model.md's unilateral impact law — one solve for every stop in contact at
   that instant: the rods reaching their stops within `events.SIMULTANEOUS` of each other (each
