@@ -17,6 +17,7 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Imu, JointState
 from std_msgs.msg import Float64MultiArray, String
 
+from .dynamics.coordinates import JOINTS, OMEGA, YAW, V, X, Y
 from .recording.cdr import tf_message_cdr
 
 # Stamps come from the time line (timeline.py); topic names, types and QoS live in topics.py,
@@ -59,8 +60,8 @@ def joint_state(state, stamp: int, names, efforts=None) -> JointState:
     message = JointState()
     message.header.stamp = time_msg(stamp)
     message.name = list(names)
-    message.position = state.q[3:].tolist()
-    message.velocity = state.qdot()[3:].tolist()
+    message.position = state.q[JOINTS].tolist()
+    message.velocity = state.qdot()[JOINTS].tolist()
     message.effort = [float(v) for v in (applied_efforts(state) if efforts is None else efforts)]
     return message
 
@@ -74,12 +75,12 @@ def odometry(state, stamp: int, odom_frame: str = "odom",
     message.header.stamp = time_msg(stamp)
     message.header.frame_id = odom_frame
     message.child_frame_id = base_frame
-    message.pose.pose.position.x = float(q[0])
-    message.pose.pose.position.y = float(q[1])
-    message.pose.pose.orientation = yaw_quaternion(float(q[2]))
+    message.pose.pose.position.x = float(q[X])
+    message.pose.pose.position.y = float(q[Y])
+    message.pose.pose.orientation = yaw_quaternion(float(q[YAW]))
     message.pose.covariance = GROUND_TRUTH_COVARIANCE
-    message.twist.twist.linear.x = float(u[0])
-    message.twist.twist.angular.z = float(u[1])
+    message.twist.twist.linear.x = float(u[V])
+    message.twist.twist.angular.z = float(u[OMEGA])
     message.twist.covariance = GROUND_TRUTH_COVARIANCE
     return message
 

@@ -72,12 +72,3 @@ def sampled(sim: Simulation, t_end: float, rate: float) -> tuple[np.ndarray, np.
         states[i] = sim.s
     return times, states
 
-
-def l_index(sim: Simulation, k: int) -> int:
-    """Index of l_k (1-based rod) in the state vector."""
-    return 4 + 2 * k
-
-
-def ld_index(sim: Simulation, k: int) -> int:
-    """Index of l̇_k in the state vector."""
-    return sim.nq + 2 * k + 1

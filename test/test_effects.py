@@ -11,12 +11,14 @@ import math
 import numpy as np
 import pytest
 
+from mobile_manip_sim.dynamics.coordinates import (ARM_Q, ARM_U, BASE_U, OMEGA, SLIDES_Q, TURNS_Q,
+                                                   V, q_joint, q_slide, u_slide, u_turn)
 from mobile_manip_sim.engine.system import CROSSING_CHECKS, DAMPING_STAGE, REDUCED_SOLVE, RHS_EVALS
 from mobile_manip_sim.effects import SETTING_OF_EFFECT, EffectSettings, settings
 from mobile_manip_sim.scene import EFFECT_NAMES, load_scene, make_integrator, parse_scene
 from mobile_manip_sim.engine.simulation import Simulation
 
-from engine_cases import CONFIG, base_only_doc, ld_index, one_link_doc, paper_doc, sampled, simulation
+from engine_cases import CONFIG, base_only_doc, one_link_doc, paper_doc, sampled, simulation
 from pinocchio_reference import build_projected_model
 
 TIGHT = dict(rtol=1e-12, atol=1e-14)
@@ -36,9 +38,9 @@ def random_states(sim, count, seed):
     rng = np.random.default_rng(seed)
     for _ in range(count):
         q = np.array(sim.q)
-        q[:5] = rng.uniform(-2.0, 2.0, 5)
-        q[5::2] = rng.uniform(-math.pi, math.pi, sim.model.n_links)
-        q[6::2] = rng.uniform(0.1, 0.9, sim.model.n_links)
+        q[:ARM_Q.start] = rng.uniform(-2.0, 2.0, ARM_Q.start)   # base pose and wheels
+        q[TURNS_Q] = rng.uniform(-math.pi, math.pi, sim.model.n_links)
+        q[SLIDES_Q] = rng.uniform(0.1, 0.9, sim.model.n_links)
         yield q, rng.normal(size=sim.nu)
 
 
@@ -132,7 +134,7 @@ def test_joint_damping_dissipates_exactly_the_viscous_work():
     E0 = sim.total_energy()
     _, states = sampled(sim, 0.5, 2000)
     u = states[:, sim.nq:sim.nq + sim.nu]
-    dissipated = simpson((u[:, 2:] ** 2 * JOINT_DAMPING).sum(axis=1), 1 / 2000)
+    dissipated = simpson((u[:, ARM_U] ** 2 * JOINT_DAMPING).sum(axis=1), 1 / 2000)
     assert dissipated > 0.1
     assert E0 - sim.total_energy() == pytest.approx(dissipated, rel=1e-8)
     assert abs(sim.energy_error()) < 1e-9 * dissipated
@@ -194,7 +196,8 @@ def test_wheel_damping_slows_the_base_as_rolling_resistance(com_offset):
         assert M[0, 1] == 0.0
         assert sim.u[0] == pytest.approx(v0 * math.exp(-2 * c / r ** 2 / M[0, 0]), rel=1e-9)
         assert sim.u[1] == pytest.approx(w0 * math.exp(-2 * c * b ** 2 / r ** 2 / M[1, 1]), rel=1e-9)
-    v, w = states[:, sim.nq], states[:, sim.nq + 1]
+    u = states[:, sim.nq:sim.nq + sim.nu]
+    v, w = u[:, V], u[:, OMEGA]
     wheel_rates = np.array([(v + b * w) / r, (v - b * w) / r])
     dissipated = simpson(c * (wheel_rates ** 2).sum(axis=0), 1 / 1000)
     assert dissipated > 0.1 * E0
@@ -237,18 +240,19 @@ def test_effort_limits_saturate_the_scene_efforts_too():
 
 # --- locked joints and the fixed base ------------------------------------------------------
 
-@pytest.mark.parametrize("name, j", [("arm_revolute_2", 4), ("arm_prismatic_1", 3)])
+@pytest.mark.parametrize("name, j", [("arm_revolute_2", u_turn(2)),
+                                     ("arm_prismatic_1", u_slide(1))])
 def test_a_locked_joint_stays_fixed_and_moves_the_rest_like_a_stiff_joint(name, j):
     """Locked (removed from the problem) vs free but held by a PD of stiffness K updated every
     10 µs (rk4): the other coordinates agree to O(1/K) and converge as K grows."""
     locked = simulation(free_arm_doc(locked_joints=[name]), "dop853", **TIGHT)
     assert locked.u[j] == 0.0   # the scene's initial velocity of a locked DOF is dropped
-    q0 = locked.q[j + 3]
+    q0 = locked.q[q_joint(j)]
     _, states = sampled(locked, 0.05, 1000)
-    assert np.all(states[:, j + 3] == q0) and np.all(states[:, locked.nq + j] == 0.0)
+    assert np.all(states[:, q_joint(j)] == q0) and np.all(states[:, locked.nq + j] == 0.0)
     assert locked.system.counters[REDUCED_SOLVE] == locked.system.counters[RHS_EVALS]
     assert abs(locked.energy_error()) < 1e-10
-    others = [i for i in range(locked.s.size - 1) if i not in (j + 3, locked.nq + j)]
+    others = [i for i in range(locked.s.size - 1) if i not in (q_joint(j), locked.nq + j)]
     errors = []
     for K in (1e7, 1e8):
         stiff = simulation(free_arm_doc(), "rk4", dt=1e-5)
@@ -257,7 +261,7 @@ def test_a_locked_joint_stays_fixed_and_moves_the_rest_like_a_stiff_joint(name, 
         efforts = np.array(stiff.joint_efforts)
         for i in range(1, 5001):
             command = efforts.copy()
-            command[j - 2] += K * (q0 - stiff.q[j + 3]) - C * stiff.u[j]
+            command[j - ARM_U.start] += K * (q0 - stiff.q[q_joint(j)]) - C * stiff.u[j]
             stiff.set_efforts(joints=command)
             stiff.advance_to(i * 1e-5)
         errors.append(np.max(np.abs(stiff.s[others] - locked.s[others])))
@@ -274,20 +278,21 @@ def test_fixed_base_holds_the_base_and_leaves_the_arm_alone_dynamics():
     """Base coordinates bit-for-bit constant; u̇ of the arm = M_arm⁻¹ (Q − h)_arm from Pinocchio's
     independent M and h with v = ω = 0."""
     sim = simulation(free_arm_doc(fixed_base=True), "dop853", **TIGHT)
-    base0 = np.concatenate([sim.q[:5], sim.u[:2]])
-    assert np.all(sim.u[:2] == 0.0)
+    base = np.r_[:ARM_Q.start, sim.nq + BASE_U.start:sim.nq + BASE_U.stop]   # pose, wheels; v, ω
+    base0 = sim.s[base]
+    assert np.all(sim.u[BASE_U] == 0.0)
     _, states = sampled(sim, 0.3, 100)
-    assert np.all(np.concatenate([states[:, :5], states[:, sim.nq:sim.nq + 2]], axis=1) == base0)
+    assert np.all(states[:, base] == base0)
     ref = build_projected_model(sim.model, 10.0, wheel_inertia=True)
     Q = np.array(sim.system.Q_cmd)
     for q, u in random_states(sim, 5, seed=5):
-        u[:2] = 0.0
+        u[BASE_U] = 0.0
         s = sim.system.state(q, u)
         ud = sim.system.derivative(s)[sim.nq:sim.nq + sim.nu]
         M, h = ref.mass_matrix(q), ref.bias(q, u)
-        expected = np.linalg.solve(M[2:, 2:], (Q - h)[2:])
-        assert np.all(ud[:2] == 0.0)
-        assert np.allclose(ud[2:], expected, rtol=1e-9, atol=1e-9)
+        expected = np.linalg.solve(M[ARM_U, ARM_U], (Q - h)[ARM_U])
+        assert np.all(ud[BASE_U] == 0.0)
+        assert np.allclose(ud[ARM_U], expected, rtol=1e-9, atol=1e-9)
 
 
 def test_fixed_base_moves_the_arm_like_an_immovable_base():
@@ -295,13 +300,13 @@ def test_fixed_base_moves_the_arm_like_an_immovable_base():
     held = simulation(free_arm_doc(fixed_base=True), "dop853", **TIGHT)
     heavy_doc = free_arm_doc()
     heavy_doc["robot"]["base"] = dict(BASE, mass=BASE["mass"] * 1e12, yaw_inertia=BASE["yaw_inertia"] * 1e12)
-    heavy_doc["initial"]["velocity"][:2] = [0.0, 0.0]
+    heavy_doc["initial"]["velocity"][BASE_U] = [0.0, 0.0]
     heavy = simulation(heavy_doc, "dop853", **TIGHT)
     for t in (0.1, 0.3):
         held.advance_to(t)
         heavy.advance_to(t)
-        assert np.max(np.abs(heavy.q[5:] - held.q[5:])) < 1e-8
-        assert np.max(np.abs(heavy.u[2:] - held.u[2:])) < 1e-8
+        assert np.max(np.abs(heavy.q[ARM_Q] - held.q[ARM_Q])) < 1e-8
+        assert np.max(np.abs(heavy.u[ARM_U] - held.u[ARM_U])) < 1e-8
 
 
 # --- payload -------------------------------------------------------------------------------
@@ -435,7 +440,7 @@ def test_every_example_scene_runs(path):
     sim.advance_to(0.2)
     assert sim.t == pytest.approx(0.2, abs=1e-12) and sim.steps >= 0.2 / scene.integrator.dt - 1
     assert not np.allclose(sim.s[:-1], start[:-1], rtol=0, atol=1e-6)   # something moved
-    for k in range(scene.robot.n_links):
+    for k in range(1, scene.robot.n_links + 1):
         if scene.effects.stroke_limits:
-            lo, hi = scene.robot.stroke[k]
-            assert lo - 1e-9 <= sim.q[6 + 2 * k] <= hi + 1e-9
+            lo, hi = scene.robot.stroke[k - 1]
+            assert lo - 1e-9 <= sim.q[q_slide(k)] <= hi + 1e-9

@@ -12,12 +12,12 @@ import numpy as np
 import pytest
 from scipy import integrate
 
-from mobile_manip_sim.engine import adaptive_stepping, events
+from mobile_manip_sim.engine import adaptive_stepping, events, layout
 from mobile_manip_sim.engine import runge_kutta as rk
 from mobile_manip_sim.engine.simulation import Simulation
 from mobile_manip_sim.scene import load_scene, make_integrator
 
-from engine_cases import l_index, ld_index, one_link_doc, paper_doc, sampled, simulation
+from engine_cases import one_link_doc, paper_doc, sampled, simulation
 
 TIGHT = dict(rtol=1e-11, atol=1e-13)
 SCIPY = {"rk45": integrate.RK45, "dop853": integrate.DOP853, "radau": integrate.Radau,
@@ -51,7 +51,7 @@ def bouncing_doc(restitution, **effects):
 def assert_in_stroke(sim, states, tol=1e-9):
     for k in range(1, sim.model.n_links + 1):
         lo, hi = sim.stroke[k - 1]
-        l = states[:, l_index(sim, k)]
+        l = states[:, layout.q_slide(k)]
         assert l.min() >= lo - tol and l.max() <= hi + tol, (k, l.min() - lo, l.max() - hi)
 
 
@@ -143,14 +143,14 @@ def test_a_rod_pushed_into_its_stop_rests_and_leaves_when_pulled(side, method, s
     assert impact.stop == ("lower" if side < 0 else "upper") and impact.resting
     assert impact.ld_after == 0.0 and side * impact.ld_before > 0.4
     after = np.arange(states.shape[0]) / 1000 > impact.time
-    assert np.all(states[after, l_index(sim, 1)] == stop)
-    assert np.all(states[after, ld_index(sim, 1)] == 0.0)
+    assert np.all(states[after, layout.q_slide(1)] == stop)
+    assert np.all(states[after, layout.ld(sim.nq, 1)] == 0.0)
     assert sim.resting[0] == side
     # Reverse the force: the rod leaves at once and moves away from the stop.
     sim.set_efforts(joints=(0.0, -F))
     assert sim.resting[0] == 0
     _, later = sampled_from(sim, 0.8, 1.0, 1000)
-    l = later[:, l_index(sim, 1)]
+    l = later[:, layout.q_slide(1)]
     assert np.all(-side * np.diff(l) > 0.0)
     assert -side * (l[-1] - stop) > 0.05
     assert len(sim.impacts) == 1
@@ -332,7 +332,7 @@ def engine_step_ends(doc, method, settings, t_end):
     for t in np.linspace(0.0, t_end, 2001)[1:]:
         sim.advance_to(t)
         solve = sim._solve
-        ends[solve.status[adaptive_stepping.STEP_T0]] = solve.work[rk.WORK_Y1][l_index(sim, 1)]
+        ends[solve.status[adaptive_stepping.STEP_T0]] = solve.work[rk.WORK_Y1][layout.q_slide(1)]
     assert len(ends) > 1
     return list(ends.values())
 
@@ -363,7 +363,7 @@ def test_a_rod_that_crosses_and_returns_within_one_step_is_caught(method, side, 
         ends = []
         while solver.status == "running":
             solver.step()
-            ends.append(solver.y[l_index(sim, 1)])
+            ends.append(solver.y[layout.q_slide(1)])
         assert all(side * (l - stop) < 0.0 for l in ends)
     if method in ("rk45", "dop853"):   # … nor of the engine's own solve
         assert all(side * (l - stop) < 0.0 for l in engine_step_ends(doc, method, settings, t_end))

@@ -15,7 +15,7 @@ import warnings
 import numpy as np
 import pytest
 
-from mobile_manip_sim.engine import events
+from mobile_manip_sim.engine import events, layout
 from mobile_manip_sim.engine.simulation import Simulation
 from mobile_manip_sim.scene import parse_scene
 
@@ -231,8 +231,8 @@ def pushes_only(sim, detail, impact, tol):
     M = sim.dynamics.mass_matrix(detail.q)
     impulse = M @ (detail.u_after - detail.u_before)
     for k in range(1, sim.model.n_links + 1):
-        j = 2 * k + 1
-        l = detail.q[4 + 2 * k]
+        j = layout.u_slide(k)
+        l = detail.q[layout.q_slide(k)]
         lo, hi = sim.stroke[k - 1]
         if l == lo:
             assert impulse[j] >= -tol, (impact, impulse[j])

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import yaml
 
+from mobile_manip_sim.dynamics.coordinates import OMEGA, YAW, X, Y
 from mobile_manip_sim.engine.simulation import Simulation
 from mobile_manip_sim.errors import UserError
 from mobile_manip_sim.imu import Imu, ImuNoise, ImuReading
@@ -65,7 +66,7 @@ def test_turning_at_omega_the_z_rate_is_omega(omega):
     for k in range(1, 5):
         sim.advance_to(0.1 * k)
         rate = imu.read(sim, k).angular_velocity
-        assert rate[:2] == (0.0, 0.0) and rate[2] == sim.u[1]
+        assert rate[:2] == (0.0, 0.0) and rate[2] == sim.u[OMEGA]
     # the turn swings the offset centre of mass: the axle accelerates forward, v̇ = d ω² > 0 at 0
     start = Imu().read(Simulation(base_only(velocity=(0.0, omega)), tight()), 0)
     assert start.linear_acceleration[0] > 0.0 and start.linear_acceleration[2] == G
@@ -84,9 +85,9 @@ def test_acceleration_is_the_derivative_of_the_base_velocity():
     for k, t in enumerate(times):
         sim.advance_to(float(t))
         qdot = sim.qdot()
-        velocity.append(qdot[:2].copy())
+        velocity.append(qdot[[X, Y]])
         reading = imu.read(sim, k)
-        c, s = np.cos(sim.q[2]), np.sin(sim.q[2])
+        c, s = np.cos(sim.q[YAW]), np.sin(sim.q[YAW])
         fx, fy, fz = reading.linear_acceleration
         force.append((c * fx - s * fy, s * fx + c * fy))
         assert fz == G

@@ -6,6 +6,7 @@ import pytest
 
 from mobile_manip_sim.bench.scenes import random_robot_document
 from mobile_manip_sim.dynamics import Dynamics
+from mobile_manip_sim.dynamics.coordinates import ARM_U, BASE_POSE, OMEGA, YAW, V
 from mobile_manip_sim.scene import load_scene, parse_scene
 
 mujoco_peer = pytest.importorskip("mobile_manip_sim.bench.mujoco_peer")
@@ -66,8 +67,8 @@ def test_qpos_is_our_configuration_and_qvel_is_S_u():
     # the last rod's distal end from MuJoCo's kinematics against ours
     tip = peer.data.xpos[peer.model.nbody - 1]
     assert np.allclose(tip, Dynamics(robot).tip_position(q), atol=1e-12)
-    v, omega = u[0], u[1]
-    assert np.allclose(peer.data.qvel[:3], [v * np.cos(q[2]), v * np.sin(q[2]), omega])
+    v, omega = u[V], u[OMEGA]
+    assert np.allclose(peer.data.qvel[:3], [v * np.cos(q[YAW]), v * np.sin(q[YAW]), omega])
 
 
 def test_fixed_base_peer_is_the_arm_block():
@@ -75,10 +76,10 @@ def test_fixed_base_peer_is_the_arm_block():
     robot = parse_scene(random_robot_document(4, seed=9, physical=True), "r").robot
     rng = np.random.default_rng(11)
     q, u = _random_state(robot, rng)
-    peer = mujoco_peer.MujocoPeer(robot, 10.0, base_pose=q[:3])
+    peer = mujoco_peer.MujocoPeer(robot, 10.0, base_pose=q[BASE_POSE])
     dyn = Dynamics(robot, gravity=10.0)
-    M = dyn.mass_matrix(q)[2:, 2:]
-    assert np.abs(peer.mass_matrix(q)[2:, 2:] - M).max() <= 1e-12 * np.abs(M).max()
+    M = dyn.mass_matrix(q)[ARM_U, ARM_U]
+    assert np.abs(peer.mass_matrix(q)[ARM_U, ARM_U] - M).max() <= 1e-12 * np.abs(M).max()
     peer.set_state(q, u)
     assert np.allclose(peer.data.xpos[peer.model.nbody - 1], dyn.tip_position(q), atol=1e-12)
 

@@ -17,6 +17,7 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
+from mobile_manip_sim.dynamics.coordinates import ARM_U, JOINTS, WHEELS
 from mobile_manip_sim.plot import cli as plot_cli
 from mobile_manip_sim.plot.energy import impact_losses, work
 from mobile_manip_sim.plot.figures import HEADING_MARKS, RESIDUAL_FLOOR, plot
@@ -95,8 +96,8 @@ def write_bag(path: Path, scene, duration: float, joint_states=True) -> Simulati
             q, u, qdot = sim.q, sim.u, sim.qdot()
             if joint_states:
                 state = JointState(name=names,
-                                   position=[*q[3:5].tolist(), *q[5:].tolist()],
-                                   velocity=[*qdot[3:5].tolist(), *u[2:].tolist()],
+                                   position=q[JOINTS].tolist(),
+                                   velocity=[*qdot[WHEELS].tolist(), *u[ARM_U].tolist()],
                                    effort=[*sim.wheel_efforts.tolist(),
                                            *sim.joint_efforts.tolist()])
                 state.header.stamp.sec, state.header.stamp.nanosec = stamp["sec"], stamp["nanosec"]

@@ -7,6 +7,7 @@ import itertools
 import numpy as np
 import pytest
 
+from mobile_manip_sim.engine import layout
 from mobile_manip_sim.engine.simulation import Simulation
 from mobile_manip_sim.engine.stops import solve_contacts
 from mobile_manip_sim.scene import make_integrator, parse_scene, scene_from_text
@@ -102,12 +103,13 @@ def test_in_random_multi_rod_scenes_no_stop_ever_pulls():
             sim.advance_to(t)
             forces = sim.system.constraint_forces(sim.s)
             for k in np.flatnonzero(sim.resting) + 1:
-                assert -sim.resting[k - 1] * forces[2 * k + 1] >= -1e-9, (seed, t, k)
+                assert -sim.resting[k - 1] * forces[layout.u_slide(k)] >= -1e-9, (seed, t, k)
         permanent = set(sim.system.permanently_locked)
         for impact, d in zip(sim.impacts, sim.impact_details):
-            at_stop = {2 * r + 1: (1.0 if d.q[4 + 2 * r] == sim.stroke[r - 1, 0] else -1.0)
-                       for r in range(1, 4) if d.q[4 + 2 * r] in sim.stroke[r - 1]}
-            assert 2 * impact.link + 1 in at_stop
+            at_stop = {layout.u_slide(r): (1.0 if d.q[layout.q_slide(r)] == sim.stroke[r - 1, 0]
+                                           else -1.0)
+                       for r in range(1, 4) if d.q[layout.q_slide(r)] in sim.stroke[r - 1]}
+            assert layout.u_slide(impact.link) in at_stop
             M = sim.dynamics.mass_matrix(d.q)
             impulse = M @ (d.u_after - d.u_before)
             others = [j for j in range(sim.nu) if j not in at_stop and j not in permanent]

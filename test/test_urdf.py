@@ -17,6 +17,7 @@ import yaml
 
 from hostile_yaml import ALIAS_BOMB
 from mobile_manip_sim.dynamics import Dynamics
+from mobile_manip_sim.dynamics.coordinates import JOINTS, YAW, X, Y
 from mobile_manip_sim.effects import settings as effect_settings
 from mobile_manip_sim.scene import load_scene, parse_scene
 from mobile_manip_sim.urdf import robot_description
@@ -108,8 +109,8 @@ class UrdfModel:
     def full_configuration(self, q) -> np.ndarray:
         q_full = np.empty(self.model.nq)
         i = self.root.idx_q
-        q_full[i:i + 4] = q[0], q[1], np.cos(q[2]), np.sin(q[2])
-        for joint, value in zip(self.joints, q[3:]):
+        q_full[i:i + 4] = q[X], q[Y], np.cos(q[YAW]), np.sin(q[YAW])
+        for joint, value in zip(self.joints, q[JOINTS], strict=True):
             if joint.nq == 2:    # continuous joints: (cos θ, sin θ)
                 q_full[joint.idx_q:joint.idx_q + 2] = np.cos(value), np.sin(value)
             else:

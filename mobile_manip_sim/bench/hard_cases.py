@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..dynamics import Dynamics
+from ..dynamics.coordinates import SLIDES_Q, q_slide, u_turn
 from ..engine.simulation import Simulation
 from ..methods import ADAPTIVE_NAMES, METHODS
 from ..scene import parse_scene
@@ -124,11 +125,11 @@ def pressed_rod(method: str = "dop853", value: float = 1e-10) -> CaseResult:
     for k in range(1, 101):
         sim.advance_to(0.01 * k)
     resting_after_press = int(sim.resting[1])
-    l_pressed = float(sim.q[8])
+    l_pressed = float(sim.q[q_slide(2)])
     impacts_pressing = len(sim.impacts)
     sim.set_efforts(joints=[0.0, 0.0, 0.0, -20.0])
     sim.advance_to(1.0 + 0.05)
-    left_after = float(sim.q[8])
+    left_after = float(sim.q[q_slide(2)])
     for k in range(1, 46):
         sim.advance_to(1.05 + 0.01 * k)
     cpu, _ = clock.read()
@@ -254,7 +255,7 @@ def effort_steps(method: str, value: float = 1e-8) -> CaseResult:
             worst_energy = max(worst_energy, abs(sim.energy_error()))
             T, V = sim.dynamics.energy(sim.q, sim.u)
             scale = max(scale, T + abs(V - V0) + abs(sim.work))
-            l = sim.q[6::2]
+            l = sim.q[SLIDES_Q]
             outside = max(outside, float(np.max(np.maximum(-l, l - 1.0))))
         if joints is not None:
             sim.set_efforts(joints=joints)
@@ -263,7 +264,8 @@ def effort_steps(method: str, value: float = 1e-8) -> CaseResult:
     run.energy_error, run.energy_scale, run.stroke_violation = worst_energy, scale, max(outside, 0.0)
     case = CaseResult(f"effort steps of 1e3 N·m, {method}", "τ1 = +1e3, −1e3, 0, +1e3 N·m, 0.1 s each")
     case.add_run(method, run, value, _step_bound(method, value, 0.5, run))
-    case.figures.update({"impacts": len(sim.impacts), "final |q̇1|, rad/s": float(abs(sim.u[2]))})
+    case.figures.update({"impacts": len(sim.impacts),
+                         "final |q̇1|, rad/s": float(abs(sim.u[u_turn(1)]))})
     return case
 
 
@@ -317,7 +319,7 @@ def _run_of(sim: Simulation, scene, method: str, value: float, cpu: float) -> Ru
     run.energy_error = abs(sim.energy_error())
     T, V = sim.dynamics.energy(sim.q, sim.u)
     run.energy_scale = T + abs(sim.work) + abs(V - sim.dynamics.energy(scene.initial_q, scene.initial_u)[1])
-    l = sim.q[6::2]
+    l = sim.q[SLIDES_Q]
     stroke = np.array(scene.robot.stroke)
     run.stroke_violation = max(0.0, float(np.max(np.maximum(stroke[:, 0] - l, l - stroke[:, 1])))) if len(l) else 0.0
     run.simulation = sim

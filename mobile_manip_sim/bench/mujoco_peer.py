@@ -26,6 +26,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..dynamics.coordinates import ARM_Q, ARM_U, BASE_POSE, YAW
+
 try:
     import mujoco
 except ImportError:  # the bench reports the MuJoCo section as skipped
@@ -161,18 +163,19 @@ class MujocoPeer:
 
     def qpos(self, q) -> np.ndarray:
         q = np.asarray(q, dtype=float)
-        return q[5:] if self.fixed_base else q if self.wheels else np.concatenate([q[:3], q[5:]])
+        return (q[ARM_Q] if self.fixed_base else q if self.wheels
+                else np.concatenate([q[BASE_POSE], q[ARM_Q]]))
 
     def S(self, q) -> np.ndarray:
         base, n = self.robot_model.base, self.robot_model.n_links
-        r, b, yaw = base.wheel_radius, base.half_track, float(q[2])
+        r, b, yaw = base.wheel_radius, base.half_track, float(q[YAW])
         S = np.zeros((self.model.nv, 2 + 2 * n))
         if not self.fixed_base:
             S[0, 0], S[1, 0], S[2, 1] = np.cos(yaw), np.sin(yaw), 1.0
         if self.wheels:
             S[3, 0], S[3, 1] = 1.0 / r, b / r
             S[4, 0], S[4, 1] = 1.0 / r, -b / r
-        S[self.arm:, 2:] = np.eye(2 * n)
+        S[self.arm:, ARM_U] = np.eye(2 * n)
         return S
 
     def set_state(self, q, u) -> None:
@@ -207,4 +210,5 @@ def for_scene(scene, integrator: str = "RK4", dt: float = 1e-3) -> MujocoPeer:
     """The peer of a scene's robot with its gravity, payload and wheel-inertia flags."""
     effects = scene.effects
     return MujocoPeer(scene.robot, effects.gravity, effects.payload or 0.0, effects.wheel_inertia,
-                      integrator, dt, base_pose=scene.initial_q[:3] if effects.fixed_base else None)
+                      integrator, dt,
+                      base_pose=scene.initial_q[BASE_POSE] if effects.fixed_base else None)

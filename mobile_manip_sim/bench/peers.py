@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..dynamics.coordinates import ARM_Q, ARM_U, JOINTS, OMEGA, SLIDES_Q, WHEELS, YAW, V, X, Y
+
 try:
     import pinocchio as pin
 except ImportError:  # the bench reports the peer sections as skipped
@@ -54,7 +56,7 @@ class ProjectedPinocchio:
         S[0, 0], S[2, 1] = 1.0, 1.0
         S[3, 0], S[3, 1] = 1.0 / r, b / r
         S[4, 0], S[4, 1] = 1.0 / r, -b / r
-        S[5:, 2:] = np.eye(2 * n)
+        S[ARM_Q.start:, ARM_U] = np.eye(2 * n)   # the arm: the same coordinates in both
         self.S, self.St = S, S.T.copy()
         self.nq, self.nu, self.r, self.b = robot_model.n_q, robot_model.n_u, r, b
         self._zero = np.zeros(model.nv)
@@ -62,8 +64,8 @@ class ProjectedPinocchio:
 
     def full_configuration(self, q) -> np.ndarray:
         qf = self._q_full
-        qf[0], qf[1], qf[2], qf[3] = q[0], q[1], np.cos(q[2]), np.sin(q[2])
-        qf[4:] = q[3:]
+        qf[0], qf[1], qf[2], qf[3] = q[X], q[Y], np.cos(q[YAW]), np.sin(q[YAW])
+        qf[4:] = q[JOINTS]
         return qf
 
     def mass_matrix_and_bias(self, q, u):
@@ -92,9 +94,10 @@ class ProjectedPinocchio:
         def f(_t, y):
             q, u = y[:nq], y[nq:]
             qd = np.empty(nq)
-            qd[0], qd[1], qd[2] = u[0] * np.cos(q[2]), u[0] * np.sin(q[2]), u[1]
-            qd[3], qd[4] = (u[0] + b * u[1]) / r, (u[0] - b * u[1]) / r
-            qd[5:] = u[2:]
+            v, om = u[V], u[OMEGA]
+            qd[X], qd[Y], qd[YAW] = v * np.cos(q[YAW]), v * np.sin(q[YAW]), om
+            qd[WHEELS] = (v + b * om) / r, (v - b * om) / r
+            qd[ARM_Q] = u[ARM_U]
             return np.concatenate([qd, self.forward_dynamics(q, u, Q)])
         return f
 
@@ -105,7 +108,7 @@ def agreement(dynamics, peer: ProjectedPinocchio, rng, trials: int = 20) -> floa
     n = dynamics.model.n_links
     for _ in range(trials):
         q = rng.normal(size=dynamics.model.n_q)
-        q[6::2] = rng.uniform(0.0, 1.0, n) * np.array(dynamics.model.length)
+        q[SLIDES_Q] = rng.uniform(0.0, 1.0, n) * np.array(dynamics.model.length)
         u = rng.normal(size=dynamics.model.n_u)
         M, h = peer.mass_matrix_and_bias(q, u)
         worst = max(worst, np.abs(dynamics.mass_matrix(q) - M).max() / np.abs(M).max(),

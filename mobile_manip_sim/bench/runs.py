@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..dynamics import constraint_residuals
+from ..dynamics.coordinates import SLIDES_Q
 from ..engine.simulation import Simulation, SimulationError
 from ..methods import METHODS
 from ..scene import IntegratorSettings, Scene, make_integrator
@@ -109,7 +110,7 @@ def simulate(scene: Scene, settings: IntegratorSettings, duration: float | None 
                     scale = max(scale, T + abs(V - V0) + abs(sim.work))
                     residual = max(residual, *map(abs, constraint_residuals(sim.model, sim.q, sim.qdot())))
                     if n and scene.effects.stroke_limits is not None:
-                        l = sim.q[6::2]
+                        l = sim.q[SLIDES_Q]
                         outside = max(outside, float(np.max(np.maximum(stroke[:, 0] - l, l - stroke[:, 1]))))
         except SimulationError as error:
             run.failure = str(error)

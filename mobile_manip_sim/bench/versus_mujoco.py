@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..dynamics.coordinates import ARM_Q, ARM_U
 from ..engine.simulation import Simulation
 from ..scene import load_scene, make_integrator, parse_scene
 from ..timeline import sample_times
@@ -130,8 +131,8 @@ def trajectory(scene, integrator: str, dt: float, sample_rate: float = 100.0, re
     nq, n = scene.robot.n_q, model.nq
     samples = np.zeros((len(sampled), nq + scene.robot.n_u))
     samples[:, :nq] = scene.initial_q   # the welded base and still wheels; v = ω = 0
-    samples[:, 5:nq] = sampled[:, 1:1 + n]
-    samples[:, nq + 2:] = sampled[:, 1 + n:1 + 2 * n]
+    samples[:, :nq][:, ARM_Q] = sampled[:, 1:1 + n]
+    samples[:, nq:][:, ARM_U] = sampled[:, 1 + n:1 + 2 * n]
     return timing.cpu, samples
 
 

@@ -4,7 +4,15 @@
 ``u = (v, ω, q̇_1, l̇_1, …, q̇_n, l̇_n)`` (n_u = 2n + 2), ``e = (e_R, e_L)`` the wheel-speed
 controller's error integrals, ``W`` the work of efforts and dissipation. Rods are 1-based (k = 1 … n)
 as in docs/model.md.
+
+Where each coordinate sits in q and in u is the dynamics' fact (`dynamics/coordinates.py`, the one
+owner, below the engine as the kernels need it); its index helpers are re-exported here, so an
+index of q is its index in s and an index j of u is ``n_q + j`` in s. This module owns the rest.
 """
+from ..dynamics.coordinates import q_slide as q_slide
+from ..dynamics.coordinates import q_turn as q_turn
+from ..dynamics.coordinates import u_slide as u_slide
+from ..dynamics.coordinates import u_turn as u_turn
 from ..dynamics.jit import jit_inline
 
 
@@ -21,21 +29,9 @@ def state_size(nu):
 
 
 @jit_inline
-def l(k):
-    """Index of l_k in s (and in q)."""
-    return 4 + 2 * k
-
-
-@jit_inline
-def u_l(k):
-    """Index of l̇_k in u (add n_q for its index in s)."""
-    return 2 * k + 1
-
-
-@jit_inline
 def ld(nq, k):
     """Index of l̇_k in s."""
-    return nq + 2 * k + 1
+    return nq + u_slide(k)
 
 
 @jit_inline

@@ -133,7 +133,7 @@ def slide_holding_forces(system, resting, out):
     read off the articulated-body pass (`dynamics/articulated.py`), no inverse dynamics."""
     for k in range(1, resting.shape[0] + 1):
         if resting[k - 1] != 0:
-            j = layout.u_l(k)
+            j = layout.u_slide(k)
             out[j] = system.ws.slide_force[k] - system.Q[j]
 
 

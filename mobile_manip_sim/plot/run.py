@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from ..dynamics import Dynamics
+from ..dynamics.coordinates import ARM_U
 from ..effects import settings as effect_settings
 from ..errors import UserError
 from ..headless import csv_columns
@@ -195,7 +196,7 @@ def load_bag(path, scene_path=None) -> Run:
     x, y, yaw, v, v_lateral, omega = (np.interp(t, odom_t, odom[:, k]) for k in range(6))
 
     q = np.column_stack([x, y, yaw, joints_q])
-    u = np.column_stack([v, omega, joints_u[:, 2:]])
+    u = np.column_stack([v, omega, joints_u[:, ARM_U]])   # the arm's joints are indexed as u
     # Rates as recorded: the base's world velocity from its body twist, the wheels' own speeds.
     cos, sin = np.cos(yaw), np.sin(yaw)
     qdot = np.column_stack([v * cos - v_lateral * sin, v * sin + v_lateral * cos, omega,
