@@ -43,7 +43,7 @@ COMMAND_TOPICS = (WHEEL_TOPIC, ARM_TOPIC, CMD_VEL_TOPIC)
 # The base's command modes (the node's base_command parameter, a bag's base_command metadata)
 # and the topic that commands the base in each.
 BASE_COMMANDS = ("effort", "velocity")
-BASE_COMMAND_TOPICS = dict(zip(BASE_COMMANDS, (WHEEL_TOPIC, CMD_VEL_TOPIC)))
+BASE_COMMAND_TOPICS = dict(zip(BASE_COMMANDS, (WHEEL_TOPIC, CMD_VEL_TOPIC), strict=True))
 # In a bag cmd_vel is always a Twist (the applied v, ω; its log time says when it applied),
 # whichever of Twist or TwistStamped the node took.
 CMD_VEL_TYPE = "geometry_msgs/msg/Twist"

@@ -10,9 +10,9 @@ from typing import Mapping, NamedTuple
 from ..engine.simulation import DEFAULT_WHEEL_SPEED_GAINS
 from ..errors import UserError
 from ..scene import METHODS
+from ..topics import BASE_COMMANDS
 
 NODE_NAME = "mobile_manip_sim"
-BASE_COMMANDS = ("effort", "velocity")
 # The slowest pacing the node takes: at 100 Hz a publication every 10 s of wall time. Slower
 # ones (1e-12 once stopped the node for good) are refused; 0 means as fast as possible.
 MIN_REAL_TIME_FACTOR = 1e-3
