@@ -11,8 +11,8 @@ import math
 import numpy as np
 import pytest
 
-from mobile_manip_sim.dynamics.coordinates import (ARM_Q, ARM_U, BASE_U, OMEGA, SLIDES_Q, TURNS_Q,
-                                                   V, q_joint, q_slide, u_slide, u_turn)
+from mobile_manip_sim.dynamics.coordinates import (ARM_Q, ARM_U, BASE_U, OMEGA, V, q_joint, q_slide,
+                                                   u_slide, u_turn)
 from mobile_manip_sim.engine.system import CROSSING_CHECKS, DAMPING_STAGE, REDUCED_SOLVE, RHS_EVALS
 from mobile_manip_sim.effects import SETTING_OF_EFFECT, EffectSettings, settings
 from mobile_manip_sim.scene import EFFECT_NAMES, load_scene, make_integrator, parse_scene
@@ -20,6 +20,7 @@ from mobile_manip_sim.engine.simulation import Simulation
 
 from engine_cases import CONFIG, base_only_doc, one_link_doc, paper_doc, sampled, simulation
 from pinocchio_reference import build_projected_model
+from robots import random_state
 
 TIGHT = dict(rtol=1e-12, atol=1e-14)
 PAPER = paper_doc()
@@ -37,11 +38,7 @@ def free_arm_doc(**effects):
 def random_states(sim, count, seed):
     rng = np.random.default_rng(seed)
     for _ in range(count):
-        q = np.array(sim.q)
-        q[:ARM_Q.start] = rng.uniform(-2.0, 2.0, ARM_Q.start)   # base pose and wheels
-        q[TURNS_Q] = rng.uniform(-math.pi, math.pi, sim.model.n_links)
-        q[SLIDES_Q] = rng.uniform(0.1, 0.9, sim.model.n_links)
-        yield q, rng.normal(size=sim.nu)
+        yield random_state(rng, sim.model)
 
 
 def simpson(values, dt):

@@ -10,7 +10,8 @@ from mobile_manip_sim.dynamics.coordinates import JOINTS, YAW, X, Y
 from mobile_manip_sim.frames import FOOTPRINT, FrameTree, rpy_quaternion
 from mobile_manip_sim.model import rpy_matrix
 from mobile_manip_sim.urdf import robot_description
-from test_urdf import SCENES, core_dynamics, random_configuration
+from robots import random_configuration
+from test_urdf import SCENES, core_dynamics
 
 TOL = 1e-9
 PREFIX = "robot1/"

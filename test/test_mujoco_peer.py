@@ -8,6 +8,7 @@ from mobile_manip_sim.bench.scenes import random_robot_document
 from mobile_manip_sim.dynamics import Dynamics
 from mobile_manip_sim.dynamics.coordinates import ARM_U, BASE_POSE, OMEGA, YAW, V
 from mobile_manip_sim.scene import load_scene, parse_scene
+from robots import random_state
 
 mujoco_peer = pytest.importorskip("mobile_manip_sim.bench.mujoco_peer")
 pytest.importorskip("mujoco")
@@ -20,12 +21,6 @@ def _robots():
         yield f"random {n} links", parse_scene(random_robot_document(n, seed=40 + n, physical=True), "r").robot, 10.0, 0.3, True
 
 
-def _random_state(robot, rng):
-    q = rng.normal(size=robot.n_q)
-    q[6::2] = rng.uniform(0.0, 1.0, robot.n_links) * np.array(robot.length)
-    return q, rng.normal(size=robot.n_u)
-
-
 @pytest.mark.parametrize("label, robot, gravity, tip_mass, wheel_inertia", list(_robots()),
                          ids=lambda v: v if isinstance(v, str) else "")
 def test_mass_matrix_and_energies_are_ours(label, robot, gravity, tip_mass, wheel_inertia):
@@ -34,7 +29,7 @@ def test_mass_matrix_and_energies_are_ours(label, robot, gravity, tip_mass, whee
     rng = np.random.default_rng(len(label))
     potential_offset = None
     for _ in range(10):
-        q, u = _random_state(robot, rng)
+        q, u = random_state(rng, robot)
         M = dyn.mass_matrix(q)
         M_mj = peer.mass_matrix(q)
         assert np.abs(M_mj - M).max() <= 1e-12 * np.abs(M).max(), label
@@ -53,7 +48,7 @@ def test_a_changed_inertia_is_seen():
     doc = scene.document
     doc["robot"]["arm"]["links"][1]["mass_per_length"] *= 1.0 + 1e-9
     other = parse_scene(doc, "perturbed").robot
-    q, _ = _random_state(scene.robot, np.random.default_rng(3))
+    q, _ = random_state(np.random.default_rng(3), scene.robot)
     M = Dynamics(scene.robot).mass_matrix(q)
     M_mj = mujoco_peer.MujocoPeer(other, 0.0).mass_matrix(q)
     assert np.abs(M_mj - M).max() > 1e-10 * np.abs(M).max()
@@ -62,7 +57,7 @@ def test_a_changed_inertia_is_seen():
 def test_qpos_is_our_configuration_and_qvel_is_S_u():
     robot = load_scene().robot
     peer = mujoco_peer.MujocoPeer(robot, 10.0)
-    q, u = _random_state(robot, np.random.default_rng(5))
+    q, u = random_state(np.random.default_rng(5), robot)
     peer.set_state(q, u)
     # the last rod's distal end from MuJoCo's kinematics against ours
     tip = peer.data.xpos[peer.model.nbody - 1]
@@ -75,7 +70,7 @@ def test_fixed_base_peer_is_the_arm_block():
     """Base welded at its pose: MuJoCo's mass matrix is our arm block and the tip is ours."""
     robot = parse_scene(random_robot_document(4, seed=9, physical=True), "r").robot
     rng = np.random.default_rng(11)
-    q, u = _random_state(robot, rng)
+    q, u = random_state(rng, robot)
     peer = mujoco_peer.MujocoPeer(robot, 10.0, base_pose=q[BASE_POSE])
     dyn = Dynamics(robot, gravity=10.0)
     M = dyn.mass_matrix(q)[ARM_U, ARM_U]

@@ -17,7 +17,8 @@ from mobile_manip_sim.frames import FrameTree
 from mobile_manip_sim.messages import tf_cdr, tf_static_cdr
 from mobile_manip_sim.recording.cdr import TF_MESSAGE_TYPE, tf_message_cdr
 from mobile_manip_sim.recording.message_definitions import BUNDLED, definition_text, type_hash
-from test_urdf import SCENES, random_configuration
+from robots import random_configuration
+from test_urdf import SCENES
 
 STAMP = 12 * 10 ** 9 + 345_678_901
 

@@ -2,7 +2,6 @@
 builds a multibody whose projected mass matrix ``M = Sᵀ M_full S`` equals the Gibbs–Appell core's
 (scenes built through `parse_scene`, so payload and wheel-inertia effects take the real path);
 joint names and types match /joint_states; ``describe`` behaves as a command-line tool."""
-import copy
 import os
 import zlib
 import subprocess
@@ -21,6 +20,7 @@ from mobile_manip_sim.dynamics.coordinates import JOINTS, YAW, X, Y
 from mobile_manip_sim.effects import settings as effect_settings
 from mobile_manip_sim.scene import load_scene, parse_scene
 from mobile_manip_sim.urdf import robot_description
+from robots import random_configuration, random_robot_document
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER = ROOT / "config" / "paper_two_link.yaml"
@@ -39,25 +39,11 @@ def payload_scene():
 
 
 def random_scene(seed):
-    """A random robot (0–5 links, random rpy, full cross-section inertias) as a scene document."""
+    """A random robot (`robots.random_robot_document`, 0–5 links) with effects that vary with the
+    seed: payload, wheel inertia, damping, effort limits."""
     rng = np.random.default_rng(seed)
     n = seed % 6
-    doc = copy.deepcopy(paper_document())
-    doc["robot"]["base"] = dict(
-        mass=float(rng.uniform(1.0, 20.0)), yaw_inertia=float(rng.uniform(0.01, 1.0)),
-        com_offset=float(rng.uniform(-0.3, 0.3)), wheel_radius=float(rng.uniform(0.03, 0.2)),
-        half_track=float(rng.uniform(0.1, 0.4)), wheel_inertia=float(rng.uniform(1e-4, 1e-2)))
-    links = []
-    for _ in range(n):
-        L = float(rng.uniform(0.2, 2.0))
-        A = rng.normal(size=(3, 3)) * 0.03
-        J = A @ A.T + 1e-4 * np.eye(3)
-        lo = float(rng.uniform(0.0, 0.5)) * L
-        links.append(dict(length=L, mass_per_length=float(rng.uniform(0.2, 5.0)),
-                          inertia_per_length=J.tolist(),
-                          joint_rpy=rng.uniform(-np.pi, np.pi, 3).tolist(), stroke=[lo, L]))
-    doc["robot"]["arm"] = {"mount": rng.uniform(-0.3, 0.3, 3).tolist(), "links": links}
-    doc["initial"] = {"joints": [v for link in links for v in (0.0, link["stroke"][0])]}
+    doc = random_robot_document(rng, n)
     doc["efforts"] = {}
     effects = {"gravity": 9.81, "wheel_inertia": bool(seed % 3 != 2)}
     if n and seed % 2:
@@ -121,16 +107,6 @@ class UrdfModel:
         M = pin.crba(self.model, self.data, self.full_configuration(q)).copy()
         M = np.triu(M) + np.triu(M, 1).T
         return self.S.T @ M @ self.S
-
-
-def random_configuration(rng, robot) -> np.ndarray:
-    q = np.empty(robot.n_q)
-    q[:2] = rng.uniform(-5.0, 5.0, 2)
-    q[2:5] = rng.uniform(-np.pi, np.pi, 3)
-    for k in range(robot.n_links):
-        q[5 + 2 * k] = rng.uniform(-np.pi, np.pi)
-        q[6 + 2 * k] = rng.uniform(*robot.stroke[k])
-    return q
 
 
 def core_dynamics(scene) -> Dynamics:
