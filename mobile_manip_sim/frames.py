@@ -27,7 +27,7 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
-from .dynamics.coordinates import JOINTS, X, Y, YAW, u_slide, u_turn
+from .dynamics.coordinates import JOINTS, YAW, X, Y, u_slide, u_turn
 from .model import RobotModel
 
 FOOTPRINT = "base_footprint"
@@ -133,7 +133,7 @@ class FrameTree:
         if joint.kind == "continuous":
             rotation = quaternion_multiply(rotation, axis_quaternion(joint.axis, value))
         elif joint.kind == "prismatic":   # origin rotations of the slides are identities
-            translation = tuple(t + a * value for t, a in zip(translation, joint.axis))
+            translation = tuple(t + a * value for t, a in zip(translation, joint.axis, strict=True))
         return Transform(self.frame(joint.parent), self.frame(joint.child), translation, rotation)
 
     def static_transforms(self) -> list[Transform]:

@@ -23,9 +23,19 @@ from .recording.cdr import tf_message_cdr
 # Stamps come from the time line (timeline.py); topic names, types and QoS live in topics.py,
 # re-exported here for the message builders' users.
 from .timeline import NS  # noqa: F401
-from .topics import (ARM_TOPIC, CLOCK_TOPIC, CMD_VEL_TOPIC, COMMAND_QOS_DEPTH,  # noqa: F401
-                     COMMAND_TOPICS, JOINT_STATES_TOPIC, ODOM_TOPIC, STATE_QOS_DEPTH,
-                     STATE_TOPICS, TOPIC_TYPES, WHEEL_TOPIC)
+from .topics import (  # noqa: F401
+    ARM_TOPIC,
+    CLOCK_TOPIC,
+    CMD_VEL_TOPIC,
+    COMMAND_QOS_DEPTH,
+    COMMAND_TOPICS,
+    JOINT_STATES_TOPIC,
+    ODOM_TOPIC,
+    STATE_QOS_DEPTH,
+    STATE_TOPICS,
+    TOPIC_TYPES,
+    WHEEL_TOPIC,
+)
 
 # Ground truth from the model: a planar model knows z, roll and pitch exactly (all zero), so all
 # six pose and twist dimensions are known. A small positive diagonal rather than 0 keeps the

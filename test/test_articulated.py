@@ -12,10 +12,9 @@ import sys
 import numpy as np
 import pytest
 
+import robots
 from mobile_manip_sim.dynamics import Dynamics, articulated, kernels
 from mobile_manip_sim.dynamics.coordinates import SLIDES_U, rod
-
-import robots
 
 LINK_COUNTS = [0, 1, 2, 3, 4, 5, 8, 12, 16, 20, 24, 32]
 EPS = np.finfo(float).eps
@@ -146,6 +145,6 @@ def test_pure_python_and_compiled_kernels_agree():
     python, compiled = results
     assert python["compiled"] is False and python["kind"] == "function"          # really Python …
     assert compiled["compiled"] is True and compiled["kind"] == "CPUDispatcher"  # … really numba
-    for python_value, compiled_value in zip(python["values"], compiled["values"]):
+    for python_value, compiled_value in zip(python["values"], compiled["values"], strict=True):
         np.testing.assert_allclose(np.array(python_value), np.array(compiled_value),
                                    rtol=1e-12, atol=1e-12)

@@ -6,6 +6,7 @@ import sys
 from pathlib import Path
 
 import pytest
+
 from executables import executable
 
 REPO = Path(__file__).resolve().parents[1]

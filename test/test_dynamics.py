@@ -5,7 +5,6 @@ import pytest
 from mobile_manip_sim.dynamics import Dynamics, constraint_residuals
 from mobile_manip_sim.engine.simulation import Simulation
 from mobile_manip_sim.scene import load_scene, parse_scene
-
 from robots import random_robot_document, random_state
 
 SEEDS = range(12)

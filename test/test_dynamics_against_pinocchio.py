@@ -9,7 +9,6 @@ import numpy as np
 import pytest
 
 from mobile_manip_sim.dynamics import Dynamics
-
 from pinocchio_reference import build_projected_model
 from robots import random_configuration, random_robot, random_state
 

@@ -12,12 +12,11 @@ import numpy as np
 import pytest
 from scipy import integrate
 
+from engine_cases import one_link_doc, paper_doc, sampled, simulation
 from mobile_manip_sim.engine import adaptive_stepping, events, layout
 from mobile_manip_sim.engine import runge_kutta as rk
 from mobile_manip_sim.engine.simulation import Simulation
 from mobile_manip_sim.scene import load_scene, make_integrator
-
-from engine_cases import one_link_doc, paper_doc, sampled, simulation
 
 TIGHT = dict(rtol=1e-11, atol=1e-13)
 SCIPY = {"rk45": integrate.RK45, "dop853": integrate.DOP853, "radau": integrate.Radau,
@@ -89,7 +88,7 @@ def test_each_impact_loses_the_energy_of_the_impulse_law(restitution, fixed_base
     sim.advance_to(1.0 if restitution else 2.0)
     assert len(sim.impacts) >= (5 if restitution else 3) and len(sim.probed) == len(sim.impacts)
     expected_total = 0.0
-    for impact, (q, u_before, u_after, free, held) in zip(sim.impacts, sim.probed):
+    for impact, (q, u_before, u_after, free, held) in zip(sim.impacts, sim.probed, strict=True):
         j = 2 * impact.link + 1
         M = sim.dynamics.mass_matrix(q)[np.ix_(free, free)]
         w = np.linalg.solve(M, np.eye(len(free))[free.index(j)])   # M⁻¹ e_k

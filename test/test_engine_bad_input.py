@@ -15,10 +15,9 @@ import numpy as np
 import pytest
 import yaml
 
+from engine_cases import paper_doc, simulation
 from mobile_manip_sim import simulate
 from mobile_manip_sim.errors import UserError
-
-from engine_cases import paper_doc, simulation
 
 
 def edit(path, value):
@@ -180,7 +179,7 @@ def results(tmp_path_factory):
             outcomes = list(pool.map(lambda case_id: run_case(case_id, tmp_dir), ids))
     finally:
         del CASES["valid scene"]
-    return dict(zip(ids, outcomes))
+    return dict(zip(ids, outcomes, strict=True))
 
 
 def test_the_unbroken_scene_runs(results):
@@ -298,8 +297,14 @@ def test_simulate_exits_2_with_one_line_when_bdf_cannot_follow(tmp_path):
 
 
 def test_the_step_watch_tells_a_crawl_from_a_restart():
-    from mobile_manip_sim.engine.step_watch import (BUDGET_SPAN, BUDGET_STEPS, FLOOR_STEPS, describe,
-                                                    make_watch, watch_step)
+    from mobile_manip_sim.engine.step_watch import (
+        BUDGET_SPAN,
+        BUDGET_STEPS,
+        FLOOR_STEPS,
+        describe,
+        make_watch,
+        watch_step,
+    )
 
     def first_problem(steps, t=0.0):
         watch = make_watch()

@@ -8,7 +8,6 @@ Each case has an answer that cannot be tuned: a closed form (a rigid spin-up at 
 acceleration, a rod bouncing under gravity alone), docs/model.md's multi-contact law worked by hand,
 or a sign (a stop only pushes).
 """
-import copy
 import math
 import warnings
 
@@ -16,8 +15,6 @@ import numpy as np
 import pytest
 
 from mobile_manip_sim.engine import events, layout
-from mobile_manip_sim.engine.simulation import Simulation
-from mobile_manip_sim.scene import parse_scene
 
 try:
     from .engine_cases import one_link_doc, paper_doc, simulation
@@ -95,7 +92,7 @@ def test_after_a_release_inside_a_step_the_run_converges_at_the_methods_order(me
     reference = spin_up_state("dop853", t_end, **TIGHT)
     errors = [np.abs(spin_up_state(method, t_end, dt=dt) - reference).max()
               for dt in (8e-3, 4e-3, 2e-3)]
-    rates = [math.log2(a / b) for a, b in zip(errors, errors[1:])]
+    rates = [math.log2(a / b) for a, b in zip(errors[:-1], errors[1:], strict=True)]
     assert all(abs(rate - order) < 0.5 for rate in rates), (errors, rates)
 
 
@@ -249,12 +246,12 @@ def test_settling_impacts_never_let_a_stop_pull(method, settings):
     sim = simulation(two_pressed_rods_doc(0.05), method, **settings)
     sim.advance_to(1.5)
     assert list(sim.resting) == [-1, 1]
-    slow = [(i, d) for i, d in zip(sim.impacts, sim.impact_details)
+    slow = [(i, d) for i, d in zip(sim.impacts, sim.impact_details, strict=True)
             if abs(i.ld_before) < 0.05 / 0.5 and not d.held]
     assert slow, "the scene has settling impacts"
     for impact, detail in slow:
         pushes_only(sim, detail, impact, 1e-12)
-    for impact, detail in zip(sim.impacts, sim.impact_details):
+    for impact, detail in zip(sim.impacts, sim.impact_details, strict=True):
         pushes_only(sim, detail, impact, 1e-12 if not detail.held else 1e-4)
 
 

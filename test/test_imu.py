@@ -147,7 +147,7 @@ def test_noise_is_a_pure_function_of_seed_and_sample_index():
     other = copy.replace(NOISE, seed=1235) if hasattr(copy, "replace") else ImuNoise(
         NOISE.angular_velocity_stddev, NOISE.angular_velocity_bias,
         NOISE.linear_acceleration_stddev, NOISE.linear_acceleration_bias, 1235)
-    assert all(a != b for a, b in zip(forward, (other.disturb(TRUTH, k) for k in range(50))))
+    assert all(a != b for a, b in zip(forward, (other.disturb(TRUTH, k) for k in range(50)), strict=True))
     assert ImuNoise().disturb(TRUTH, 7) == TRUTH
 
 

@@ -12,11 +12,10 @@ import sys
 import numpy as np
 import pytest
 
+from engine_cases import PAPER_SCENE, paper_doc, sampled, simulation
 from mobile_manip_sim import methods
 from mobile_manip_sim.errors import UserError
 from mobile_manip_sim.scene import FIXED_STEP_METHODS, METHODS
-
-from engine_cases import PAPER_SCENE, paper_doc, sampled, simulation
 
 ADAPTIVE_METHODS = [m for m in METHODS if m not in FIXED_STEP_METHODS]
 T_END = 0.2
@@ -70,7 +69,7 @@ def test_every_adaptive_method_meets_its_tolerance(reference, method):
     rtols = (1e-4, 1e-6, 1e-8)
     errors = [final_error(reference, method, rtol=r, atol=1e-3 * r) for r in rtols]
     assert errors[0] > errors[1] > errors[2], errors
-    for rtol, error in zip(rtols, errors):
+    for rtol, error in zip(rtols, errors, strict=True):
         assert error < 100 * rtol, (rtol, error)
 
 

@@ -18,16 +18,16 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
 from mobile_manip_sim.dynamics.coordinates import ARM_U, JOINTS, WHEELS
+from mobile_manip_sim.engine.simulation import DEFAULT_WHEEL_SPEED_GAINS, Simulation
+from mobile_manip_sim.errors import EXIT_USER_ERROR
+from mobile_manip_sim.headless import run as simulate_run
 from mobile_manip_sim.plot import cli as plot_cli
 from mobile_manip_sim.plot.energy import impact_losses, work
 from mobile_manip_sim.plot.figures import HEADING_MARKS, RESIDUAL_FLOOR, plot
 from mobile_manip_sim.plot.run import load_run
-from mobile_manip_sim.engine.simulation import DEFAULT_WHEEL_SPEED_GAINS, Simulation
-from mobile_manip_sim.errors import EXIT_USER_ERROR
 from mobile_manip_sim.recording.bag_writer import BagWriter, qos_yaml
-from mobile_manip_sim.scene import load_scene, parse_scene
 from mobile_manip_sim.recording.headless import HeadlessRecorder
-from mobile_manip_sim.headless import run as simulate_run
+from mobile_manip_sim.scene import load_scene, parse_scene
 from mobile_manip_sim.timeline import sample_times
 
 BIN = Path(sys.executable).parent
@@ -141,7 +141,6 @@ def check_figures(figures, run):
         assert "(" in figure.axes[-1].get_xlabel(), f"{name}: x label without a unit"
         for axes in figure.axes:
             assert "(" in axes.get_ylabel(), f"{name}: y label without a unit"
-    names = run.joint_names()
     hit = impacted_links(run)
 
     def lines(name, index=0):
@@ -387,8 +386,7 @@ def record_node_bag(path: Path, scene, sent: dict, timeout_ns: int, duration: fl
     ``gains`` (kp, ki) the base takes velocity commands (v, ω), as with base_command velocity."""
     from mobile_manip_sim.messages import state_messages
     from mobile_manip_sim.recording.recorder import RunRecorder
-    from mobile_manip_sim.timeline import (CommandSlot, Grid, apply_commands,
-                                           start_node_time_line)
+    from mobile_manip_sim.timeline import CommandSlot, Grid, apply_commands, start_node_time_line
 
     grid = Grid(SAMPLE_RATE)
     sim = Simulation(scene)
@@ -405,7 +403,7 @@ def record_node_bag(path: Path, scene, sent: dict, timeout_ns: int, duration: fl
             stamp = grid.stamp(k)
             recorder.states(stamp, state_messages(sim, stamp, scene.robot.joint_names()))
             recorder.impacts(sim.impacts)
-            for slot, values in zip(slots, sent.get(stamp, ())):
+            for slot, values in zip(slots, sent.get(stamp, ()), strict=False):
                 slot.receive(values, stamp)
             held = [slot.held(stamp, timeout_ns)[0] for slot in slots]
             recorder.commands(stamp, *apply_commands(sim, *held, gains is not None))

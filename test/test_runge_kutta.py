@@ -253,7 +253,7 @@ def test_cost_falls_as_rtol_loosens_and_error_follows_rtol(reference):
     # holds a sample; at rtol 1e-4 7 of 9 take their dense output from their stages, at 1e-10
     # all but one need the 3 extra ones. The bound checked is 0.26 (it was 0.3 with 173/590).
     assert evals[0] <= 0.26 * evals[2]
-    for rtol, error in zip((1e-4, 1e-7, 1e-10), errors):
+    for rtol, error in zip((1e-4, 1e-7, 1e-10), errors, strict=True):
         assert rtol / 30 < error < 30 * rtol
 
 
@@ -293,7 +293,7 @@ def test_pure_python_path_gives_the_compiled_numbers():
     for method in ("rk45", "dop853"):
         py, co = python[method], compiled[method]
         assert py[5] == co[5]   # the same steps and evaluations
-        for a, b in zip(py, co):
+        for a, b in zip(py, co, strict=True):
             np.testing.assert_allclose(np.array(a, dtype=float), np.array(b, dtype=float),
                                        rtol=1e-12, atol=1e-13)
         py, co = python[method + " with stops"], compiled[method + " with stops"]
@@ -348,7 +348,7 @@ def test_with_stops_cost_falls_as_rtol_loosens_and_error_follows_rtol(method, st
         errors.append(np.max(np.abs(rows[:, :-1] - stops_reference)))
     assert evals[0] < evals[1] < evals[2], evals
     assert errors[0] > 10 * errors[1] > 100 * errors[2], errors
-    for rtol, error in zip(rtols, errors):
+    for rtol, error in zip(rtols, errors, strict=True):
         assert rtol / 30 < error < 300 * rtol, (rtol, error)
 
 

@@ -5,12 +5,12 @@ import math
 import threading
 
 import pytest
-from waiting import wait_for
 
 from mobile_manip_sim.engine.simulation import SimulationError
 from mobile_manip_sim.node.loop import MAX_WAIT, WATCHDOG_SECONDS, State, SteppingLoop
 from mobile_manip_sim.pacing import Pacer
 from mobile_manip_sim.timeline import Grid
+from waiting import wait_for
 
 RATE = 100
 PERIOD = 1.0 / RATE

@@ -7,21 +7,19 @@ import os
 import signal
 import socket
 import subprocess
-import sys
 import time
 from pathlib import Path
 
 import pyarrow.parquet as pq
 import pytest
-from waiting import wait_for
 
+from executables import executable
+from hostile_yaml import ALIAS_BOMB
 from mobile_manip_sim.errors import EXIT_USER_ERROR, UserError
 from mobile_manip_sim.scene import load_scene
 from mobile_manip_sim.scene_overrides import parse_assignments
 from mobile_manip_sim.sweep.runner import run_one
-
-from executables import executable
-from hostile_yaml import ALIAS_BOMB
+from waiting import wait_for
 
 # 24 runs: a negative mass (8 runs fail, naming the key), two integrators, four random draws.
 SMALL = """\

@@ -8,8 +8,8 @@ import sys
 
 import numpy as np
 import pytest
-from mcap_ros2.decoder import DecoderFactory
 from mcap.records import Schema
+from mcap_ros2.decoder import DecoderFactory
 from rosbags.typesys import Stores, get_typestore
 
 import tf2_msgs_build
@@ -82,7 +82,7 @@ def test_payloads_decode_with_rosbags_and_mcap_ros2(case):
     other = DecoderFactory().decoder_for("cdr", schema)(data)
     for message in (decoded, other):
         assert len(message.transforms) == len(transforms)
-        for got, t in zip(message.transforms, transforms):
+        for got, t in zip(message.transforms, transforms, strict=True):
             assert (got.header.stamp.sec * 10 ** 9 + got.header.stamp.nanosec) == stamp
             assert (got.header.frame_id, got.child_frame_id) == (t.parent, t.child)
             tr, ro = got.transform.translation, got.transform.rotation

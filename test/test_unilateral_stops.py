@@ -1,8 +1,8 @@
 """Several stops at once (docs/model.md; engine/stops.py `contact_impulses`, `solve_contacts`): each
 stop only pushes, restitution on the stop being hit, 0 on resting ones, a resting rod that its
 stop would have to pull leaves it, and energy never rises in an impact."""
-from importlib import resources
 import itertools
+from importlib import resources
 
 import numpy as np
 import pytest
@@ -105,7 +105,7 @@ def test_in_random_multi_rod_scenes_no_stop_ever_pulls():
             for k in np.flatnonzero(sim.resting) + 1:
                 assert -sim.resting[k - 1] * forces[layout.u_slide(k)] >= -1e-9, (seed, t, k)
         permanent = set(sim.system.permanently_locked)
-        for impact, d in zip(sim.impacts, sim.impact_details):
+        for impact, d in zip(sim.impacts, sim.impact_details, strict=True):
             at_stop = {layout.u_slide(r): (1.0 if d.q[layout.q_slide(r)] == sim.stroke[r - 1, 0]
                                            else -1.0)
                        for r in range(1, 4) if d.q[layout.q_slide(r)] in sim.stroke[r - 1]}

@@ -3,10 +3,10 @@ builds a multibody whose projected mass matrix ``M = Sᵀ M_full S`` equals the 
 (scenes built through `parse_scene`, so payload and wheel-inertia effects take the real path);
 joint names and types match /joint_states; ``describe`` behaves as a command-line tool."""
 import os
-import zlib
 import subprocess
 import sys
 import xml.etree.ElementTree as ET
+import zlib
 from pathlib import Path
 
 import numpy as np

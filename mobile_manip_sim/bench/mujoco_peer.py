@@ -129,7 +129,7 @@ def mjcf(robot_model, gravity: float = 0.0, tip_mass: float = 0.0, wheel_inertia
                   f'{indent}  <joint name="arm_prismatic_{k + 1}" type="slide" axis="1 0 0"/>',
                   f'{indent}  ' + _inertial(*inertial)]
         indent += "  "
-    for k in range(n, 0, -1):
+    for _ in range(n):   # close the bodies, innermost first
         indent = indent[:-2]
         lines.append(f'{indent}</body>')
     lines += ['    </body>', '  </worldbody>', '  <actuator>']

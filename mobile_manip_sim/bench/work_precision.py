@@ -69,7 +69,7 @@ def plot(result: WorkPrecision, path) -> None:
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(9.0, 5.0))
-    markers = dict(zip(METHODS, "v^soDPX"))   # one per method, in the registry's order
+    markers = dict(zip(METHODS, "v^soDPX", strict=True))   # one per method, in the registry's order
     for method, points in result.by_method().items():
         good = [p for p in points if p.run.ok and math.isfinite(p.error)]
         if not good:

@@ -101,9 +101,10 @@ class Bound:
 # Where compiled code may come from: the dynamics and the engine (below the adapters, they
 # import nothing above them), and any other module that defines a kernel (`bench/loops.py`).
 KERNEL_PACKAGES = ("dynamics", "engine")
+PACKAGE = Path(__file__).resolve().parents[1]
 
 
-def _drop_stale_caches(package: Path = Path(__file__).resolve().parents[1]) -> None:
+def _drop_stale_caches(package: Path = PACKAGE) -> None:
     """Delete the package's numba cache files (``__pycache__/*.nbi, *.nbc``) when a source that
     compiled code may depend on changed: any module of dynamics/ or engine/ (kernels freeze the
     module constants they read, such as the method tables of runge_kutta.py, into their code) or

@@ -13,7 +13,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from ..dynamics import constraint_residuals
-from ..dynamics.coordinates import X, Y, YAW, q_slide, q_turn, u_slide, u_turn
+from ..dynamics.coordinates import YAW, X, Y, q_slide, q_turn, u_slide, u_turn
 from ..effects import settings as effect_settings
 from ..errors import UserError
 from .energy import impact_losses, work
@@ -30,7 +30,7 @@ DPI = 120
 def residuals(run: Run) -> np.ndarray:
     """(N, 2) docs/model.md's constraint residuals (no skid, no slip) at each sample, m/s."""
     return np.array([constraint_residuals(run.scene.robot, q_k, qdot_k)
-                     for q_k, qdot_k in zip(run.q, run.qdot)])
+                     for q_k, qdot_k in zip(run.q, run.qdot, strict=True)])
 
 
 def tip_path(run: Run) -> np.ndarray:

@@ -105,7 +105,7 @@ def load_csv(path, scene_path=None) -> Run:
     q = np.column_stack([columns[name] for name in expected[1:1 + n_q]])
     u = np.column_stack([columns[name] for name in expected[1 + n_q:1 + n_q + n_u]])
     dynamics = dynamics_of(scene)
-    qdot = np.array([dynamics.configuration_rate(q_k, u_k) for q_k, u_k in zip(q, u)])
+    qdot = np.array([dynamics.configuration_rate(q_k, u_k) for q_k, u_k in zip(q, u, strict=True)])
     efforts = np.tile(scene_efforts(scene), (len(q), 1))
     return Run(source=path, kind="csv", scene=scene, t=columns["t"], q=q, u=u, qdot=qdot,
                energy=columns["energy"], efforts=efforts,
@@ -161,7 +161,7 @@ def _read_impacts_csv(run_path: Path, n_links: int) -> list[dict]:
 def load_bag(path, scene_path=None) -> Run:
     """A recorded bag: /joint_states and /odom sampled at the /joint_states stamps; the scene
     from ``--scene`` or the ``scene.yaml`` attachment; impacts from ``impacts.json``."""
-    from ..recording.bag_reader import open_bag   # mcap: only bags need it
+    from ..recording.bag_reader import open_bag  # mcap: only bags need it
 
     path = Path(path)
     bag = open_bag(path)
@@ -204,7 +204,7 @@ def load_bag(path, scene_path=None) -> Run:
 
     effort_values, effort_source = _bag_efforts(bag, efforts, sample_ns, scene, topics)
     dynamics = dynamics_of(scene)
-    energy = np.array([sum(dynamics.energy(q_k, u_k)) for q_k, u_k in zip(q, u)])
+    energy = np.array([sum(dynamics.energy(q_k, u_k)) for q_k, u_k in zip(q, u, strict=True)])
     impacts = bag_format.read_impacts(bag, scene.robot.n_links)
     return Run(source=path, kind="bag", scene=scene, t=t, q=q, u=u, qdot=qdot, energy=energy,
                efforts=effort_values, effort_source=effort_source, impacts=impacts)

@@ -26,8 +26,14 @@ from mobile_manip_sim import __version__, limits, schema
 from mobile_manip_sim.errors import UserError
 from mobile_manip_sim.methods import METHODS
 from mobile_manip_sim.timeline import NS, CommandHistory, Grid, start_node_time_line
-from mobile_manip_sim.topics import (ARM_TOPIC, BAG_TOPIC_TYPES, BASE_COMMAND_TOPICS,
-                                     BASE_COMMANDS, JOINT_STATES_TOPIC, ODOM_TOPIC)
+from mobile_manip_sim.topics import (
+    ARM_TOPIC,
+    BAG_TOPIC_TYPES,
+    BASE_COMMAND_TOPICS,
+    BASE_COMMANDS,
+    JOINT_STATES_TOPIC,
+    ODOM_TOPIC,
+)
 
 METADATA_NAME = "mobile_manip_sim"
 SCENE_ATTACHMENT = "scene.yaml"

@@ -26,8 +26,16 @@ from mcap.data_stream import ReadDataStream
 from mcap.exceptions import InvalidMagic, McapError
 from mcap.opcode import Opcode
 from mcap.reader import SeekingReader
-from mcap.records import (Attachment, AttachmentIndex, Channel, Chunk, ChunkIndex, Metadata,
-                          MetadataIndex, Schema)
+from mcap.records import (
+    Attachment,
+    AttachmentIndex,
+    Channel,
+    Chunk,
+    ChunkIndex,
+    Metadata,
+    MetadataIndex,
+    Schema,
+)
 from mcap.stream_reader import MAGIC_SIZE, breakup_chunk
 from mcap.summary import Summary
 from mcap.writer import MCAP0_MAGIC as MCAP_MAGIC

@@ -29,14 +29,25 @@ import numpy as np
 
 from mobile_manip_sim.errors import UserError
 from mobile_manip_sim.messages import command_message
-from mobile_manip_sim.topics import (ARM_TOPIC, BASE_COMMAND_TOPICS, COMMAND_QOS_DEPTH,
-                                     COMMAND_TOPICS, LATCHED_TOPICS, STATE_QOS_DEPTH,
-                                     STATE_TOPICS, TF_TOPIC, recorded_topics)
-from mobile_manip_sim.recording.bag_format import (IMPACTS_ATTACHMENT, METADATA_NAME,
-                                                   SCENE_ATTACHMENT, run_metadata)
+from mobile_manip_sim.recording.bag_format import (
+    IMPACTS_ATTACHMENT,
+    METADATA_NAME,
+    SCENE_ATTACHMENT,
+    run_metadata,
+)
 from mobile_manip_sim.recording.bag_writer import DEFAULT_CHUNK_SIZE, BagWriter, qos_yaml
 from mobile_manip_sim.recording.cdr import exact_cdr
-
+from mobile_manip_sim.topics import (
+    ARM_TOPIC,
+    BASE_COMMAND_TOPICS,
+    COMMAND_QOS_DEPTH,
+    COMMAND_TOPICS,
+    LATCHED_TOPICS,
+    STATE_QOS_DEPTH,
+    STATE_TOPICS,
+    TF_TOPIC,
+    recorded_topics,
+)
 
 # The order in which one publication's messages are written (the latched ones come first).
 WRITTEN_TOPICS = (*LATCHED_TOPICS, *STATE_TOPICS, TF_TOPIC)

@@ -8,8 +8,16 @@ from __future__ import annotations
 from pathlib import Path
 
 from mobile_manip_sim.errors import UserError
-from mobile_manip_sim.schema import (MAX_FILE_BYTES, integer, keys, mapping, sequence, short,
-                                     string, string_map)
+from mobile_manip_sim.schema import (
+    MAX_FILE_BYTES,
+    integer,
+    keys,
+    mapping,
+    sequence,
+    short,
+    string,
+    string_map,
+)
 
 ROSBAG2_MAX_VERSION = 9
 MAX_BAG_FILES = 10_000     # entries of relative_file_paths and files

@@ -18,8 +18,13 @@ import time
 from mobile_manip_sim import schema
 from mobile_manip_sim.errors import UserError
 from mobile_manip_sim.messages import CLOCK_TOPIC, JOINT_STATES_TOPIC, NS, clock
-from mobile_manip_sim.recording.bag_format import (SCENE_ATTACHMENT, RecordedRun, decode,
-                                                   first_message, message_class)
+from mobile_manip_sim.recording.bag_format import (
+    SCENE_ATTACHMENT,
+    RecordedRun,
+    decode,
+    first_message,
+    message_class,
+)
 from mobile_manip_sim.topics import LATCHED_TOPICS, TF_TYPE
 
 ACK_TIMEOUT = 2.0          # s: how long to wait at the end for reliable subscribers to ack
@@ -39,7 +44,7 @@ def qos_profile(offered: str | None, topic: str = "topic"):
     """A subscriber-compatible QoS for a topic from its ``offered_qos_profiles`` YAML: reliable
     only if every recorded publisher was, transient local likewise, the deepest history. None
     recorded: reliable, depth 10. A damaged entry is one `UserError` naming the topic."""
-    from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy)
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
     where = f"{topic}: offered_qos_profiles"
     profiles = schema.load_yaml(offered, what=where) if offered else None
@@ -158,7 +163,7 @@ def _await_discovery(node, publishers: dict) -> None:
         if graph != last:
             last, since = graph, now
         elif (now - since >= DISCOVERY_SETTLE and any(known)
-              and all(m >= k for m, k in zip(matched, known))):
+              and all(m >= k for m, k in zip(matched, known, strict=True))):
             return
         time.sleep(0.02)
 

@@ -12,8 +12,14 @@ import math
 
 from mobile_manip_sim import __version__
 from mobile_manip_sim.errors import UserError
-from mobile_manip_sim.messages import (JOINT_STATES_TOPIC, NS, ODOM_TOPIC, joint_state, odometry,
-                                       quaternion_yaw)
+from mobile_manip_sim.messages import (
+    JOINT_STATES_TOPIC,
+    NS,
+    ODOM_TOPIC,
+    joint_state,
+    odometry,
+    quaternion_yaw,
+)
 from mobile_manip_sim.recording.bag_format import RecordedRun, decode, stamp_ns
 from mobile_manip_sim.timeline import apply_commands
 
@@ -92,14 +98,14 @@ def _compare(run, sim, stamp: int, topic: str, recorded, differences: Difference
     if topic == JOINT_STATES_TOPIC:
         run.check_joint_state(recorded)
         expected = joint_state(sim, stamp, run.names)
-        for name, a, b in zip(run.names, recorded.position, expected.position):
+        for name, a, b in zip(run.names, recorded.position, expected.position, strict=True):
             differences.add(f"{name} position", stamp, a, b)
-        for name, a, b in zip(run.names, recorded.velocity, expected.velocity):
+        for name, a, b in zip(run.names, recorded.velocity, expected.velocity, strict=True):
             differences.add(f"{name} velocity", stamp, a, b)
         if len(recorded.effort) != len(expected.effort):
             raise UserError(topic, f"{len(recorded.effort)} efforts at {stamp} ns, expected "
                                    f"{len(expected.effort)}")
-        for name, a, b in zip(run.names, recorded.effort, expected.effort):
+        for name, a, b in zip(run.names, recorded.effort, expected.effort, strict=True):
             differences.add(f"{name} effort", stamp, a, b)
     else:
         expected = odometry(sim, stamp)

@@ -33,7 +33,7 @@ def _main(argv) -> int:
     if args.workers is not None and args.workers < 1:
         raise UserError("--workers", f"must be at least 1, got {args.workers}")
     spec = load_spec(args.spec)
-    from . import results, runner   # after the spec is checked: bad input is answered at once
+    from . import results, runner  # after the spec is checked: bad input is answered at once
     runs = spec.runs()
     varied = {path: [run[path] for run in runs] for path in spec.varied}
     columns = runner.state_columns(len(spec.document["robot"].get("arm", {}).get("links", [])))

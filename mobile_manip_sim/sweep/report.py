@@ -25,7 +25,7 @@ def settings(table, spec: Spec) -> list[tuple[str, str, float]]:
 
     methods, dts, rtols = column("method"), column("dt"), column("rtol")
     return [(str(m), "dt", _number(d)) if m in FIXED_STEP_METHODS else (str(m), "rtol", _number(r))
-            for m, d, r in zip(methods, dts, rtols)]
+            for m, d, r in zip(methods, dts, rtols, strict=True)]
 
 
 def _number(value) -> float:
@@ -143,7 +143,7 @@ def _histograms(plt, directory, table, ok) -> list[str]:
     columns = min(4, len(names))
     rows = math.ceil(len(names) / columns)
     figure, grid = plt.subplots(rows, columns, figsize=(2.6 * columns, 2.0 * rows), squeeze=False)
-    for axes, name in zip(grid.flat, names):
+    for axes, name in zip(grid.flat, names, strict=False):
         values = np.array(table.column(name).to_pylist(), dtype=float)[ok]
         axes.hist(values, bins=min(40, max(5, int(np.sqrt(len(values))))))
         axes.set_title(name, fontsize=8)

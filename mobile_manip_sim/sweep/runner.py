@@ -70,7 +70,7 @@ def run_one(document: dict, overrides: dict, duration: float, sample_rate: float
 
 def _figures(sim, scene, samples: np.ndarray) -> dict:
     names = state_columns(scene.robot.n_links)
-    figures = dict(zip(names, map(float, headless.csv_row(sim))))
+    figures = dict(zip(names, map(float, headless.csv_row(sim)), strict=True))
     nq, nu = sim.nq, sim.nu
     residual = 0.0
     for s in samples:

@@ -59,7 +59,7 @@ class Spec:
 
     def runs(self) -> list[dict]:
         """Every run's overrides {path: value}, indexed by run id."""
-        points = [dict(zip(self.grid, values)) for values in itertools.product(*self.grid.values())]
+        points = [dict(zip(self.grid, values, strict=True)) for values in itertools.product(*self.grid.values())]
         draws = self.draws()
         if not draws:
             return points
