@@ -2,7 +2,8 @@
 them. The URDF (urdf.py) is written from this tree, and /tf, /tf_static, bags and the live view
 publish its transforms, so a viewer always draws the multibody the dynamics integrates. No ROS.
 
-The tree (docs/model.md's kinematics, REP-105 names; `RobotModel.joint_names()` for the moving joints):
+The tree (docs/model.md's kinematics, REP-105 names; `RobotModel.joint_names()` for the moving
+joints):
 
     base_footprint                 on the floor under A (the root: the node's ``base_frame``)
     └─ base_footprint_joint   fixed, z = r                                     → base_link (A)

@@ -61,7 +61,8 @@ class RobotModel:
 
     @staticmethod
     def build(base: Base, mount, links: list[dict]) -> "RobotModel":
-        """Links as dicts with length, mass_per_length, inertia_per_length (3×3), joint_rpy, stroke."""
+        """Links as dicts with length, mass_per_length, inertia_per_length (3×3), joint_rpy,
+        stroke."""
         n = len(links)
         rpy = np.array([link["joint_rpy"] for link in links], dtype=float).reshape(n, 3)
         return RobotModel(

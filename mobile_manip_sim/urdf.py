@@ -115,7 +115,8 @@ def robot_description(scene: Scene, root: str = FOOTPRINT, prefix: str = "") -> 
     d, r, b = base.com_offset, base.wheel_radius, base.half_track
     # the scene's bounds (None where it sets none) and damping, as the simulator applies them
     limits = effects.effort_limits
-    efforts = [None if limits is None or math.isinf(limits[j]) else limits[j] for j in range(2 + 2 * n)]
+    efforts = [None if limits is None or math.isinf(limits[j]) else limits[j]
+               for j in range(2 + 2 * n)]
     damping = np.zeros(2 + 2 * n) if effects.rate_damping is None else effects.rate_damping
 
     robot = ET.Element("robot", name=scene.name)

@@ -72,7 +72,8 @@ class ProjectedModel:
             R0 = np.array(robot_model.joint_rotation[k], dtype=float)
             placement = pin.SE3(R0, np.array(robot_model.mount, dtype=float) if k == 0
                                 else np.zeros(3))
-            revolute = model.addJoint(parent, pin.JointModelRZ(), placement, f"arm_revolute_{k + 1}")
+            revolute = model.addJoint(parent, pin.JointModelRZ(), placement,
+                                      f"arm_revolute_{k + 1}")
             prismatic = model.addJoint(revolute, pin.JointModelPX(), pin.SE3.Identity(),
                                        f"arm_prismatic_{k + 1}")
             inertia = _rod_inertia(float(robot_model.length[k]),

@@ -113,7 +113,8 @@ def test_cholesky_and_articulated_paths_agree_on_the_paper_robot():
         q, u = robots.random_state(rng, dyn.model)
         Q = rng.normal(size=dyn.model.n_u)
         np.testing.assert_allclose(dyn.forward_dynamics(q, u, Q),
-                                   dyn.forward_dynamics_by_cholesky(q, u, Q), rtol=1e-11, atol=1e-12)
+                                   dyn.forward_dynamics_by_cholesky(q, u, Q),
+                                   rtol=1e-11, atol=1e-12)
 
 
 def test_pure_python_and_compiled_kernels_agree():
@@ -131,7 +132,8 @@ def test_pure_python_and_compiled_kernels_agree():
         "    Q = rng.normal(size=model.n_u)\n"
         "    free = np.arange(model.n_u); free[1] = -1 if model.n_u > 2 else 1\n"
         "    ud = np.empty(model.n_u)\n"
-        "    articulated.forward_dynamics(dyn.model_record, q, u, Q, dyn.gravity, free, dyn.ws, ud)\n"
+        "    articulated.forward_dynamics(dyn.model_record, q, u, Q, dyn.gravity, free, dyn.ws,\n"
+        "                                 ud)\n"
         "    out['values'] += [dyn.mass_matrix(q).tolist(), dyn.bias(q, u).tolist(),\n"
         "                      list(dyn.energy(q, u)), dyn.forward_dynamics(q, u, Q).tolist(),\n"
         "                      ud.tolist()]\n"

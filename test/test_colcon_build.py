@@ -71,7 +71,8 @@ def test_built_simulator_starts_publishes_and_stops_cleanly(workspace):
     domain = str(200 + random.randrange(30))
     env = dict(os.environ, PATH=f"{BIN}:{os.environ['PATH']}", ROS_DOMAIN_ID=domain,
                ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
-    node = subprocess.Popen(["bash", "-c", ". install/setup.sh && exec install/mobile_manip_sim/lib/"
+    node = subprocess.Popen(["bash", "-c",
+                             ". install/setup.sh && exec install/mobile_manip_sim/lib/"
                              "mobile_manip_sim/simulator --ros-args -p real_time_factor:=2.0"],
                             cwd=workspace, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True)

@@ -76,7 +76,8 @@ def test_gravity_as_root_acceleration_equals_gravity_from_the_potential(seed):
         qd = dyn.configuration_rate(q, np.eye(scene.robot.n_u)[k])
         V_plus, V_minus = dyn.energy(q + eps * qd, zero)[1], dyn.energy(q - eps * qd, zero)[1]
         G_potential.append((V_plus - V_minus) / (2 * eps))
-    np.testing.assert_allclose(G_trick, G_potential, rtol=0, atol=1e-7 * (1 + np.abs(G_trick).max()))
+    np.testing.assert_allclose(G_trick, G_potential, rtol=0,
+                               atol=1e-7 * (1 + np.abs(G_trick).max()))
 
 
 @pytest.mark.parametrize("gravity", [0.0, 10.0])

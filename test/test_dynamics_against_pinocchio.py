@@ -33,7 +33,8 @@ def random_case(seed, n=None):
 
 
 # every link count 0–6 over SEEDS, and three 10-link robots
-@pytest.mark.parametrize("seed, n", [(seed, None) for seed in SEEDS] + [(2000 + s, 10) for s in range(3)])
+@pytest.mark.parametrize("seed, n",
+                         [(seed, None) for seed in SEEDS] + [(2000 + s, 10) for s in range(3)])
 def test_mass_matrix_equals_projected_pinocchio_crba(seed, n):
     _, _, dyn, ref, q, _, _ = random_case(seed, n)
     M, M_ref = dyn.mass_matrix(q), ref.mass_matrix(q)

@@ -1,5 +1,6 @@
-"""Stroke end stops (docs/model.md "Stroke end stops", engine/stops.py): located impacts, the impulse
-law's energy loss, resting and leaving, no tunnelling, no Zeno, impulse vs the paper's reflect.
+"""Stroke end stops (docs/model.md "Stroke end stops", engine/stops.py): located impacts, the
+impulse law's energy loss, resting and leaving, no tunnelling, no Zeno, impulse vs the paper's
+reflect.
 
 Several cases have exact answers: a rod whose l̇ row of M is diagonal and whose h_l is constant
 moves as l̈ = F/m, a quadratic in t that RK4 and every adaptive method reproduce to round-off, so
@@ -250,7 +251,8 @@ def test_a_rod_chattering_with_no_rest_speed_is_held_at_the_zeno_point(method, s
 # --- the Zeno guard (events.zeno_guard: one for every method, on the impact times) ---------
 
 @pytest.mark.parametrize("method, settings", [("rk4", dict(dt=1e-3)), ("rk4", dict(dt=0.05)),
-                                              ("dop853", TIGHT), ("rk45", dict(rtol=1e-8, atol=1e-11)),
+                                              ("dop853", TIGHT),
+                                              ("rk45", dict(rtol=1e-8, atol=1e-11)),
                                               ("radau", dict(rtol=1e-8))])
 def test_every_method_holds_a_chattering_rod_at_the_same_impact(method, settings):
     """The same guard governs fixed-step and adaptive methods and reads the impact times alone:
@@ -281,8 +283,9 @@ def test_every_method_holds_a_chattering_rod_at_the_same_impact(method, settings
 def test_two_rods_trading_impacts_with_no_rest_speed_both_end_held(method, settings):
     """Rod 2 pushed into its upper stop by 20 N, rod 1 falling onto its lower one (revolute
     joints locked, gravity, e = 0.5, rest_speed 0): each rod's small bounces kick the other off
-    its stop, which cannot pull, so the two trade ever smaller impacts. No rest speed ends that; the guard's
-    runs per rod and stop do, and both rods end held with a bounded number of impacts."""
+    its stop, which cannot pull, so the two trade ever smaller impacts. No rest speed ends that;
+    the guard's runs per rod and stop do, and both rods end held with a bounded number of
+    impacts."""
     doc = paper_doc(efforts={"wheels": [0.0, 0.0], "joints": [0.0, 0.0, 0.0, 20.0]},
                     effects={"gravity": 10.0, "wheel_inertia": True,
                              "locked_joints": ["arm_revolute_1", "arm_revolute_2"],
@@ -316,7 +319,8 @@ def fast_rod_doc(side, restitution, fixed_step, overshoot):
         l0 = 1.0 - l0
     return (one_link_doc(joints=(0.0, l0), velocity=(0.0, 0.0, 0.0, side * speed),
                          joint_efforts=(0.0, -side * accel),
-                         effects={"fixed_base": True, "stroke_limits": {"restitution": restitution}}),
+                         effects={"fixed_base": True,
+                                  "stroke_limits": {"restitution": restitution}}),
             l0, speed, accel)
 
 

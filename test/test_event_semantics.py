@@ -117,9 +117,11 @@ def collinear_doc(dl2=0.0):
     return doc
 
 
-@pytest.mark.parametrize("dl2", [0.0, 1e-15, -1e-15, 2e-10], ids=["exact", "+1e-15", "-1e-15", "+2e-10"])
-@pytest.mark.parametrize("method, settings", [("rk4", dict(dt=1e-3)), ("semi_implicit_euler", dict(dt=1e-3)),
-                                              ("dop853", dict(rtol=1e-9, atol=1e-12)), ("radau", dict(rtol=1e-8))])
+@pytest.mark.parametrize("dl2", [0.0, 1e-15, -1e-15, 2e-10],
+                         ids=["exact", "+1e-15", "-1e-15", "+2e-10"])
+@pytest.mark.parametrize("method, settings",
+                         [("rk4", dict(dt=1e-3)), ("semi_implicit_euler", dict(dt=1e-3)),
+                          ("dop853", dict(rtol=1e-9, atol=1e-12)), ("radau", dict(rtol=1e-8))])
 def test_two_rods_reaching_their_stops_together_are_one_impact(method, settings, dl2):
     sim = simulation(collinear_doc(dl2), method, **settings)
     sim.advance_to(0.02)
@@ -237,7 +239,8 @@ def pushes_only(sim, detail, impact, tol):
             assert impulse[j] <= tol, (impact, impulse[j])
 
 
-@pytest.mark.parametrize("method, settings", [("rk4", dict(dt=1e-3)), ("dop853", dict(rtol=1e-10, atol=1e-12))])
+@pytest.mark.parametrize("method, settings",
+                         [("rk4", dict(dt=1e-3)), ("dop853", dict(rtol=1e-10, atol=1e-12))])
 def test_settling_impacts_never_let_a_stop_pull(method, settings):
     """rest_speed 0.05 m/s: the last impacts arrive slower than it and are solved with e = 0
     by the same unilateral law, so a neighbour that an impulse would throw off is thrown off
@@ -258,7 +261,8 @@ def test_settling_impacts_never_let_a_stop_pull(method, settings):
 # --- semi-implicit Euler with stops that rebound --------------------------------------------
 
 def test_semi_implicit_euler_with_rebounding_stops_warns_in_one_line():
-    with pytest.warns(RuntimeWarning, match="semi_implicit_euler with end stops that rebound") as caught:
+    with pytest.warns(RuntimeWarning,
+                      match="semi_implicit_euler with end stops that rebound") as caught:
         simulation(collinear_doc(), "semi_implicit_euler", dt=1e-3)
     assert len(caught) == 1 and "\n" not in str(caught[0].message)
     plastic = collinear_doc()

@@ -74,8 +74,9 @@ def test_turning_at_omega_the_z_rate_is_omega(omega):
 
 def test_acceleration_is_the_derivative_of_the_base_velocity():
     """The paper's run (base and arm accelerating) before its first impact, sampled at 1 kHz by
-    DOP853 at rtol 1e-12 every 0.2 ms: the specific force minus gravity, turned into odom, equals the central
-    difference of the velocity of A, (ẋ, ẏ), to 1e-6 m/s² (its truncation error ~3e-8)."""
+    DOP853 at rtol 1e-12 every 0.2 ms: the specific force minus gravity, turned into odom, equals
+    the central difference of the velocity of A, (ẋ, ẏ), to 1e-6 m/s² (its truncation error
+    ~3e-8)."""
     scene = load_scene(PAPER)
     sim = Simulation(scene, tight())
     imu = Imu()
@@ -147,7 +148,8 @@ def test_noise_is_a_pure_function_of_seed_and_sample_index():
     other = copy.replace(NOISE, seed=1235) if hasattr(copy, "replace") else ImuNoise(
         NOISE.angular_velocity_stddev, NOISE.angular_velocity_bias,
         NOISE.linear_acceleration_stddev, NOISE.linear_acceleration_bias, 1235)
-    assert all(a != b for a, b in zip(forward, (other.disturb(TRUTH, k) for k in range(50)), strict=True))
+    disturbed = [other.disturb(TRUTH, k) for k in range(50)]
+    assert all(a != b for a, b in zip(forward, disturbed, strict=True))
     assert ImuNoise().disturb(TRUTH, 7) == TRUTH
 
 

@@ -1,6 +1,6 @@
 """MuJoCo's peer (bench/mujoco_peer.py) is the same robot: its mass matrix, projected with S(yaw)
-on our pseudo-velocities, is `Dynamics.mass_matrix`, and its kinetic and potential energies are ours,
-at random states of the paper robot and of random 1–6-link robots."""
+on our pseudo-velocities, is `Dynamics.mass_matrix`, and its kinetic and potential energies are
+ours, at random states of the paper robot and of random 1–6-link robots."""
 import numpy as np
 import pytest
 
@@ -18,7 +18,8 @@ def _robots():
     yield "paper", load_scene().robot, 10.0, 0.0, True
     yield "paper, payload, no wheel inertia", load_scene().robot, 9.81, 0.7, False
     for n in range(1, 7):
-        yield f"random {n} links", parse_scene(random_robot_document(n, seed=40 + n, physical=True), "r").robot, 10.0, 0.3, True
+        robot = parse_scene(random_robot_document(n, seed=40 + n, physical=True), "r").robot
+        yield f"random {n} links", robot, 10.0, 0.3, True
 
 
 @pytest.mark.parametrize("label, robot, gravity, tip_mass, wheel_inertia", list(_robots()),
@@ -88,7 +89,8 @@ def test_fixed_base_trajectory_is_ours():
     scene = versus_mujoco.random_arm_scene(n_links=3, seed=7, duration=0.3)
     _, mj = versus_mujoco.trajectory(scene, "RK4", 1e-3)
     ours = simulate(scene, make_integrator(scene.integrator, "rk4", dt=1e-3)).samples
-    reference = simulate(scene, make_integrator(scene.integrator, "dop853", rtol=1e-12, atol=1e-13)).samples
+    reference = simulate(scene, make_integrator(scene.integrator, "dop853", rtol=1e-12,
+                                                atol=1e-13)).samples
     assert mj.shape == ours.shape
     assert np.abs(mj - ours).max() <= 1e-10
     assert 1e-12 < np.abs(mj - reference).max() <= 1e-7   # rk4 at 1 ms is not exact

@@ -74,7 +74,8 @@ def test_one_step_equals_scipys_step(method, h):
     assert relative(out, solver.y) < 1e-14
     assert relative(f1, solver.f) < 1e-14
     # DOP853's late stages have |a_ij| up to 44: summation order alone moves them by ~1e-14
-    np.testing.assert_allclose(K[:tab.n_stages + 1], solver.K, rtol=0, atol=1e-13 * np.abs(solver.K).max())
+    np.testing.assert_allclose(K[:tab.n_stages + 1], solver.K, rtol=0,
+                               atol=1e-13 * np.abs(solver.K).max())
     scale = atol + rtol * np.maximum(np.abs(s0), np.abs(out))
     ours = rk.error_norm(IDS[method], err, s0, out, rtol, atol)
     theirs = solver._estimate_error_norm(solver.K, h, scale)
@@ -84,8 +85,9 @@ def test_one_step_equals_scipys_step(method, h):
     assert h_next == pytest.approx(solver.h_abs, rel=1e-9)
     assert rk.initial_step(IDS[method], system.data, s0, f0, DURATION, rtol, atol, np.inf,
                            np.zeros(s0.size), np.zeros(s0.size)) == pytest.approx(
-        integrate._ivp.common.select_initial_step(lambda t, y: system.derivative(y), 0.0, s0, DURATION,
-                                                  np.inf, f0, 1, tab.error_order, rtol, atol), rel=1e-12)
+        integrate._ivp.common.select_initial_step(lambda t, y: system.derivative(y), 0.0, s0,
+                                                  DURATION, np.inf, f0, 1, tab.error_order, rtol,
+                                                  atol), rel=1e-12)
 
 
 def test_step_control_grows_shrinks_and_holds_after_a_rejection():
@@ -271,11 +273,13 @@ def small_case():
         rk.rk_step(m, system.data, s0, f0, 0.05, out, f1, K, err)
         rk.dense_prepare(m, system.data, s0, out, f0, f1, 0.05, K, coeffs)
         rk.dense_eval(m, coeffs, s0, 0.05, 0.3, y)
-        h0 = rk.initial_step(m, system.data, s0, f0, DURATION, 1e-6, 1e-8, np.inf, np.zeros(n), np.zeros(n))
+        h0 = rk.initial_step(m, system.data, s0, f0, DURATION, 1e-6, 1e-8, np.inf, np.zeros(n),
+                             np.zeros(n))
         samples, sim = engine_run(method, 1e-5, stops=False, times=SAMPLES[15::15])
         counts = [sim.steps, sim.rhs_evaluations]
         values[method] = [out.tolist(), err.tolist(), y.tolist(), h0,
-                          rk.error_norm(m, err, s0, out, 1e-6, 1e-8), list(counts), samples.tolist()]
+                          rk.error_norm(m, err, s0, out, 1e-6, 1e-8), list(counts),
+                          samples.tolist()]
         rows, sim = engine_run(method, 1e-7)
         values[method + " with stops"] = [[sim.steps, sim.rhs_evaluations],
                                           [impact.time for impact in sim.impacts], rows.tolist()]

@@ -275,7 +275,8 @@ def test_special_files_are_refused_without_reading(tmp_path):
     fifo = tmp_path / "fifo.yaml"
     os.mkfifo(fifo)
     for path, problem in (("/dev/zero", "not a regular file"), (fifo, "not a regular file"),
-                          (tmp_path, "not a regular file"), (tmp_path / "none.yaml", "cannot read")):
+                          (tmp_path, "not a regular file"),
+                          (tmp_path / "none.yaml", "cannot read")):
         start = time.perf_counter()
         with pytest.raises(UserError, match=problem):
             schema.load_yaml(__import__("pathlib").Path(path), what="scene")

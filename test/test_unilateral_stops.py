@@ -14,7 +14,8 @@ from mobile_manip_sim.scene import make_integrator, parse_scene, scene_from_text
 
 
 def embedded(name):
-    return scene_from_text(resources.files("mobile_manip_sim").joinpath("config", name).read_text(), name)
+    return scene_from_text(resources.files("mobile_manip_sim").joinpath("config", name).read_text(),
+                           name)
 
 
 @pytest.mark.parametrize("method", ["rk4", "dop853"])
@@ -79,11 +80,12 @@ def random_three_rod_scene(seed):
         {**link, "length": 1.0, "mass_per_length": float(rng.uniform(0.5, 2.0)),
          "joint_rpy": [float(a) for a in rng.uniform(-1.5, 1.5, 3)],
          "stroke": [float(rng.uniform(0.1, 0.4)), float(rng.uniform(0.6, 0.9))]} for _ in range(3)]
-    doc["initial"]["joints"] = [float(x) for x in np.ravel([[rng.uniform(-1, 1), 0.5] for _ in range(3)])]
+    doc["initial"]["joints"] = [float(x)
+                                for x in np.ravel([[rng.uniform(-1, 1), 0.5] for _ in range(3)])]
     doc["initial"]["velocity"] = [0.0, 0.0, *map(float, rng.normal(0.0, 1.5, 6))]
     doc["efforts"] = {"wheels": [0.3, -0.1], "joints": [float(x) for x in rng.normal(0.0, 3.0, 6)]}
-    doc["effects"]["stroke_limits"] = {"restitution": float(rng.uniform(0.0, 0.9)), "law": "impulse",
-                                       "rest_speed": 0.01}
+    doc["effects"]["stroke_limits"] = {"restitution": float(rng.uniform(0.0, 0.9)),
+                                       "law": "impulse", "rest_speed": 0.01}
     doc["integrator"] = {"method": "rk4", "dt": 0.002}
     return parse_scene(doc)
 

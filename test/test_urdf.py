@@ -227,8 +227,9 @@ def test_describe_without_scene_prints_the_default_scene():
     assert result.stdout == robot_description(load_scene())
 
 
-@pytest.mark.parametrize("kind, problem", [("missing", "cannot read"), ("fifo", "not a regular file"),
-                                           ("alias bomb", "expands to more than")])
+@pytest.mark.parametrize("kind, problem",
+                         [("missing", "cannot read"), ("fifo", "not a regular file"),
+                          ("alias bomb", "expands to more than")])
 def test_describe_of_a_bad_scene_file_is_a_one_line_user_error(tmp_path, kind, problem):
     scene = tmp_path / "no_such_scene.yaml"
     if kind == "fifo":

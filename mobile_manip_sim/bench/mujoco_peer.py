@@ -76,7 +76,8 @@ def rod_inertial(length: float, mass_per_length: float, J, tip_mass: float = 0.0
     """(mass, centre, inertia about the centre) of rod k in its body frame (distal end at 0)."""
     mass = mass_per_length * length
     bending = mass * length ** 2 / 12.0
-    parts = [(mass, (-0.5 * length, 0.0, 0.0), np.diag([0.0, bending, bending]) + np.asarray(J) * length)]
+    parts = [(mass, (-0.5 * length, 0.0, 0.0),
+              np.diag([0.0, bending, bending]) + np.asarray(J) * length)]
     if tip_mass > 0.0:
         parts.append((tip_mass, (0.0, 0.0, 0.0), np.zeros((3, 3))))
     return _combined(parts)
@@ -98,7 +99,8 @@ def mjcf(robot_model, gravity: float = 0.0, tip_mass: float = 0.0, wheel_inertia
         raise ValueError("the base's yaw inertia is too small for MuJoCo's wheel bodies")
     lines = ['<mujoco model="mobile_manipulator_unconstrained">',
              '  <compiler angle="radian" inertiafromgeom="false" autolimits="false"/>',
-             f'  <option timestep="{_num(dt)}" integrator="{integrator}" gravity="0 0 {_num(-gravity)}">',
+             f'  <option timestep="{_num(dt)}" integrator="{integrator}" '
+             f'gravity="0 0 {_num(-gravity)}">',
              '    <flag contact="disable" constraint="disable" limit="disable" equality="disable"'
              ' frictionloss="disable" warmstart="disable"'
              f' energy="{"enable" if energy else "disable"}"/>',
@@ -116,7 +118,8 @@ def mjcf(robot_model, gravity: float = 0.0, tip_mass: float = 0.0, wheel_inertia
         for name, side in (("right_wheel", -1.0), ("left_wheel", 1.0)):
             lines += [f'      <body name="{name}" pos="0 {_num(side * base.half_track)} 0">',
                       f'        <joint name="{name}_joint" type="hinge" axis="0 1 0"/>',
-                      '        ' + _inertial(m_w, (0.0, 0.0, 0.0), np.diag([I_w / 2, I_w, I_w / 2])),
+                      '        ' + _inertial(m_w, (0.0, 0.0, 0.0),
+                                             np.diag([I_w / 2, I_w, I_w / 2])),
                       '      </body>']
     indent = "      "
     for k in range(n):
@@ -144,8 +147,8 @@ class MujocoPeer:
     """The compiled MuJoCo model of a robot plus the map S(yaw) from our u to MuJoCo's qvel.
 
     qpos = (x, y, yaw, θ_R, θ_L, q_1, l_1, …) is our q (without the wheel angles when the wheels
-    are left out, only the arm's with a fixed base); qvel = S(yaw) u with ẋ = v cos yaw, ẏ = v sin yaw, yaw rate ω, wheel rates
-    (v ± bω)/r, then the joint rates.
+    are left out, only the arm's with a fixed base); qvel = S(yaw) u with ẋ = v cos yaw,
+    ẏ = v sin yaw, yaw rate ω, wheel rates (v ± bω)/r, then the joint rates.
     """
 
     def __init__(self, robot_model, gravity: float = 0.0, tip_mass: float = 0.0,
@@ -154,7 +157,8 @@ class MujocoPeer:
         self.robot_model = robot_model
         self.fixed_base = base_pose is not None
         self.wheels = wheel_inertia and robot_model.base.wheel_inertia > 0.0 and not self.fixed_base
-        self.xml = mjcf(robot_model, gravity, tip_mass, wheel_inertia, integrator, dt, energy, base_pose)
+        self.xml = mjcf(robot_model, gravity, tip_mass, wheel_inertia, integrator, dt, energy,
+                        base_pose)
         self.model = mujoco.MjModel.from_xml_string(self.xml)
         self.data = mujoco.MjData(self.model)
         n = robot_model.n_links

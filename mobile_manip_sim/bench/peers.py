@@ -24,7 +24,8 @@ def available() -> bool:
 
 
 class ProjectedPinocchio:
-    def __init__(self, robot_model, gravity: float, tip_mass: float = 0.0, wheel_inertia: bool = True):
+    def __init__(self, robot_model, gravity: float, tip_mass: float = 0.0,
+                 wheel_inertia: bool = True):
         base, n = robot_model.base, robot_model.n_links
         model = pin.Model()
         model.gravity = pin.Motion(np.array([0.0, 0.0, -float(gravity)]), np.zeros(3))
@@ -34,7 +35,8 @@ class ProjectedPinocchio:
         I_w = base.wheel_inertia if wheel_inertia else 0.0
         for name, side in (("right_wheel", -1.0), ("left_wheel", 1.0)):
             wheel = model.addJoint(root, pin.JointModelRY(),
-                                   pin.SE3(np.eye(3), np.array([0.0, side * base.half_track, 0.0])), name)
+                                   pin.SE3(np.eye(3),
+                                           np.array([0.0, side * base.half_track, 0.0])), name)
             model.appendBodyToJoint(wheel, pin.Inertia(0.0, np.zeros(3), np.diag([0.0, I_w, 0.0])),
                                     pin.SE3.Identity())
         parent = root
@@ -42,9 +44,11 @@ class ProjectedPinocchio:
             placement = pin.SE3(np.array(robot_model.joint_rotation[k], dtype=float),
                                 np.array(robot_model.mount, dtype=float) if k == 0 else np.zeros(3))
             revolute = model.addJoint(parent, pin.JointModelRZ(), placement, f"revolute_{k + 1}")
-            prismatic = model.addJoint(revolute, pin.JointModelPX(), pin.SE3.Identity(), f"prismatic_{k + 1}")
+            prismatic = model.addJoint(revolute, pin.JointModelPX(), pin.SE3.Identity(),
+                                       f"prismatic_{k + 1}")
             L, mu = float(robot_model.length[k]), float(robot_model.mass_per_length[k])
-            about_com = np.diag([0.0, 1.0, 1.0]) * mu * L ** 3 / 12.0 + np.array(robot_model.inertia_per_length[k]) * L
+            about_com = (np.diag([0.0, 1.0, 1.0]) * mu * L ** 3 / 12.0
+                         + np.array(robot_model.inertia_per_length[k]) * L)
             inertia = pin.Inertia(mu * L, np.array([-0.5 * L, 0.0, 0.0]), about_com)
             if k == n - 1 and tip_mass > 0.0:
                 inertia = inertia + pin.Inertia(float(tip_mass), np.zeros(3), np.zeros((3, 3)))

@@ -58,8 +58,8 @@ def sweep(scene, progress, quick: bool = False, repeats: int = 2) -> WorkPrecisi
             point = Point(method, value, run, run.error_against(reference))
             result.points.append(point)
             progress(f"{scene.name}: {method} {run.setting}: "
-                     + (f"{run.cpu_per_second * 1e3:.2f} ms CPU per simulated s, error {point.error:.1e}"
-                        if run.ok else f"failed ({run.failure})"))
+                     + (f"{run.cpu_per_second * 1e3:.2f} ms CPU per simulated s, "
+                        f"error {point.error:.1e}" if run.ok else f"failed ({run.failure})"))
     return result
 
 

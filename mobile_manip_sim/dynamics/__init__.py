@@ -104,7 +104,8 @@ class Dynamics:
     def configuration_rate(self, q, u) -> np.ndarray:
         """q̇ from u (the nonholonomic constraints are built in)."""
         qdot = np.empty(self.model.n_q)
-        kernels.configuration_rate(self.model_record, np.asarray(q, float), np.asarray(u, float), qdot)
+        kernels.configuration_rate(self.model_record, np.asarray(q, float), np.asarray(u, float),
+                                   qdot)
         return qdot
 
     def wheel_forces(self, tau_R: float, tau_L: float) -> tuple[float, float]:
@@ -114,7 +115,8 @@ class Dynamics:
 
 
 def constraint_residuals(model: RobotModel, q, qdot) -> tuple[float, float]:
-    """docs/model.md's checks: no skid ẋ sin yaw − ẏ cos yaw, no slip ẋ cos yaw + ẏ sin yaw − r(θ̇_R + θ̇_L)/2."""
+    """docs/model.md's checks: no skid ẋ sin yaw − ẏ cos yaw, no slip
+    ẋ cos yaw + ẏ sin yaw − r(θ̇_R + θ̇_L)/2."""
     s, c = np.sin(q[YAW]), np.cos(q[YAW])
     r = model.base.wheel_radius
     return (qdot[X] * s - qdot[Y] * c,

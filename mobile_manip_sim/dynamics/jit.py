@@ -136,10 +136,11 @@ def _load_implementations_without_blas() -> None:
     implementations of Python and NumPy (`refresh` of the CPU target), and among them
     `numba.np.arraymath` imports scipy.linalg only to note whether np.dot has BLAS behind it:
     some 0.25 s of CPU, more than half of what loading the implementations costs, and 15 MB
-    resident, in every run. No kernel here calls BLAS or LAPACK, so `scipy.linalg.cython_blas` is hidden while they
-    load. In this process a numba function compiled later that calls np.dot or np.linalg still
-    imports scipy.linalg itself, when it is compiled (`numba.np.linalg.ensure_blas`); only
-    np.correlate and np.convolve take numba's own loop instead of BLAS."""
+    resident, in every run. No kernel here calls BLAS or LAPACK, so `scipy.linalg.cython_blas` is
+    hidden while they load. In this process a numba function compiled later that calls np.dot or
+    np.linalg still imports scipy.linalg itself, when it is compiled
+    (`numba.np.linalg.ensure_blas`); only np.correlate and np.convolve take numba's own loop
+    instead of BLAS."""
     from numba.core.compiler_lock import global_compiler_lock
     from numba.core.registry import cpu_target
     name = "scipy.linalg.cython_blas"

@@ -39,7 +39,8 @@ from .vec3 import add, axpy, cross, dot, matvec, put, row, scale, sub, tmatvec
 
 @jit_inline
 def frames(model, q, ws):
-    """Position pass: R_k = R_{k−1} · R0_k · Rz(q_k), O_{k+1} = O_k + l_k x_k (docs/model.md frames)."""
+    """Position pass: R_k = R_{k−1} · R0_k · Rz(q_k), O_{k+1} = O_k + l_k x_k (docs/model.md
+    frames)."""
     mount, R0 = model.mount, model.R0
     R, O, x, z = ws.R, ws.O, ws.x, ws.z
     n = R0.shape[0]
@@ -55,9 +56,12 @@ def frames(model, q, ws):
         cq, sq = math.cos(q[q_turn(k)]), math.sin(q[q_turn(k)])
         for i in range(3):
             # (R_{k−1} · R0_k) row i, then · Rz(q_k)
-            a0 = R[k - 1, i, 0] * R0[k - 1, 0, 0] + R[k - 1, i, 1] * R0[k - 1, 1, 0] + R[k - 1, i, 2] * R0[k - 1, 2, 0]
-            a1 = R[k - 1, i, 0] * R0[k - 1, 0, 1] + R[k - 1, i, 1] * R0[k - 1, 1, 1] + R[k - 1, i, 2] * R0[k - 1, 2, 1]
-            a2 = R[k - 1, i, 0] * R0[k - 1, 0, 2] + R[k - 1, i, 1] * R0[k - 1, 1, 2] + R[k - 1, i, 2] * R0[k - 1, 2, 2]
+            a0 = (R[k - 1, i, 0] * R0[k - 1, 0, 0] + R[k - 1, i, 1] * R0[k - 1, 1, 0]
+                  + R[k - 1, i, 2] * R0[k - 1, 2, 0])
+            a1 = (R[k - 1, i, 0] * R0[k - 1, 0, 1] + R[k - 1, i, 1] * R0[k - 1, 1, 1]
+                  + R[k - 1, i, 2] * R0[k - 1, 2, 1])
+            a2 = (R[k - 1, i, 0] * R0[k - 1, 0, 2] + R[k - 1, i, 1] * R0[k - 1, 1, 2]
+                  + R[k - 1, i, 2] * R0[k - 1, 2, 2])
             R[k, i, 0] = a0 * cq + a1 * sq
             R[k, i, 1] = -a0 * sq + a1 * cq
             R[k, i, 2] = a2

@@ -34,8 +34,8 @@ class Run:
     (from a CSV: computed from ``u`` through the constraints; from a bag: as recorded — odometry
     twist and wheel velocities); ``energy`` T + V (J); ``efforts`` (N, 2 + 2n) the efforts in
     /joint_states order (τ_R, τ_L, τ_1, F_1, …; N·m or N) acting from each sample to the next
-    (row k: over (t_k, t_{k+1})), or None when unknown; ``impacts`` the end-stop impacts as dicts (time, link, stop,
-    ld_before, ld_after, energy_lost, resting).
+    (row k: over (t_k, t_{k+1})), or None when unknown; ``impacts`` the end-stop impacts as dicts
+    (time, link, stop, ld_before, ld_after, energy_lost, resting).
     """
 
     source: Path
@@ -65,7 +65,8 @@ def dynamics_of(scene: Scene) -> Dynamics:
 
 def scene_efforts(scene: Scene) -> np.ndarray:
     """The scene's constant efforts (τ_R, τ_L, τ_1, F_1, …), saturated as the simulator does."""
-    return effect_settings(scene).saturate(np.concatenate([scene.wheel_efforts, scene.joint_efforts]))
+    return effect_settings(scene).saturate(np.concatenate([scene.wheel_efforts,
+                                                           scene.joint_efforts]))
 
 
 def load_run(path, scene_path=None) -> Run:
@@ -109,7 +110,8 @@ def load_csv(path, scene_path=None) -> Run:
     efforts = np.tile(scene_efforts(scene), (len(q), 1))
     return Run(source=path, kind="csv", scene=scene, t=columns["t"], q=q, u=u, qdot=qdot,
                energy=columns["energy"], efforts=efforts,
-               effort_source="the scene's constant efforts", impacts=_read_impacts_csv(path, scene.robot.n_links))
+               effort_source="the scene's constant efforts",
+               impacts=_read_impacts_csv(path, scene.robot.n_links))
 
 
 def _read_csv(path: Path) -> tuple[list[str], list[list[str]]]:

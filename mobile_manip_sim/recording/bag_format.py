@@ -69,7 +69,8 @@ def checked_run_metadata(value, path: str = METADATA_NAME) -> dict:
     its numbers parsed (repr-exact floats), for a replay or re-run to trust: the source's rate
     is required (and a `simulate` run's duration, which fixes its sample times)."""
     value = schema.string_map(value, path, max_entries=len(RUN_METADATA_KEYS), max_length=200)
-    schema.keys(value, path, required=("version", "integrator_method", "dt", "rtol", "atol", "source"),
+    schema.keys(value, path,
+                required=("version", "integrator_method", "dt", "rtol", "atol", "source"),
                 optional=("scene_name", "sample_rate", "publish_rate", "duration", "base_command",
                           "wheel_speed_kp", "wheel_speed_ki"))
     if value["integrator_method"] not in METHODS:
@@ -81,15 +82,18 @@ def checked_run_metadata(value, path: str = METADATA_NAME) -> dict:
             try:
                 number_value = float(value[key])
             except ValueError:
-                raise UserError(f"{path}.{key}", f"expected a number, got {schema.short(value[key])}") from None
+                raise UserError(f"{path}.{key}",
+                                f"expected a number, got {schema.short(value[key])}") from None
             parsed[key] = schema.number(number_value, f"{path}.{key}", lo=lo, hi=hi)
     if value["source"] not in SOURCE_RATE:
-        raise UserError(f"{path}.source", f"expected node or simulate, got {schema.short(value['source'])}")
+        raise UserError(f"{path}.source",
+                        f"expected node or simulate, got {schema.short(value['source'])}")
     if value.setdefault("base_command", "effort") not in BASE_COMMANDS:
         raise UserError(f"{path}.base_command", f"expected effort or velocity, got "
                                                 f"{schema.short(value['base_command'])}")
     parsed["base_command"] = value["base_command"]
-    needed = [SOURCE_RATE[value["source"]]] + (["duration"] if value["source"] == "simulate" else [])
+    needed = ([SOURCE_RATE[value["source"]]]
+              + (["duration"] if value["source"] == "simulate" else []))
     if value["base_command"] == "velocity":   # the wheel-speed loop's gains shape the run
         needed += ["wheel_speed_kp", "wheel_speed_ki"]
     for key in needed:
@@ -198,7 +202,8 @@ def impact_record(record, where: str, line, n_links: int) -> dict:
               "ld_after": number("ld_after"), "energy_lost": number("energy_lost"),
               "resting": schema.flag(resting, f"{key}.resting")}
     if impact["stop"] not in ("lower", "upper"):
-        raise UserError(f"{key}.stop", f"expected lower or upper, got {schema.short(impact['stop'])}")
+        raise UserError(f"{key}.stop",
+                        f"expected lower or upper, got {schema.short(impact['stop'])}")
     return impact
 
 
@@ -329,8 +334,8 @@ class RecordedRun:
         states are missing in between."""
         if self.source == "node":   # a node's run is as long as its bag says: bound the work
             from mobile_manip_sim.scene import check_work
-            check_work(end / NS, self.settings, f"{JOINT_STATES_TOPIC} stamp", f"{METADATA_NAME}.dt",
-                       self.rate, f"{METADATA_NAME}.publish_rate")
+            check_work(end / NS, self.settings, f"{JOINT_STATES_TOPIC} stamp",
+                       f"{METADATA_NAME}.dt", self.rate, f"{METADATA_NAME}.publish_rate")
         try:
             return self.grid.segments(start, end)
         except ValueError as error:

@@ -185,7 +185,8 @@ def _mcap_files(path: Path) -> list[Path]:
     files = [path / PurePath(name).name for name in info["relative_file_paths"]]
     for i, file in enumerate(files):
         if file in files[:i]:   # read twice, every message would be played twice
-            raise UserError(f"{metadata_path}: rosbag2_bagfile_information.relative_file_paths[{i}]",
+            raise UserError(f"{metadata_path}: "
+                            f"rosbag2_bagfile_information.relative_file_paths[{i}]",
                             f"{file.name} is listed twice")
         if not file.is_file():
             raise UserError(str(file), "listed in metadata.yaml but missing")

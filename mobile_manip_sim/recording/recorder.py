@@ -66,9 +66,10 @@ class RunRecorder:
 
     ``extra_metadata`` adds to the metadata map: ``source`` (node|simulate) and the rate
     (``publish_rate`` or ``sample_rate``) at least; a node run also its ``base_command``
-    (effort|velocity, default effort), which chooses the base's command topic. ``flush_interval`` (wall seconds, None = off)
-    closes the open chunk that often, bounding what a SIGKILL loses in a slow run; headless runs
-    leave it off so that their chunks, and hence their bags, do not depend on the wall clock.
+    (effort|velocity, default effort), which chooses the base's command topic.
+    ``flush_interval`` (wall seconds, None = off) closes the open chunk that often, bounding what a
+    SIGKILL loses in a slow run; headless runs leave it off so that their chunks, and hence their
+    bags, do not depend on the wall clock.
     ``view`` adds the view topics (/tf, /tf_static, /robot_description) to the bag.
     """
 

@@ -58,7 +58,8 @@ def _record(fields: dict, required=()):
     """A check of a mapping with these keys (each checked by its function), no others."""
     def check(value, path):
         value = mapping(value, path)
-        keys(value, path, required=required, optional=[key for key in fields if key not in required])
+        keys(value, path, required=required,
+             optional=[key for key in fields if key not in required])
         for key, item in value.items():
             fields[key](item, f"{path}.{key}")
     return check

@@ -6,9 +6,9 @@ once: their last message at or before the start. A topic whose message type is n
 (tf2_msgs on a pip install) is left out with a warning. ``/clock`` comes from the bag and is
 always played, whatever the topics selected; a bag without it gets one ``rosgraph_msgs/Clock``
 per distinct log time. With ``wait_for_subscribers`` playback is held until every played topic
-but the latched ones has a subscriber (for scripts and tests). Without it, playback still waits (at most DISCOVERY_TIMEOUT s) until the
-subscribers that already run are matched: a reliable subscriber matched late would miss the
-first ~0.4 s of the bag.
+but the latched ones has a subscriber (for scripts and tests). Without it, playback still waits
+(at most DISCOVERY_TIMEOUT s) until the subscribers that already run are matched: a reliable
+subscriber matched late would miss the first ~0.4 s of the bag.
 """
 from __future__ import annotations
 
@@ -106,7 +106,8 @@ def play(bag, topics=None, rate: float = 1.0, loop: bool = False, start_offset: 
     try:
         metadata = bag.channel_metadata()
         publishers = {topic: node.create_publisher(
-            classes[topic], topic, qos_profile(metadata.get(topic, {}).get("offered_qos_profiles"), topic))
+            classes[topic], topic,
+            qos_profile(metadata.get(topic, {}).get("offered_qos_profiles"), topic))
             for topic in selected}
         clock_publisher = None
         if CLOCK_TOPIC not in topics:

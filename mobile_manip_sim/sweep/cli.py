@@ -24,9 +24,12 @@ from .spec import Spec, load_spec
 def _main(argv) -> int:
     parser = cli.ArgumentParser(prog="sweep", description=__doc__.split("\n\n")[0])
     parser.add_argument("spec", type=cli.path, help="the sweep file (YAML)")
-    parser.add_argument("--out", type=cli.path, required=True, metavar="DIR", help="directory for runs.parquet and REPORT.md")
-    parser.add_argument("--scheduler", metavar="ADDRESS", help="a running Dask scheduler (tcp://host:port)")
-    parser.add_argument("--workers", type=int, help="LocalCluster worker processes (default: the cores)")
+    parser.add_argument("--out", type=cli.path, required=True, metavar="DIR",
+                        help="directory for runs.parquet and REPORT.md")
+    parser.add_argument("--scheduler", metavar="ADDRESS",
+                        help="a running Dask scheduler (tcp://host:port)")
+    parser.add_argument("--workers", type=int,
+                        help="LocalCluster worker processes (default: the cores)")
     parser.add_argument("--connect-timeout", type=float, default=10.0, metavar="S",
                         help="seconds to wait for the scheduler (default 10)")
     args = parser.parse_args(argv)
@@ -53,7 +56,8 @@ def _main(argv) -> int:
         store.flush()
         progress.close()
         print(f"sweep: interrupted; {len(store.done)} of {len(runs)} runs are in "
-              f"{args.out}/runs.parquet (run the same command to finish)", file=sys.stderr, flush=True)
+              f"{args.out}/runs.parquet (run the same command to finish)", file=sys.stderr,
+              flush=True)
         return 130
     finally:
         _close(client, cluster)
@@ -64,13 +68,15 @@ def _main(argv) -> int:
     from . import report
     report.write(Path(args.out), table, spec)
     print(f"sweep: {table.num_rows} runs, {table.num_rows - failed} ok, {failed} failed, "
-          f"{time.perf_counter() - start:.1f} s wall → {args.out}/runs.parquet, {args.out}/REPORT.md")
+          f"{time.perf_counter() - start:.1f} s wall → {args.out}/runs.parquet, "
+          f"{args.out}/REPORT.md")
     return 0
 
 
 def fingerprint(spec: Spec) -> str:
     """What decides the runs and their numbers (not the time limit, chunking or cluster)."""
-    return json.dumps({"document": spec.document, "duration": spec.duration, "sample_rate": spec.sample_rate,
+    return json.dumps({"document": spec.document, "duration": spec.duration,
+                       "sample_rate": spec.sample_rate,
                        "grid": spec.grid, "count": spec.count, "seed": spec.seed,
                        "vary": spec.vary}, sort_keys=True, default=str)
 
@@ -110,7 +116,8 @@ def _run(client, spec: Spec, runs: list, chunks: list, store, progress, out: str
     futures = {}
     for ids in chunks:
         task = [(i, runs[i]) for i in ids]
-        future = client.submit(runner.run_chunk, spec.document, task, spec.duration, spec.sample_rate,
+        future = client.submit(runner.run_chunk, spec.document, task, spec.duration,
+                               spec.sample_rate,
                                spec.time_limit, csv_dir, pure=False, key=f"runs-{ids[0]}-{ids[-1]}")
         futures[future] = ids
     for future in as_completed(futures):
@@ -118,10 +125,12 @@ def _run(client, spec: Spec, runs: list, chunks: list, store, progress, out: str
         try:
             rows = future.result()
         except KilledWorker as error:
-            rows = [{"run": i, "status": "failed", "error": f"KilledWorker: every worker that ran it died ({error})"}
+            rows = [{"run": i, "status": "failed",
+                     "error": f"KilledWorker: every worker that ran it died ({error})"}
                     for i in ids]
         except Exception as error:
-            rows = [{"run": i, "status": "failed", "error": f"{type(error).__name__}: {error}".splitlines()[0]}
+            rows = [{"run": i, "status": "failed",
+                     "error": f"{type(error).__name__}: {error}".splitlines()[0]}
                     for i in ids]
         store.add(rows, runs)
         failed = sum(row["status"] == "failed" for row in rows)
