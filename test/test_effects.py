@@ -17,7 +17,10 @@ from mobile_manip_sim.dynamics.coordinates import (
     ARM_U,
     BASE_U,
     OMEGA,
+    WHEEL_L,
+    WHEEL_R,
     V,
+    X,
     q_joint,
     q_slide,
     u_slide,
@@ -115,9 +118,9 @@ def test_wheel_torque_accelerates_the_base_as_its_inertia_says(wheel_inertia):
     sim.advance_to(0.5)
     I_w, r = BASE["wheel_inertia"] if wheel_inertia else 0.0, BASE["wheel_radius"]
     a = (2 * tau / r) / (BASE["mass"] + 2 * I_w / r ** 2)
-    assert sim.q[0] == pytest.approx(0.5 * a * 0.5 ** 2, rel=1e-12)
-    assert sim.u[0] == pytest.approx(a * 0.5, rel=1e-12)
-    assert sim.q[3] == sim.q[4] == pytest.approx(sim.q[0] / r, rel=1e-12)   # rolling, no slip
+    assert sim.q[X] == pytest.approx(0.5 * a * 0.5 ** 2, rel=1e-12)
+    assert sim.u[V] == pytest.approx(a * 0.5, rel=1e-12)
+    assert sim.q[WHEEL_R] == sim.q[WHEEL_L] == pytest.approx(sim.q[X] / r, rel=1e-12)   # no slip
 
 
 def test_wheel_inertia_is_irrelevant_with_the_base_held():

@@ -19,6 +19,9 @@ from mobile_manip_sim.engine import runge_kutta as rk
 from mobile_manip_sim.engine.simulation import Simulation
 from mobile_manip_sim.scene import load_scene, make_integrator
 
+L_1, L_2 = layout.q_slide(1), layout.q_slide(2)   # l_1, l_2 in q
+LD_1 = layout.u_slide(1)   # l̇_1 in u
+
 TIGHT = dict(rtol=1e-11, atol=1e-13)
 SCIPY = {"rk45": integrate.RK45, "dop853": integrate.DOP853, "radau": integrate.Radau,
          "bdf": integrate.BDF}
@@ -185,7 +188,7 @@ def test_a_rod_pressed_by_less_than_the_stop_holds_stays():
     sim.advance_to(0.8)
     sim.set_efforts(joints=(0.0, 1.0))
     sim.advance_to(1.0)
-    assert sim.resting[0] == 1 and sim.q[6] == 0.9 and sim.u[3] == 0.0
+    assert sim.resting[0] == 1 and sim.q[L_1] == 0.9 and sim.u[LD_1] == 0.0
 
 
 VERTICAL = dict(joints=(math.pi / 2, 0.5), stroke=(0.0, 1.0))   # rod 1 straight up
@@ -219,14 +222,14 @@ def test_a_bouncing_rod_comes_to_rest_without_zeno(method, settings):
     else:
         pytest.fail("the rod never came to rest")
     assert n == len(sim.impacts) - 1 and 5 < n < 20
-    assert sim.resting[0] == -1 and sim.q[6] == 0.0 and sim.u[3] == 0.0
+    assert sim.resting[0] == -1 and sim.q[L_1] == 0.0 and sim.u[LD_1] == 0.0
     sim.set_efforts(joints=(0.0, 9.0))      # less than the weight μ L g = 10 N
     sim.advance_to(1.6)
-    assert sim.resting[0] == -1 and sim.q[6] == 0.0
+    assert sim.resting[0] == -1 and sim.q[L_1] == 0.0
     sim.set_efforts(joints=(0.0, 12.0))     # more: l̈ = 2 m/s² upward
     sim.advance_to(1.7)
     assert sim.resting[0] == 0
-    assert sim.q[6] == pytest.approx(0.5 * 2.0 * 0.1 ** 2, rel=1e-9)
+    assert sim.q[L_1] == pytest.approx(0.5 * 2.0 * 0.1 ** 2, rel=1e-9)
 
 
 @pytest.mark.parametrize("method, settings", [("rk4", dict(dt=1e-3)), ("rk4", dict(dt=0.05)),
@@ -243,7 +246,7 @@ def test_a_rod_chattering_with_no_rest_speed_is_held_at_the_zeno_point(method, s
     assert_in_stroke(sim, states)
     v0 = math.sqrt(2.0 * g * 0.5)
     t_zeno = math.sqrt(2.0 * 0.5 / g) + 2.0 * v0 / g * e / (1.0 - e)
-    assert sim.resting[0] == -1 and sim.q[6] == 0.0 and sim.u[3] == 0.0
+    assert sim.resting[0] == -1 and sim.q[L_1] == 0.0 and sim.u[LD_1] == 0.0
     assert sim.impacts[-1].resting and sim.impacts[-1].time == pytest.approx(t_zeno, abs=1e-6)
     assert len(sim.impacts) < 200
 
@@ -379,7 +382,7 @@ def test_a_rod_that_crosses_and_returns_within_one_step_is_caught(method, side, 
     assert impact.ld_before == pytest.approx(ld_hit, abs=tol)
     assert impact.ld_after == pytest.approx(-restitution * ld_hit, abs=tol)
     lo, hi = sim.stroke[0]
-    assert lo - 1e-9 <= sim.q[6] <= hi + 1e-9
+    assert lo - 1e-9 <= sim.q[L_1] <= hi + 1e-9
 
 
 @pytest.mark.parametrize("method, settings", [("rk4", dict(dt=0.01)), ("euler", dict(dt=0.01)),
@@ -394,7 +397,7 @@ def test_a_rod_faster_than_its_stroke_per_step_bounces_at_every_stop(method, set
     times = [impact.time for impact in sim.impacts]
     assert times == pytest.approx(0.0025 + 0.005 * np.arange(20), abs=1e-12)
     assert [impact.stop for impact in sim.impacts] == ["upper", "lower"] * 10
-    assert sim.q[6] == pytest.approx(0.5, abs=1e-12) and sim.u[3] == 20.0
+    assert sim.q[L_1] == pytest.approx(0.5, abs=1e-12) and sim.u[LD_1] == 20.0
 
 
 # --- the impact law ------------------------------------------------------------------------
@@ -483,7 +486,7 @@ def test_a_rod_leaving_its_stop_is_released_at_the_located_instant():
 
     reference, tight = states("dop853", rtol=1e-13, atol=1e-14)
     assert [impact.link for impact in tight.impacts] == [2, 1, 2]
-    assert tight.resting[1] == 0 and tight.q[8] > 0.1        # rod 2 really left its stop
+    assert tight.resting[1] == 0 and tight.q[L_2] > 0.1        # rod 2 really left its stop
     coarse, _ = states("rk4", dt=3e-4)
     fine, _ = states("rk4", dt=1e-4)
     assert np.abs(coarse - reference).max() < 1e-8

@@ -17,7 +17,19 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
-from mobile_manip_sim.dynamics.coordinates import ARM_U, JOINTS, WHEELS
+from mobile_manip_sim.dynamics.coordinates import (
+    ARM_U,
+    JOINTS,
+    OMEGA,
+    WHEELS,
+    YAW,
+    V,
+    X,
+    Y,
+    q_slide,
+    q_turn,
+    u_turn,
+)
 from mobile_manip_sim.engine.simulation import DEFAULT_WHEEL_SPEED_GAINS, Simulation
 from mobile_manip_sim.errors import EXIT_USER_ERROR
 from mobile_manip_sim.headless import run as simulate_run
@@ -106,10 +118,11 @@ def write_bag(path: Path, scene, duration: float, joint_states=True) -> Simulati
             odometry.header.frame_id = "odom"
             odometry.header.stamp.sec = stamp["sec"]
             odometry.header.stamp.nanosec = stamp["nanosec"]
-            odometry.pose.pose.position.x, odometry.pose.pose.position.y = float(q[0]), float(q[1])
-            odometry.pose.pose.orientation.z = math.sin(q[2] / 2)
-            odometry.pose.pose.orientation.w = math.cos(q[2] / 2)
-            odometry.twist.twist.linear.x, odometry.twist.twist.angular.z = float(u[0]), float(u[1])
+            odometry.pose.pose.position.x, odometry.pose.pose.position.y = float(q[X]), float(q[Y])
+            odometry.pose.pose.orientation.z = math.sin(q[YAW] / 2)
+            odometry.pose.pose.orientation.w = math.cos(q[YAW] / 2)
+            odometry.twist.twist.linear.x = float(u[V])
+            odometry.twist.twist.angular.z = float(u[OMEGA])
             bag.write("/odom", serialize_message(odometry), log_ns)
         bag.add_attachment("scene.yaml", "application/yaml", scene.to_yaml().encode())
         impacts = json.dumps([impact.as_dict() for impact in sim.impacts], default=_plain)
@@ -156,10 +169,10 @@ def check_figures(figures, run):
     for name, joint in (("joint_angles", "arm_revolute"), ("extensions", "arm_prismatic")):
         for i in range(1, n + 1):
             assert any(f"{joint}_{i}" in text for text in legend(name)), (name, i)
-    for i in range(n):  # the data: q_i, l_i, q̇_i, l̇_i against t
-        np.testing.assert_array_equal(lines("joint_angles")[i].get_ydata(), run.q[:, 5 + 2 * i])
-        np.testing.assert_array_equal(lines("extensions")[i].get_ydata(), run.q[:, 6 + 2 * i])
-        np.testing.assert_array_equal(lines("joint_rates")[i].get_ydata(), run.u[:, 2 + 2 * i])
+    for i, k in enumerate(range(1, n + 1)):  # the data: q_k, l_k, q̇_k, l̇_k against t
+        np.testing.assert_array_equal(lines("joint_angles")[i].get_ydata(), run.q[:, q_turn(k)])
+        np.testing.assert_array_equal(lines("extensions")[i].get_ydata(), run.q[:, q_slide(k)])
+        np.testing.assert_array_equal(lines("joint_rates")[i].get_ydata(), run.u[:, u_turn(k)])
         np.testing.assert_array_equal(lines("extension_rates")[i].get_xdata(), run.t)
 
     # the stroke ends, dashed, at the scene's limits
@@ -177,7 +190,7 @@ def check_figures(figures, run):
 
     path_lines = lines("base_path")
     assert len(path_lines) == (3 if n else 2)     # base, tip (with an arm), start markers
-    np.testing.assert_array_equal(path_lines[0].get_xdata(), run.q[:, 0])
+    np.testing.assert_array_equal(path_lines[0].get_xdata(), run.q[:, X])
     arrows = figures["base_path"].axes[0].collections
     assert len(arrows) == 1 and 3 <= len(arrows[0].get_offsets()) <= HEADING_MARKS + 1
     assert figures["base_path"].axes[0].get_aspect() == 1.0

@@ -16,7 +16,7 @@ import yaml
 
 from hostile_yaml import ALIAS_BOMB
 from mobile_manip_sim.dynamics import Dynamics
-from mobile_manip_sim.dynamics.coordinates import JOINTS, YAW, X, Y
+from mobile_manip_sim.dynamics.coordinates import JOINTS, OMEGA, YAW, V, X, Y
 from mobile_manip_sim.effects import settings as effect_settings
 from mobile_manip_sim.scene import load_scene, parse_scene
 from mobile_manip_sim.urdf import robot_description
@@ -142,10 +142,10 @@ def test_urdf_frames_are_the_core_frames(name):
         origins = [origin + lift for origin in dyn.joint_origins(q)]
         rotations = dyn.link_rotations(q)
         base = data.oMi[1]
-        assert np.allclose(base.translation, [q[0], q[1], 0.0], atol=1e-12)
+        assert np.allclose(base.translation, [q[X], q[Y], 0.0], atol=1e-12)
         assert np.allclose(base.rotation, rotations[0], atol=1e-12)
-        assert np.allclose(data.v[1].linear, [u[0], 0.0, 0.0], atol=1e-12)
-        assert np.allclose(data.v[1].angular, [0.0, 0.0, u[1]], atol=1e-12)
+        assert np.allclose(data.v[1].linear, [u[V], 0.0, 0.0], atol=1e-12)
+        assert np.allclose(data.v[1].angular, [0.0, 0.0, u[OMEGA]], atol=1e-12)
         for k in range(scene.robot.n_links):
             frame = data.oMi[model.getJointId(f"arm_revolute_{k + 1}")]
             assert np.allclose(frame.translation, origins[k + 1], atol=1e-12)
@@ -167,8 +167,8 @@ def test_urdf_stands_on_the_floor_with_the_axle_at_the_wheel_radius(name):
     pin.forwardKinematics(model, data, urdf.full_configuration(q))
     pin.updateFramePlacements(model, data)
     footprint = data.oMf[model.getFrameId("base_footprint")]
-    assert np.allclose(footprint.translation, [q[0], q[1], 0.0], atol=1e-12)
-    assert np.allclose(data.oMf[model.getFrameId("base_link")].translation, [q[0], q[1], r],
+    assert np.allclose(footprint.translation, [q[X], q[Y], 0.0], atol=1e-12)
+    assert np.allclose(data.oMf[model.getFrameId("base_link")].translation, [q[X], q[Y], r],
                        atol=1e-12)
     for side, sign in (("right", -1.0), ("left", 1.0)):
         axle = footprint.actInv(data.oMi[model.getJointId(f"{side}_wheel_joint")]).translation
