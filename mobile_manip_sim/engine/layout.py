@@ -2,8 +2,8 @@
 
 ``q = (x, y, yaw, θ_R, θ_L, q_1, l_1, …, q_n, l_n)`` (n_q = 2n + 5),
 ``u = (v, ω, q̇_1, l̇_1, …, q̇_n, l̇_n)`` (n_u = 2n + 2), ``e = (e_R, e_L)`` the wheel-speed
-controller's error integrals, ``W`` the work of efforts and dissipation. Rods are 1-based (k = 1 … n)
-as in docs/model.md.
+controller's error integrals, ``W`` the work of efforts and dissipation. Rods are 1-based
+(k = 1 … n) as in docs/model.md.
 
 Where each coordinate sits in q and in u is the dynamics' fact (`dynamics/coordinates.py`, the one
 owner, below the engine as the kernels need it); its index helpers are re-exported here, so an
