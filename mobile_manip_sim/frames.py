@@ -28,7 +28,7 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
-from .dynamics.coordinates import JOINTS, YAW, X, Y, u_slide, u_turn
+from .coordinates import JOINTS, YAW, X, Y, u_slide, u_turn
 from .model import RobotModel
 
 FOOTPRINT = "base_footprint"

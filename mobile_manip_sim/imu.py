@@ -22,7 +22,7 @@ from typing import NamedTuple
 import numpy as np
 
 from . import schema
-from .dynamics.coordinates import OMEGA, YAW, V
+from .coordinates import OMEGA, YAW, V
 from .errors import UserError
 
 AXES = 3

@@ -17,7 +17,7 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Imu, JointState
 from std_msgs.msg import Float64MultiArray, String
 
-from .dynamics.coordinates import JOINTS, OMEGA, YAW, V, X, Y
+from .coordinates import JOINTS, OMEGA, YAW, V, X, Y
 from .recording.cdr import tf_message_cdr
 
 # Stamps come from the time line (timeline.py); topic names, types and QoS live in topics.py,

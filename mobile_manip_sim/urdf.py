@@ -36,7 +36,7 @@ import xml.etree.ElementTree as ET
 
 import numpy as np
 
-from .dynamics.coordinates import rod
+from .coordinates import rod
 from .effects import settings as effect_settings
 from .frames import BASE_LINK, FOOTPRINT, TIP, FrameTree
 from .scene import Scene

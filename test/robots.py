@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mobile_manip_sim.dynamics.coordinates import SLIDES_Q, TURNS_Q, WHEEL_L, WHEEL_R, YAW, X, Y
+from mobile_manip_sim.coordinates import SLIDES_Q, TURNS_Q, WHEEL_L, WHEEL_R, YAW, X, Y
 from mobile_manip_sim.model import RobotModel
 from mobile_manip_sim.scene import parse_scene
 

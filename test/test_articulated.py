@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 import robots
+from mobile_manip_sim.coordinates import SLIDES_U, rod
 from mobile_manip_sim.dynamics import Dynamics, articulated, kernels
-from mobile_manip_sim.dynamics.coordinates import SLIDES_U, rod
 
 LINK_COUNTS = [0, 1, 2, 3, 4, 5, 8, 12, 16, 20, 24, 32]
 EPS = np.finfo(float).eps

@@ -1,11 +1,10 @@
-"""dynamics/coordinates.py, the owner of the q and u indices, agrees with the other facts that
+"""coordinates.py, the owner of the q and u indices, agrees with the other facts that
 depend on the same layout and are written elsewhere: `RobotModel`'s sizes and joint names, and
 the configuration rate."""
 import numpy as np
 import pytest
 
-from mobile_manip_sim.dynamics import Dynamics
-from mobile_manip_sim.dynamics.coordinates import (
+from mobile_manip_sim.coordinates import (
     ARM_Q,
     ARM_U,
     BASE_POSE,
@@ -27,6 +26,7 @@ from mobile_manip_sim.dynamics.coordinates import (
     u_slide,
     u_turn,
 )
+from mobile_manip_sim.dynamics import Dynamics
 from robots import random_robot, random_state
 
 

@@ -2,8 +2,8 @@
 import numpy as np
 import pytest
 
+from mobile_manip_sim.coordinates import V
 from mobile_manip_sim.dynamics import Dynamics, constraint_residuals
-from mobile_manip_sim.dynamics.coordinates import V
 from mobile_manip_sim.engine.simulation import Simulation
 from mobile_manip_sim.scene import load_scene, parse_scene
 from robots import random_robot_document, random_state

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from engine_cases import CONFIG, base_only_doc, one_link_doc, paper_doc, sampled, simulation
-from mobile_manip_sim.dynamics.coordinates import (
+from mobile_manip_sim.coordinates import (
     ARM_Q,
     ARM_U,
     BASE_U,

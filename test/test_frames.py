@@ -6,7 +6,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from mobile_manip_sim.dynamics.coordinates import JOINTS, YAW, X, Y
+from mobile_manip_sim.coordinates import JOINTS, YAW, X, Y
 from mobile_manip_sim.frames import FOOTPRINT, FrameTree, rpy_quaternion
 from mobile_manip_sim.model import rpy_matrix
 from mobile_manip_sim.urdf import robot_description

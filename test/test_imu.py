@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import yaml
 
-from mobile_manip_sim.dynamics.coordinates import OMEGA, YAW, X, Y
+from mobile_manip_sim.coordinates import OMEGA, YAW, X, Y
 from mobile_manip_sim.engine.simulation import Simulation
 from mobile_manip_sim.errors import UserError
 from mobile_manip_sim.imu import Imu, ImuNoise, ImuReading

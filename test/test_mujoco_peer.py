@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from mobile_manip_sim.bench.scenes import random_robot_document
+from mobile_manip_sim.coordinates import ARM_U, BASE_POSE, OMEGA, YAW, V
 from mobile_manip_sim.dynamics import Dynamics
-from mobile_manip_sim.dynamics.coordinates import ARM_U, BASE_POSE, OMEGA, YAW, V
 from mobile_manip_sim.scene import load_scene, parse_scene
 from robots import random_state
 

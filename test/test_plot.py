@@ -17,7 +17,7 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
-from mobile_manip_sim.dynamics.coordinates import (
+from mobile_manip_sim.coordinates import (
     ARM_U,
     JOINTS,
     OMEGA,

@@ -15,8 +15,8 @@ import pytest
 import yaml
 
 from hostile_yaml import ALIAS_BOMB
+from mobile_manip_sim.coordinates import JOINTS, OMEGA, YAW, V, X, Y
 from mobile_manip_sim.dynamics import Dynamics
-from mobile_manip_sim.dynamics.coordinates import JOINTS, OMEGA, YAW, V, X, Y
 from mobile_manip_sim.effects import settings as effect_settings
 from mobile_manip_sim.scene import load_scene, parse_scene
 from mobile_manip_sim.urdf import robot_description

@@ -5,7 +5,7 @@ import copy
 import numpy as np
 import pytest
 
-from mobile_manip_sim.dynamics.coordinates import OMEGA, V
+from mobile_manip_sim.coordinates import OMEGA, V
 from mobile_manip_sim.engine.simulation import Simulation
 from mobile_manip_sim.errors import UserError
 from mobile_manip_sim.scene import load_scene, parse_scene

@@ -12,8 +12,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..coordinates import SLIDES_Q, q_slide, u_turn
 from ..dynamics import Dynamics
-from ..dynamics.coordinates import SLIDES_Q, q_slide, u_turn
 from ..engine.simulation import Simulation
 from ..methods import ADAPTIVE_NAMES, METHODS
 from ..scene import parse_scene

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..dynamics.coordinates import ARM_Q, ARM_U, JOINTS, OMEGA, SLIDES_Q, WHEELS, YAW, V, X, Y
+from ..coordinates import ARM_Q, ARM_U, JOINTS, OMEGA, SLIDES_Q, WHEELS, YAW, V, X, Y
 
 try:
     import pinocchio as pin

@@ -13,8 +13,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..coordinates import SLIDES_Q
 from ..dynamics import constraint_residuals
-from ..dynamics.coordinates import SLIDES_Q
 from ..engine.simulation import Simulation, SimulationError
 from ..methods import METHODS
 from ..scene import IntegratorSettings, Scene, make_integrator

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..dynamics.coordinates import ARM_Q, ARM_U
+from ..coordinates import ARM_Q, ARM_U
 from ..engine.simulation import Simulation
 from ..scene import load_scene, make_integrator, parse_scene
 from ..timeline import sample_times

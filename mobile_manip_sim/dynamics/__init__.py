@@ -15,9 +15,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..coordinates import WHEEL_L, WHEEL_R, YAW, X, Y
 from ..model import RobotModel
 from . import articulated, kernels
-from .coordinates import WHEEL_L, WHEEL_R, YAW, X, Y
 from .records import make_model, make_workspace
 
 

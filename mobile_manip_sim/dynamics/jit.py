@@ -99,16 +99,18 @@ class Bound:
 
 
 # Where compiled code may come from: the dynamics and the engine (below the adapters, they
-# import nothing above them), and any other module that defines a kernel (`bench/loops.py`).
-KERNEL_PACKAGES = ("dynamics", "engine")
+# import nothing above them), the modules below them whose functions they compile
+# (`coordinates.py`), and any other module that defines a kernel (`bench/loops.py`).
+KERNEL_PACKAGES = ("dynamics", "engine", "coordinates.py")
 PACKAGE = Path(__file__).resolve().parents[1]
 
 
 def _drop_stale_caches(package: Path = PACKAGE) -> None:
     """Delete the package's numba cache files (``__pycache__/*.nbi, *.nbc``) when a source that
     compiled code may depend on changed: any module of dynamics/ or engine/ (kernels freeze the
-    module constants they read, such as the method tables of runge_kutta.py, into their code) or
-    one that defines a kernel. An edit of an adapter (node, CLI, plots) keeps the caches."""
+    module constants they read, such as the method tables of runge_kutta.py, into their code),
+    coordinates.py (its index functions are compiled into them) or one that defines a kernel. An
+    edit of an adapter (node, CLI, plots) keeps the caches."""
     digest = hashlib.sha1(numba.__version__.encode())
     try:
         for path in sorted(package.rglob("*.py")):

@@ -18,20 +18,8 @@ The forward dynamics in O(n) is in `articulated.py`.
 """
 import math
 
-from .coordinates import (
-    OMEGA,
-    WHEEL_L,
-    WHEEL_R,
-    YAW,
-    V,
-    X,
-    Y,
-    q_joint,
-    q_slide,
-    q_turn,
-    u_slide,
-    u_turn,
-)
+from ..coordinates import OMEGA, WHEEL_L, WHEEL_R, YAW, V, X, Y
+from .indices import q_joint, q_slide, q_turn, u_slide, u_turn
 from .jit import jit, jit_inline
 from .spatial import inertia_times, sym_add
 from .vec3 import add, axpy, cross, dot, matvec, put, row, scale, sub, tmatvec

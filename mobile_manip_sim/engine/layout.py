@@ -5,14 +5,14 @@
 controller's error integrals, ``W`` the work of efforts and dissipation. Rods are 1-based
 (k = 1 … n) as in docs/model.md.
 
-Where each coordinate sits in q and in u is the dynamics' fact (`dynamics/coordinates.py`, the one
-owner, below the engine as the kernels need it); its index helpers are re-exported here, so an
+Where each coordinate sits in q and in u is `coordinates.py`'s (the one owner); its index
+functions, compiled (`dynamics/indices.py`), are re-exported here for the compiled cores, so an
 index of q is its index in s and an index j of u is ``n_q + j`` in s. This module owns the rest.
 """
-from ..dynamics.coordinates import q_slide as q_slide
-from ..dynamics.coordinates import q_turn as q_turn
-from ..dynamics.coordinates import u_slide as u_slide
-from ..dynamics.coordinates import u_turn as u_turn
+from ..dynamics.indices import q_slide as q_slide
+from ..dynamics.indices import q_turn as q_turn
+from ..dynamics.indices import u_slide as u_slide
+from ..dynamics.indices import u_turn as u_turn
 from ..dynamics.jit import jit_inline
 
 

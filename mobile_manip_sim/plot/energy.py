@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..dynamics.coordinates import ARM_U, WHEELS
+from ..coordinates import ARM_U, WHEELS
 from ..effects import settings as effect_settings
 from .run import Run
 

@@ -12,8 +12,8 @@ from typing import Callable
 import numpy as np
 from matplotlib.figure import Figure
 
+from ..coordinates import YAW, X, Y, q_slide, q_turn, u_slide, u_turn
 from ..dynamics import constraint_residuals
-from ..dynamics.coordinates import YAW, X, Y, q_slide, q_turn, u_slide, u_turn
 from ..effects import settings as effect_settings
 from ..errors import UserError
 from .energy import impact_losses, work

@@ -11,8 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
+from ..coordinates import ARM_U
 from ..dynamics import Dynamics
-from ..dynamics.coordinates import ARM_U
 from ..effects import settings as effect_settings
 from ..errors import UserError
 from ..headless import csv_columns

@@ -7,11 +7,10 @@ per-pseudo-velocity array (accelerations, the locked-DoF mask) are indexed as u.
 (`RobotModel.joint_names`: θ_R, θ_L, then q_k, l_k per rod) are q from index `JOINTS` on, and the
 arm's share of them lines up with u from index 2 on.
 
-The functions compile inline into the kernels (`jit_inline`); the slices are for NumPy code.
-This module sits in dynamics/, the lowest layer whose code indexes q and u; engine/layout.py adds
-the rest of the state vector ``s = (q, u, e, W)`` on top of it.
+Plain Python, imported by every layer (the scene's `RobotModel` takes its sizes from here): the
+kernels call the index functions compiled (`dynamics/indices.py` compiles them to inline), NumPy
+code uses the slices. engine/layout.py adds the rest of the state vector ``s = (q, u, e, W)``.
 """
-from .jit import jit_inline
 
 # q: the base pose, the wheel angles
 X, Y, YAW = 0, 1, 2
@@ -29,31 +28,26 @@ TURNS_Q, SLIDES_Q = slice(5, None, 2), slice(6, None, 2)    # every q_k, every l
 TURNS_U, SLIDES_U = slice(2, None, 2), slice(3, None, 2)    # every q̇_k, every l̇_k in u
 
 
-@jit_inline
 def q_turn(k):
     """Index of q_k, the angle of revolute joint k (1-based), in q."""
     return 3 + 2 * k
 
 
-@jit_inline
 def q_slide(k):
     """Index of l_k, the extension of prismatic joint k (1-based), in q."""
     return 4 + 2 * k
 
 
-@jit_inline
 def u_turn(k):
     """Index of q̇_k in u (and of τ_k in Q); `u_turn(k) + 1` is `u_slide(k)`."""
     return 2 * k
 
 
-@jit_inline
 def u_slide(k):
     """Index of l̇_k in u (and of F_k in Q)."""
     return 2 * k + 1
 
 
-@jit_inline
 def q_joint(j):
     """Index in q of joint j of `RobotModel.joint_names` (0, 1 the wheels; then q_k, l_k); for an
     arm coordinate j ≥ 2 it is also the q index of u's entry j."""
@@ -61,7 +55,16 @@ def q_joint(j):
 
 
 
-@jit_inline
 def rod(j):
     """The rod k (1-based) whose q̇_k or l̇_k is u's entry j ≥ 2."""
     return j // 2
+
+
+def q_size(n):
+    """n_q for n rods."""
+    return 5 + 2 * n
+
+
+def u_size(n):
+    """n_u for n rods."""
+    return 2 + 2 * n
