@@ -1,6 +1,6 @@
-"""coordinates.py, the owner of the q and u indices, agrees with the other facts that
-depend on the same layout and are written elsewhere: `RobotModel`'s sizes and joint names, and
-the configuration rate."""
+"""coordinates.py, the owner of the q and u indices: its sizes, slices and index functions
+describe one layout (each index of q and u once), which agrees with the facts written elsewhere on
+it: `RobotModel.joint_names` (the /joint_states and URDF order) and the configuration rate."""
 import numpy as np
 import pytest
 
