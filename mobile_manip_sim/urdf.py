@@ -111,13 +111,12 @@ def robot_description(scene: Scene, root: str = FOOTPRINT, prefix: str = "") -> 
     model, effects = scene.robot, effect_settings(scene)
     tree = FrameTree(model, root, prefix)
     base = model.base
-    n = model.n_links
     d, r, b = base.com_offset, base.wheel_radius, base.half_track
     # the scene's bounds (None where it sets none) and damping, as the simulator applies them
     limits = effects.effort_limits
     efforts = [None if limits is None or math.isinf(limits[j]) else limits[j]
-               for j in range(2 + 2 * n)]
-    damping = np.zeros(2 + 2 * n) if effects.rate_damping is None else effects.rate_damping
+               for j in range(model.n_u)]   # one per joint: the joints are indexed as u
+    damping = np.zeros(model.n_u) if effects.rate_damping is None else effects.rate_damping
 
     robot = ET.Element("robot", name=scene.name)
     for name, rgba in (("chassis", (0.3, 0.3, 0.35, 1.0)), ("wheel", (0.1, 0.1, 0.1, 1.0)),

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from mobile_manip_sim.coordinates import SLIDES_Q, TURNS_Q, WHEEL_L, WHEEL_R, YAW, X, Y
+from mobile_manip_sim.coordinates import SLIDES_Q, TURNS_Q, WHEEL_L, WHEEL_R, YAW, X, Y, u_size
 from mobile_manip_sim.model import RobotModel
 from mobile_manip_sim.scene import parse_scene
 
@@ -43,7 +43,7 @@ def random_robot_document(rng, n: int, gravity: float = 10.0) -> dict:
     return {
         "robot": {"base": {key: float(value) for key, value in base.items()},
                   "arm": {"mount": rng.uniform(-0.3, 0.3, 3).tolist(), "links": links}},
-        "initial": {"joints": joints, "velocity": rng.normal(size=2 + 2 * n).tolist()},
+        "initial": {"joints": joints, "velocity": rng.normal(size=u_size(n)).tolist()},
         "effects": {"gravity": gravity, "wheel_inertia": True},
     }
 

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..coordinates import SLIDES_Q, q_slide, u_turn
+from ..coordinates import OMEGA, SLIDES_Q, q_slide, u_turn
 from ..dynamics import Dynamics
 from ..engine.simulation import Simulation
 from ..methods import ADAPTIVE_NAMES, METHODS
@@ -211,7 +211,8 @@ def spinning_base(method: str = "dop853", value: float = 1e-10) -> CaseResult:
     case.add_run(method, run, value, _step_bound(method, value, 1.0, run))
     sim = run.simulation
     case.figures.update({"impacts": run.impacts,
-                         "ω after 1 s, rad/s": float(sim.u[1]) if sim is not None else math.nan})
+                         "ω after 1 s, rad/s": (float(sim.u[OMEGA]) if sim is not None
+                                                else math.nan)})
     return case
 
 

@@ -173,7 +173,7 @@ class MujocoPeer:
     def S(self, q) -> np.ndarray:
         base, n = self.robot_model.base, self.robot_model.n_links
         r, b, yaw = base.wheel_radius, base.half_track, float(q[YAW])
-        S = np.zeros((self.model.nv, 2 + 2 * n))
+        S = np.zeros((self.model.nv, self.robot_model.n_u))
         if not self.fixed_base:
             S[0, 0], S[1, 0], S[2, 1] = np.cos(yaw), np.sin(yaw), 1.0
         if self.wheels:
@@ -188,7 +188,7 @@ class MujocoPeer:
         mujoco.mj_forward(self.model, self.data)
 
     def full_mass_matrix(self, q) -> np.ndarray:
-        self.set_state(q, np.zeros(2 + 2 * self.robot_model.n_links))
+        self.set_state(q, np.zeros(self.robot_model.n_u))
         M = np.zeros((self.model.nv, self.model.nv))
         mujoco.mj_fullM(self.model, self.data, M)
         return M

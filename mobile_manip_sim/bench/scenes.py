@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..coordinates import u_size
 from ..scene import Scene, load_scene, parse_scene
 
 CONFIG = Path(__file__).resolve().parents[1] / "config"
@@ -75,7 +76,7 @@ def random_robot_document(n_links: int, seed: int, gravity: float = 10.0,
         "initial": {"joints": [float(v) for link in links
                                for v in (rng.uniform(-1, 1),
                                          rng.uniform(0.2, 0.8) * link["length"])],
-                    "velocity": (0.3 * rng.normal(size=2 + 2 * n_links)).tolist()},
+                    "velocity": (0.3 * rng.normal(size=u_size(n_links))).tolist()},
         "effects": {"gravity": gravity, "wheel_inertia": True},
     }
 

@@ -71,7 +71,7 @@ def work(run: Run) -> np.ndarray:
 def damping_coefficients(run: Run) -> np.ndarray:
     """(2 + 2n,) viscous coefficients on (θ̇_R, θ̇_L, q̇_1, l̇_1, …): torque or force −c·rate."""
     c = effect_settings(run.scene).rate_damping
-    return np.zeros(2 + 2 * run.n_links) if c is None else c
+    return np.zeros(run.scene.robot.n_u) if c is None else c
 
 
 def impact_losses(run: Run) -> np.ndarray:
