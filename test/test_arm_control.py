@@ -11,11 +11,13 @@ import pytest
 from executables import executable
 from pinocchio_reference import build_projected_model
 
+from mobile_manip_sim.dynamics import Dynamics
 from mobile_manip_sim.engine import layout
-from mobile_manip_sim.engine.arm_control import ArmControl
+from mobile_manip_sim.engine.arm_control import ArmControl, gravity_efforts
 from mobile_manip_sim.engine.simulation import Simulation
 from mobile_manip_sim.engine.system import ARM_CONTROL_STAGE, RHS_EVALS
 from mobile_manip_sim.errors import UserError
+from mobile_manip_sim.model import RobotModel
 from mobile_manip_sim.scene import load_scene, parse_scene
 
 DATA = Path(__file__).resolve().parent / "data"
@@ -152,6 +154,27 @@ def test_the_gravity_feedforward_is_pinocchios_gravity_vector():
         sim.s[:sim.nq], sim.s[sim.nq:sim.nq + sim.nu] = q, u    # at any velocity: G(q)
         expected = pin.bias(q, np.zeros(sim.nu))[2:]
         assert np.allclose(sim.joint_efforts_applied(), expected, rtol=1e-10, atol=1e-10)
+
+
+def test_the_reduced_gravity_pass_is_the_inverse_dynamics_at_rest_on_random_robots():
+    """`gravity_efforts` (ω = α = 0) against `kernels.gibbs_appell` at u = u̇ = 0, on robots
+    with random joint orientations, rods, cross-sections and a payload."""
+    rng = np.random.default_rng(5)
+    base = load_scene().robot.base
+    for n in (1, 3, 6):
+        links = [{"length": rng.uniform(0.3, 1.5), "mass_per_length": rng.uniform(0.5, 2.0),
+                  "inertia_per_length": np.diag(rng.uniform(1e-4, 1e-2, 3)),
+                  "joint_rpy": rng.uniform(-np.pi, np.pi, 3), "stroke": [0.0, 0.3]}
+                 for _ in range(n)]
+        robot = RobotModel.build(base, rng.normal(0.0, 0.2, 3), links)
+        dynamics = Dynamics(robot, gravity=9.81, tip_mass=0.7)
+        for _ in range(3):
+            q = rng.normal(0.0, 1.0, robot.n_q)
+            q[6::2] = rng.uniform(0.3, 1.5, n)
+            expected = dynamics.inverse_dynamics(q, np.zeros(robot.n_u), np.zeros(robot.n_u))[2:]
+            out = np.zeros(2 * n)
+            gravity_efforts(dynamics.model_record, q, 9.81, dynamics.ws, out)   # frames: above
+            assert np.allclose(out, expected, rtol=1e-12, atol=1e-12)
 
 
 def test_computed_torque_makes_the_arm_follow_the_reference_acceleration_exactly():

@@ -68,7 +68,8 @@ class ArmCommands:
         out = np.zeros((3, n_arm))
         data = self.system.data
         tau = self.s[layout.reference_clock(self.nq, self.nu)] + float(t_ahead)
-        arm_reference.reference(data.ref_starts, data.ref_coeffs, int(data.arm[SEGMENTS]), tau, out)
+        arm_reference.reference(data.ref_starts, data.ref_coeffs, int(data.arm[SEGMENTS]), tau, out,
+                                0)
         return out[Q_REF].copy(), out[QD_REF].copy(), out[QDD_REF].copy()
 
     def joint_efforts_applied(self) -> np.ndarray:

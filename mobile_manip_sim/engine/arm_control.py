@@ -13,7 +13,8 @@ of the set-point does not kick). Anti-windup: z stops integrating while the outp
 in the direction of the error. Feedforward ff:
 
 - ``none``;
-- ``gravity``: G(q), the project's inverse dynamics at u = 0, u̇ = 0 (`kernels.gibbs_appell`);
+- ``gravity``: G(q), the project's inverse dynamics `kernels.gibbs_appell` at u = 0, u̇ = 0,
+  in its reduced form (`gravity_efforts`: with ω = α = 0 every point accelerates by g ẑ);
 - ``computed_torque``: the inverse dynamics of the arm following q̈_ref, ``M u̇* + h(q, u) −
   Q_damp`` at the actual (q, u), with u̇* = (v̇*, ω̇*, q̈_ref) and the base's acceleration
   (v̇*, ω̇*) solved exactly rather than assumed zero: the base rows of the same equations, with
@@ -41,9 +42,9 @@ from ..scene_controller import ARM_MODES, FEEDFORWARDS
 from . import layout
 from .arm_reference import Q_REF, QD_REF, QDD_REF, reference
 
-# system.arm[...] entries
-ARM_ON, FEEDFORWARD, SEGMENTS = range(3)
-N_ARM_SETTINGS = 3
+# system.arm[...] entries (SEGMENT: the reference segment of the last evaluation, a search hint)
+ARM_ON, FEEDFORWARD, SEGMENTS, SEGMENT = range(4)
+N_ARM_SETTINGS = 4
 NO_FEEDFORWARD, GRAVITY, COMPUTED_TORQUE = range(3)
 # system.arm_gains rows
 KP, KI, KD = range(3)
@@ -157,7 +158,7 @@ def round_2(values) -> np.ndarray:
 
 def arm_settings(control: ArmControl, effort_limits) -> tuple:
     """The compiled records' arrays for `control` (resolved, `for_robot`): settings (ARM_ON,
-    FEEDFORWARD, SEGMENTS), gains (3, n_arm) and effort limits (n_arm; inf where none)."""
+    FEEDFORWARD, SEGMENTS, SEGMENT), gains (3, n_arm) and effort limits (n_arm; inf where none)."""
     n_arm = len(control.kp)
     settings = np.zeros(N_ARM_SETTINGS)
     settings[ARM_ON] = 1.0 if control.active else 0.0
@@ -193,6 +194,26 @@ def base_acceleration(system, q, Qb0, Qb1, scratch):
 
 
 @jit_inline
+def gravity_efforts(model, q, g, ws, out):
+    """G(q) on the arm joints into out (n_arm): `kernels.gibbs_appell` at u = u̇ = 0, where
+    ω = α = 0 and every point accelerates by g ẑ, so rod k's force is μ_k L_k g ẑ, its moment
+    about O_k μ_k s1 g x_k × ẑ (s1 = ∫η dη), the payload's force m g ẑ; the inward pass keeps
+    f vertical and m horizontal. Needs `kernels.frames`."""
+    L, mu, x, z = model.L, model.mu, ws.x, ws.z
+    f_z = model.tip_mass * g
+    m_x, m_y = 0.0, 0.0
+    for k in range(L.shape[0], 0, -1):
+        l = q[layout.l(k)]
+        s1, _ = kernels.rod_moments(l, L[k - 1])
+        lever = mu[k - 1] * s1 * g + l * f_z   # N_k + l x_k × f, per unit of x_k × ẑ
+        m_x += lever * x[k, 1]
+        m_y -= lever * x[k, 0]
+        f_z += mu[k - 1] * L[k - 1] * g
+        out[2 * k - 2] = z[k, 0] * m_x + z[k, 1] * m_y
+        out[2 * k - 1] = x[k, 2] * f_z
+
+
+@jit_inline
 def feedforward(system, s, ff):
     """The feedforward efforts (module doc) into ff (n_arm). Needs `kernels.frames` of s."""
     kind = system.arm[FEEDFORWARD]
@@ -204,11 +225,9 @@ def feedforward(system, s, ff):
     model, ws, scratch, damping = system.model, system.ws, system.arm_scratch, system.damping
     nq, nu = layout.sizes(system)
     q, u = s[:nq], s[nq:nq + nu]
-    ud, zero, Q_id = scratch[UD], scratch[ZERO], scratch[QA]
+    ud, Q_id = scratch[UD], scratch[QA]
     if kind == GRAVITY:
-        kernels.gibbs_appell(model, q, zero, zero, system.gravity, ws, Q_id)
-        for j in range(n_arm):
-            ff[j] = Q_id[2 + j]
+        gravity_efforts(model, q, system.gravity, ws, ff)
         return
     set_moving(system.free, ws.moving)
     ud[0], ud[1] = 0.0, 0.0
@@ -235,7 +254,9 @@ def arm_efforts(system, s, ds):
     nq, nu = layout.sizes(system)
     i_z, i_clock = layout.arm_integrals(nq, nu), layout.reference_clock(nq, nu)
     ref, gains, limits = system.arm_ref, system.arm_gains, system.arm_limits
-    reference(system.ref_starts, system.ref_coeffs, int(system.arm[SEGMENTS]), s[i_clock], ref)
+    arm = system.arm
+    arm[SEGMENT] = reference(system.ref_starts, system.ref_coeffs, int(arm[SEGMENTS]), s[i_clock],
+                             ref, int(arm[SEGMENT]))
     feedforward(system, s, ref[FF])
     for j in range(nu - 2):
         e = ref[Q_REF, j] - s[layout.arm_q(j)]

@@ -29,16 +29,16 @@ Q_REF, QD_REF, QDD_REF = 0, 1, 2
 
 
 @jit_inline
-def reference(starts, coeffs, count, tau, out):
+def reference(starts, coeffs, count, tau, out, hint):
     """q_ref, q̇_ref, q̈_ref at clock τ into out[Q_REF], out[QD_REF], out[QDD_REF] (n_arm each):
-    the last of the first `count` segments that has started (binary search), Horner's rule."""
-    lo, hi = 0, count - 1
-    while lo < hi:   # the last i with starts[i] <= tau (starts[0] = 0 <= tau)
-        mid = (lo + hi + 1) // 2
-        if starts[mid] <= tau:
-            lo = mid
-        else:
-            hi = mid - 1
+    the last of the first `count` segments that has started, found by walking from segment
+    `hint` (the one of the previous evaluation: the stages of a step are close), Horner's rule.
+    Returns that segment's index (the next hint); the result does not depend on the hint."""
+    lo = hint if 0 <= hint < count else 0
+    while lo + 1 < count and starts[lo + 1] <= tau:
+        lo += 1
+    while lo > 0 and starts[lo] > tau:
+        lo -= 1
     t = tau - starts[lo]
     for j in range(coeffs.shape[1]):
         c = coeffs[lo, j]
@@ -52,6 +52,7 @@ def reference(starts, coeffs, count, tau, out):
             if k >= 2:
                 a = a * t + k * (k - 1) * c[k]
         out[Q_REF, j], out[QD_REF, j], out[QDD_REF, j] = p, v, a
+    return lo
 
 
 def hold(q) -> tuple[np.ndarray, np.ndarray]:

@@ -27,7 +27,7 @@ from ..dynamics import kernels
 from ..dynamics.articulated import articulated_forward_dynamics
 from ..dynamics.jit import jit, jit_inline
 from . import layout
-from .arm_control import ARM_ON, N_ARM_SETTINGS, SEGMENTS, arm_efforts
+from .arm_control import ARM_ON, N_ARM_SETTINGS, SEGMENT, SEGMENTS, arm_efforts
 
 # counters[...] indices
 RHS_EVALS, DAMPING_STAGE, REDUCED_SOLVE, CROSSING_CHECKS, CONTROL_STAGE, ARM_CONTROL_STAGE = range(6)
@@ -192,6 +192,7 @@ class System:
         self.data.ref_starts[:count] = starts
         self.data.ref_coeffs[:count] = coeffs
         self.data.arm[SEGMENTS] = count
+        self.data.arm[SEGMENT] = 0
 
     def set_locked(self, extra: tuple) -> None:
         """Lock the scene's locked DOFs plus `extra` (rods resting at a stop)."""
