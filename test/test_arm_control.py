@@ -3,7 +3,10 @@
 (its feedforwards against Pinocchio's independent model, the arm following q̈_ref exactly under
 computed torque, the energy balance with its work), and that effort mode is main's engine."""
 import copy
+import json
+import os
 import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -233,6 +236,31 @@ def test_saturated_efforts_stay_at_the_limit_and_the_integral_stops():
             pinned += 1
             assert sim.system.derivative(sim.s)[i_z] == 0.0
     assert pinned > 5
+
+
+def short_runs() -> dict:
+    """Final states of 50 ms of each feedforward on a trajectory (for the pure-Python check)."""
+    from mobile_manip_sim.dynamics.jit import ENABLED
+    states = {"compiled": ENABLED}
+    for feedforward in ("none", "gravity", "computed_torque"):
+        sim = paper("joint_trajectory", feedforward=feedforward)
+        sim.set_efforts(wheels=[0.1, -0.05])
+        sim.set_arm_trajectory([0.02, 0.04], [arm(sim) + STEP, arm(sim)], [np.ones(4)] * 2)
+        sim.advance_to(0.05)
+        states[feedforward] = sim.s.tolist()
+    return states
+
+
+def test_the_pure_python_path_gives_the_compiled_numbers():
+    script = (f"import json, sys\nsys.path.insert(0, {str(Path(__file__).parent)!r})\n"
+              "from test_arm_control import short_runs\nprint(json.dumps(short_runs()))\n")
+    env = dict(os.environ, MOBILE_MANIP_SIM_NO_JIT="1")
+    python = json.loads(subprocess.run([sys.executable, "-c", script], env=env, check=True,
+                                       capture_output=True, text=True, timeout=600).stdout)
+    compiled = short_runs()
+    assert python.pop("compiled") is False and compiled.pop("compiled") is True
+    for feedforward, state in compiled.items():
+        np.testing.assert_allclose(python[feedforward], state, rtol=1e-12, atol=1e-13)
 
 
 # --- commands ------------------------------------------------------------------------------------
