@@ -3,16 +3,14 @@
 (its feedforwards against Pinocchio's independent model, the arm following q̈_ref exactly under
 computed torque, the energy balance with its work), and that effort mode is main's engine."""
 import copy
-import json
-import os
 import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 from executables import executable
 from pinocchio_reference import build_projected_model
+from pure_python import without_jit
 
 from mobile_manip_sim.dynamics import Dynamics
 from mobile_manip_sim.engine import layout
@@ -252,11 +250,7 @@ def short_runs() -> dict:
 
 
 def test_the_pure_python_path_gives_the_compiled_numbers():
-    script = (f"import json, sys\nsys.path.insert(0, {str(Path(__file__).parent)!r})\n"
-              "from test_arm_control import short_runs\nprint(json.dumps(short_runs()))\n")
-    env = dict(os.environ, MOBILE_MANIP_SIM_NO_JIT="1")
-    python = json.loads(subprocess.run([sys.executable, "-c", script], env=env, check=True,
-                                       capture_output=True, text=True, timeout=600).stdout)
+    python = without_jit("test_arm_control", "short_runs")
     compiled = short_runs()
     assert python.pop("compiled") is False and compiled.pop("compiled") is True
     for feedforward, state in compiled.items():
