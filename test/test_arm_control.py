@@ -203,6 +203,23 @@ def test_computed_torque_makes_the_arm_follow_the_reference_acceleration_exactly
         assert np.allclose(ud[:2], base, rtol=1e-9, atol=1e-9)
 
 
+@pytest.mark.parametrize("effects, locked", [({"fixed_base": True}, [0, 1]),
+                                             ({"locked_joints": ["arm_revolute_2"]}, [4]),
+                                             ({"effort_limits": {"wheels": 0.01}}, [])])
+def test_computed_torque_is_exact_with_locked_pseudo_velocities(effects, locked):
+    """A fixed base (u̇_b = 0) or a locked arm joint (u̇ = 0): the free arm joints still get
+    exactly q̈_ref from the feedforward alone (zero gains), while wheel torques act."""
+    sim = paper("joint_trajectory", feedforward="computed_torque", effects=effects, **ZERO_GAINS)
+    sim.set_efforts(wheels=[0.3, -0.1])
+    sim.set_arm_trajectory([0.5], [arm(sim) + STEP], [np.ones(4)], [np.full(4, 2.0)])
+    sim.s[layout.reference_clock(sim.nq, sim.nu)] = 0.2
+    sim.s[sim.nq:sim.nq + sim.nu] = np.where(np.isin(np.arange(sim.nu), locked), 0.0, 0.4)
+    ud, qdd_ref = sim.acceleration(), sim.arm_reference()[2]
+    free = [j for j in range(4) if 2 + j not in locked]
+    assert np.allclose(ud[2:][free], qdd_ref[free], rtol=1e-9, atol=1e-9)
+    assert np.all(ud[locked] == 0.0)
+
+
 @pytest.mark.parametrize("feedforward", ["none", "gravity", "computed_torque"])
 def test_the_energy_balance_holds_with_the_controller_working(feedforward):
     """T + V − W = const with W the work of the controller's efforts (and a wheel torque):
