@@ -144,7 +144,7 @@ def random_states(sim, count, seed):
     rng = np.random.default_rng(seed)
     for _ in range(count):
         q = np.array(sim.q) + rng.normal(0.0, 0.3, sim.nq)
-        q[layout.l(1)], q[layout.l(2)] = rng.uniform(0.1, 0.9, 2)
+        q[layout.arm_q(1)], q[layout.arm_q(3)] = rng.uniform(0.1, 0.9, 2)   # l_1, l_2
         yield q, rng.normal(0.0, 1.0, sim.nu)
 
 

@@ -3,7 +3,7 @@
 ``q = (x, y, yaw, θ_R, θ_L, q_1, l_1, …, q_n, l_n)`` (n_q = 2n + 5),
 ``u = (v, ω, q̇_1, l̇_1, …, q̇_n, l̇_n)`` (n_u = 2n + 2), ``e = (e_R, e_L)`` the wheel-speed
 controller's error integrals, ``W`` the work of efforts and dissipation. Rods are 1-based (k = 1 … n)
-as in docs/model.md. When a controller drives the arm, its states follow W (the block at the end).
+as in docs/model.md.
 """
 from ..dynamics.jit import jit_inline
 
