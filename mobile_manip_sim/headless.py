@@ -75,8 +75,8 @@ def run(scene: Scene, duration: float, sample_rate: float, settings=None, on_sam
     first sample that advanced time on, or None; its ``tracking`` the arm's `Tracking` when a
     controller drives the arm, else None."""
     sim = Simulation(scene, settings)
-    sim.tracking = Tracking(sim.nu - 2) if sim.arm_control.active else None
     timing_from = None
+    sim.tracking = Tracking(sim.nu - 2) if sim.arm_control.active else None
     for t in sample_times(duration, sample_rate):
         sim.advance_to(t)
         if sim.tracking:

@@ -216,14 +216,15 @@ class Simulation(ArmCommands):
     # --- commands ------------------------------------------------------------------------
     def set_efforts(self, wheels=None, joints=None) -> None:
         """Hold these efforts from now on: wheels (τ_R, τ_L) N·m, joints (τ_1, F_1, …)."""
+        if joints is not None and self.arm_control.active:
+            raise UserError("efforts.joints", f"the arm is driven by its {self.arm_control.mode} "
+                                              f"controller: it takes references, not efforts")
+
         Q = self.system.Q_cmd
         before = Q.copy(), self.velocity_mode
         if wheels is not None:
             self.wheel_efforts = self.effects.saturate(_command(wheels, 2, "wheels"))
             self.system.control[VELOCITY_MODE] = 0.0
-        if joints is not None and self.arm_control.active:
-            raise UserError("efforts.joints", f"the arm is driven by its {self.arm_control.mode} "
-                                              f"controller: it takes references, not efforts")
         if joints is not None:
             self.joint_efforts = self.effects.saturate(_command(joints, self.nu - 2, "joints"), 2)
         Q[0], Q[1] = self.dynamics.wheel_forces(*self.wheel_efforts)
