@@ -3,13 +3,10 @@ compiled Dormand–Prince pairs against SciPy's RK45 and DOP853 on the robot's o
 (the paper scene), and against a tight reference solution; with end stops, against a tight run
 and against the same run in pure Python."""
 import copy
-import json
-import os
-import subprocess
-import sys
 
 import numpy as np
 import pytest
+from pure_python import without_jit
 from scipy import integrate
 
 from mobile_manip_sim.dynamics import jit
@@ -287,11 +284,7 @@ def small_case():
 
 
 def test_pure_python_path_gives_the_compiled_numbers():
-    script = (f"import json, sys\nsys.path.insert(0, {os.path.dirname(__file__)!r})\n"
-              "from test_runge_kutta import small_case\nprint(json.dumps(small_case()))\n")
-    env = dict(os.environ, MOBILE_MANIP_SIM_NO_JIT="1")
-    python = json.loads(subprocess.run([sys.executable, "-c", script], env=env, capture_output=True,
-                                       text=True, check=True).stdout)
+    python = without_jit("test_runge_kutta", "small_case")
     compiled = small_case()
     assert python["compiled"] is False and compiled["compiled"] is True
     for method in ("rk45", "dop853"):

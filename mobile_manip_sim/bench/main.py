@@ -4,6 +4,7 @@ and how the hard cases behave; write ``REPORT.md`` and PNG plots.
     bench --out bench/            # the full run, about 10 minutes
     bench --out /tmp/b --quick    # a smoke run: short sweeps, one repeat
     bench --out /tmp/m --only mujoco --quick   # the MuJoCo section alone, under a minute
+    bench --out /tmp/c --only controllers      # the arm controllers' section alone
 """
 from __future__ import annotations
 
@@ -39,7 +40,8 @@ def _main(argv) -> int:
     parser = cli.ArgumentParser(prog="bench", description=__doc__.split("\n\n")[0])
     parser.add_argument("--out", type=cli.path, default="bench", help="directory for REPORT.md and the plots (default bench)")
     parser.add_argument("--quick", action="store_true", help="a smoke run: short sweeps, one repeat")
-    parser.add_argument("--only", choices=("mujoco",), help="run one section alone (REPORT.md holds only it)")
+    parser.add_argument("--only", choices=("mujoco", "controllers"),
+                        help="run one section alone (REPORT.md holds only it)")
     args = parser.parse_args(argv)
     out = Path(args.out)
     try:
@@ -47,8 +49,8 @@ def _main(argv) -> int:
     except OSError as error:
         raise UserError("--out", f"cannot create {out} ({error.strerror})") from None
 
-    from . import (effects, engine_targets, hard_cases, report, scaling, versus, versus_mujoco,
-                   work_precision)
+    from . import (controllers, effects, engine_targets, hard_cases, report, scaling, versus,
+                   versus_mujoco, work_precision)
     from .scenes import paper_document, random_arm_scene, scene_file
     from ..scene import load_scene
 
@@ -57,7 +59,12 @@ def _main(argv) -> int:
         progress = Progress(1)
         _mujoco_section(versus_mujoco, results, progress, args.quick)
         return _write(report, results, out, progress)
-    progress = Progress(9)
+    if args.only == "controllers":
+        progress = Progress(1)
+        progress.section("arm controllers: cost per step and tracking")
+        results["controllers"] = controllers.measure(progress, quick=args.quick)
+        return _write(report, results, out, progress)
+    progress = Progress(10)
 
     progress.section("warming up the compiled kernels")
     versus.realtime(lambda _line: None, quick=True)
@@ -98,6 +105,9 @@ def _main(argv) -> int:
         results["hard"].append(result)
         progress(f"{result.name}: {'within bounds' if result.passed else 'OUT OF BOUNDS'} "
                  f"({time.perf_counter() - start:.1f} s)")
+
+    progress.section("arm controllers: cost per step and tracking")
+    results["controllers"] = controllers.measure(progress, quick=args.quick)
 
     return _write(report, results, out, progress)
 

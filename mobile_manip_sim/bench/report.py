@@ -145,6 +145,8 @@ def write(results, out: Path) -> Path:
              "what one core costs; wall times are listed beside them where they differ.", ""]
     if results.get("only") == "mujoco":   # `bench --only mujoco`: that section alone
         return _write_parts(parts + [_mujoco_section(results)], out)
+    if results.get("only") == "controllers":
+        return _write_parts(parts + [_controllers_section(results)], out)
     targets, _ = _targets(results)
     parts += ["## Speed targets (issue 6)", "", targets, "",
               "Ratios are between runs of this same bench invocation. Where a target is missed, the "
@@ -261,7 +263,14 @@ def write(results, out: Path) -> Path:
                      "outside stroke, m", "figures", "within bounds"), rows), ""]
     if results.get("mujoco"):
         parts.append(_mujoco_section(results))
+    if results.get("controllers"):
+        parts.append(_controllers_section(results))
     return _write_parts(parts, out)
+
+
+def _controllers_section(results) -> str:
+    from .controllers import section
+    return section(results["controllers"], number=8)
 
 
 def _mujoco_section(results) -> str:

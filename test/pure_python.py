@@ -1,0 +1,17 @@
+"""Run a test module's function in a child process with the kernels as plain Python
+(``MOBILE_MANIP_SIM_NO_JIT=1``), for the tests that compare that path with the compiled one."""
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+
+def without_jit(module: str, function: str):
+    """``module.function()`` (a test module beside this one; JSON-able result) without numba."""
+    script = (f"import json, sys\nsys.path.insert(0, {str(Path(__file__).parent)!r})\n"
+              f"from {module} import {function}\nprint(json.dumps({function}()))\n")
+    env = dict(os.environ, MOBILE_MANIP_SIM_NO_JIT="1")
+    done = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True,
+                          check=True, timeout=600)
+    return json.loads(done.stdout)
