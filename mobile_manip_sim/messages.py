@@ -114,7 +114,7 @@ def command_values(topic: str, message) -> list[float]:
 
 def transform(odom: Odometry):
     """The /tf message (tf2_msgs/TFMessage) of ``odom``'s pose: odom_frame → base_frame at the
-    same stamp. Imports tf2_msgs, which only a ROS install (or tools/build_tf2_msgs.sh) has."""
+    same stamp. Imports tf2_msgs, which only a ROS install (or tools/build_interfaces.sh) has."""
     from geometry_msgs.msg import TransformStamped
     from tf2_msgs.msg import TFMessage
     pose = odom.pose.pose

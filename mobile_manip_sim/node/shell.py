@@ -111,7 +111,7 @@ class SimulatorNode(Node):
                  f"{p.real_time_factor:g}{' (free-running)' if not p.real_time_factor else ''}")
         if p.publish_tf and self._tf_pub is None:
             log.warning("publish_tf: tf2_msgs does not import (source a ROS install, or build "
-                        "it with tools/build_tf2_msgs.sh); no /tf")
+                        "it with tools/build_interfaces.sh); no /tf")
 
     def _tf_publisher(self):
         try:
