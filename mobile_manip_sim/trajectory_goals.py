@@ -57,7 +57,7 @@ class Codes(NamedTuple):
 
 
 class Point(NamedTuple):
-    time: float                  # time_from_start, s
+    time_ns: int                 # time_from_start, integer ns (as a Duration holds it)
     positions: tuple
     velocities: tuple = ()
     accelerations: tuple = ()
@@ -77,7 +77,7 @@ class Goal(NamedTuple):
     start_ns: int = 0            # header stamp, ns of simulated time; 0 = now
     path_tolerance: tuple = ()   # JointTolerance records
     goal_tolerance: tuple = ()
-    goal_time: float = 0.0       # goal_time_tolerance, s
+    goal_time: float = 0.0       # goal_time_tolerance, s (0 = the default)
 
 
 class Outcome(NamedTuple):
@@ -92,9 +92,10 @@ class Tolerances(NamedTuple):
 
 
 class Trajectory(NamedTuple):
-    """A trajectory in the node's joint order, times in s after the segment start it applies
-    at: what goes to `Simulation.set_arm_trajectory` and into a bag."""
-    times: np.ndarray            # (m,)
+    """A trajectory in the node's joint order, times in integer ns after the segment start it
+    applies at: what goes to `Simulation.set_arm_trajectory` (as ``times / NS`` s, by
+    `timeline.apply_arm_command`) and into a bag (as Durations: exact)."""
+    times: np.ndarray            # (m,) int64 ns
     positions: np.ndarray        # (m, n)
     velocities: np.ndarray | None
     accelerations: np.ndarray | None
@@ -151,11 +152,11 @@ def arrange(goal: Goal, names, codes: Codes) -> Trajectory | Outcome:
     if not goal.points:
         return Outcome(codes.invalid_goal, "empty trajectory: no points")
     n, order = len(names), [given.index(name) for name in names]
-    times = [float(point.time) for point in goal.points]
+    times = [int(point.time_ns) for point in goal.points]
     for i, t in enumerate(times):
-        if not math.isfinite(t) or t < 0.0 or (i and t <= times[i - 1]):
-            return Outcome(codes.invalid_goal, f"point {i}: time_from_start {t:g} s is not after "
-                                               f"the previous point's (times must be finite, "
+        if t < 0 or (i and t <= times[i - 1]):
+            return Outcome(codes.invalid_goal, f"point {i}: time_from_start {format_ns(t)} s is "
+                                               f"not after the previous point's (times must be "
                                                f"≥ 0 and strictly increasing)")
     fields = {}
     for field in ("positions", "velocities", "accelerations"):
@@ -177,7 +178,7 @@ def arrange(goal: Goal, names, codes: Codes) -> Trajectory | Outcome:
         j = int(np.argmax(np.abs(last[-1]) > AT_REST))
         return Outcome(codes.invalid_goal, f"the last point's velocity of {names[j]} is "
                                            f"{last[-1][j]:g}, not zero")
-    return Trajectory(np.array(times), fields["positions"], fields["velocities"],
+    return Trajectory(np.array(times, dtype=np.int64), fields["positions"], fields["velocities"],
                       fields["accelerations"])
 
 
@@ -186,12 +187,12 @@ def started(trajectory: Trajectory, start_ns: int, now_ns: int,
     """The trajectory as applied at ``now_ns``: delayed by a future start, or refused when its
     start stamp is non-zero and it ends before now."""
     if start_ns == 0 or start_ns <= now_ns:
-        if start_ns and start_ns + round(trajectory.times[-1] * NS) < now_ns:
+        if start_ns and start_ns + int(trajectory.times[-1]) < now_ns:
             return Outcome(codes.old_header_timestamp,
                            f"the trajectory starts at {format_ns(start_ns)} s and ends before "
                            f"now ({format_ns(now_ns)} s of simulated time)")
         return trajectory
-    return trajectory._replace(times=trajectory.times + (start_ns - now_ns) / NS)
+    return trajectory._replace(times=trajectory.times + (start_ns - now_ns))
 
 
 class Request:
@@ -221,7 +222,7 @@ class Step(NamedTuple):
     finished: list               # requests that ended here
 
 
-HOLD = Trajectory(np.zeros(0), np.zeros((0, 0)), None, None)   # hold where it is
+HOLD = Trajectory(np.zeros(0, dtype=np.int64), np.zeros((0, 0)), None, None)   # hold where it is
 
 
 class TrajectoryGoals:
@@ -323,7 +324,7 @@ class TrajectoryGoals:
     def _check(self, request: Request, now_ns: int, error) -> Outcome | None:
         """jtc's tolerance checks of the active goal at ``now_ns``; None while it goes on."""
         tau = (now_ns - request.applied_ns) / NS
-        end = float(request.trajectory.times[-1])
+        end = int(request.trajectory.times[-1]) / NS
         errors = np.stack([error[0], error[1], np.zeros_like(error[0])], axis=1)
         limits = request.tolerances
         if tau < end or now_ns == request.applied_ns:

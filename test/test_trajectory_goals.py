@@ -28,6 +28,7 @@ ACTION = (Path(__file__).resolve().parent.parent / "tools" / "interfaces" / "con
           "action" / "FollowJointTrajectory.action")
 NAMES = ["arm_revolute_1", "arm_prismatic_1", "arm_revolute_2", "arm_prismatic_2"]
 MS = 10 ** 6
+S = 10 ** 9
 
 
 def result_constants():
@@ -56,7 +57,7 @@ class Stroke:
 
 
 def goal(names=NAMES, times=(1.0, 2.0, 3.0), start_ns=0, **kwargs):
-    points = tuple(Point(t, tuple(0.1 * (i + 1) + 0.01 * j for j in range(len(names))))
+    points = tuple(Point(round(t * S), tuple(0.1 * (i + 1) + 0.01 * j for j in range(len(names))))
                    for i, t in enumerate(times))
     return Goal(tuple(names), points, start_ns, **kwargs)
 
@@ -90,12 +91,12 @@ def test_unknown_missing_or_repeated_joints_are_invalid_joints(names):
 
 @pytest.mark.parametrize("points, says", [
     ((), "empty trajectory"),
-    ((Point(1.0, (0,) * 4), Point(1.0, (0,) * 4)), "point 1: time_from_start 1 s is not after"),
-    ((Point(float("nan"), (0,) * 4),), "point 0: time_from_start nan"),
-    ((Point(1.0, (0,) * 3),), "point 0: 3 positions, expected 4"),
-    ((Point(1.0, (0, 0, float("inf"), 0)),), "point 0: positions of arm_revolute_2 is not fini"),
-    ((Point(1.0, (0,) * 4, (0,) * 4), Point(2.0, (0,) * 4)), "point 1: 0 velocities, expected 4"),
-    ((Point(1.0, (0,) * 4, (0, 0.5, 0, 0)),),
+    ((Point(S, (0,) * 4), Point(S, (0,) * 4)), "point 1: time_from_start 1.000000000 s is not "),
+    ((Point(-1, (0,) * 4),), "point 0: time_from_start -0.000000001 s is not"),
+    ((Point(S, (0,) * 3),), "point 0: 3 positions, expected 4"),
+    ((Point(S, (0, 0, float("inf"), 0)),), "point 0: positions of arm_revolute_2 is not fini"),
+    ((Point(S, (0,) * 4, (0,) * 4), Point(2 * S, (0,) * 4)), "point 1: 0 velocities, expected 4"),
+    ((Point(S, (0,) * 4, (0, 0.5, 0, 0)),),
      "the last point's velocity of arm_prismatic_1 is 0.5"),
 ])
 def test_malformed_trajectories_are_invalid_goals_in_one_line(points, says):
@@ -110,7 +111,7 @@ def test_start_zero_or_past_is_now_future_delays_ended_is_old_header():
     assert started(trajectory, 0, now, CODES) is trajectory
     assert started(trajectory, now - 2 * 10 ** 9, now, CODES) is trajectory   # ends at now + 1 s
     later = started(trajectory, now + 500 * MS, now, CODES)
-    assert later.times.tolist() == [1.5, 2.5, 3.5]
+    assert later.times.tolist() == [1500 * MS, 2500 * MS, 3500 * MS]
     old = started(trajectory, now - 3 * 10 ** 9 - 1, now, CODES)
     assert old.code == CODES.old_header_timestamp and "ends before now" in old.text
 
@@ -181,7 +182,7 @@ def test_path_and_goal_time_violations_abort_and_hold():
 
 def test_out_of_stroke_is_the_engines_line_as_invalid_goal():
     goals, apply = TrajectoryGoals(NAMES, CODES), Stroke()
-    points = (Point(1.0, (0.0, 0.3, 0.0, 0.3)), Point(2.0, (0.0, 0.9, 0.0, 0.3)))
+    points = (Point(S, (0.0, 0.3, 0.0, 0.3)), Point(2 * S, (0.0, 0.9, 0.0, 0.3)))
     request = goals.submit(Goal(tuple(NAMES), points))
     step = run_to(goals, apply, [0], np.zeros(4))[0]
     assert request.outcome == Outcome(CODES.invalid_goal, "arm_prismatic_1: 0.9 m is outside "
@@ -199,7 +200,7 @@ def test_a_new_goal_preempts_the_active_one_and_a_waiting_one():
     step = run_to(goals, apply, [10], np.zeros(4))[0]
     assert first.outcome == Outcome(CODES.invalid_goal, "preempted by a new goal")
     assert step.finished == [first] and goals.active is second
-    assert step.command.times.tolist() == [5.0] and second.applied_ns == 10 * MS
+    assert step.command.times.tolist() == [5 * S] and second.applied_ns == 10 * MS
 
 
 def test_cancel_holds_where_it_is():
