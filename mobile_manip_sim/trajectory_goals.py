@@ -61,6 +61,8 @@ class Point(NamedTuple):
     positions: tuple
     velocities: tuple = ()
     accelerations: tuple = ()
+    effort: tuple = ()           # refused: the arm follows positions (jtc without an effort
+                                 # command interface refuses them too)
 
 
 class JointTolerance(NamedTuple):
@@ -158,6 +160,10 @@ def arrange(goal: Goal, names, codes: Codes) -> Trajectory | Outcome:
             return Outcome(codes.invalid_goal, f"point {i}: time_from_start {format_ns(t)} s is "
                                                f"not after the previous point's (times must be "
                                                f"≥ 0 and strictly increasing)")
+    for i, point in enumerate(goal.points):
+        if len(point.effort):
+            return Outcome(codes.invalid_goal, f"point {i}: efforts given; the arm's trajectory "
+                                               f"controller follows positions, not efforts")
     fields = {}
     for field in ("positions", "velocities", "accelerations"):
         rows = [list(getattr(point, field)) for point in goal.points]

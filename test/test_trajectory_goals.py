@@ -96,6 +96,7 @@ def test_unknown_missing_or_repeated_joints_are_invalid_joints(names):
     ((Point(S, (0,) * 3),), "point 0: 3 positions, expected 4"),
     ((Point(S, (0, 0, float("inf"), 0)),), "point 0: positions of arm_revolute_2 is not fini"),
     ((Point(S, (0,) * 4, (0,) * 4), Point(2 * S, (0,) * 4)), "point 1: 0 velocities, expected 4"),
+    ((Point(S, (0,) * 4, (), (), (1.0,) * 4),), "point 0: efforts given"),
     ((Point(S, (0,) * 4, (0, 0.5, 0, 0)),),
      "the last point's velocity of arm_prismatic_1 is 0.5"),
 ])

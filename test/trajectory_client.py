@@ -1,0 +1,139 @@
+"""A FollowJointTrajectory client as a ROS user writes one (rclpy.action.ActionClient), run in
+its own process by test_arm_node.py with control_msgs on its paths. Each scenario named on the
+command line prints one JSON line: the results, feedback counts and errors the test checks.
+
+    python trajectory_client.py follow wrong_joints out_of_stroke preempt cancel
+"""
+import json
+import sys
+import time
+
+import rclpy
+from builtin_interfaces.msg import Duration
+from control_msgs.action import FollowJointTrajectory
+from control_msgs.msg import JointTolerance
+from rclpy.action import ActionClient
+from sensor_msgs.msg import JointState
+from trajectory_msgs.msg import JointTrajectoryPoint
+
+ACTION = "/joint_trajectory_controller/follow_joint_trajectory"
+NAMES = ["arm_revolute_1", "arm_prismatic_1", "arm_revolute_2", "arm_prismatic_2"]
+TIMEOUT = 60.0   # s of wall time for any one wait
+GOAL_TOLERANCE = 0.01
+
+
+def duration(seconds: float) -> Duration:
+    return Duration(sec=int(seconds), nanosec=round((seconds - int(seconds)) * 1e9))
+
+
+def goal(points, names=NAMES, tolerance=GOAL_TOLERANCE):
+    """A goal through ``points`` ((time_from_start, positions), ...), joints ``names``."""
+    message = FollowJointTrajectory.Goal()
+    message.trajectory.joint_names = list(names)
+    for seconds, positions in points:
+        message.trajectory.points.append(JointTrajectoryPoint(
+            positions=[float(v) for v in positions], time_from_start=duration(seconds)))
+    message.goal_tolerance = [JointTolerance(name=name, position=tolerance) for name in names]
+    return message
+
+
+class Client:
+    def __init__(self):
+        self.node = rclpy.create_node("trajectory_test_client")
+        self.action = ActionClient(self.node, FollowJointTrajectory, ACTION)
+        self.feedback = []
+        self.state = None
+        self.node.create_subscription(JointState, "/joint_states", self._on_state, 10)
+
+    def _on_state(self, message):
+        self.state = message
+
+    def spin_until(self, done, what):
+        end = time.monotonic() + TIMEOUT
+        while not done():
+            if time.monotonic() > end:
+                raise TimeoutError(what)
+            rclpy.spin_once(self.node, timeout_sec=0.05)
+
+    def send(self, message):
+        """The accepted goal's handle (its feedback is appended to self.feedback)."""
+        future = self.action.send_goal_async(message, feedback_callback=self.feedback.append)
+        self.spin_until(future.done, "the goal's acceptance")
+        handle = future.result()
+        assert handle.accepted
+        return handle
+
+    def result(self, handle):
+        future = handle.get_result_async()
+        self.spin_until(future.done, "the goal's result")
+        response = future.result()
+        return {"status": response.status, "code": response.result.error_code,
+                "text": response.result.error_string}
+
+    def arm_positions(self):
+        index = {name: i for i, name in enumerate(self.state.name)}
+        return [self.state.position[index[name]] for name in NAMES]
+
+
+def follow(client):
+    """Three points, then the result, the feedback and the final error."""
+    client.feedback.clear()
+    points = [(1.0, [0.5, 0.4, -0.1, 0.6]), (2.0, [0.7, 0.3, 0.1, 0.7]),
+              (3.0, [0.6, 0.45, 0.2, 0.55])]
+    outcome = client.result(client.send(goal(points)))
+    client.spin_until(lambda: client.state is not None, "a joint state")
+    last = client.feedback[-1].feedback
+    return {**outcome, "feedback": len(client.feedback),
+            "feedback_names": list(last.joint_names), "last_error": list(last.error.positions),
+            "final": client.arm_positions(), "target": points[-1][1]}
+
+
+def wrong_joints(client):
+    return client.result(client.send(goal([(1.0, [0.0] * 4)],
+                                          names=NAMES[:3] + ["arm_elbow"])))
+
+
+def out_of_stroke(client):
+    return client.result(client.send(goal([(1.0, [0.3, 0.5, -0.2, 0.5]),
+                                           (2.0, [0.3, 1.5, -0.2, 0.5])])))
+
+
+def preempt(client):
+    """A slow goal, preempted by a quick one once it has given feedback."""
+    client.feedback.clear()
+    first = client.send(goal([(5.0, [0.0, 0.3, 0.0, 0.3])]))
+    client.spin_until(lambda: len(client.feedback) >= 5, "the first goal's feedback")
+    second = client.send(goal([(1.0, [0.3, 0.5, -0.2, 0.5])]))
+    return {"first": client.result(first), "second": client.result(second)}
+
+
+def cancel(client):
+    """A slow goal canceled mid-way; then where the arm is, right after and 1 s later."""
+    client.feedback.clear()
+    handle = client.send(goal([(4.0, [0.8, 0.2, 0.4, 0.8])]))
+    client.spin_until(lambda: len(client.feedback) >= 30, "feedback before the cancel")
+    future = handle.cancel_goal_async()
+    client.spin_until(future.done, "the cancel's answer")
+    outcome = client.result(handle)
+    after = client.arm_positions()
+    stamp = client.state.header.stamp.sec + client.state.header.stamp.nanosec * 1e-9
+    client.spin_until(lambda: client.state.header.stamp.sec + client.state.header.stamp.nanosec
+                      * 1e-9 > stamp + 1.0, "1 s of simulated time after the cancel")
+    return {**outcome, "canceling": len(future.result().goals_canceling), "after": after,
+            "later": client.arm_positions()}
+
+
+def main(scenarios) -> int:
+    rclpy.init()
+    client = Client()
+    if not client.action.wait_for_server(timeout_sec=TIMEOUT):
+        raise TimeoutError("the follow_joint_trajectory server")
+    for name in scenarios:
+        print(json.dumps({"scenario": name, **globals()[name](client)}), flush=True)
+    client.node.destroy_node()
+    rclpy.shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
