@@ -14,10 +14,10 @@ from std_msgs.msg import Float64MultiArray
 
 import interfaces_build
 from executables import executable
-from ros_harness import NodeProcess, child_env, on_domain, private_domain, spinning, wait_for
-from test_node import FAST, Probe
+from ros_harness import NodeProcess, child_env, on_domain, private_domain, spinning
+from test_node import FAST, Probe, wait_for
 
-DOMAIN_ID = private_domain(200, 249)
+DOMAIN_ID = private_domain(200, 232)   # test_node.py 100-199; 232 is the highest Fast DDS takes
 CLIENT = os.path.join(os.path.dirname(__file__), "trajectory_client.py")
 NAMES = ["arm_revolute_1", "arm_prismatic_1", "arm_revolute_2", "arm_prismatic_2"]
 STARTUP_TIMEOUT = 90.0
@@ -59,6 +59,7 @@ def test_a_follow_joint_trajectory_client_gets_jtcs_answers_and_the_run_resimula
     assert client.returncode == 0, client.stderr + node.output()
     assert code == 0, node.output()
     results = {r.pop("scenario"): r for r in map(json.loads, client.stdout.splitlines())}
+    print(json.dumps(results))
 
     follow = results["follow"]
     assert (follow["status"], follow["code"]) == (SUCCEEDED, 0), follow
@@ -81,10 +82,14 @@ def test_a_follow_joint_trajectory_client_gets_jtcs_answers_and_the_run_resimula
 
     cancel = results["cancel"]
     assert cancel["status"] == CANCELED and cancel["canceling"] == 1, cancel
-    # Held where it was: it had moved, and over the next second it stays put.
-    assert max(abs(a - b) for a, b in zip(cancel["after"], [0.3, 0.5, -0.2, 0.5],
-                                          strict=True)) > 0.01
-    assert max(abs(a - b) for a, b in zip(cancel["after"], cancel["later"], strict=True)) < 2e-3
+    # Held where it was: it had moved; it comes to rest within a brake's distance of where the
+    # cancel found it, far from the canceled goal.
+    def apart(a, b):
+        return max(abs(x - y) for x, y in zip(a, b, strict=True))
+    assert apart(cancel["after"], [0.3, 0.5, -0.2, 0.5]) > 0.01
+    assert apart(cancel["later"], cancel["rest"]) < 1e-4
+    assert apart(cancel["after"], cancel["rest"]) < 0.02
+    assert apart(cancel["rest"], cancel["goal"]) > 0.1
 
     assert "IDENTICAL" in resimulate(bag)
 
@@ -198,16 +203,18 @@ def test_a_headless_scene_with_a_trajectory_gives_the_samples_of_the_node_driven
                   if connection.topic == "/joint_states"]
     assert len(applied) == 1, applied
     sim = Simulation(load_scene(str(headless_scene)))
-    compared = 0
+    compared, largest = 0, 0.0
     for state in states:
         stamp = state.header.stamp.sec * 10 ** 9 + state.header.stamp.nanosec
         if stamp < applied[0]:
             continue
         sim.advance_to((stamp - applied[0]) / 1e9)
-        assert max(abs(a - b) for a, b in zip(state.position, sim.q[3:], strict=True)) < 1e-9, \
-            (stamp, list(state.position), sim.q[3:].tolist())
+        difference = max(abs(a - b) for a, b in zip(state.position, sim.q[3:], strict=True))
+        assert difference < 1e-9, (stamp, list(state.position), sim.q[3:].tolist())
+        largest = max(largest, difference)
         compared += 1
     assert compared >= 200   # 2 s of the trajectory at 100 Hz
+    print(f"{compared} states from t_a = {applied[0]} ns: largest difference {largest:.3g}")
 
 
 def _ended(probe, target) -> bool:

@@ -70,6 +70,13 @@ class Client:
         return {"status": response.status, "code": response.result.error_code,
                 "text": response.result.error_string}
 
+    def wait_simulated(self, seconds: float) -> None:
+        """Spin until /joint_states is ``seconds`` of simulated time further on."""
+        def now():
+            return self.state.header.stamp.sec + self.state.header.stamp.nanosec * 1e-9
+        start = now()
+        self.spin_until(lambda: now() >= start + seconds, f"{seconds} s of simulated time")
+
     def arm_positions(self):
         index = {name: i for i, name in enumerate(self.state.name)}
         return [self.state.position[index[name]] for name in NAMES]
@@ -108,7 +115,7 @@ def preempt(client):
 
 
 def cancel(client):
-    """A slow goal canceled mid-way; then where the arm is, right after and 1 s later."""
+    """A slow goal canceled mid-way; then where the arm is: right after, 1 s and 1.5 s later."""
     client.feedback.clear()
     handle = client.send(goal([(4.0, [0.8, 0.2, 0.4, 0.8])]))
     client.spin_until(lambda: len(client.feedback) >= 30, "feedback before the cancel")
@@ -116,11 +123,11 @@ def cancel(client):
     client.spin_until(future.done, "the cancel's answer")
     outcome = client.result(handle)
     after = client.arm_positions()
-    stamp = client.state.header.stamp.sec + client.state.header.stamp.nanosec * 1e-9
-    client.spin_until(lambda: client.state.header.stamp.sec + client.state.header.stamp.nanosec
-                      * 1e-9 > stamp + 1.0, "1 s of simulated time after the cancel")
+    client.wait_simulated(1.0)
+    later = client.arm_positions()
+    client.wait_simulated(0.5)
     return {**outcome, "canceling": len(future.result().goals_canceling), "after": after,
-            "later": client.arm_positions()}
+            "later": later, "rest": client.arm_positions(), "goal": [0.8, 0.2, 0.4, 0.8]}
 
 
 def main(scenarios) -> int:
