@@ -20,6 +20,7 @@ from .errors import UserError
 from .limits import (ANGLE, ATOL, DAMPING, DENSITY, DT, DURATION, EFFORT, GRAVITY, INERTIA, LENGTH,
                      MASS, MAX_LINKS, MAX_SAMPLES, MAX_STEPS, RADIUS, RTOL, SPEED)
 from .model import Base, RobotModel
+from .scene_controller import ControllerSection, parse_controller
 
 DEFAULT_SCENE = "paper_two_link.yaml"
 
@@ -92,6 +93,7 @@ class Scene:
     integrator: IntegratorSettings
     duration: float
     document: dict = field(repr=False, compare=False)  # the YAML with all defaults applied
+    controller: ControllerSection | None = None          # how the arm is driven (None: efforts)
 
     def to_yaml(self) -> str:
         return yaml.safe_dump(self.document, sort_keys=False)
@@ -101,20 +103,8 @@ def _number(value, path, *, positive=False, nonnegative=False, lo=None, hi=None)
     return schema.number(value, path, positive=positive, nonnegative=nonnegative, lo=lo, hi=hi)
 
 
-def _vector(value, length, path, **checks) -> np.ndarray:
-    if not isinstance(value, (list, tuple)):
-        raise UserError(path, f"expected a list of {length} numbers, got {schema.short(value)}")
-    if len(value) != length:
-        raise UserError(path, f"expected {length} values, got {len(value)}")
-    return np.array([_number(v, f"{path}[{i}]", **checks) for i, v in enumerate(value)])
-
-
-def _vector_or_scalar(value, length, path, **checks) -> np.ndarray:
-    if isinstance(value, (int, float)) and not isinstance(value, bool):
-        return np.full(length, _number(value, path, **checks))
-    return _vector(value, length, path, **checks)
-
-
+_vector = schema.vector
+_vector_or_scalar = schema.vector_or_scalar
 _mapping = schema.mapping
 _keys = schema.keys
 _flag = schema.flag
@@ -295,7 +285,8 @@ def parse_scene(doc, name="scene") -> Scene:
     """Validate a scene document (the parsed YAML mapping)."""
     doc = _mapping(doc, "")
     _keys(doc, "", required=("robot",),
-          optional=("name", "initial", "efforts", "effects", "integrator", "duration"))
+          optional=("name", "initial", "efforts", "effects", "integrator", "duration",
+                    "controller"))
     robot = _robot(doc["robot"])
     n = robot.n_links
     initial = _mapping(doc.get("initial", {}), "initial")
@@ -318,6 +309,7 @@ def parse_scene(doc, name="scene") -> Scene:
     if n == 0 and efforts.get("joints"):
         raise UserError("robot.arm", "missing: efforts.joints gives arm efforts but the robot has no arm")
     effects = _effects(doc.get("effects", {}), robot)
+    controller = parse_controller(doc.get("controller"), robot, effects.stroke_limits is not None)
     integrator = _integrator(doc.get("integrator", {}))
     scene_name = schema.string(doc.get("name", name), "name")
     scene = Scene(
@@ -329,7 +321,10 @@ def parse_scene(doc, name="scene") -> Scene:
                               lo=-EFFORT, hi=EFFORT),
         effects=effects, integrator=integrator,
         duration=_number(doc.get("duration", 1.0), "duration", positive=True, hi=DURATION[1]),
-        document={})
+        document={}, controller=controller)
+    if controller is not None and controller.arm != "effort" and np.any(scene.joint_efforts):
+        raise UserError("efforts.joints", f"the arm is driven by controller.arm: {controller.arm} "
+                                          f"(remove the joint efforts)")
     check_work(scene.duration, integrator, "duration", "integrator.dt")
     object.__setattr__(scene, "document", _document(doc, scene))
     return scene

@@ -27,6 +27,7 @@ import reprlib
 import stat
 from pathlib import Path
 
+import numpy as np
 import yaml
 
 from .errors import UserError
@@ -348,6 +349,22 @@ def sequence(value, path, *, max_length=None) -> list:
     if max_length is not None and len(value) > max_length:
         raise UserError(path, f"at most {max_length} entries, got {len(value)}")
     return list(value)
+
+
+def vector(value, length, path, **checks):
+    """A list of `length` numbers (each checked by `number` with `checks`), as a numpy array."""
+    if not isinstance(value, (list, tuple)):
+        raise UserError(path, f"expected a list of {length} numbers, got {short(value)}")
+    if len(value) != length:
+        raise UserError(path, f"expected {length} values, got {len(value)}")
+    return np.array([number(v, f"{path}[{i}]", **checks) for i, v in enumerate(value)])
+
+
+def vector_or_scalar(value, length, path, **checks):
+    """`vector`, or one number standing for all `length` values."""
+    if isinstance(value, (int, float)) and not isinstance(value, bool):
+        return np.full(length, number(value, path, **checks))
+    return vector(value, length, path, **checks)
 
 
 def keys(doc: dict, path: str, required=(), optional=()) -> None:

@@ -48,3 +48,37 @@ def controller(nq, nu):
 def work(nq, nu):
     """Index of W in s."""
     return nq + nu + 2
+
+
+# --- the arm controller's states (engine/arm_control.py), after W and only when the arm is
+# driven by a controller (not in effort mode): z_1 … z_{n_arm}, the PID's error integrals
+# (rad·s or m·s, n_arm = n_u − 2), then τ, the reference clock (s since the last arm command).
+
+@jit_inline
+def arm_integrals(nq, nu):
+    """Index of z_1 in s (z_2 … z_{n_arm} follow)."""
+    return nq + nu + 3
+
+
+@jit_inline
+def reference_clock(nq, nu):
+    """Index of τ, the arm reference's clock, in s (the last entry)."""
+    return nq + nu + 3 + (nu - 2)
+
+
+@jit_inline
+def arm_state_size(nu):
+    """Entries the arm controller adds to s: n_arm integrals and the clock."""
+    return nu - 1
+
+
+@jit_inline
+def arm_q(j):
+    """Index in s (and q) of arm joint j = 0 … n_arm − 1 (q_1, l_1, q_2, …)."""
+    return 5 + j
+
+
+@jit_inline
+def arm_u(nq, j):
+    """Index in s of arm joint j's rate (q̇_1, l̇_1, …); in u it is 2 + j."""
+    return nq + 2 + j

@@ -6,6 +6,9 @@
     sim.advance_to(0.01)                              # lands exactly on t = 0.01 s
     sim.q, sim.u, sim.t, sim.energy_error(), sim.impacts, sim.stats()
 
+With an arm controller (``Simulation(scene, arm_control=ArmControl(...))`` or the scene's
+``controller:`` section) the arm takes references instead of efforts (`arm_commands.py`).
+
 Commands change only between calls to `advance_to`, so a run is a pure function of the scene
 and the command sequence: repeating it gives bit-identical states.
 """
@@ -24,6 +27,8 @@ from ..methods import COMPILED_STEPPERS, IDS, METHODS
 from ..errors import UserError
 from ..scene import IntegratorSettings, Scene
 from . import adaptive_stepping, dense, layout, stepping
+from .arm_commands import ArmCommands
+from .arm_control import ArmControl, arm_settings, scene_arm_control
 from . import runge_kutta as rk
 from .events import holding_margin
 from . import step_watch
@@ -45,7 +50,10 @@ ELASTIC_SEMI_IMPLICIT = ("semi_implicit_euler with end stops that rebound (resti
                          "energy is not bounded (each impact moves it by O(dt)); use rk4 or an "
                          "adaptive method where energy matters")
 
-DEFAULT_WHEEL_SPEED_GAINS = (0.5, 5.0)   # kp N·m·s/rad, ki N·m/rad (see set_wheel_speed_gains)
+# kp N·m·s/rad, ki N·m/rad (see set_wheel_speed_gains): with the paper's arm held in position
+# mode, cmd_vel (0.3 m/s, 0.5 rad/s) is within 1e-4 of its target from 1 s on (0.5, 5.0 before
+# issue 18: 8 % off at 1 s)
+DEFAULT_WHEEL_SPEED_GAINS = (2.0, 20.0)
 SCIPY_MIN_RTOL = 100 * np.finfo(float).eps   # SciPy's own floor; passed as is, it warns on stderr
 
 
@@ -65,15 +73,23 @@ class StepLimitError(SimulationError):
 ImpactDetail = namedtuple("ImpactDetail", "q u_before u_after free held")
 
 
-class Simulation:
-    def __init__(self, scene: Scene, integrator: IntegratorSettings | None = None):
+class Simulation(ArmCommands):
+    def __init__(self, scene: Scene, integrator: IntegratorSettings | None = None,
+                 arm_control: ArmControl | None = None):
+        """`arm_control`: how the arm is driven; None takes the scene's ``controller:`` section
+        (and its commands at t = 0), or effort mode when the scene has none."""
         self.scene = scene
         self.settings = integrator or scene.integrator
         model = scene.robot
         self.model = model
         self.effects = effects = effect_settings(scene)   # what the scene turns on (effects.py)
         self.dynamics = Dynamics(model, **effects.dynamics_options())
-        self.system = System(self.dynamics, effects.generalized_damping(model.base), effects.locked)
+        self._arm_section = scene.controller if arm_control is None else None
+        self.arm_control = (arm_control or scene_arm_control(scene.controller)).for_robot(model)
+        arm = (arm_settings(self.arm_control, effects.effort_limits)
+               if self.arm_control.active else None)
+        self.system = System(self.dynamics, effects.generalized_damping(model.base), effects.locked,
+                             arm)
         self.nq, self.nu = model.n_q, model.n_u
         self.stop_law = effects.stop_law
         if (self.settings.method == "semi_implicit_euler" and self.stop_law is not None
@@ -81,7 +97,7 @@ class Simulation:
             warnings.warn(ELASTIC_SEMI_IMPLICIT, RuntimeWarning, stacklevel=2)
         self.stops = make_stops(model, effects.stop_law, self.system.permanently_locked)
         self.watched, self.resting, self.stroke = self.stops.watched, self.stops.resting, self.stops.stroke
-        size = layout.state_size(self.nu)
+        size = self.system.state(model.n_q * [0.0], self.nu * [0.0]).size
         self._scratch = stepping.make_scratch(size, model.n_links, make_impact_scratch(self.nu, model.n_links))
         self._clock = np.zeros(5)
         self._clock[stepping.DT] = self.settings.dt
@@ -94,13 +110,11 @@ class Simulation:
         self._core = CORES.get(method.stepper)
         self._solve = None
         if method.fixed_step:
-            self._core_args = (IDS[method.name], self.system.data, self.stops, self._scratch)
             self._step_budget = budget
-        else:   # the first argument is also the kind of the step's interpolant (`dense`)
+        else:
             self._solve = adaptive_stepping.make_solve(size, self.settings.rtol, self.settings.atol)
-            kind = IDS[method.name] if self._core else dense.POWER
-            self._core_args = (kind, self.system.data, self.stops, self._scratch, self._solve)
             self._step_budget = max(1, budget // 4)
+        self._rebind_system()
         # the compiled calls of every sample, bound to this simulation's argument types
         self._advance = Bound(self._core.advance) if self._core else None
         self._advance_samples = Bound(self._core.advance_samples) if self._core else None
@@ -111,6 +125,15 @@ class Simulation:
         self._watch_step = Bound(step_watch.watch_step)
         self.set_wheel_speed_gains(*DEFAULT_WHEEL_SPEED_GAINS)
         self.reset()
+
+    def _rebind_system(self) -> None:
+        """The compiled cores' leading arguments, with the system record in force."""
+        method = METHODS[self.settings.method]
+        if method.fixed_step:
+            self._core_args = (IDS[method.name], self.system.data, self.stops, self._scratch)
+        else:   # the first argument is also the kind of the step's interpolant (`dense`)
+            kind = IDS[method.name] if self._core else dense.POWER
+            self._core_args = (kind, self.system.data, self.stops, self._scratch, self._solve)
 
     # --- state ---------------------------------------------------------------------------
     def reset(self) -> None:
@@ -133,8 +156,12 @@ class Simulation:
         self.impact_details: list[ImpactDetail] = []
         self.system.counters[:] = 0
         self._solver = None   # radau/bdf: SciPy's solver of the solve in progress
-        self.wheel_efforts = self.joint_efforts = None
-        self.set_efforts(self.scene.wheel_efforts, self.scene.joint_efforts)
+        self.wheel_efforts = None
+        self.joint_efforts = np.zeros(self.nu - 2)
+        self.set_efforts(self.scene.wheel_efforts,
+                         None if self.arm_control.active else self.scene.joint_efforts)
+        if self.arm_control.active:
+            self._start_arm()
         self.energy0 = self.total_energy()
 
     @property
@@ -194,6 +221,9 @@ class Simulation:
         if wheels is not None:
             self.wheel_efforts = self.effects.saturate(_command(wheels, 2, "wheels"))
             self.system.control[VELOCITY_MODE] = 0.0
+        if joints is not None and self.arm_control.active:
+            raise UserError("efforts.joints", f"the arm is driven by its {self.arm_control.mode} "
+                                              f"controller: it takes references, not efforts")
         if joints is not None:
             self.joint_efforts = self.effects.saturate(_command(joints, self.nu - 2, "joints"), 2)
         Q[0], Q[1] = self.dynamics.wheel_forces(*self.wheel_efforts)

@@ -3,13 +3,15 @@
 State vector ``s = (q, u, e, W)`` (`layout.py`): configuration (n_q), pseudo-velocities (n_u),
 the wheel-speed controller's two error integrals e = (e_R, e_L) (rad; zero and constant while the
 wheels take torque commands), and W, the work done on the robot so far by the wheel and joint
-efforts and by dissipation (J), so that the energy balance ``T + V − W = const`` (minus impact
-losses) can be checked on any run.
+efforts (the arm controller's included) and by dissipation (J), so that the energy balance
+``T + V − W = const`` (minus impact losses) can be checked on any run. When a controller drives
+the arm (`arm_control.py`), its PID integrals z and reference clock τ follow W.
 
 Generalized forces are kept by source, as in docs/model.md: ``Q_cmd`` (commanded efforts, already
 saturated by `effort_limits`), the wheel-speed PI loop's wheel torques when the base takes a
-velocity command, ``Q_damp = −c ⊙ u`` (joint and wheel damping), and the velocity products and
-gravity inside the dynamics. u̇ comes from the articulated-body recursion, O(n)
+velocity command, the arm controller's efforts when one drives the arm (`arm_control.py`),
+``Q_damp = −c ⊙ u`` (joint and wheel damping), and the velocity products and gravity inside
+the dynamics. u̇ comes from the articulated-body recursion, O(n)
 (`dynamics/articulated.py`); the mass matrix is never formed here. An effect that is off adds no
 stage: no damping pass, no controller, no locked-joint bookkeeping. ``counters`` counts the
 stages actually run (tests use it to prove that an effect that is off costs nothing).
@@ -25,10 +27,11 @@ from ..dynamics import kernels
 from ..dynamics.articulated import articulated_forward_dynamics
 from ..dynamics.jit import jit, jit_inline
 from . import layout
+from .arm_control import ARM_ON, N_ARM_SETTINGS, SEGMENTS, arm_efforts
 
 # counters[...] indices
-RHS_EVALS, DAMPING_STAGE, REDUCED_SOLVE, CROSSING_CHECKS, CONTROL_STAGE = 0, 1, 2, 3, 4
-N_COUNTERS = 5
+RHS_EVALS, DAMPING_STAGE, REDUCED_SOLVE, CROSSING_CHECKS, CONTROL_STAGE, ARM_CONTROL_STAGE = range(6)
+N_COUNTERS = 6
 
 # control[...] entries: the wheel-speed PI loop (`wheel_speed_torques`)
 VELOCITY_MODE, KP, KI, TORQUE_LIMIT, TARGET_R, TARGET_L = range(6)
@@ -43,6 +46,14 @@ SystemData = namedtuple("SystemData", [
     "ws",        # the dynamics workspace (`dynamics.records.Workspace`)
     "Q",         # (n_u,) scratch: applied generalized forces of the current evaluation
     "counters",  # (N_COUNTERS,) stage counters
+    # the arm controller (`arm_control.py`; empty arrays, and arm[ARM_ON] = 0, in effort mode)
+    "arm",          # (N_ARM_SETTINGS,) on, feedforward kind, reference segments in use
+    "arm_gains",    # (3, n_arm) kp, ki, kd
+    "arm_limits",   # (n_arm,) effort limits, inf where none
+    "ref_starts",   # (capacity,) s: the reference's segment starts (`arm_reference.py`)
+    "ref_coeffs",   # (capacity, n_arm, 6) their polynomial coefficients
+    "arm_ref",      # (5, n_arm) scratch: q_ref, q̇_ref, q̈_ref, feedforward, applied efforts
+    "arm_scratch",  # (5, n_u) scratch of the inverse-dynamics passes (row ZERO stays zero)
 ])
 
 
@@ -63,8 +74,9 @@ def wheel_speed_torques(system, s):
 
 @jit_inline
 def applied_forces(system, s, ds):
-    """Q = commanded efforts (or the PI loop's wheel torques) + damping, into ``system.Q``; also
-    writes ė (the controller's error rates) into ds. Returns the power Q·u (W)."""
+    """Q = commanded efforts (or the PI loop's wheel torques, the arm controller's efforts) +
+    damping, into ``system.Q``; also writes ė (the wheel loop's error rates), and ż, τ̇ when a
+    controller drives the arm, into ds. Returns the power Q·u (W)."""
     model, damping, Q_cmd, Q, control = system.model, system.damping, system.Q_cmd, system.Q, system.control
     nq, nu = layout.sizes(system)
     i_e = layout.controller(nq, nu)
@@ -81,6 +93,9 @@ def applied_forces(system, s, ds):
         v, om = s[nq], s[nq + 1]
         ds[i_e] = control[TARGET_R] - (v + b * om) / r
         ds[i_e + 1] = control[TARGET_L] - (v - b * om) / r
+    if system.arm[ARM_ON] != 0.0:
+        system.counters[ARM_CONTROL_STAGE] += 1
+        arm_efforts(system, s, ds)
     power = 0.0
     for k in range(nu):
         power += Q[k] * s[nq + k]
@@ -140,9 +155,13 @@ def slide_holding_forces(system, resting, out):
 class System:
     """Holds the compiled `SystemData` record and the Python-side view of the effects."""
 
-    def __init__(self, dynamics, damping: np.ndarray | None, locked: list[int]):
+    def __init__(self, dynamics, damping: np.ndarray | None, locked: list[int], arm=None):
+        """`arm`: the arm controller's (settings, gains, limits) of `arm_control.arm_settings`,
+        or None (effort mode: no controller states, no controller stage)."""
         self.dynamics = dynamics
         nu = dynamics.model.n_u
+        n_arm = nu - 2 if arm is not None else 0
+        self.arm_on = arm is not None
         self.Q_cmd = np.zeros(nu)
         self.damping = np.zeros(0) if damping is None else np.asarray(damping, dtype=float)
         self.free = np.full(nu, -1, dtype=np.int64)
@@ -150,11 +169,29 @@ class System:
         self.control = np.zeros(6)
         self.control[TORQUE_LIMIT] = math.inf
         self.permanently_locked = tuple(sorted(locked))
+        settings, gains, limits = arm if arm is not None else (
+            np.zeros(N_ARM_SETTINGS), np.zeros((3, 0)), np.zeros(0))
+        self.arm_ref = np.zeros((5, n_arm))
         self.data = SystemData(dynamics.model_record, float(dynamics.gravity), self.damping,
                                self.free, self.Q_cmd, self.control, dynamics.ws, np.zeros(nu),
-                               self.counters)
+                               self.counters, settings, gains, limits, np.zeros(1),
+                               np.zeros((1, n_arm, 6)), self.arm_ref,
+                               np.zeros((5, nu if arm is not None else 0)))
         self.set_locked(())
-        self._scratch = np.zeros(layout.state_size(nu))
+        size = layout.state_size(nu) + (layout.arm_state_size(nu) if arm is not None else 0)
+        self._scratch = np.zeros(size)
+
+    def set_reference(self, starts: np.ndarray, coeffs: np.ndarray) -> None:
+        """The arm's reference from now on (`arm_reference.py`): copied into the compiled
+        record, whose arrays grow (the record is rebuilt: re-read ``data``) when too small."""
+        count = starts.size
+        if count > self.data.ref_starts.size:
+            capacity = max(count, 2 * self.data.ref_starts.size)
+            self.data = self.data._replace(ref_starts=np.zeros(capacity),
+                                           ref_coeffs=np.zeros((capacity,) + coeffs.shape[1:]))
+        self.data.ref_starts[:count] = starts
+        self.data.ref_coeffs[:count] = coeffs
+        self.data.arm[SEGMENTS] = count
 
     def set_locked(self, extra: tuple) -> None:
         """Lock the scene's locked DOFs plus `extra` (rods resting at a stop)."""
@@ -165,8 +202,11 @@ class System:
         self.locked = tuple(sorted(locked))
 
     def state(self, q, u) -> np.ndarray:
-        """The state vector s = (q, u, e = 0, W = 0) of a configuration and its pseudo-velocities."""
-        return np.concatenate([np.asarray(q, dtype=float), np.asarray(u, dtype=float), [0.0, 0.0, 0.0]])
+        """The state vector s = (q, u, e = 0, W = 0) of a configuration and its pseudo-velocities
+        (and z = 0, τ = 0 when a controller drives the arm)."""
+        extra = layout.arm_state_size(len(self.Q_cmd)) if self.arm_on else 0
+        return np.concatenate([np.asarray(q, dtype=float), np.asarray(u, dtype=float),
+                               [0.0, 0.0, 0.0], np.zeros(extra)])
 
     def _check(self, s: np.ndarray) -> np.ndarray:
         s = np.asarray(s, dtype=float)

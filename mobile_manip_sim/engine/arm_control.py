@@ -1,0 +1,249 @@
+"""The arm controller inside the simulated system, as ros2_control's controllers drive an arm:
+`ArmControl` (the settings: mode, PID gains per joint, feedforward), its defaults, and the
+compiled control law that `system.applied_forces` runs at every right-hand-side evaluation.
+
+The law, per arm joint j (revolute τ_j in N·m, prismatic F_j in N), with the reference of
+`arm_reference.py` evaluated at the reference clock τ (a state component, τ̇ = 1):
+
+    e = q_ref − q,   ė = q̇_ref − q̇,   ż = e
+    τ_j = sat(ff_j + kp e + kd ė + ki z)     within the scene's effort limits
+
+The derivative acts on q̇_ref − q̇ (for a set-point q̇_ref = 0: on the measurement, so a step
+of the set-point does not kick). Anti-windup: z stops integrating while the output is saturated
+in the direction of the error. Feedforward ff:
+
+- ``none``;
+- ``gravity``: G(q), the project's inverse dynamics at u = 0, u̇ = 0 (`kernels.gibbs_appell`);
+- ``computed_torque``: the inverse dynamics of the arm following q̈_ref, ``M u̇* + h(q, u) −
+  Q_damp`` at the actual (q, u), with u̇* = (v̇*, ω̇*, q̈_ref) and the base's acceleration
+  (v̇*, ω̇*) solved exactly rather than assumed zero: the base rows of the same equations, with
+  the wheel forces and damping acting now, ``M_bb u̇_b* = Q_b − M_ba q̈_ref − h_b`` (3
+  inverse-dynamics passes: one with q̈_ref, two unit base accelerations for M_bb and M_ab).
+  A locked or resting arm joint is taken at u̇ = 0, a fixed base at u̇_b = 0.
+
+The controller's states z (n_arm) and τ follow W in s (`layout.arm_integrals`,
+`layout.reference_clock`) and exist only when the arm is not in effort mode; in effort mode the
+stage is never entered and s, every run and every bag are what they were without it.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from ..dynamics import kernels
+from ..dynamics.articulated import set_moving
+from ..dynamics.jit import jit_inline
+from ..errors import UserError
+from ..limits import ARM_GAIN
+from ..scene_controller import ARM_MODES, FEEDFORWARDS
+from . import layout
+from .arm_reference import Q_REF, QD_REF, QDD_REF, reference
+
+# system.arm[...] entries
+ARM_ON, FEEDFORWARD, SEGMENTS = range(3)
+N_ARM_SETTINGS = 3
+NO_FEEDFORWARD, GRAVITY, COMPUTED_TORQUE = range(3)
+# system.arm_gains rows
+KP, KI, KD = range(3)
+# system.arm_ref rows: the reference (arm_reference.Q_REF, QD_REF, QDD_REF), then
+FF, TAU = 3, 4        # the feedforward and the applied efforts of the last evaluation
+# system.arm_scratch rows (n_u each)
+UD, QA, COL_V, COL_W, ZERO = range(5)
+
+# Default gains (`ArmControl.default`): each joint alone, with its diagonal inertia M_jj at the
+# robot's reference pose (every q_k = 0, every rod at mid-stroke), is a critically damped PD of
+# natural frequency ω_n — kp = M_jj ω_n², kd = 2 M_jj ω_n — plus a slow integral, ki = ε M_jj ω_n³
+# (its zero at −ε ω_n: a small ε keeps the overshoot of a step near 1 %; the gravity
+# feedforward leaves the integral only the residue), rounded to 2 significant digits.
+# Paper robot: kp (170, 800, 34, 400), ki (17, 80, 3.4, 40), kd (17, 80, 3.4, 40).
+DEFAULT_BANDWIDTH = 20.0        # ω_n, rad/s
+DEFAULT_INTEGRAL_RATIO = 0.005  # ε
+
+
+@dataclass(frozen=True)
+class ArmControl:
+    """How the arm is driven: `mode` (ARM_MODES), PID gains per arm joint in the order
+    (revolute_1, prismatic_1, …) — kp N·m/rad or N/m, ki N·m/(rad·s) or N/(m·s), kd N·m·s/rad
+    or N·s/m; one number stands for every joint, () for `default`'s — and `feedforward`."""
+
+    mode: str = "effort"
+    kp: tuple = ()
+    ki: tuple = ()
+    kd: tuple = ()
+    feedforward: str = "gravity"
+
+    def __post_init__(self):
+        if self.mode not in ARM_MODES:
+            raise UserError("arm_controller", f"unknown mode {self.mode!r} (choose one of: "
+                                              f"{', '.join(ARM_MODES)})")
+        if self.feedforward not in FEEDFORWARDS:
+            raise UserError("arm_feedforward", f"unknown feedforward {self.feedforward!r} "
+                                               f"(choose one of: {', '.join(FEEDFORWARDS)})")
+        for name in ("kp", "ki", "kd"):
+            value = getattr(self, name)
+            values = (value,) if np.ndim(value) == 0 else tuple(value)
+            for v in values:
+                if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)) \
+                        or not (math.isfinite(v) and ARM_GAIN[0] <= v <= ARM_GAIN[1]):
+                    raise UserError(f"arm_gains.{name}", f"expected numbers in [{ARM_GAIN[0]:g}, "
+                                                         f"{ARM_GAIN[1]:g}], got {v!r}")
+            object.__setattr__(self, name, tuple(float(v) for v in values))
+
+    @property
+    def active(self) -> bool:
+        """A controller drives the arm (its states are in s)."""
+        return self.mode != "effort"
+
+    @staticmethod
+    def default(robot, mode: str = "position", feedforward: str = "gravity") -> "ArmControl":
+        """The documented defaults for `robot` (module constants; README, "Arm controller")."""
+        if mode == "effort":
+            return ArmControl(mode, feedforward=feedforward)
+        kp, ki, kd = default_gains(robot)
+        return ArmControl(mode, tuple(kp), tuple(ki), tuple(kd), feedforward)
+
+    def for_robot(self, robot) -> "ArmControl":
+        """These settings with every gain given per joint (defaults filled in, one number
+        repeated); a UserError if a list does not have one value per arm joint."""
+        if not self.active:
+            return replace(self, kp=(), ki=(), kd=())
+        n_arm = 2 * robot.n_links
+        defaults = default_gains(robot)
+        gains = {}
+        for row, name in enumerate(("kp", "ki", "kd")):
+            value = getattr(self, name)
+            if len(value) == 0:
+                value = tuple(defaults[row])
+            elif len(value) == 1:
+                value = value * n_arm
+            if len(value) != n_arm:
+                raise UserError(f"arm_gains.{name}", f"expected one number or {n_arm} (one per "
+                                                     f"arm joint), got {len(value)}")
+            gains[name] = value
+        return replace(self, **gains)
+
+
+def scene_arm_control(section) -> ArmControl:
+    """The settings of a scene's ``controller:`` section (`scene_controller.ControllerSection`):
+    its gains, or the defaults; effort mode when there is none."""
+    if section is None:
+        return ArmControl()
+    gains = section.gains or {}
+    return ArmControl(section.arm, gains.get("kp", ()), gains.get("ki", ()), gains.get("kd", ()),
+                      section.feedforward)
+
+
+def default_gains(robot) -> np.ndarray:
+    """(3, n_arm) kp, ki, kd: the rule of DEFAULT_BANDWIDTH's comment."""
+    from ..dynamics import Dynamics
+    q = np.zeros(robot.n_q)
+    q[6::2] = np.mean(np.asarray(robot.stroke).reshape(-1, 2), axis=1)
+    inertia = np.diag(Dynamics(robot).mass_matrix(q))[2:]
+    w = DEFAULT_BANDWIDTH
+    return np.array([round_2(inertia * w ** 2), round_2(DEFAULT_INTEGRAL_RATIO * inertia * w ** 3),
+                     round_2(2.0 * inertia * w)])
+
+
+def round_2(values) -> np.ndarray:
+    """Each value rounded to two significant digits."""
+    values = np.asarray(values, dtype=float)
+    out = np.zeros_like(values)
+    for i, v in enumerate(values):
+        out[i] = float(f"{v:.2g}") if v > 0 else 0.0
+    return out
+
+
+def arm_settings(control: ArmControl, effort_limits) -> tuple:
+    """The compiled records' arrays for `control` (resolved, `for_robot`): settings (ARM_ON,
+    FEEDFORWARD, SEGMENTS), gains (3, n_arm) and effort limits (n_arm; inf where none)."""
+    n_arm = len(control.kp)
+    settings = np.zeros(N_ARM_SETTINGS)
+    settings[ARM_ON] = 1.0 if control.active else 0.0
+    settings[FEEDFORWARD] = FEEDFORWARDS.index(control.feedforward)
+    gains = np.array([control.kp, control.ki, control.kd], dtype=float).reshape(3, n_arm)
+    limits = np.full(n_arm, np.inf) if effort_limits is None else np.array(effort_limits[2:])
+    return settings, gains, limits
+
+
+@jit_inline
+def base_acceleration(system, q, Qb0, Qb1, scratch):
+    """(v̇*, ω̇*): the base rows M_bb u̇_b = Q_b − (M_ba q̈* + h_b), with scratch[QA] holding the
+    inverse dynamics at u̇ = (0, 0, q̈*) and the unit-base-acceleration columns M e_v, M e_ω
+    written into scratch[COL_V], scratch[COL_W]; a locked base pseudo-velocity has u̇ = 0."""
+    model, ws, moving = system.model, system.ws, system.ws.moving
+    if moving[0] == 0.0 and moving[1] == 0.0:
+        return 0.0, 0.0
+    unit, zero = scratch[UD], scratch[ZERO]
+    for k in range(unit.shape[0]):
+        unit[k] = 0.0
+    unit[0] = 1.0
+    kernels.gibbs_appell(model, q, zero, unit, 0.0, ws, scratch[COL_V])
+    unit[0], unit[1] = 0.0, 1.0
+    kernels.gibbs_appell(model, q, zero, unit, 0.0, ws, scratch[COL_W])
+    K00, K01, K11 = scratch[COL_V, 0], scratch[COL_W, 0], scratch[COL_W, 1]
+    r0, r1 = Qb0 - scratch[QA, 0], Qb1 - scratch[QA, 1]
+    if moving[0] == 0.0:
+        K00, K01, r0 = 1.0, 0.0, 0.0
+    if moving[1] == 0.0:
+        K11, K01, r1 = 1.0, 0.0, 0.0
+    det = K00 * K11 - K01 * K01
+    return (K11 * r0 - K01 * r1) / det, (K00 * r1 - K01 * r0) / det
+
+
+@jit_inline
+def feedforward(system, s, ff):
+    """The feedforward efforts (module doc) into ff (n_arm). Needs `kernels.frames` of s."""
+    kind = system.arm[FEEDFORWARD]
+    n_arm = ff.shape[0]
+    if kind == NO_FEEDFORWARD or (kind == GRAVITY and system.gravity == 0.0):
+        for j in range(n_arm):
+            ff[j] = 0.0
+        return
+    model, ws, scratch, damping = system.model, system.ws, system.arm_scratch, system.damping
+    nq, nu = layout.sizes(system)
+    q, u = s[:nq], s[nq:nq + nu]
+    ud, zero, Q_id = scratch[UD], scratch[ZERO], scratch[QA]
+    if kind == GRAVITY:
+        kernels.gibbs_appell(model, q, zero, zero, system.gravity, ws, Q_id)
+        for j in range(n_arm):
+            ff[j] = Q_id[2 + j]
+        return
+    set_moving(system.free, ws.moving)
+    ud[0], ud[1] = 0.0, 0.0
+    for j in range(n_arm):
+        ud[2 + j] = system.arm_ref[QDD_REF, j] * ws.moving[2 + j]
+    kernels.gibbs_appell(model, q, u, ud, system.gravity, ws, Q_id)
+    Qb0, Qb1 = system.Q[0], system.Q[1]
+    if damping.shape[0] > 0:
+        Qb0 -= damping[0] * u[0]
+        Qb1 -= damping[1] * u[1]
+    vd, omd = base_acceleration(system, q, Qb0, Qb1, scratch)
+    for j in range(n_arm):
+        ff[j] = Q_id[2 + j]
+        if vd != 0.0 or omd != 0.0:
+            ff[j] += scratch[COL_V, 2 + j] * vd + scratch[COL_W, 2 + j] * omd
+        if damping.shape[0] > 0:
+            ff[j] += damping[2 + j] * u[2 + j]
+
+
+@jit_inline
+def arm_efforts(system, s, ds):
+    """The arm's efforts into system.Q[2:] (and system.arm_ref[TAU]), ż and τ̇ into ds (module
+    doc). Needs `kernels.frames` of s and the base's applied forces in system.Q[0:2]."""
+    nq, nu = layout.sizes(system)
+    i_z, i_clock = layout.arm_integrals(nq, nu), layout.reference_clock(nq, nu)
+    ref, gains, limits = system.arm_ref, system.arm_gains, system.arm_limits
+    reference(system.ref_starts, system.ref_coeffs, int(system.arm[SEGMENTS]), s[i_clock], ref)
+    feedforward(system, s, ref[FF])
+    for j in range(nu - 2):
+        e = ref[Q_REF, j] - s[layout.arm_q(j)]
+        ed = ref[QD_REF, j] - s[layout.arm_u(nq, j)]
+        raw = ref[FF, j] + gains[KP, j] * e + gains[KD, j] * ed + gains[KI, j] * s[i_z + j]
+        limit = limits[j]
+        tau = min(max(raw, -limit), limit)
+        system.Q[2 + j] = tau
+        ref[TAU, j] = tau
+        ds[i_z + j] = 0.0 if (raw > limit and e > 0.0) or (raw < -limit and e < 0.0) else e
+    ds[i_clock] = 1.0

@@ -1,0 +1,132 @@
+"""The arm's reference as a piecewise polynomial of the reference clock τ (s since the command).
+
+Segment i starts at ``starts[i]`` (``starts[0] = 0``) and holds, per arm joint j, the
+coefficients ``coeffs[i, j, 0:6]`` of a polynomial of degree ≤ 5 in the segment's local time
+``t = τ − starts[i]``; the last segment lasts for ever. So every command is one shape:
+
+- a position set-point: one constant segment (q̇_ref = q̈_ref = 0);
+- a velocity command: one linear segment from the position now, ``q_ref(τ) = q(0) + q̇_ref τ``;
+- a trajectory (joint_trajectory_controller's spline interpolation): the arm's state at the
+  command is the point at τ = 0 (its acceleration taken as zero), then one segment per point:
+  positions only → linear (velocity piecewise constant), with velocities → cubic Hermite, with
+  accelerations too → quintic; after the last point a constant segment holds its position. A
+  first point at ``time_from_start = 0`` starts the trajectory at that point (no segment from
+  the state now). Inside a segment the reference is a polynomial of τ, hence of simulated time:
+  the integrators see a smooth right-hand side, and re-simulation is bit for bit.
+
+`reference` evaluates it (compiled, called at every right-hand side); the builders are numpy.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from ..dynamics.jit import jit_inline
+
+DEGREE = 5
+N_COEFFS = DEGREE + 1
+# rows of the evaluated reference (`reference`)
+Q_REF, QD_REF, QDD_REF = 0, 1, 2
+
+
+@jit_inline
+def reference(starts, coeffs, count, tau, out):
+    """q_ref, q̇_ref, q̈_ref at clock τ into out[Q_REF], out[QD_REF], out[QDD_REF] (n_arm each):
+    the last of the first `count` segments that has started (binary search), Horner's rule."""
+    lo, hi = 0, count - 1
+    while lo < hi:   # the last i with starts[i] <= tau (starts[0] = 0 <= tau)
+        mid = (lo + hi + 1) // 2
+        if starts[mid] <= tau:
+            lo = mid
+        else:
+            hi = mid - 1
+    t = tau - starts[lo]
+    for j in range(coeffs.shape[1]):
+        c = coeffs[lo, j]
+        p = c[5]
+        v = 5.0 * c[5]
+        a = 20.0 * c[5]
+        for k in range(4, -1, -1):
+            p = p * t + c[k]
+            if k >= 1:
+                v = v * t + k * c[k]
+            if k >= 2:
+                a = a * t + k * (k - 1) * c[k]
+        out[Q_REF, j], out[QD_REF, j], out[QDD_REF, j] = p, v, a
+
+
+def hold(q) -> tuple[np.ndarray, np.ndarray]:
+    """(starts, coeffs) of a set-point: q_ref = q for ever."""
+    q = np.asarray(q, dtype=float)
+    coeffs = np.zeros((1, q.size, N_COEFFS))
+    coeffs[0, :, 0] = q
+    return np.zeros(1), coeffs
+
+
+def ramp(q0, qd) -> tuple[np.ndarray, np.ndarray]:
+    """(starts, coeffs) of a velocity command: q_ref(τ) = q0 + q̇_ref τ for ever."""
+    starts, coeffs = hold(q0)
+    coeffs[0, :, 1] = qd
+    return starts, coeffs
+
+
+def linear(p0, p1, h) -> np.ndarray:
+    """Coefficients (n_arm, 6) from p0 to p1 in h seconds at constant velocity."""
+    c = np.zeros((p0.size, N_COEFFS))
+    c[:, 0], c[:, 1] = p0, (p1 - p0) / h
+    return c
+
+
+def cubic(p0, v0, p1, v1, h) -> np.ndarray:
+    """Cubic Hermite: positions and velocities at both ends."""
+    c = np.zeros((p0.size, N_COEFFS))
+    c[:, 0], c[:, 1] = p0, v0
+    c[:, 2] = (3.0 * (p1 - p0) - (2.0 * v0 + v1) * h) / h ** 2
+    c[:, 3] = (2.0 * (p0 - p1) + (v0 + v1) * h) / h ** 3
+    return c
+
+
+def quintic(p0, v0, a0, p1, v1, a1, h) -> np.ndarray:
+    """Quintic: positions, velocities and accelerations at both ends."""
+    c = np.zeros((p0.size, N_COEFFS))
+    c[:, 0], c[:, 1], c[:, 2] = p0, v0, 0.5 * a0
+    c[:, 3] = (20.0 * (p1 - p0) - (8.0 * v1 + 12.0 * v0) * h
+               - (3.0 * a0 - a1) * h * h) / (2.0 * h ** 3)
+    c[:, 4] = (30.0 * (p0 - p1) + (14.0 * v1 + 16.0 * v0) * h
+               + (3.0 * a0 - 2.0 * a1) * h * h) / (2.0 * h ** 4)
+    c[:, 5] = (12.0 * (p1 - p0) - 6.0 * (v1 + v0) * h - (a0 - a1) * h * h) / (2.0 * h ** 5)
+    return c
+
+
+def trajectory(q0, qd0, times, positions, velocities=None, accelerations=None):
+    """(starts, coeffs) of a trajectory from the state (q0, q̇0) now (module doc). `times`
+    (m,) strictly increasing, ≥ 0; positions (m, n_arm); velocities, accelerations (m, n_arm)
+    or None (accelerations need velocities). Checked by the caller."""
+    times = np.asarray(times, dtype=float)
+    P = np.asarray(positions, dtype=float)
+    V = None if velocities is None else np.asarray(velocities, dtype=float)
+    A = None if accelerations is None else np.asarray(accelerations, dtype=float)
+    knots_t, knots_p = [0.0], [np.asarray(q0, dtype=float)]
+    knots_v = [np.asarray(qd0, dtype=float)]
+    knots_a = [np.zeros_like(knots_p[0])]
+    first = 1 if times[0] == 0.0 else 0
+    if first:   # the trajectory starts at its first point
+        knots_p[0] = P[0]
+        knots_v[0] = V[0] if V is not None else knots_v[0]
+        knots_a[0] = A[0] if A is not None else knots_a[0]
+    for i in range(first, times.size):
+        knots_t.append(times[i])
+        knots_p.append(P[i])
+        knots_v.append(V[i] if V is not None else None)
+        knots_a.append(A[i] if A is not None else None)
+    segments = []
+    for i in range(len(knots_t) - 1):
+        h = knots_t[i + 1] - knots_t[i]
+        if V is None:
+            segments.append(linear(knots_p[i], knots_p[i + 1], h))
+        elif A is None:
+            segments.append(cubic(knots_p[i], knots_v[i], knots_p[i + 1], knots_v[i + 1], h))
+        else:
+            segments.append(quintic(knots_p[i], knots_v[i], knots_a[i], knots_p[i + 1],
+                                    knots_v[i + 1], knots_a[i + 1], h))
+    segments.append(hold(knots_p[-1])[1][0])
+    return np.array(knots_t, dtype=float), np.array(segments)
