@@ -30,7 +30,11 @@ def probe(warm_kernels):
         yield probe
 
 
-def start(tmp_path, env, *args) -> NodeProcess:
+def start(tmp_path, env, *args, probe=None) -> NodeProcess:
+    """A node with ``args``, up and running; ``probe`` forgets what earlier nodes published."""
+    if probe is not None:
+        with probe.lock:
+            probe.joints.clear()
     node = NodeProcess(tmp_path, *FAST, *args, env=env)
     wait_for(lambda: not node.running() or "publishing at" in node.output(),
              "the node's start-up line", STARTUP_TIMEOUT)
@@ -101,7 +105,7 @@ def test_a_position_mode_run_holds_its_set_point_and_resimulates(probe, tmp_path
     publisher = probe.node.create_publisher(Float64MultiArray,
                                             "/arm_position_controller/commands", 10)
     node = start(tmp_path, child_env(DOMAIN_ID), "-p", "arm_controller:=position",
-                 "-p", f"record:={bag}", "-r", "__node:=position_sim")
+                 "-p", f"record:={bag}", "-r", "__node:=position_sim", probe=probe)
     target = [0.5, 0.4, 0.1, 0.6]
     try:
         wait_for(lambda: publisher.get_subscription_count() > 0, "the position subscription")
@@ -125,12 +129,40 @@ def test_a_position_mode_run_holds_its_set_point_and_resimulates(probe, tmp_path
     assert "IDENTICAL" in resimulate(bag)
 
 
+def test_a_velocity_mode_run_moves_at_its_rates_stops_and_resimulates(probe, tmp_path):
+    """Rates on arm_velocity_controller/commands, then zero: the arm moves, stops where it got
+    to, and the bag (each array as applied, the gains in its metadata) re-simulates."""
+    bag = tmp_path / "velocity_run"
+    publisher = probe.node.create_publisher(Float64MultiArray,
+                                            "/arm_velocity_controller/commands", 10)
+    node = start(tmp_path, child_env(DOMAIN_ID), "-p", "arm_controller:=velocity",
+                 "-p", f"record:={bag}", "-p", "arm_feedforward:=computed_torque",
+                 "-p", "arm_gains.ki:=0.0", "-r", "__node:=velocity_arm_sim", probe=probe)
+    try:
+        wait_for(lambda: publisher.get_subscription_count() > 0, "the velocity subscription")
+        start_stamp = wait_for(lambda: probe.snapshot("joints"), "a joint state")[-1][0]
+        publisher.publish(Float64MultiArray(data=[0.2, 0.0, -0.2, 0.1]))
+        wait_for(lambda: probe.snapshot("joints")[-1][0] > start_stamp + 10 ** 9,
+                 "1 s of simulated time")
+        publisher.publish(Float64MultiArray(data=[0.0] * 4))
+        stopped = probe.snapshot("joints")[-1][0]
+        wait_for(lambda: probe.snapshot("joints")[-1][0] > stopped + 10 ** 9, "1 s more")
+        _, positions, velocities, _, names = probe.snapshot("joints")[-1]
+        index = {name: i for i, name in enumerate(names)}
+        assert positions[index["arm_revolute_1"]] > 0.3 + 0.1   # it moved up from 0.3 rad
+        assert max(abs(velocities[index[name]]) for name in NAMES) < 1e-3   # and stopped
+    finally:
+        probe.node.destroy_publisher(publisher)
+        assert node.stop() == 0, node.output()
+    assert "IDENTICAL" in resimulate(bag)
+
+
 def test_without_control_msgs_the_topic_works_and_the_node_says_so_once(probe, tmp_path):
     from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
     publisher = probe.node.create_publisher(JointTrajectory,
                                             "/joint_trajectory_controller/joint_trajectory", 10)
     node = start(tmp_path, child_env(DOMAIN_ID), "-p", "arm_controller:=joint_trajectory",
-                 "-r", "__node:=topic_sim")
+                 "-r", "__node:=topic_sim", probe=probe)
     target = [0.2, 0.6, -0.3, 0.4]
     try:
         wait_for(lambda: publisher.get_subscription_count() > 0, "the trajectory subscription")
@@ -181,7 +213,7 @@ def test_a_headless_scene_with_a_trajectory_gives_the_samples_of_the_node_driven
                                             "/joint_trajectory_controller/joint_trajectory", 10)
     node = start(tmp_path, child_env(DOMAIN_ID), "-p", f"scene:={node_scene}",
                  "-p", "arm_controller:=joint_trajectory", "-p", f"record:={bag}",
-                 "-r", "__node:=headless_twin")
+                 "-r", "__node:=headless_twin", probe=probe)
     try:
         wait_for(lambda: publisher.get_subscription_count() > 0, "the trajectory subscription")
         message = JointTrajectory(joint_names=NAMES)
