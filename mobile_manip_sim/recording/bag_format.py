@@ -25,6 +25,7 @@ import importlib
 from mobile_manip_sim import __version__, limits, schema
 from mobile_manip_sim.errors import UserError
 from mobile_manip_sim.methods import METHODS
+from mobile_manip_sim.scene_controller import ARM_MODES
 from mobile_manip_sim.timeline import NS, CommandHistory, Grid, start_node_time_line
 from mobile_manip_sim.topics import (ARM_COMMAND_TOPICS, ARM_TOPIC, BAG_TOPIC_TYPES,
                                      BASE_COMMAND_TOPICS,
@@ -67,7 +68,7 @@ def checked_run_metadata(value, path: str = METADATA_NAME) -> dict:
     """A bag's ``mobile_manip_sim`` metadata map (strings, as MCAP stores them) checked and with
     its numbers parsed (repr-exact floats), for a replay or re-run to trust: the source's rate
     is required (and a `simulate` run's duration, which fixes its sample times)."""
-    value = schema.string_map(value, path, max_entries=len(RUN_METADATA_KEYS), max_length=400)
+    value = schema.string_map(value, path, max_entries=len(RUN_METADATA_KEYS), max_length=200)
     schema.keys(value, path, required=("version", "integrator_method", "dt", "rtol", "atol", "source"),
                 optional=("scene_name", "sample_rate", "publish_rate", "duration", "base_command",
                           "wheel_speed_kp", "wheel_speed_ki", *ARM_METADATA_KEYS))
@@ -113,13 +114,17 @@ def _arm_control(value: dict, path: str):
     from mobile_manip_sim.engine.arm_control import ArmControl
 
     mode = value.get("arm_controller", "effort")
+    if mode not in ARM_MODES:
+        raise UserError(f"{path}.arm_controller", f"unknown mode {schema.short(mode)} (choose "
+                                                  f"one of: {', '.join(ARM_MODES)})")
     if mode == "effort":
         return ArmControl()
     gains = []
     for name in ("kp", "ki", "kd"):
         key = f"arm_{name}"
         if key not in value:
-            raise UserError(f"{path}.{key}", f"missing (an {mode} arm controller records it)")
+            raise UserError(f"{path}.{key}", f"missing (arm_controller {mode} records its "
+                                             f"gains)")
         try:
             gains.append(tuple(float(v) for v in value[key].split()))
         except ValueError:
