@@ -6,7 +6,6 @@ import json
 import os
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
@@ -100,7 +99,8 @@ def test_a_follow_joint_trajectory_client_gets_jtcs_answers_and_the_run_resimula
 
 def test_a_position_mode_run_holds_its_set_point_and_resimulates(probe, tmp_path):
     """Position set-points on arm_position_controller/commands: the arm goes there and holds
-    against gravity (/joint_states carries the controller's efforts); the bag re-simulates."""
+    against gravity (/joint_states carries the controller's efforts); one beyond a stroke is
+    refused in one line and the last kept; the bag re-simulates."""
     bag = tmp_path / "position_run"
     publisher = probe.node.create_publisher(Float64MultiArray,
                                             "/arm_position_controller/commands", 10)
@@ -110,7 +110,10 @@ def test_a_position_mode_run_holds_its_set_point_and_resimulates(probe, tmp_path
     try:
         wait_for(lambda: publisher.get_subscription_count() > 0, "the position subscription")
         publisher.publish(Float64MultiArray(data=[0.4, 0.45, 0.0, 0.55]))
-        time.sleep(0.5)
+        stamp = wait_for(lambda: probe.snapshot("joints"), "a joint state")[-1][0]
+        wait_for(lambda: probe.snapshot("joints")[-1][0] > stamp + 10 ** 8, "0.1 s more")
+        publisher.publish(Float64MultiArray(data=[0.5, 1.5, 0.1, 0.6]))   # beyond rod 1's stroke
+        wait_for(lambda: "outside the stroke" in node.output(), "the refusal")
         publisher.publish(Float64MultiArray(data=target))
 
         def settled():
@@ -126,6 +129,9 @@ def test_a_position_mode_run_holds_its_set_point_and_resimulates(probe, tmp_path
     finally:
         probe.node.destroy_publisher(publisher)
         assert node.stop() == 0, node.output()
+    refusals = [line for line in node.output().splitlines() if "outside the stroke" in line]
+    assert len(refusals) == 1 and "arm_position_controller/commands: arm_prismatic_1: 1.5 m is " \
+        "outside the stroke [0, 1]" in refusals[0] and "keeping the last set-point" in refusals[0]
     assert "IDENTICAL" in resimulate(bag)
 
 
