@@ -55,7 +55,7 @@ def test_a_follow_joint_trajectory_client_gets_jtcs_answers_and_the_run_resimula
     node = start(tmp_path, env, "-p", "arm_controller:=joint_trajectory", "-p", f"record:={bag}")
     try:
         client = subprocess.run([sys.executable, CLIENT, "follow", "wrong_joints",
-                                 "out_of_stroke", "preempt", "cancel"], env=env,
+                                 "out_of_stroke", "preempt", "cancel", "reset"], env=env,
                                 capture_output=True, text=True, timeout=600)
     finally:
         code = node.stop()
@@ -94,6 +94,11 @@ def test_a_follow_joint_trajectory_client_gets_jtcs_answers_and_the_run_resimula
     assert apart(cancel["after"], cancel["rest"]) < 0.02
     assert apart(cancel["rest"], cancel["goal"]) > 0.1
 
+    reset = results["reset"]
+    assert (reset["status"], reset["code"], reset["text"]) == (
+        ABORTED, -1, "the simulation was reset"), reset
+
+    # The time line up to the reset (the bag goes on in trajectory_run_1 after it).
     assert "IDENTICAL" in resimulate(bag)
 
 

@@ -2,7 +2,7 @@
 its own process by test_arm_node.py with control_msgs on its paths. Each scenario named on the
 command line prints one JSON line: the results, feedback counts and errors the test checks.
 
-    python trajectory_client.py follow wrong_joints out_of_stroke preempt cancel
+    python trajectory_client.py follow wrong_joints out_of_stroke preempt cancel reset
 """
 import json
 import sys
@@ -128,6 +128,18 @@ def cancel(client):
     client.wait_simulated(0.5)
     return {**outcome, "canceling": len(future.result().goals_canceling), "after": after,
             "later": later, "rest": client.arm_positions(), "goal": [0.8, 0.2, 0.4, 0.8]}
+
+
+def reset(client):
+    """A slow goal, then ~/reset: the goal ends (INVALID_GOAL) and the arm is back at t = 0."""
+    from std_srvs.srv import Trigger
+    service = client.node.create_client(Trigger, "/mobile_manip_sim/reset")
+    handle = client.send(goal([(5.0, [0.0, 0.3, 0.0, 0.3])]))
+    client.feedback.clear()
+    client.spin_until(lambda: len(client.feedback) >= 5, "feedback before the reset")
+    future = service.call_async(Trigger.Request())
+    client.spin_until(future.done, "the reset's answer")
+    return client.result(handle)
 
 
 def main(scenarios) -> int:
