@@ -4,11 +4,18 @@ and the plots read it.
 
 Columns: t, x, y, yaw, theta_R, theta_L, q1, l1, …, qn, ln, v, omega, qd1, ld1, …, qdn, ldn,
 energy (T + V, J): the time, q, u and the total energy (`csv_row`).
+
+A scene with a ``controller:`` section drives the arm by it from t = 0 (`Simulation` applies
+the section's command); the run then also measures how well the arm tracked its reference at
+the samples (`Tracking`: RMS and max of q − q_ref per arm joint), in the summary line.
 """
 from __future__ import annotations
 
 import time
 
+import numpy as np
+
+from .engine import layout
 from .engine.simulation import Simulation
 from .scene import Scene
 from .timeline import sample_times
@@ -26,13 +33,38 @@ def csv_row(sim: Simulation) -> list:
     return [sim.t, *sim.q.tolist(), *sim.u.tolist(), sim.total_energy()]
 
 
+class Tracking:
+    """The arm's tracking error q − q_ref over the samples of a run (rad or m per joint)."""
+
+    def __init__(self, n_arm: int):
+        self.count, self.squares, self.max = 0, np.zeros(n_arm), np.zeros(n_arm)
+
+    def sample(self, sim: Simulation) -> None:
+        error = sim.q[layout.arm_q(0):] - sim.arm_reference()[0]
+        self.count += 1
+        self.squares += error * error
+        self.max = np.maximum(self.max, np.abs(error))
+
+    @property
+    def rms(self) -> np.ndarray:
+        return np.sqrt(self.squares / max(self.count, 1))
+
+    def line(self) -> str:
+        def values(array):
+            return "[" + ", ".join(f"{v:.3g}" for v in array) + "]"
+        return f"arm tracking error RMS {values(self.rms)}, max {values(self.max)} (rad, m)"
+
+
 def summary_line(sim: Simulation, wall: float, simulated: float | None = None) -> str:
-    """`wall` s of wall time spent on `simulated` s of simulated time (default: all of it)."""
+    """`wall` s of wall time spent on `simulated` s of simulated time (default: all of it); with
+    an arm controller, how well it tracked (`Tracking`)."""
     simulated = sim.t if simulated is None else simulated
     rtf = simulated / wall if wall > 0 else float("inf")
-    return (f"simulated {sim.t:.6g} s in {wall:.4g} s wall (real-time factor {rtf:.1f}), "
-            f"{sim.steps} steps, {sim.rhs_evaluations} rhs evaluations, {len(sim.impacts)} impacts, "
-            f"energy error {sim.energy_error():.3e} J")
+    line = (f"simulated {sim.t:.6g} s in {wall:.4g} s wall (real-time factor {rtf:.1f}), "
+            f"{sim.steps} steps, {sim.rhs_evaluations} rhs evaluations, "
+            f"{len(sim.impacts)} impacts, energy error {sim.energy_error():.3e} J")
+    tracking = getattr(sim, "tracking", None)
+    return line if tracking is None else f"{line}; {tracking.line()}"
 
 
 def run(scene: Scene, duration: float, sample_rate: float, settings=None, on_sample=None,
@@ -40,11 +72,15 @@ def run(scene: Scene, duration: float, sample_rate: float, settings=None, on_sam
     """Simulate `duration` s from the scene's initial state with its constant efforts, calling
     ``on_sample(sim)`` at every sample time (and ``progress.update(t)`` after it, if given);
     returns the finished simulation. Its ``timing`` is (simulated s, wall s) from the end of the
-    first sample that advanced time on, or None."""
+    first sample that advanced time on, or None; its ``tracking`` the arm's `Tracking` when a
+    controller drives the arm, else None."""
     sim = Simulation(scene, settings)
+    sim.tracking = Tracking(sim.nu - 2) if sim.arm_control.active else None
     timing_from = None
     for t in sample_times(duration, sample_rate):
         sim.advance_to(t)
+        if sim.tracking:
+            sim.tracking.sample(sim)
         if timing_from is None and sim.t > 0:
             timing_from = (sim.t, time.perf_counter())
         if on_sample:

@@ -1,0 +1,133 @@
+"""A scene's ``controller:`` section (`scene_controller.py`): validated like every section (one
+line naming the key), and applied by headless runs exactly as the same commands given through
+the API by hand."""
+import copy
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from mobile_manip_sim import headless
+from mobile_manip_sim.engine import layout
+from mobile_manip_sim.engine.arm_control import ArmControl
+from mobile_manip_sim.engine.simulation import Simulation
+from mobile_manip_sim.errors import UserError
+from mobile_manip_sim.scene import load_scene, parse_scene
+from mobile_manip_sim.scene_overrides import scene_with
+from mobile_manip_sim.sweep import spec
+from mobile_manip_sim.timeline import sample_times
+
+CONFIG = Path(__file__).resolve().parent.parent / "config"
+EXAMPLE = CONFIG / "arm_trajectory.yaml"
+
+
+def test_a_headless_trajectory_scene_gives_the_samples_of_the_api_by_hand():
+    scene = load_scene(EXAMPLE)
+    section = scene.controller
+    assert section.arm == "joint_trajectory" and section.trajectory[0].tolist() == [0.8, 1.6, 2.4]
+    samples = []
+    headless.run(scene, 3.0, 100.0, on_sample=lambda sim: samples.append(sim.s.copy()))
+    document = copy.deepcopy(scene.document)
+    del document["controller"]
+    by_hand = Simulation(parse_scene(document),
+                         arm_control=ArmControl("joint_trajectory", feedforward="gravity"))
+    by_hand.set_arm_trajectory(*section.trajectory)
+    times = list(sample_times(3.0, 100.0))
+    assert len(times) == len(samples) == 301
+    for t, s in zip(times, samples, strict=True):
+        by_hand.advance_to(t)
+        assert np.array_equal(by_hand.s, s), f"sample at {t} s"
+    final = samples[-1][layout.arm_q(0):layout.arm_q(0) + 4]
+    assert np.allclose(final, [0.4, 0.6, -0.3, 0.5], atol=1e-3)   # the last point, held
+
+
+def test_the_run_reports_its_tracking_error():
+    sim = headless.run(load_scene(EXAMPLE), 1.0, 100.0)
+    assert sim.tracking.count == 101   # t = 0, 0.01, …, 1
+    assert 1e-4 < sim.tracking.rms.max() < sim.tracking.max.max() < 0.1
+    assert "arm tracking error RMS [" in headless.summary_line(sim, 1.0)
+    plain = headless.run(load_scene(), 0.1, 100.0)
+    assert plain.tracking is None and "tracking" not in headless.summary_line(plain, 1.0)
+
+
+def test_position_mode_holds_the_initial_pose_or_the_given_set_point():
+    document = load_scene(EXAMPLE).document
+    held = scene_with(document, {"controller": {"arm": "position"}})
+    sim = Simulation(held)
+    assert np.array_equal(sim.arm_reference()[0], held.initial_q[5:])
+    moved = scene_with(document, {"controller": {"arm": "position",
+                                                 "positions": [0.5, 0.5, 0.0, 0.5],
+                                                 "gains": {"kp": 300, "kd": [30, 90, 5, 40]}}})
+    sim = Simulation(moved)
+    assert sim.arm_reference()[0].tolist() == [0.5, 0.5, 0.0, 0.5]
+    assert sim.arm_control.kp == (300.0,) * 4 and sim.arm_control.kd == (30.0, 90.0, 5.0, 40.0)
+    assert sim.arm_control.ki == ArmControl.default(moved.robot).ki
+    velocity = scene_with(document, {"controller": {"arm": "velocity",
+                                                    "velocities": [0.1, 0.0, 0.0, 0.0]}})
+    sim = Simulation(velocity)
+    assert sim.arm_reference(2.0)[0][0] == pytest.approx(velocity.initial_q[5] + 0.2, abs=1e-15)
+
+
+def point(t, positions, **more):
+    return {"time_from_start": t, "positions": positions, **more}
+
+
+GOOD = [0.3, 0.5, -0.2, 0.5]
+
+
+@pytest.mark.parametrize("section, key, problem", [
+    ({"arm": "position", "gain": {}}, "controller.gain", "unknown key"),
+    ({"arm": "torque"}, "controller.arm", "unknown value 'torque'"),
+    ({"arm": "position", "feedforward": "model"}, "controller.feedforward", "unknown value"),
+    ({"arm": "position", "positions": [0.1, 0.2]}, "controller.positions", "expected 4 values"),
+    ({"arm": "position", "positions": [0.1, 1.5, 0.0, 0.5]}, r"controller.positions\[1\]",
+     r"arm_prismatic_1: 1.5 m is outside the stroke \[0, 1\]"),
+    ({"arm": "position", "velocities": GOOD}, "controller.velocities",
+     "applies to arm: velocity, not arm: position"),
+    ({"arm": "effort", "gains": {"kp": 1}}, "controller.gains", "effort mode: no gains apply"),
+    ({"arm": "position", "gains": {"kp": -1}}, "controller.gains.kp", "must not be negative"),
+    ({"arm": "position", "gains": {"kp": [1, 2]}}, "controller.gains.kp", "expected 4 values"),
+    ({"arm": "joint_trajectory", "trajectory": {"points": []}},
+     "controller.trajectory.points", "at least one point"),
+    ({"arm": "joint_trajectory", "trajectory": {"points": [point(1.0, GOOD), point(1.0, GOOD)]}},
+     r"controller.trajectory.points\[1\].time_from_start", "not after the previous"),
+    ({"arm": "joint_trajectory", "trajectory": {"points": [point(1.0, GOOD, velocities=GOOD),
+                                                           point(2.0, GOOD)]}},
+     r"controller.trajectory.points\[1\].velocities", "every point or none"),
+    ({"arm": "joint_trajectory", "trajectory": {"points": [point(1.0, GOOD),
+                                                           point(2.0, GOOD, velocities=GOOD)]}},
+     r"controller.trajectory.points\[1\].velocities", "every point or none"),
+    ({"arm": "joint_trajectory", "trajectory": {"points": [point(1.0, [0.3, 0.5, 0.0, -0.1])]}},
+     r"controller.trajectory.points\[0\].positions\[3\]", "arm_prismatic_2: -0.1 m is outside"),
+    ({"arm": "joint_trajectory", "trajectory": {"points": [point(1.0, GOOD, accelerations=GOOD)]}},
+     r"controller.trajectory.points\[0\].accelerations", "need velocities too"),
+])
+def test_a_bad_section_is_one_line_naming_the_key(section, key, problem):
+    document = copy.deepcopy(load_scene(EXAMPLE).document)
+    document["controller"] = section
+    with pytest.raises(UserError, match=problem) as error:
+        parse_scene(document)
+    assert error.value.key == key.replace("\\", "")
+    assert "\n" not in str(error.value)
+
+
+def test_joint_efforts_and_a_controller_do_not_mix():
+    document = copy.deepcopy(load_scene(EXAMPLE).document)
+    document["efforts"] = {"joints": [1.0, 0.0, 0.0, 0.0]}
+    with pytest.raises(UserError, match="efforts.joints: the arm is driven by controller.arm"):
+        parse_scene(document)
+
+
+def test_the_recorded_document_parses_again_to_the_same_section():
+    scene = load_scene(EXAMPLE)
+    again = parse_scene(copy.deepcopy(scene.document))
+    assert again.controller.arm == scene.controller.arm
+    assert all(np.array_equal(a, b) for a, b in zip(again.controller.trajectory[:3],
+                                                     scene.controller.trajectory[:3], strict=True))
+
+
+def test_the_tracking_sweep_example_is_a_valid_spec():
+    path = CONFIG / "sweeps" / "arm_tracking.yaml"
+    from mobile_manip_sim import schema
+    parsed = spec.parse_spec(schema.load_yaml(path, what="spec"), base_dir=path.parent)
+    assert len(parsed.runs()) == 6
