@@ -55,7 +55,8 @@ def test_a_follow_joint_trajectory_client_gets_jtcs_answers_and_the_run_resimula
     node = start(tmp_path, env, "-p", "arm_controller:=joint_trajectory", "-p", f"record:={bag}")
     try:
         client = subprocess.run([sys.executable, CLIENT, "follow", "wrong_joints",
-                                 "out_of_stroke", "preempt", "cancel", "reset"], env=env,
+                                 "out_of_stroke", "preempt", "cancel", "paused", "reset"],
+                                env=env,
                                 capture_output=True, text=True, timeout=600)
     finally:
         code = node.stop()
@@ -93,6 +94,11 @@ def test_a_follow_joint_trajectory_client_gets_jtcs_answers_and_the_run_resimula
     assert apart(cancel["later"], cancel["rest"]) < 1e-4
     assert apart(cancel["after"], cancel["rest"]) < 0.02
     assert apart(cancel["rest"], cancel["goal"]) > 0.1
+
+    paused = results["paused"]
+    assert paused["answers"] == [True, True], paused
+    assert paused["first"]["text"] == "preempted by a new goal", paused
+    assert (paused["second"]["status"], paused["second"]["code"]) == (SUCCEEDED, 0), paused
 
     reset = results["reset"]
     assert (reset["status"], reset["code"], reset["text"]) == (

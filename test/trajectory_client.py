@@ -2,7 +2,7 @@
 its own process by test_arm_node.py with control_msgs on its paths. Each scenario named on the
 command line prints one JSON line: the results, feedback counts and errors the test checks.
 
-    python trajectory_client.py follow wrong_joints out_of_stroke preempt cancel reset
+    python trajectory_client.py follow wrong_joints out_of_stroke preempt cancel paused reset
 """
 import json
 import sys
@@ -140,6 +140,24 @@ def reset(client):
     future = service.call_async(Trigger.Request())
     client.spin_until(future.done, "the reset's answer")
     return client.result(handle)
+
+
+def paused(client):
+    """A goal active and another waiting to preempt it while the node is paused: both execute
+    callbacks wait, and the services still answer (the resume does; then the second wins)."""
+    from std_srvs.srv import SetBool
+    service = client.node.create_client(SetBool, "/mobile_manip_sim/pause")
+    client.feedback.clear()
+    first = client.send(goal([(5.0, [0.0, 0.3, 0.0, 0.3])]))
+    client.spin_until(lambda: len(client.feedback) >= 5, "the first goal's feedback")
+    answers = []
+    for data in (True, False):
+        if not data:
+            second = client.send(goal([(1.0, [0.3, 0.5, -0.2, 0.5])]))
+        future = service.call_async(SetBool.Request(data=data))
+        client.spin_until(future.done, "the pause service's answer")
+        answers.append(future.result().success)
+    return {"answers": answers, "first": client.result(first), "second": client.result(second)}
 
 
 def main(scenarios) -> int:

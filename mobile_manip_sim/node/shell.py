@@ -298,7 +298,10 @@ def _main(argv) -> int:
     node = None
     try:
         node = SimulatorNode()
-        executor = MultiThreadedExecutor(num_threads=2)
+        # 4: a FollowJointTrajectory goal's execute callback waits in a thread for its outcome;
+        # at most two do (the active goal and the one that will preempt it, e.g. while paused),
+        # and two threads stay for the services.
+        executor = MultiThreadedExecutor(num_threads=4)
         executor.add_node(node)
         node.start()
         # spin_once with a timeout rather than spin(): a signal that shuts the context down
