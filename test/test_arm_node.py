@@ -55,7 +55,8 @@ def test_a_follow_joint_trajectory_client_gets_jtcs_answers_and_the_run_resimula
     node = start(tmp_path, env, "-p", "arm_controller:=joint_trajectory", "-p", f"record:={bag}")
     try:
         client = subprocess.run([sys.executable, CLIENT, "follow", "wrong_joints",
-                                 "out_of_stroke", "preempt", "cancel", "paused", "reset"],
+                                 "out_of_stroke", "old_header", "path_tolerance", "preempt",
+                                 "cancel", "paused", "reset"],
                                 env=env,
                                 capture_output=True, text=True, timeout=600)
     finally:
@@ -78,6 +79,12 @@ def test_a_follow_joint_trajectory_client_gets_jtcs_answers_and_the_run_resimula
     assert (stroke["status"], stroke["code"]) == (ABORTED, -1), stroke   # INVALID_GOAL
     assert stroke["text"].startswith("arm_prismatic_1: 1.5 m is outside the stroke"), stroke
     assert "\n" not in stroke["text"]
+
+    old = results["old_header"]
+    assert (old["status"], old["code"]) == (ABORTED, -3), old   # OLD_HEADER_TIMESTAMP
+    path = results["path_tolerance"]
+    assert (path["status"], path["code"]) == (ABORTED, -4), path   # PATH_TOLERANCE_VIOLATED
+    assert "arm_revolute_2 position error" in path["text"], path
 
     preempt = results["preempt"]
     assert (preempt["first"]["status"], preempt["first"]["code"]) == (ABORTED, -1), preempt

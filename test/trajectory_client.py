@@ -2,7 +2,8 @@
 its own process by test_arm_node.py with control_msgs on its paths. Each scenario named on the
 command line prints one JSON line: the results, feedback counts and errors the test checks.
 
-    python trajectory_client.py follow wrong_joints out_of_stroke preempt cancel paused reset
+    python trajectory_client.py follow wrong_joints out_of_stroke old_header path_tolerance \
+        preempt cancel paused reset
 """
 import json
 import sys
@@ -103,6 +104,20 @@ def wrong_joints(client):
 def out_of_stroke(client):
     return client.result(client.send(goal([(1.0, [0.3, 0.5, -0.2, 0.5]),
                                            (2.0, [0.3, 1.5, -0.2, 0.5])])))
+
+
+def old_header(client):
+    """A trajectory stamped 1 ns after t = 0 that ended 0.5 s later: long past by now."""
+    message = goal([(0.5, [0.3, 0.5, -0.2, 0.5])])
+    message.trajectory.header.stamp.nanosec = 1
+    return client.result(client.send(message))
+
+
+def path_tolerance(client):
+    """A fast swing with a tight path tolerance on rod 2: aborted, the arm held."""
+    message = goal([(0.2, [0.9, 0.5, 0.6, 0.5])])
+    message.path_tolerance = [JointTolerance(name="arm_revolute_2", position=1e-4)]
+    return client.result(client.send(message))
 
 
 def preempt(client):
