@@ -55,8 +55,8 @@ def test_a_follow_joint_trajectory_client_gets_jtcs_answers_and_the_run_resimula
     node = start(tmp_path, env, "-p", "arm_controller:=joint_trajectory", "-p", f"record:={bag}")
     try:
         client = subprocess.run([sys.executable, CLIENT, "follow", "wrong_joints",
-                                 "out_of_stroke", "old_header", "path_tolerance", "preempt",
-                                 "cancel", "paused", "reset"],
+                                 "out_of_stroke", "old_header", "path_tolerance",
+                                 "goal_tolerance", "preempt", "cancel", "paused", "reset"],
                                 env=env,
                                 capture_output=True, text=True, timeout=600)
     finally:
@@ -85,6 +85,10 @@ def test_a_follow_joint_trajectory_client_gets_jtcs_answers_and_the_run_resimula
     path = results["path_tolerance"]
     assert (path["status"], path["code"]) == (ABORTED, -4), path   # PATH_TOLERANCE_VIOLATED
     assert "arm_revolute_2 position error" in path["text"], path
+
+    late = results["goal_tolerance"]
+    assert (late["status"], late["code"]) == (ABORTED, -5), late   # GOAL_TOLERANCE_VIOLATED
+    assert "(goal_time 0.1 s)" in late["text"], late
 
     preempt = results["preempt"]
     assert (preempt["first"]["status"], preempt["first"]["code"]) == (ABORTED, -1), preempt

@@ -3,7 +3,7 @@ its own process by test_arm_node.py with control_msgs on its paths. Each scenari
 command line prints one JSON line: the results, feedback counts and errors the test checks.
 
     python trajectory_client.py follow wrong_joints out_of_stroke old_header path_tolerance \
-        preempt cancel paused reset
+        goal_tolerance preempt cancel paused reset
 """
 import json
 import sys
@@ -117,6 +117,13 @@ def path_tolerance(client):
     """A fast swing with a tight path tolerance on rod 2: aborted, the arm held."""
     message = goal([(0.2, [0.9, 0.5, 0.6, 0.5])])
     message.path_tolerance = [JointTolerance(name="arm_revolute_2", position=1e-4)]
+    return client.result(client.send(message))
+
+
+def goal_tolerance(client):
+    """A goal tolerance of 1e-9 m, 0.1 s of goal_time_tolerance: not reached in time."""
+    message = goal([(0.5, [0.3, 0.5, -0.2, 0.5])], tolerance=1e-9)
+    message.goal_time_tolerance = duration(0.1)
     return client.result(client.send(message))
 
 
