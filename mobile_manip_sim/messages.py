@@ -61,7 +61,9 @@ def applied_efforts(state) -> list[float]:
     """[τ_R, τ_L, τ_1, F_1, …]: the efforts the engine holds (after effort limits); in
     velocity mode the wheel torques the speed loop applies now."""
     wheels = state.wheel_torques() if hasattr(state, "wheel_torques") else state.wheel_efforts
-    return list(map(float, wheels)) + state.joint_efforts.tolist()
+    joints = (state.joint_efforts_applied() if hasattr(state, "joint_efforts_applied")
+              else state.joint_efforts)   # an arm controller's output, or the commanded efforts
+    return list(map(float, wheels)) + [float(v) for v in joints]
 
 
 def joint_state(state, stamp: int, names, efforts=None) -> JointState:
@@ -125,7 +127,7 @@ def command_values(topic: str, message) -> list[float]:
 
 def transform(odom: Odometry):
     """The /tf message (tf2_msgs/TFMessage) of ``odom``'s pose: odom_frame → base_frame at the
-    same stamp. Imports tf2_msgs, which only a ROS install (or tools/build_tf2_msgs.sh) has."""
+    same stamp. Imports tf2_msgs, which only a ROS install (or tools/build_interfaces.sh) has."""
     from geometry_msgs.msg import TransformStamped
     from tf2_msgs.msg import TFMessage
     pose = odom.pose.pose
@@ -195,3 +197,52 @@ def energy(state) -> Float64MultiArray:
     """[T, V, T + V] in J at the state (``state.dynamics.energy``)."""
     T, V = state.dynamics.energy(state.q, state.u)
     return float64_array([T, V, T + V])
+
+
+# --- the arm controllers' commands as a bag records them (topics.ARM_COMMAND_TOPICS) -----------
+
+def joint_trajectory(trajectory, names, stamp: int):
+    """trajectory_msgs/JointTrajectory of a `trajectory_goals.Trajectory` (joints ``names``, the
+    node's order; times in ns, exact as Durations), stamped ``stamp`` (when it applied)."""
+    from builtin_interfaces.msg import Duration
+    from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+
+    message = JointTrajectory(joint_names=list(names))
+    message.header.stamp = time_msg(stamp)
+    for i, t in enumerate(trajectory.times):
+        point = JointTrajectoryPoint(positions=trajectory.positions[i].tolist())
+        for field in ("velocities", "accelerations"):
+            rows = getattr(trajectory, field)
+            if rows is not None:
+                setattr(point, field, rows[i].tolist())
+        point.time_from_start = Duration(sec=int(t) // NS, nanosec=int(t) % NS)
+        message.points.append(point)
+    return message
+
+
+def trajectory_values(message):
+    """The `trajectory_goals.Trajectory` of a recorded JointTrajectory (the inverse of
+    ``joint_trajectory``): columns in the message's joint order."""
+    import numpy as np
+
+    from .trajectory_goals import Trajectory
+
+    points, n = message.points, len(message.joint_names)
+    times = np.array([p.time_from_start.sec * NS + p.time_from_start.nanosec for p in points],
+                     dtype=np.int64)
+
+    def rows(field):
+        values = [list(getattr(p, field)) for p in points]
+        return None if points and not any(values) else np.array(values, dtype=float).reshape(-1, n)
+    return Trajectory(times, rows("positions"), rows("velocities"), rows("accelerations"))
+
+
+def arm_command_message(mode: str, command, names, stamp: int):
+    """The recorded message of an arm controller's command (`timeline.apply_arm_command`)."""
+    return joint_trajectory(command, names, stamp) if mode == "joint_trajectory" \
+        else float64_array(command)
+
+
+def arm_command_values(mode: str, message):
+    """The command of a recorded arm message (the inverse of ``arm_command_message``)."""
+    return trajectory_values(message) if mode == "joint_trajectory" else list(message.data)

@@ -315,6 +315,17 @@ RUN_METADATA = [  # (case id, changes to the map (None removes), key, problem)
     ("sample rate negative", {"sample_rate": "-20"}, f"{RUN}.sample_rate", "must be in"),
     ("value too long", {"scene_name": "x" * 201}, f"{RUN}.scene_name", "longer than 200"),
     ("node source without its rate", {"source": "node"}, f"{RUN}.publish_rate", "missing"),
+    # an arm controller's settings (node runs not in effort mode)
+    ("arm controller unknown", {"arm_controller": "torque"}, f"{RUN}.arm_controller",
+     "unknown mode 'torque'"),
+    ("arm gains missing", {"arm_controller": "position"}, f"{RUN}.arm_kp", "missing"),
+    ("arm gains text", {"arm_controller": "position", "arm_kp": "stiff", "arm_ki": "0.0",
+                        "arm_kd": "1.0"}, f"{RUN}.arm_kp", "expected numbers"),
+    ("arm gain negative", {"arm_controller": "position", "arm_kp": "-1.0", "arm_ki": "0.0",
+                           "arm_kd": "1.0"}, f"{RUN}.arm_gains.kp", "expected numbers in"),
+    ("arm feedforward unknown", {"arm_controller": "position", "arm_kp": "1.0", "arm_ki": "0.0",
+                                 "arm_kd": "1.0", "arm_feedforward": "magic"},
+     f"{RUN}.arm_feedforward", "unknown feedforward"),
 ]
 
 

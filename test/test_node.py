@@ -602,6 +602,16 @@ PARAMETERS = {  # case: (arguments, the key named, what the one line says)
     # in the declared range [0, 1], but a step of 1e-10 s would take 1e8 steps per publication
     "dt 1e-10": (["-p", "integrator.method:=rk4", "-p", "integrator.dt:=1e-10"], "integrator.dt",
                  "must be in [1e-09, 1]"),
+    # the arm controller (issue 18)
+    "arm mode unknown": (["-p", "arm_controller:=torque"], "arm_controller", "unknown mode"),
+    "arm gains per joint": (["-p", "arm_controller:=position", "-p", "arm_gains.kp:=[1.0, 2.0]"],
+                            "arm_gains.kp", "expected one number or 4"),
+    "arm gain text": (["-p", "arm_controller:=position", "-p", "arm_gains.kd:=stiff"],
+                      "arm_gains.kd", "expected a number or a list of numbers"),
+    "arm gain negative": (["-p", "arm_controller:=position", "-p", "arm_gains.ki:=-1.0"],
+                          "arm_gains.ki", "expected numbers in"),
+    "feedforward unknown": (["-p", "arm_feedforward:=magic"], "arm_feedforward",
+                            "unknown feedforward"),
 }
 
 

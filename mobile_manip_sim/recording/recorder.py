@@ -38,6 +38,7 @@ from mobile_manip_sim.recording.bag_format import (
 from mobile_manip_sim.recording.bag_writer import DEFAULT_CHUNK_SIZE, BagWriter, qos_yaml
 from mobile_manip_sim.recording.cdr import exact_cdr
 from mobile_manip_sim.topics import (
+    ARM_COMMAND_TOPICS,
     ARM_TOPIC,
     BASE_COMMAND_TOPICS,
     COMMAND_QOS_DEPTH,
@@ -81,10 +82,12 @@ class RunRecorder:
         if base_command not in BASE_COMMAND_TOPICS:
             raise UserError("base_command", f"{base_command!r} is not effort or velocity")
         self._base_topic = BASE_COMMAND_TOPICS[base_command]
+        arm_controller = metadata.get("arm_controller", "effort")
+        self._arm_topic = ARM_COMMAND_TOPICS[arm_controller]
         self.writer = BagWriter(path, chunk_size=chunk_size)
         self.path = self.writer.path
         try:
-            for topic, type_name in recorded_topics(base_command, view).items():
+            for topic, type_name in recorded_topics(base_command, view, arm_controller).items():
                 self.writer.add_topic(topic, type_name, topic_qos(topic))
             self.writer.add_attachment(SCENE_ATTACHMENT, "application/yaml",
                                        scene.to_yaml().encode())
@@ -121,6 +124,13 @@ class RunRecorder:
             if self._last_commands.get(topic) != key:
                 self.writer.write(topic, exact_cdr(command_message(topic, values)), stamp, stamp)
                 self._last_commands[topic] = key
+        self._last_stamp = max(self._last_stamp, stamp)
+
+    def arm_command(self, stamp: int, message) -> None:
+        """An arm controller's command (its mode's topic: an array or a JointTrajectory) applied
+        from ``stamp`` ns on. Each is written: each applies anew (a velocity ramp restarts, a
+        trajectory starts)."""
+        self.writer.write(self._arm_topic, exact_cdr(message), stamp, stamp)
         self._last_stamp = max(self._last_stamp, stamp)
 
     def impacts(self, impacts) -> None:

@@ -180,7 +180,7 @@ def _installed(topics: dict) -> list[str]:
         except UserError:
             missing.setdefault(type_name, []).append(topic)
     for type_name, left_out in missing.items():
-        hint = " (build it with tools/build_tf2_msgs.sh, or source a ROS install)" \
+        hint = " (build it with tools/build_interfaces.sh, or source a ROS install)" \
             if type_name == TF_TYPE else ""
         print(f"replay: warning: {', '.join(left_out)} not played: {type_name} is not "
               f"installed{hint}", file=sys.stderr)

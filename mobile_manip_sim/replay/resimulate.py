@@ -1,7 +1,8 @@
 """Re-simulation: rebuild the `Simulation` from a bag alone (`bag_format.RecordedRun`: attachment
 ``scene.yaml``, metadata ``mobile_manip_sim``: integrator settings, rates, source, base command
 mode and wheel-speed gains), run the source's time line (`timeline`: its grid of segments, its
-start, the recorded commands — efforts and cmd_vel — held from their recorded simulated times),
+start, the recorded commands — efforts and cmd_vel — held from their recorded simulated times,
+and an arm controller's set-points and trajectories applied at theirs),
 and compare each recorded /joint_states and /odom with the messages the re-run gives at that
 stamp (built by the same ``messages`` functions). Prints the largest difference per quantity;
 status 1 if one exceeds the tolerance (0: bit for bit), else 0.
@@ -21,7 +22,7 @@ from mobile_manip_sim.messages import (
     quaternion_yaw,
 )
 from mobile_manip_sim.recording.bag_format import RecordedRun, decode, stamp_ns
-from mobile_manip_sim.timeline import apply_commands
+from mobile_manip_sim.timeline import apply_arm_command, apply_commands
 
 
 class Differences:
@@ -59,6 +60,7 @@ def resimulate(bag, tolerance: float) -> int:
     run = RecordedRun(bag)
     run.check_robot()
     base_commands, arm_commands = run.commands()
+    arm_events = run.arm_commands()   # an arm controller's, applied at their segment starts
     if run.metadata.get("version") != __version__:
         print(f"note: recorded by mobile_manip_sim {run.metadata.get('version')}, re-simulated "
               f"by {__version__}: bit-for-bit agreement is only expected from the same build")
@@ -83,6 +85,8 @@ def resimulate(bag, tolerance: float) -> int:
                 for start, t_end in run.segments(sim_stamp, stamp):
                     apply_commands(sim, base_commands.at(start), arm_commands.at(start),
                                    run.velocity)
+                    for command in arm_events.get(start, ()):
+                        apply_arm_command(sim, run.arm_control.mode, command)
                     sim.advance_to(t_end)
                 sim_stamp = stamp
             _compare(run, sim, stamp, message.topic, recorded, differences)
