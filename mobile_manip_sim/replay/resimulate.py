@@ -82,6 +82,8 @@ def resimulate(bag, tolerance: float) -> int:
             _compare(run, sim, stamp, message.topic, recorded, differences)
             compared[message.topic] += 1
     except SimulationError as error:
+        if getattr(error, "key", None):   # StepLimitError: settings and efforts, status 2
+            raise
         print(f"replay: the re-simulation failed: {error}")
         return 1
     _report(run, bag, differences, compared, first_stamp, sim_stamp)
