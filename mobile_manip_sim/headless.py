@@ -38,10 +38,13 @@ def summary_line(sim: Simulation, wall: float, simulated: float | None = None) -
 def run(scene: Scene, duration: float, sample_rate: float, settings=None, on_sample=None,
         progress=None) -> Simulation:
     """Simulate `duration` s from the scene's initial state with its constant efforts, calling
-    ``on_sample(sim)`` at every sample time (and ``progress.update(t)`` after it, if given);
+    ``on_sample(sim)`` at every sample time (and ``progress.update(t)`` after it, if given: a
+    `progress.Progress`, which also follows the simulated time between samples);
     returns the finished simulation. Its ``timing`` is (simulated s, wall s) from the end of the
     first sample that advanced time on, or None."""
     sim = Simulation(scene, settings)
+    if progress:
+        progress.follow(lambda: sim.t)
     timing_from = None
     for t in sample_times(duration, sample_rate):
         sim.advance_to(t)

@@ -14,6 +14,7 @@ from mobile_manip_sim import __version__
 from mobile_manip_sim.errors import UserError
 from mobile_manip_sim.messages import (JOINT_STATES_TOPIC, NS, ODOM_TOPIC, joint_state, odometry,
                                        quaternion_yaw)
+from mobile_manip_sim.progress import Progress
 from mobile_manip_sim.recording.bag_format import RecordedRun, decode, stamp_ns
 from mobile_manip_sim.timeline import apply_commands
 
@@ -62,8 +63,12 @@ def resimulate(bag, tolerance: float) -> int:
     compared = {JOINT_STATES_TOPIC: 0, ODOM_TOPIC: 0}
     sim_stamp = None
     first_stamp = None
+    begin, end = bag.time_span()
+    progress = Progress("replay --resimulate", (end - begin) / NS, "s of the bag",
+                        rate_unit="bag s per wall s")
     try:
         for message in bag.messages([JOINT_STATES_TOPIC, ODOM_TOPIC]):
+            progress.update((message.log_time_ns - begin) / NS)
             recorded = decode(message)
             stamp = stamp_ns(recorded.header.stamp)
             if sim_stamp is None:
@@ -86,6 +91,8 @@ def resimulate(bag, tolerance: float) -> int:
             raise
         print(f"replay: the re-simulation failed: {error}")
         return 1
+    finally:
+        progress.close()
     _report(run, bag, differences, compared, first_stamp, sim_stamp)
     return 1 if differences.failed() else 0
 
