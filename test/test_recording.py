@@ -208,10 +208,11 @@ def node_run(probe, tmp_path_factory):
         for wheels, arm in SENT:
             probe.wheels.publish(Float64MultiArray(data=wheels))
             probe.arm.publish(Float64MultiArray(data=arm))
-            wait_for(lambda w=wheels: any(list(m.effort[:2]) == w
-                                          for m in probe.messages("/joint_states")),
-                     f"the efforts {wheels} in /joint_states")
-            time.sleep(0.05)
+            # Both applied (the two topics arrive independently) before the next pair is sent:
+            # otherwise one segment could take two arm commands and record only the later.
+            wait_for(lambda w=wheels, a=arm: any(list(m.effort[:2]) == w and list(m.effort[2:]) == a
+                                                 for m in probe.messages("/joint_states")),
+                     f"the efforts {wheels} and {arm} in /joint_states")
         count = len(probe.messages("/joint_states"))
         wait_for(lambda: len(probe.messages("/joint_states")) >= count + 50, "50 more states")
     finally:
