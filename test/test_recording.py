@@ -491,6 +491,11 @@ def test_replay_publishes_the_recorded_messages_in_order_at_the_recorded_rate(pr
     assert abs(gaps[len(gaps) // 2] - 0.05 / rate) < 0.01   # median spacing: 50 ms / rate
     # … and /robot_description, latched, played first (its t = 0 message, before the start)
     assert f"played {sum(len(v) for v in recorded.values()) + 1} messages" in result.stdout
+    # The time printed is the playing's: at least the bag's span at that rate (paced, never
+    # early), and it leaves out the wait for subscribers and the final acknowledgements.
+    played_in = float(re.search(r" in ([\d.]+) s \(rate", result.stdout)[1])
+    last = max(t for messages in recorded.values() for t, _ in messages)
+    assert played_in >= (last - start) / 1e9 / rate - 0.001, result.stdout
 
 
 def test_replay_without_waiting_still_reaches_a_subscriber_that_already_runs(probe,
