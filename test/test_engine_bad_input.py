@@ -5,19 +5,24 @@ Every case is one change to the valid paper scene, so the change alone is what f
 each kind runs as a real process (a few at a time: each pays the interpreter's start-up); the
 variants call the same entry point, `simulate.main`, in this process.
 """
+import json
 import math
 import subprocess
 import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
 
 import numpy as np
 import pytest
 import yaml
 
 from engine_cases import paper_doc, simulation
+from huge_commands import COMMANDS
+from huge_commands import apply as apply_command
 from mobile_manip_sim import simulate
 from mobile_manip_sim.errors import UserError
+from mobile_manip_sim.methods import METHODS
 
 
 def edit(path, value):
@@ -339,3 +344,96 @@ def test_the_step_watch_tells_a_crawl_from_a_restart():
     assert first_problem([1.1 * slow] * (3 * BUDGET_STEPS)) is None
     slow_then_fast = [1.1 * slow] * BUDGET_STEPS + [0.9 * slow] * BUDGET_STEPS
     assert first_problem(slow_then_fast)[0] == 2 * BUDGET_STEPS
+
+
+# --- huge finite commands right after a reset, every method (issue 22) ------------------------
+
+@pytest.fixture(scope="module")
+def huge_commands():
+    """test/huge_commands.py's cases, run in their own process: the timeout is only a safety net
+    (a regression that loops would otherwise hang the test run); what bounds each case is the
+    step watch, asserted below as a step count."""
+    result = subprocess.run([sys.executable, "huge_commands.py"], capture_output=True, text=True,
+                            timeout=600, cwd=Path(__file__).parent)
+    assert result.returncode == 0, result.stderr
+    return [json.loads(line) for line in result.stdout.splitlines()]
+
+
+def check_huge_command(case):
+    """One line of the right kind; no more steps than the step watch allows; a reset recovers."""
+    from mobile_manip_sim.engine.step_watch import BUDGET_STEPS
+
+    method, error, message = case["method"], case["error"], case["message"]
+    assert error in ("UserError", "SimulationError", "StepLimitError"), case
+    assert "\n" not in message and len(message) < 300, message
+    if error == "UserError":   # its forces overflow: refused, naming the command
+        assert message.startswith(f"efforts.{case['command'].replace('all', 'wheels')}: "), message
+        assert case["steps"] == 0
+    elif METHODS[method].fixed_step:   # the numbers go bad within the first steps
+        assert error == "SimulationError" and "non-finite" in message, message
+    else:   # every adaptive method: the step watch's one line, naming the setting
+        assert error == "StepLimitError" and message.startswith("integrator.rtol: t = "), message
+        assert f"{method} cannot follow" in message, message
+    assert case["steps"] <= BUDGET_STEPS
+    assert case["recovered"], case
+
+
+def test_huge_commands_after_a_reset_fail_in_one_line_for_every_method(huge_commands):
+    assert [(c["method"], c["command"], c["values"]) for c in huge_commands] == [
+        (method, group, values) for method in METHODS for group, values in COMMANDS]
+    for case in huge_commands:
+        check_huge_command(case)
+    # both ways of failing are met: refused at the command, and failed by the integrator
+    kinds = {(c["method"], c["error"]) for c in huge_commands}
+    assert {(m, "UserError") for m in METHODS} <= kinds
+    assert {(m, "StepLimitError") for m in METHODS if not METHODS[m].fixed_step} <= kinds
+
+
+@pytest.mark.parametrize("group, values", [("wheels", [1e308, 1e308]), ("wheels", [-1e308, 1e308]),
+                                           ("cmd_vel", [1e308, 0.0]), ("cmd_vel", [0.0, 1e308])])
+def test_a_command_whose_forces_overflow_is_refused_and_the_last_one_kept(group, values):
+    sim = simulation(paper_doc(), "rk4")
+    sim.set_efforts(wheels=[0.1, 0.2])
+    before = (sim.wheel_efforts.copy(), sim.system.Q_cmd.copy(), sim.system.control.copy())
+    with pytest.raises(UserError) as error:
+        apply_command(sim, group, values)
+    assert error.value.key == f"efforts.{group}" and "overflows" in str(error.value)
+    assert np.array_equal(sim.wheel_efforts, before[0])
+    assert np.array_equal(sim.system.Q_cmd, before[1])
+    assert np.array_equal(sim.system.control, before[2])
+    sim.advance_to(0.01)   # still the last valid command
+    assert np.all(np.isfinite(sim.s))
+
+
+def resimulated_with_a_huge_command(method, values, tmp_dir):
+    """`replay --resimulate` of a headless bag of `method` whose wheel command at t = 0 is
+    rewritten to `values` (scene efforts are bounded by 1e6: a bag is how such a command comes)."""
+    from bag_rewrite import rewrite_bag
+    from executables import executable
+    from mobile_manip_sim.messages import float64_array
+    from mobile_manip_sim.recording.cdr import exact_cdr
+    from mobile_manip_sim.topics import WHEEL_TOPIC
+
+    scene = tmp_dir / f"{method}.yaml"
+    scene.write_text(yaml.safe_dump({**paper_doc(), "integrator": {"method": method}}))
+    recorded, altered = tmp_dir / f"{method}_bag", tmp_dir / f"{method}_huge"
+    result = subprocess.run([executable("simulate"), "--scene", str(scene), "--duration", "0.1",
+                             "--out", str(tmp_dir / f"{method}.csv"), "--record", str(recorded)],
+                            capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr
+    rewrite_bag(recorded, altered, lambda topic, data, index: exact_cdr(float64_array(values))
+                if topic == WHEEL_TOPIC else data)
+    return subprocess.run([executable("replay"), str(altered), "--resimulate"],
+                          capture_output=True, text=True, timeout=300)
+
+
+@pytest.mark.parametrize("method, values, key", [
+    ("dop853", [1e308, 1e308], "efforts.wheels"),   # spun for ever, deaf to SIGINT
+    ("rk45", [1e300, 1e300], "integrator.rtol"),
+    ("radau", [1e300, 1e300], "integrator.rtol"),   # a 50-line traceback of lu_factor
+    ("bdf", [1e300, -1e300], "integrator.rtol")])
+def test_resimulating_a_bag_of_huge_commands_is_one_line_and_status_2(method, values, key,
+                                                                       tmp_path):
+    result = resimulated_with_a_huge_command(method, values, tmp_path)
+    assert_one_line_naming(key, result.returncode, "", result.stderr)
+    assert result.stderr.startswith(f"replay: error: {key}: "), result.stderr

@@ -250,6 +250,24 @@ def test_bag_gives_the_same_figures_as_the_csv_of_the_same_run(paper_bag, paper_
     assert run.impacts == csv_run.impacts
 
 
+def test_every_title_of_every_figure_fits_inside_it(paper_bag, paper_csv):
+    """The energy figure's subtitle ran past both edges for a bag (its effort source is long)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    from mobile_manip_sim.plot.figures import make_figures
+    for source in (paper_csv, paper_bag[0]):
+        for name, figure in make_figures(load_run(source)).items():
+            renderer = FigureCanvasAgg(figure).get_renderer()
+            figure.draw(renderer)
+            titles = [figure._suptitle] + [axes.title for axes in figure.axes]
+            for title in filter(None, titles):
+                if not title.get_text():
+                    continue
+                box = title.get_window_extent(renderer)
+                assert 0 <= box.x0 and box.x1 <= figure.bbox.width, (name, title.get_text())
+                assert 0 <= box.y0 and box.y1 <= figure.bbox.height, (name, title.get_text())
+
+
 def test_the_plot_executable_writes_png_files_and_index(paper_csv, tmp_path):
     out = tmp_path / "out"
     result = subprocess.run([str(BIN / "plot"), str(paper_csv), "--out", str(out)],

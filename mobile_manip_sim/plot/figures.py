@@ -6,6 +6,7 @@ inspect their lines.
 from __future__ import annotations
 
 import html
+import textwrap
 from pathlib import Path
 from typing import Callable
 
@@ -204,8 +205,9 @@ def figure_energy(run: Run) -> Figure:
     top.set_ylabel("energy (J)")
     top.legend(loc="best", fontsize="small")
     top.grid(True, alpha=0.3)
-    top.set_title(f"efforts: {run.effort_source}; W by the trapezoid rule at the sample "
-                  "rate, split at impacts", fontsize="small")
+    # two lines, each wrapped: one line ran past the figure's edges for a bag's longer source
+    top.set_title("\n".join(textwrap.wrap(f"efforts: {run.effort_source}", 90) + [
+        "W by the trapezoid rule at the sample rate, split at impacts"]), fontsize="small")
     bottom.plot(run.t, change - W + L, color="C3", label=r"$T + V - E_0 - W + L$")
     bottom.set_xlabel("t (s)")
     bottom.set_ylabel("balance (J)")

@@ -112,6 +112,14 @@ class Bag:
         streams = [file.messages(topics) for file in self._files]
         return heapq.merge(*streams, key=lambda message: message.log_time_ns)
 
+    def time_span(self) -> tuple[int, int]:
+        """(first, last) log time of its messages (ns), from the chunk indexes; (0, 0) if none."""
+        chunks = [chunk for file in self._files for chunk in file.summary.chunk_indexes]
+        if not chunks:
+            return 0, 0
+        return (min(chunk.message_start_time for chunk in chunks),
+                max(chunk.message_end_time for chunk in chunks))
+
     def attachments(self) -> dict[str, bytes]:
         """Attachment name → content."""
         return {name: data for file in self._files for name, data in file.attachments().items()}

@@ -8,7 +8,9 @@ always played, whatever the topics selected; a bag without it gets one ``rosgrap
 per distinct log time. With ``wait_for_subscribers`` playback is held until every played topic
 but the latched ones has a subscriber (for scripts and tests). Without it, playback still waits
 (at most DISCOVERY_TIMEOUT s) until the subscribers that already run are matched: a reliable
-subscriber matched late would miss the first ~0.4 s of the bag.
+subscriber matched late would miss the first ~0.4 s of the bag. The time it prints
+("played N messages … in S s") is the playing's alone, without these waits or the final wait
+for acknowledgements.
 """
 from __future__ import annotations
 
@@ -130,9 +132,9 @@ def play(bag, topics=None, rate: float = 1.0, loop: bool = False, start_offset: 
             played += _play_once(bag, selected, start, rate, publishers, clock_publisher)
             if not loop:
                 break
+        wall = time.monotonic() - wall_start   # the playing alone: not the waits before and after
         for publisher in publishers.values():
             _wait_acked(publisher)
-        wall = time.monotonic() - wall_start
         print(f"played {played} messages on {len(selected)} topics in {wall:.3f} s "
               f"(rate {rate:g})")
     except KeyboardInterrupt:

@@ -21,6 +21,7 @@ from mobile_manip_sim.messages import (
     odometry,
     quaternion_yaw,
 )
+from mobile_manip_sim.progress import Progress
 from mobile_manip_sim.recording.bag_format import RecordedRun, decode, stamp_ns
 from mobile_manip_sim.timeline import apply_arm_command, apply_commands
 
@@ -70,8 +71,12 @@ def resimulate(bag, tolerance: float) -> int:
     compared = {JOINT_STATES_TOPIC: 0, ODOM_TOPIC: 0}
     sim_stamp = None
     first_stamp = None
+    begin, end = bag.time_span()
+    progress = Progress("replay --resimulate", (end - begin) / NS, "s of the bag",
+                        rate_unit="bag s per wall s")
     try:
         for message in bag.messages([JOINT_STATES_TOPIC, ODOM_TOPIC]):
+            progress.update((message.log_time_ns - begin) / NS)
             recorded = decode(message)
             stamp = stamp_ns(recorded.header.stamp)
             if sim_stamp is None:
@@ -92,8 +97,12 @@ def resimulate(bag, tolerance: float) -> int:
             _compare(run, sim, stamp, message.topic, recorded, differences)
             compared[message.topic] += 1
     except SimulationError as error:
+        if getattr(error, "key", None):   # StepLimitError: settings and efforts, status 2
+            raise
         print(f"replay: the re-simulation failed: {error}")
         return 1
+    finally:
+        progress.close()
     _report(run, bag, differences, compared, first_stamp, sim_stamp)
     return 1 if differences.failed() else 0
 

@@ -18,6 +18,7 @@ from pathlib import Path
 
 from .. import cli
 from ..errors import UserError
+from ..progress import Progress
 from .spec import Spec, load_spec
 
 
@@ -48,7 +49,7 @@ def _main(argv) -> int:
     chunks = [todo[i:i + chunk] for i in range(0, len(todo), chunk)]
     print(f"sweep: {len(runs)} runs, {len(store.done)} already in {args.out}, {len(todo)} to do "
           f"in {len(chunks)} chunks of ≤ {chunk} on {_where(args, workers)}", flush=True)
-    progress = Progress(len(runs), len(store.done))
+    progress = Progress("sweep", len(runs), "runs", done=len(store.done))
     start = time.perf_counter()
     try:
         _run(client, spec, runs, chunks, store, progress, args.out)
@@ -114,6 +115,7 @@ def _run(client, spec: Spec, runs: list, chunks: list, store, progress, out: str
     from . import runner
     csv_dir = str(Path(out).resolve() / "runs") if spec.sample_rate else None
     futures = {}
+    failures = 0
     for ids in chunks:
         task = [(i, runs[i]) for i in ids]
         future = client.submit(runner.run_chunk, spec.document, task, spec.duration,
@@ -133,8 +135,8 @@ def _run(client, spec: Spec, runs: list, chunks: list, store, progress, out: str
                      "error": f"{type(error).__name__}: {error}".splitlines()[0]}
                     for i in ids]
         store.add(rows, runs)
-        failed = sum(row["status"] == "failed" for row in rows)
-        progress.update(len(rows), failed)
+        failures += sum(row["status"] == "failed" for row in rows)
+        progress.update(progress.done + len(rows), f", {failures} failed")
 
 
 def _close(client, cluster) -> None:
@@ -143,33 +145,6 @@ def _close(client, cluster) -> None:
     finally:
         if cluster is not None:
             cluster.close(timeout=10)
-
-
-class Progress:
-    """Runs done, failures and time to go, on one line of stderr when it is a terminal."""
-
-    def __init__(self, total: int, done: int, stream=sys.stderr):
-        self.total, self.done, self.failed, self.stream = total, done, 0, stream
-        self.active = stream.isatty()
-        self.start, self.first = time.perf_counter(), done
-
-    def update(self, runs: int, failed: int) -> None:
-        self.done += runs
-        self.failed += failed
-        if not self.active:
-            return
-        fraction = self.done / self.total if self.total else 1.0
-        elapsed = time.perf_counter() - self.start
-        rate = (self.done - self.first) / elapsed if elapsed > 0 else 0.0
-        left = (self.total - self.done) / rate if rate > 0 else math.inf
-        bar = "#" * int(30 * fraction)
-        self.stream.write(f"\r[{bar:<30}] {self.done}/{self.total} runs, {self.failed} failed, "
-                          f"{rate:.0f} runs/s, {left:.0f} s left ")
-        self.stream.flush()
-
-    def close(self) -> None:
-        if self.active:
-            self.stream.write("\n")
 
 
 def main(argv=None) -> int:
