@@ -28,6 +28,8 @@ AXES = 3
 FIELDS = ("angular_velocity", "linear_acceleration")
 SEED_RANGE = (0, 2 ** 63 - 1)
 MAX_NOISE = 1e6     # rad/s, m/s²: a bound on σ and |b| that no real sensor reaches
+NOISE_KEYS = tuple(f"{field}_{kind}" for field in FIELDS for kind in ("stddev", "bias"))
+METADATA_PREFIX = "imu_"   # a bag's metadata keys: imu_<noise key>, imu_seed
 
 
 class ImuReading(NamedTuple):
@@ -54,8 +56,7 @@ class ImuNoise:
         """From a mapping of the field names above (each vector 3 numbers, σ ≥ 0); a bad value
         is a `UserError` naming ``path.key``."""
         schema.mapping(settings, path)
-        known = [f"{field}_{kind}" for field in FIELDS for kind in ("stddev", "bias")] + ["seed"]
-        schema.keys(settings, path, optional=known)
+        schema.keys(settings, path, optional=(*NOISE_KEYS, "seed"))
         values = {}
         for key, value in settings.items():
             where = f"{path}.{key}"
@@ -69,6 +70,34 @@ class ImuNoise:
                                               nonnegative=key.endswith("stddev"))
                                 for i, v in enumerate(vector))
         return ImuNoise(**values)
+
+    def as_metadata(self) -> dict:
+        """The settings as a bag's metadata strings (METADATA_PREFIX + field: "x y z", floats
+        repr-exact; the seed), which `from_metadata` reads back equal."""
+        values = {f"{METADATA_PREFIX}{key}": " ".join(repr(float(v)) for v in getattr(self, key))
+                  for key in NOISE_KEYS}
+        values[f"{METADATA_PREFIX}seed"] = str(self.seed)
+        return values
+
+    @staticmethod
+    def from_metadata(metadata: dict, path: str) -> "ImuNoise":
+        """The settings a bag's metadata map records (a bag without them: a perfect sensor);
+        a bad value is a `UserError` naming ``path.key``."""
+        settings = {}
+        for key in (*NOISE_KEYS, "seed"):
+            text = metadata.get(METADATA_PREFIX + key)
+            if text is None:
+                continue
+            try:
+                settings[key] = int(text) if key == "seed" else [float(v) for v in text.split()]
+            except ValueError:
+                raise UserError(f"{path}.{METADATA_PREFIX}{key}", f"not numbers: "
+                                                                 f"{schema.short(text)}") from None
+        try:
+            return ImuNoise.from_settings(settings, path)
+        except UserError as error:   # name the metadata key
+            raise UserError(error.key.replace(f"{path}.", f"{path}.{METADATA_PREFIX}", 1),
+                            error.problem) from None
 
     @property
     def perfect(self) -> bool:

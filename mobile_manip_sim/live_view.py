@@ -80,13 +80,20 @@ class LiveView:
         self.server.broadcast_time(stamp)
         for topic, message in messages.items():
             channel = self.channels.get(topic)
-            if channel is None:
-                continue
+            latched = topic in LATCHED_TOPICS
+            if channel is None or not (latched or channel.has_sinks()):
+                continue   # nobody subscribed: not even serialised
             data = message if isinstance(message, bytes) else exact_cdr(message)
-            if topic in LATCHED_TOPICS:
+            if latched:
                 with self._lock:
                     self._latched[topic] = (stamp, data)
             channel.log(data, log_time=stamp)
+
+    def wants(self, topic: str) -> bool:
+        """A client is subscribed to ``topic`` (a message only it would get can be left
+        uncomputed)."""
+        channel = self.channels.get(topic)
+        return channel is not None and channel.has_sinks()
 
     def _on_subscribe(self, channel) -> None:
         """A new subscriber of a latched topic gets its last message at once (on the

@@ -30,7 +30,7 @@ import numpy as np
 from mobile_manip_sim.errors import UserError
 from mobile_manip_sim.messages import command_message
 from mobile_manip_sim.topics import (ARM_TOPIC, BASE_COMMAND_TOPICS, COMMAND_QOS_DEPTH,
-                                     COMMAND_TOPICS, LATCHED_TOPICS, STATE_QOS_DEPTH,
+                                     COMMAND_TOPICS, IMU_TOPIC, LATCHED_TOPICS, STATE_QOS_DEPTH,
                                      STATE_TOPICS, TF_TOPIC, recorded_topics)
 from mobile_manip_sim.recording.bag_format import (IMPACTS_ATTACHMENT, METADATA_NAME,
                                                    SCENE_ATTACHMENT, run_metadata)
@@ -39,7 +39,7 @@ from mobile_manip_sim.recording.cdr import exact_cdr
 
 
 # The order in which one publication's messages are written (the latched ones come first).
-WRITTEN_TOPICS = (*LATCHED_TOPICS, *STATE_TOPICS, TF_TOPIC)
+WRITTEN_TOPICS = (*LATCHED_TOPICS, *STATE_TOPICS, TF_TOPIC, IMU_TOPIC)
 
 
 def topic_qos(topic: str) -> str:
@@ -58,12 +58,13 @@ class RunRecorder:
     (effort|velocity, default effort), which chooses the base's command topic. ``flush_interval`` (wall seconds, None = off)
     closes the open chunk that often, bounding what a SIGKILL loses in a slow run; headless runs
     leave it off so that their chunks, and hence their bags, do not depend on the wall clock.
-    ``view`` adds the view topics (/tf, /tf_static, /robot_description) to the bag.
+    ``view`` adds the view topics (/tf, /tf_static, /robot_description) to the bag, ``imu``
+    /imu (its noise settings: in ``extra_metadata``, `imu.ImuNoise.as_metadata`).
     """
 
     def __init__(self, path, scene, settings, extra_metadata: dict, *,
                  chunk_size: int = DEFAULT_CHUNK_SIZE, flush_interval: float | None = None,
-                 view: bool = False):
+                 view: bool = False, imu: bool = False):
         metadata = run_metadata(scene, settings, extra_metadata)
         base_command = metadata.get("base_command", "effort")
         if base_command not in BASE_COMMAND_TOPICS:
@@ -72,7 +73,7 @@ class RunRecorder:
         self.writer = BagWriter(path, chunk_size=chunk_size)
         self.path = self.writer.path
         try:
-            for topic, type_name in recorded_topics(base_command, view).items():
+            for topic, type_name in recorded_topics(base_command, view, imu).items():
                 self.writer.add_topic(topic, type_name, topic_qos(topic))
             self.writer.add_attachment(SCENE_ATTACHMENT, "application/yaml",
                                        scene.to_yaml().encode())
