@@ -1,8 +1,9 @@
 """The live view: a Foxglove WebSocket server (PyPI ``foxglove-sdk``) carrying the simulator's
 topics as foxglove_bridge advertises ROS 2 topics — each channel with its ROS 2 schema (schema
-encoding ``ros2msg``: the full message definition, as bags store it) and ``cdr`` payloads (the
-same bytes a bag holds) — so Foxglove's 3D, plot and raw-message panels work unchanged, with no
-ROS install and no bridge.
+encoding ``ros2msg``: the full message definition, as bags store it) and ``cdr`` payloads (as
+rclpy serialises them for DDS, or /tf's exact bytes) — so Foxglove's 3D, plot and raw-message
+panels work unchanged, with no ROS install and no bridge. A channel nobody subscribed to costs
+no serialisation.
 
 Channels (topics.LIVE_TOPIC_TYPES): /tf, /tf_static, /robot_description, /joint_states, /odom,
 /imu, /energy. /tf_static and /robot_description are latched: the view keeps their last message
@@ -27,7 +28,6 @@ from .imu import Imu
 from .pacing import Pacer
 from .timeline import Grid
 from .messages import description, energy, imu, state_messages, tf_cdr, tf_static_cdr
-from .recording.cdr import exact_cdr
 from .recording.message_definitions import definition_text
 from .topics import (CLOCK_TOPIC, DESCRIPTION_TOPIC, ENERGY_TOPIC, IMU_TOPIC, LATCHED_TOPICS,
                      LIVE_TOPIC_TYPES, TF_STATIC_TOPIC, TF_TOPIC)
@@ -77,13 +77,15 @@ class LiveView:
     def publish(self, stamp: int, messages: dict) -> None:
         """Send the messages of one publication (topic → rclpy message, or its CDR bytes),
         stamped ``stamp`` ns of simulated time; topics without a channel are left out."""
+        from rclpy.serialization import serialize_message   # rclpy's C serialiser, as DDS's
+
         self.server.broadcast_time(stamp)
         for topic, message in messages.items():
             channel = self.channels.get(topic)
             latched = topic in LATCHED_TOPICS
             if channel is None or not (latched or channel.has_sinks()):
                 continue   # nobody subscribed: not even serialised
-            data = message if isinstance(message, bytes) else exact_cdr(message)
+            data = message if isinstance(message, bytes) else serialize_message(message)
             if latched:
                 with self._lock:
                     self._latched[topic] = (stamp, data)

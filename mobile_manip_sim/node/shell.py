@@ -203,7 +203,7 @@ class SimulatorNode(Node):
             self.view.publish_latched(messages, published)
             for topic in STATE_TYPES:   # recorded whether published (publish_clock) or not
                 if topic in self._state_pubs:
-                    self._state_pubs[topic].publish(messages[topic])
+                    self._state_pubs[topic].publish(self.view.wire(topic, messages[topic]))
                 published[topic] = messages[topic]
             self.view.publish(self.grid.stamp(k), messages, published)
         finally:

@@ -22,6 +22,7 @@ publication (stepping thread, outside the loop's lock) and `publish` puts them o
 """
 from __future__ import annotations
 
+from rclpy.serialization import serialize_message
 from sensor_msgs.msg import Imu as ImuMessage
 from std_msgs.msg import String
 
@@ -77,6 +78,7 @@ class NodeView:
                     self._ros[TF_STATIC_TOPIC] = publisher(node, TFMessage, TF_STATIC_TOPIC,
                                                            latched_qos(), absolute=True)
         self.live = None
+        self._wired: dict[str, bytes] = {}   # this publication's CDR, for the live view
         if params.foxglove_port:
             from ..live_view import LiveView
             self.live = LiveView(params.foxglove_port, name=node.get_fully_qualified_name())
@@ -105,7 +107,17 @@ class NodeView:
         (the bag's); then the live view gets them all."""
         self._put((TF_TOPIC, IMU_TOPIC), messages, published)
         if self.live is not None:
-            self.live.publish(stamp, messages)
+            self.live.publish(stamp, {**messages, **self._wired})
+            self._wired.clear()
+
+    def wire(self, topic: str, message):
+        """What to hand a ROS publisher of ``topic``: the message, or — when a live client
+        wants the topic too — its CDR bytes, serialised once for both (rclpy publishes bytes
+        as they are), so the live view costs no second serialisation."""
+        if isinstance(message, bytes) or self.live is None or not self.live.wants(topic):
+            return message
+        self._wired[topic] = data = serialize_message(message)
+        return data
 
     def _put(self, topics, messages: dict, published: dict) -> None:
         for topic in topics:
@@ -113,8 +125,8 @@ class NodeView:
                 continue
             pub = self._ros.get(topic)
             if pub is not None:
-                pub.publish(messages[BASE_TF if topic == TF_TOPIC and self.mode == "base"
-                                     else topic])
+                pub.publish(self.wire(topic, messages[BASE_TF if topic == TF_TOPIC and
+                                                      self.mode == "base" else topic]))
             published[topic] = messages[topic]
 
     def close(self) -> None:
