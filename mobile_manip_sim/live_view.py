@@ -38,10 +38,13 @@ SERVER_NAME = "mobile_manip_sim"
 
 
 class LiveView:
-    """A Foxglove WebSocket server on ``host:port`` with one channel per live topic."""
+    """A Foxglove WebSocket server on ``host:port`` with one channel per live topic. With
+    ``batch`` (s of wall time) publications are queued and sent by a thread of the view at most
+    that often: what the server costs most is waking its sending per burst, not per message
+    (bench/NODE.md), and each message keeps its own stamp."""
 
     def __init__(self, port: int = DEFAULT_PORT, host: str = "127.0.0.1",
-                 name: str = SERVER_NAME):
+                 name: str = SERVER_NAME, batch: float = 0.0):
         try:
             import foxglove
             from foxglove.websocket import Capability
@@ -69,6 +72,13 @@ class LiveView:
             raise UserError(f"port {port}", f"cannot start the Foxglove server on {host} "
                                             f"({error})") from None
         self.port = self.server.port
+        self._batch, self._pending = batch, []   # (stamp, messages) not sent yet
+        self._stopping = threading.Event()
+        self._sender = None
+        if batch > 0:
+            self._sender = threading.Thread(target=self._send_batches, name="live view",
+                                            daemon=True)
+            self._sender.start()
 
     @property
     def url(self) -> str:
@@ -77,6 +87,23 @@ class LiveView:
     def publish(self, stamp: int, messages: dict) -> None:
         """Send the messages of one publication (topic → rclpy message, or its CDR bytes),
         stamped ``stamp`` ns of simulated time; topics without a channel are left out."""
+        if self._sender is None:
+            self._send(stamp, messages)
+            return
+        with self._lock:
+            self._pending.append((stamp, messages))
+
+    def _send_batches(self) -> None:
+        while not self._stopping.wait(self._batch):
+            self._flush()
+
+    def _flush(self) -> None:
+        with self._lock:
+            pending, self._pending = self._pending, []
+        for stamp, messages in pending:
+            self._send(stamp, messages)
+
+    def _send(self, stamp: int, messages: dict) -> None:
         from rclpy.serialization import serialize_message   # rclpy's C serialiser, as DDS's
 
         self.server.broadcast_time(stamp)
@@ -107,6 +134,10 @@ class LiveView:
             self.channels[topic].log(latched[1], log_time=latched[0])
 
     def close(self) -> None:
+        if self._sender is not None:
+            self._stopping.set()
+            self._sender.join()
+            self._flush()
         self.server.stop()
 
 

@@ -41,6 +41,7 @@ from ..topics import (
 from ..urdf import robot_description
 from .qos import publisher
 
+LIVE_BATCH = 0.04   # s of wall time: the live view sends at most 25 times a second (live_view.py)
 # Key of the base-only /tf in a publication's messages (publish_tf base): what the ROS topic
 # carries, while the bag and the live view get the whole tree under TF_TOPIC.
 BASE_TF = "/tf (base only)"
@@ -81,7 +82,8 @@ class NodeView:
         self._wired: dict[str, bytes] = {}   # this publication's CDR, for the live view
         if params.foxglove_port:
             from ..live_view import LiveView
-            self.live = LiveView(params.foxglove_port, name=node.get_fully_qualified_name())
+            self.live = LiveView(params.foxglove_port, name=node.get_fully_qualified_name(),
+                                 batch=LIVE_BATCH)
 
     def messages(self, sim, k: int, stamp: int) -> dict:
         """Topic → message (or its CDR bytes) of publication ``k`` at ``stamp`` ns, ``sim`` at
