@@ -21,12 +21,11 @@ from typing import NamedTuple
 
 import numpy as np
 
-from . import schema
+from . import limits, schema
 from .errors import UserError
 
 AXES = 3
 FIELDS = ("angular_velocity", "linear_acceleration")
-SEED_RANGE = (0, 2 ** 63 - 1)
 MAX_NOISE = 1e6     # rad/s, m/s²: a bound on σ and |b| that no real sensor reaches
 NOISE_KEYS = tuple(f"{field}_{kind}" for field in FIELDS for kind in ("stddev", "bias"))
 METADATA_PREFIX = "imu_"   # a bag's metadata keys: imu_<noise key>, imu_seed
@@ -61,7 +60,8 @@ class ImuNoise:
         for key, value in settings.items():
             where = f"{path}.{key}"
             if key == "seed":
-                values[key] = schema.integer(value, where, lo=SEED_RANGE[0], hi=SEED_RANGE[1])
+                values[key] = schema.integer(value, where, lo=limits.IMU_SEED[0],
+                                             hi=limits.IMU_SEED[1])
                 continue
             vector = schema.sequence(value, where, max_length=AXES)
             if len(vector) != AXES:

@@ -22,6 +22,9 @@ from __future__ import annotations
 import threading
 import time
 
+from rclpy.serialization import serialize_message   # rclpy's C serialiser, as DDS's
+
+from . import limits
 from .errors import UserError
 from .frames import FrameTree
 from .imu import Imu
@@ -51,8 +54,10 @@ class LiveView:
         except ImportError:
             raise UserError("live view", "the Python package foxglove-sdk is not installed "
                                          "(pip install foxglove-sdk)") from None
-        if isinstance(port, bool) or not isinstance(port, int) or not 0 <= port <= 65535:
-            raise UserError("port", f"{port!r} is not a port number (0 to 65535; 0: any free one)")
+        low, high = limits.PORT
+        if isinstance(port, bool) or not isinstance(port, int) or not low <= port <= high:
+            raise UserError("port", f"{port!r} is not a port number ({low} to {high}; 0: any "
+                                    f"free one)")
         self._lock = threading.Lock()
         self._latched: dict[str, tuple[int, bytes]] = {}
         self._context = foxglove.Context()
@@ -104,8 +109,6 @@ class LiveView:
             self._send(stamp, messages)
 
     def _send(self, stamp: int, messages: dict) -> None:
-        from rclpy.serialization import serialize_message   # rclpy's C serialiser, as DDS's
-
         self.server.broadcast_time(stamp)
         for topic, message in messages.items():
             channel = self.channels.get(topic)

@@ -7,6 +7,7 @@ import math
 from dataclasses import dataclass
 from typing import Mapping, NamedTuple
 
+from .. import limits
 from ..engine.simulation import DEFAULT_WHEEL_SPEED_GAINS
 from ..errors import UserError
 from ..imu import ImuNoise
@@ -54,7 +55,7 @@ PARAMETERS = {
     "publish_clock": Parameter(True, "Publish simulated time on the absolute /clock (namespaces "
                                      "do not move it); false leaves it to another simulator."),
     "foxglove_port": Parameter(0, "Port of a Foxglove WebSocket server inside the node (the "
-                                  "channels of simulate --view); 0 = off.", (0, 65535)),
+                                  "channels of simulate --view); 0 = off.", limits.PORT),
     "imu.noise.angular_velocity_stddev": Parameter(
         [0.0, 0.0, 0.0], "IMU: white-noise standard deviation of the rate gyro per axis "
                          "(x, y, z, rad/s); its variance is the message's covariance."),
@@ -67,7 +68,7 @@ PARAMETERS = {
         [0.0, 0.0, 0.0], "IMU: constant bias of the accelerometer per axis (m/s²)."),
     "imu.noise.seed": Parameter(0, "IMU: seed of the noise (sample k's noise depends only on "
                                    "the seed and k: runs and re-simulations read the same).",
-                                (0, 2 ** 63 - 1)),
+                                limits.IMU_SEED),
     # --- end of node/view.py's parameters ---
     "record": Parameter("", "Record a rosbag2 (MCAP) bag to this new directory; empty = off."),
     "synchronous": Parameter(False, "Lockstep: after publishing state k, compute segment k only "
