@@ -28,7 +28,10 @@ AXES = 3
 FIELDS = ("angular_velocity", "linear_acceleration")
 MAX_NOISE = 1e6     # rad/s, m/s²: a bound on σ and |b| that no real sensor reaches
 NOISE_KEYS = tuple(f"{field}_{kind}" for field in FIELDS for kind in ("stddev", "bias"))
-METADATA_PREFIX = "imu_"   # a bag's metadata keys: imu_<noise key>, imu_seed
+# A bag's metadata keys of the settings (few and short: a metadata error lists every key in one
+# line): per field its σ and bias, x y z each; the seed.
+METADATA_KEYS = {"angular_velocity": "imu_gyro", "linear_acceleration": "imu_accel"}
+METADATA_SEED = "imu_seed"
 
 
 class ImuReading(NamedTuple):
@@ -72,11 +75,12 @@ class ImuNoise:
         return ImuNoise(**values)
 
     def as_metadata(self) -> dict:
-        """The settings as a bag's metadata strings (METADATA_PREFIX + field: "x y z", floats
-        repr-exact; the seed), which `from_metadata` reads back equal."""
-        values = {f"{METADATA_PREFIX}{key}": " ".join(repr(float(v)) for v in getattr(self, key))
-                  for key in NOISE_KEYS}
-        values[f"{METADATA_PREFIX}seed"] = str(self.seed)
+        """The settings as a bag's metadata strings (METADATA_KEYS: per field "σx σy σz bx by
+        bz", floats repr-exact; the seed), which `from_metadata` reads back equal."""
+        values = {name: " ".join(repr(float(v)) for kind in ("stddev", "bias")
+                                 for v in getattr(self, f"{field}_{kind}"))
+                  for field, name in METADATA_KEYS.items()}
+        values[METADATA_SEED] = str(self.seed)
         return values
 
     @staticmethod
@@ -84,20 +88,29 @@ class ImuNoise:
         """The settings a bag's metadata map records (a bag without them: a perfect sensor);
         a bad value is a `UserError` naming ``path.key``."""
         settings = {}
-        for key in (*NOISE_KEYS, "seed"):
-            text = metadata.get(METADATA_PREFIX + key)
-            if text is None:
-                continue
-            try:
-                settings[key] = int(text) if key == "seed" else [float(v) for v in text.split()]
-            except ValueError:
-                raise UserError(f"{path}.{METADATA_PREFIX}{key}", f"not numbers: "
-                                                                 f"{schema.short(text)}") from None
+        try:
+            if METADATA_SEED in metadata:
+                where = f"{path}.{METADATA_SEED}"
+                settings["seed"] = int(metadata[METADATA_SEED])
+            for field, name in METADATA_KEYS.items():
+                if name in metadata:
+                    where = f"{path}.{name}"
+                    values = [float(v) for v in metadata[name].split()]
+                    if len(values) != 2 * AXES:
+                        raise UserError(where, f"expected {2 * AXES} numbers (σ x y z, bias x "
+                                               f"y z), got {len(values)}")
+                    settings[f"{field}_stddev"] = values[:AXES]
+                    settings[f"{field}_bias"] = values[AXES:]
+        except ValueError:
+            raise UserError(where, f"not numbers: {schema.short(metadata[where.split('.')[-1]])}"
+                            ) from None
         try:
             return ImuNoise.from_settings(settings, path)
         except UserError as error:   # name the metadata key
-            raise UserError(error.key.replace(f"{path}.", f"{path}.{METADATA_PREFIX}", 1),
-                            error.problem) from None
+            key = error.key[len(path) + 1:]
+            field = next((f for f in METADATA_KEYS if key.startswith(f)), None)
+            name = METADATA_SEED if field is None else METADATA_KEYS[field]
+            raise UserError(f"{path}.{name}", f"{key}: {error.problem}") from None
 
     @property
     def perfect(self) -> bool:

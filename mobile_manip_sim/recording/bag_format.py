@@ -25,7 +25,7 @@ import importlib
 
 from mobile_manip_sim import __version__, limits, schema
 from mobile_manip_sim.errors import UserError
-from mobile_manip_sim.imu import METADATA_PREFIX, NOISE_KEYS, ImuNoise
+from mobile_manip_sim.imu import METADATA_KEYS, METADATA_SEED, ImuNoise
 from mobile_manip_sim.methods import METHODS
 from mobile_manip_sim.timeline import NS, CommandHistory, Grid, start_node_time_line
 from mobile_manip_sim.topics import (ARM_TOPIC, BAG_TOPIC_TYPES, BASE_COMMAND_TOPICS,
@@ -38,7 +38,7 @@ SOURCES = ("node", "simulate")
 SOURCE_RATE = {"simulate": "sample_rate", "node": "publish_rate"}   # source → its rate's key
 RUN_METADATA_KEYS = ("version", "integrator_method", "dt", "rtol", "atol", "scene_name", "source",
                      "sample_rate", "publish_rate", "duration", "base_command", "wheel_speed_kp",
-                     "wheel_speed_ki", *(METADATA_PREFIX + key for key in (*NOISE_KEYS, "seed")))
+                     "wheel_speed_ki", *METADATA_KEYS.values(), METADATA_SEED)
 RUN_METADATA_NUMBERS = {"dt": limits.DT, "rtol": limits.RTOL, "atol": limits.ATOL,
                         "sample_rate": limits.SAMPLE_RATE, "publish_rate": limits.SAMPLE_RATE,
                         "duration": limits.RECORDED_DURATION,
