@@ -99,6 +99,12 @@ PARAMETERS = {
 }
 
 
+def bounds(name: str) -> str:
+    """The declared range of parameter ``name`` as a message shows it: ``[0.001, 100000]``."""
+    return "[{}, {}]".format(*(v if isinstance(v, int) else f"{v:g}"
+                               for v in PARAMETERS[name].range))
+
+
 def expected_kind(name: str) -> str:
     """What a value of parameter ``name`` must be written as, for error messages."""
     default = PARAMETERS[name].default

@@ -130,8 +130,8 @@ class SimulatorNode(Node):
             except InvalidParameterValueException:
                 override = self._parameter_overrides.get(name)
                 value = override.value if override is not None else spec.default
-                raise UserError(name, f"{value} is outside [{spec.range[0]:g}, "
-                                      f"{spec.range[1]:g}]") from None
+                raise UserError(name, f"{value} is outside {parameters.bounds(name)}"
+                                ) from None
         # A parameter given for this node that it does not declare is a mistake (a typo such
         # as real_time_facter would otherwise be silently ignored). QoS overrides: qos.py's.
         unknown = sorted(name for name in set(self._parameter_overrides) - set(self._parameters)
