@@ -272,6 +272,20 @@ def imu_run(probe, tmp_path, count: int, *args) -> list:
     return list(probe.imu)
 
 
+def test_a_foxglove_port_in_use_is_one_line_naming_the_parameter():
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        result = subprocess.run([executable("simulator"), "--ros-args", "-p",
+                                 f"foxglove_port:={port}"], env=child_env(DOMAIN_ID),
+                                capture_output=True, text=True, timeout=120)
+    assert result.returncode == 2, result.stderr
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("simulator: error: foxglove_port: cannot "
+                                                   "start the Foxglove server"), result.stderr
+
+
 def test_imu_at_rest_reads_g_up_and_no_rate(probe, tmp_path):
     doc = base_only_doc()
     gravity = 9.81

@@ -26,6 +26,7 @@ from rclpy.serialization import serialize_message
 from sensor_msgs.msg import Imu as ImuMessage
 from std_msgs.msg import String
 
+from ..errors import UserError
 from ..frames import BASE_LINK, FrameTree
 from ..imu import Imu
 from ..messages import description, energy, imu, tf_cdr, tf_static_cdr
@@ -82,8 +83,11 @@ class NodeView:
         self._wired: dict[str, bytes] = {}   # this publication's CDR, for the live view
         if params.foxglove_port:
             from ..live_view import LiveView
-            self.live = LiveView(params.foxglove_port, name=node.get_fully_qualified_name(),
-                                 batch=LIVE_BATCH)
+            try:
+                self.live = LiveView(params.foxglove_port, name=node.get_fully_qualified_name(),
+                                     batch=LIVE_BATCH)
+            except UserError as error:   # the port in use: name the parameter
+                raise UserError("foxglove_port", error.problem) from None
 
     def messages(self, sim, k: int, stamp: int) -> dict:
         """Topic → message (or its CDR bytes) of publication ``k`` at ``stamp`` ns, ``sim`` at
