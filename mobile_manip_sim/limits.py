@@ -40,3 +40,5 @@ REAL_TIME_FACTOR = (0.0, 10000.0)  # simulated s per wall s; 0 = as fast as poss
 COMMAND_TIMEOUT = (0.0, 1.0e6)     # s of simulated time; 0 disables
 SYNC_TIMEOUT = (0.001, 3600.0)     # wall s
 INTEGRATOR_OVERRIDE = (0.0, 1.0)   # integrator.dt, .rtol, .atol
+PORT = (0, 65535)                  # the live view's TCP port (node: 0 = off; simulate: 0 = any)
+IMU_SEED = (0, 2 ** 63 - 1)        # the IMU noise's seed (a ROS integer parameter is int64)

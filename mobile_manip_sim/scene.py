@@ -14,11 +14,27 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from . import schema
-from . import methods
+from . import methods, schema
 from .errors import UserError
-from .limits import (ANGLE, ATOL, DAMPING, DENSITY, DT, DURATION, EFFORT, GRAVITY, INERTIA, LENGTH,
-                     MASS, MAX_LINKS, MAX_SAMPLES, MAX_STEPS, RADIUS, RTOL, SPEED)
+from .limits import (
+    ANGLE,
+    ATOL,
+    DAMPING,
+    DENSITY,
+    DT,
+    DURATION,
+    EFFORT,
+    GRAVITY,
+    INERTIA,
+    LENGTH,
+    MASS,
+    MAX_LINKS,
+    MAX_SAMPLES,
+    MAX_STEPS,
+    RADIUS,
+    RTOL,
+    SPEED,
+)
 from .model import Base, RobotModel
 from .scene_controller import ControllerSection, parse_controller
 

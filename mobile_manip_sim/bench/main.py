@@ -54,10 +54,19 @@ def _main(argv) -> int:
     except OSError as error:
         raise UserError("--out", f"cannot create {out} ({error.strerror})") from None
 
-    from . import (controllers, effects, engine_targets, hard_cases, report, scaling, versus,
-                   versus_mujoco, work_precision)
-    from .scenes import paper_document, random_arm_scene, scene_file
     from ..scene import load_scene
+    from . import (
+        controllers,
+        effects,
+        engine_targets,
+        hard_cases,
+        report,
+        scaling,
+        versus,
+        versus_mujoco,
+        work_precision,
+    )
+    from .scenes import paper_document, random_arm_scene, scene_file
 
     results = {"quick": args.quick, "started": time.time(), "only": args.only}
     if args.only == "mujoco":

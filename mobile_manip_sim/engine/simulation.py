@@ -23,18 +23,27 @@ import numpy as np
 from ..dynamics import Dynamics
 from ..dynamics.jit import Bound
 from ..effects import settings as effect_settings
-from ..methods import COMPILED_STEPPERS, IDS, METHODS
 from ..errors import UserError
+from ..methods import COMPILED_STEPPERS, IDS, METHODS
 from ..scene import IntegratorSettings, Scene
-from . import adaptive_stepping, dense, layout, stepping
+from . import adaptive_stepping, dense, layout, step_watch, stepping
+from . import runge_kutta as rk
 from .arm_commands import ArmCommands
 from .arm_control import ArmControl, arm_settings, scene_arm_control
-from . import runge_kutta as rk
 from .events import holding_margin
-from . import step_watch
-from .stops import LOG_HELD, Impact, make_impact_scratch, make_stops, relock, release
-from .system import (KI, KP, RHS_EVALS, TARGET_L, TARGET_R, TORQUE_LIMIT, VELOCITY_MODE, System,
-                     wheel_speed_torques)
+from .stops import LOG_HELD, Impact, make_impact_scratch, make_stops, release, relock
+from .system import (
+    KI,
+    KP,
+    RHS_EVALS,
+    TARGET_L,
+    TARGET_R,
+    TORQUE_LIMIT,
+    VELOCITY_MODE,
+    System,
+    wheel_speed_torques,
+)
+
 
 def scipy_solver(method: str):
     """SciPy's solver class for an adaptive method, imported only when one is used (~56 MB)."""
