@@ -9,14 +9,18 @@ tf2_ros's topics do (use_sim_time clients and tf listeners read them there).
   joint_states                      sensor_msgs/msg/JointState      state, reliable, depth 100
   odom                              nav_msgs/msg/Odometry           state
   clock                             rosgraph_msgs/msg/Clock         state
-  tf                                tf2_msgs/msg/TFMessage          state: odom → root, every moving joint
-  tf_static                         tf2_msgs/msg/TFMessage          latched: every fixed joint, one message
+  tf                                tf2_msgs/msg/TFMessage          state: odom → root, every
+                                                                    moving joint
+  tf_static                         tf2_msgs/msg/TFMessage          latched: every fixed joint,
+                                                                    one message
   robot_description                 std_msgs/msg/String             latched (transient local, 1)
   imu                               sensor_msgs/msg/Imu             state (imu.py)
-  energy                            std_msgs/msg/Float64MultiArray  state: [T, V, T + V] (J), live view only
+  energy                            std_msgs/msg/Float64MultiArray  state: [T, V, T + V] (J),
+                                                                    live view only
   wheel_effort_controller/commands  std_msgs/msg/Float64MultiArray  command, depth 10
   arm_effort_controller/commands    std_msgs/msg/Float64MultiArray  command
-  cmd_vel                           geometry_msgs/msg/Twist (or TwistStamped)  command, velocity mode
+  cmd_vel                           geometry_msgs/msg/Twist (or TwistStamped)  command,
+                                    velocity mode
   arm_position_controller/commands  std_msgs/msg/Float64MultiArray  command, arm_controller position
   arm_velocity_controller/commands  std_msgs/msg/Float64MultiArray  command, arm_controller velocity
   joint_trajectory_controller/joint_trajectory  trajectory_msgs/msg/JointTrajectory  command,

@@ -66,7 +66,8 @@ def blocks(page: Path) -> list[Block]:
         marker = MARKER.match(previous)
         end = next((j for j in range(i + 1, len(lines)) if lines[j].strip() == "```"), None)
         assert end is not None, f"{page.name}:{i + 1}: a fence that never closes"
-        body = [line[len(indent):] if line.startswith(indent) else line for line in lines[i + 1:end]]
+        body = [line[len(indent):] if line.startswith(indent) else line
+                for line in lines[i + 1:end]]
         found.append(Block(page, i + 1, language, "\n".join(body) + "\n",
                            marker.groups() if marker else None))
         i = end + 1
@@ -159,15 +160,17 @@ def test_the_block_reader_sees_markers_fences_and_indented_blocks(tmp_path):
         ("bash", "ros2 topic list\n", ("no-run", "needs ros2 CLI")),
         ("python", "print(1)\n", None),
         ("", "plain\n", None)]
-    assert matches("simulated 1.5 s in … s wall, 83 steps", "simulated 1.5 s in 0.3 s wall, 83 steps")
-    assert not matches("simulated 1.5 s in … s wall, 83 steps", "simulated 1.5 s in 0.3 s wall, 84 steps")
+    pattern = "simulated 1.5 s in … s wall, 83 steps"
+    assert matches(pattern, "simulated 1.5 s in 0.3 s wall, 83 steps")
+    assert not matches(pattern, "simulated 1.5 s in 0.3 s wall, 84 steps")
 
 
 def test_every_page_has_examples_that_run():
     """A page whose every block is marked no-run would test nothing."""
     for page in PAGES:
         runnable = [b for b in blocks(page) if b.language in RUN and not b.marker]
-        if page.name != "interfaces.md":   # its one example downloads and builds (test_interfaces_build.py runs it)
+        # interfaces.md's one example downloads and builds (test_interfaces_build.py runs it)
+        if page.name != "interfaces.md":
             assert runnable, f"{page.name}: no block runs"
 
 

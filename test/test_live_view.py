@@ -3,6 +3,7 @@ under Node.js, decoding with the Foxglove app's own ros2msg/CDR readers — conn
 `simulate --view`, finds every channel with its ROS 2 schema, decodes /tf and /joint_states at
 the sample rate (no stamp skipped or repeated), and a client that connects late still gets the
 latched /robot_description and /tf_static."""
+import itertools
 import signal
 import subprocess
 import threading
@@ -66,7 +67,7 @@ def test_a_foxglove_client_sees_the_robot_of_simulate_view(modules, viewed_run):
         stamps = [int(m["stamp"]) for m in received]
         assert len(stamps) >= 100
         # at the sample rate: every sample in turn, each message's time its own stamp
-        assert all(b - a == PERIOD_NS for a, b in zip(stamps, stamps[1:])), stamps[:10]
+        assert all(b - a == PERIOD_NS for a, b in itertools.pairwise(stamps)), stamps[:10]
         assert all(int(m["logTime"]) == int(m["stamp"]) for m in received)
     tf = messages(events, "/tf")[0]
     expected = [tree.base_transform(q0)] + tree.moving_transforms(q0)

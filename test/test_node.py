@@ -2,6 +2,7 @@
 and a probe node in this process that publishes efforts, calls the services and records what
 comes back. Every wait is on a condition with a timeout; a random ROS_DOMAIN_ID (and localhost
 discovery) keeps concurrent runs apart."""
+import itertools
 import math
 import os
 import re
@@ -66,8 +67,10 @@ class Probe:
         self.node.create_subscription(JointState, "/joint_states", self._on_joints, RELIABLE)
         self.node.create_subscription(Odometry, "/odom", self._on_odom, RELIABLE)
         self.node.create_subscription(Clock, "/clock", self._on_clock, RELIABLE)
-        self.wheels = self.node.create_publisher(Float64MultiArray, "/wheel_effort_controller/commands", 10)
-        self.arm = self.node.create_publisher(Float64MultiArray, "/arm_effort_controller/commands", 10)
+        self.wheels = self.node.create_publisher(Float64MultiArray,
+                                                 "/wheel_effort_controller/commands", 10)
+        self.arm = self.node.create_publisher(Float64MultiArray,
+                                              "/arm_effort_controller/commands", 10)
         self.reset_client = self.node.create_client(Trigger, "/mobile_manip_sim/reset")
         self.pause_client = self.node.create_client(SetBool, "/mobile_manip_sim/pause")
 
@@ -211,7 +214,8 @@ def test_stamps_are_exact_multiples_of_the_period_with_no_gaps(fresh):
     odom = fresh.run("odom")[0][7]
     assert (odom.header.frame_id, odom.child_frame_id) == ("odom", "base_footprint")
     covariance = np.array(odom.pose.covariance).reshape(6, 6)
-    assert np.array_equal(covariance, np.diag(np.diag(covariance))) and np.all(np.diag(covariance) > 0)
+    assert np.array_equal(covariance, np.diag(np.diag(covariance))) \
+        and np.all(np.diag(covariance) > 0)
 
 
 # --- motion -----------------------------------------------------------------------------------
@@ -220,7 +224,8 @@ def drive(probe, wheels, seconds):
     """Hold `wheels` from the start of a fresh run; the odometry records once `seconds` of
     simulated time have passed with them applied."""
     probe.send(wheels=wheels)
-    applied = probe.wait_run("joints", lambda run: index_of(run, lambda r: r[3][:2] == tuple(wheels)),
+    applied = probe.wait_run("joints",
+                             lambda run: index_of(run, lambda r: r[3][:2] == tuple(wheels)),
                              f"efforts {wheels} in /joint_states")
     t0 = probe.run("joints")[applied][0]
     probe.wait_run("odom", lambda run: run and run[-1][0] >= t0 + seconds * 1e9,
@@ -245,7 +250,7 @@ def test_stronger_right_wheel_turns_left(fresh):
     odom = drive(fresh, [0.3, 0.1], 1.5)
     yaws = [yaw(r) for r in odom]
     assert yaws[-1] > yaws[0] + 0.1 and odom[-1][6] > 0.0
-    assert all(later >= earlier - 1e-12 for earlier, later in zip(yaws, yaws[1:]))
+    assert all(later >= earlier - 1e-12 for earlier, later in itertools.pairwise(yaws))
 
 
 # --- the node is an adapter: same numbers as the engine run headless --------------------------
@@ -255,9 +260,11 @@ def test_published_state_matches_a_headless_run_of_the_same_commands(fresh):
                 ([0.0, 0.0], [1.0, 2.0, 0.0, 0.0])]
     for wheels, arm in commands:
         fresh.send(wheels=wheels, arm=arm)
-        fresh.wait_run("joints", lambda run: run and run[-1][3] == tuple(wheels + arm),
+        efforts = tuple(wheels + arm)
+        fresh.wait_run("joints", lambda run, efforts=efforts: run and run[-1][3] == efforts,
                        f"efforts {wheels + arm}")
-        fresh.wait_run("joints", lambda run, n=len(fresh.run("joints")): len(run) >= n + 20,
+        segments = len(fresh.run("joints"))
+        fresh.wait_run("joints", lambda run, n=segments: len(run) >= n + 20,
                        "20 more segments")
     fresh.pause(True)
     joints, odom = fresh.run("joints"), fresh.run("odom")
@@ -276,8 +283,8 @@ def test_published_state_matches_a_headless_run_of_the_same_commands(fresh):
         assert joints[k][1] == tuple(sim.q[3:].tolist()), f"positions at k = {k}"
         assert joints[k][2] == tuple(sim.qdot()[3:].tolist()), f"velocities at k = {k}"
         quaternion = yaw_quaternion(float(sim.q[2]))
-        assert odom[k][1:7] == (sim.q[0], sim.q[1], quaternion.z, quaternion.w, sim.u[0], sim.u[1]), \
-            f"odometry at k = {k}"
+        assert odom[k][1:7] == (sim.q[0], sim.q[1], quaternion.z, quaternion.w,
+                                sim.u[0], sim.u[1]), f"odometry at k = {k}"
 
 
 # --- services and timeout ---------------------------------------------------------------------
@@ -338,7 +345,8 @@ def test_command_timeout_zeroes_efforts_once_per_silence(probe, simulator, tmp_p
         wait_for(lambda: node.output().count(warning) == 2, "one timeout warning per group")
         # A new command re-arms the timeout: efforts come back, then time out again.
         probe.send(wheels=wheels)
-        again = probe.wait_run("joints", lambda run: index_of(run, lambda r: r[3][:2] == wheels, off),
+        again = probe.wait_run("joints",
+                               lambda run: index_of(run, lambda r: r[3][:2] == wheels, off),
                                "the wheel efforts again")
         probe.wait_run("joints", lambda run: index_of(run, efforts_equal((0.0,) * 6), again),
                        "the second timeout")
@@ -370,7 +378,8 @@ def test_bad_commands_are_rejected_and_the_last_valid_one_kept(fresh, simulator)
                  "keeping the last valid command",
                  "/wheel_effort_controller/commands: contains NaN ([0] = nan)",
                  "/wheel_effort_controller/commands: contains Inf ([1] = inf)",
-                 "/arm_effort_controller/commands: expected 4 values (tau_1, F_1, tau_2, F_2), got 3",
+                 "/arm_effort_controller/commands: expected 4 values (tau_1, F_1, tau_2, F_2), "
+                 "got 3",
                  "/arm_effort_controller/commands: contains NaN and Inf"):
         wait_for(lambda line=line: line in simulator.output(), f"the warning {line!r}")
     fresh.wait_run("joints", lambda run: len(run) > last + 20, "publishing to go on")
@@ -448,7 +457,8 @@ def test_a_huge_command_after_a_reset_pauses_the_node_until_reset(probe, simulat
         send([0.0, 0.0])
         assert probe.call(reset, Trigger.Request()).success
         assert probe.call(pause, SetBool.Request(data=False)).success
-        wait_for(lambda: len(probe.snapshot("joints")) >= marks["joints"] + 20, "publishing after the reset")
+        wait_for(lambda: len(probe.snapshot("joints")) >= marks["joints"] + 20,
+                 "publishing after the reset")
         assert node.process.poll() is None
     finally:
         probe.node.destroy_client(reset)
@@ -459,7 +469,8 @@ def test_a_huge_command_after_a_reset_pauses_the_node_until_reset(probe, simulat
 
 # --- start-up ---------------------------------------------------------------------------------
 
-@pytest.mark.parametrize("content", [None, "robot: [1, 2\n", "robot: {base: {mass: -1}}\n", ALIAS_BOMB])
+@pytest.mark.parametrize("content",
+                         [None, "robot: [1, 2\n", "robot: {base: {mass: -1}}\n", ALIAS_BOMB])
 def test_a_missing_or_invalid_scene_exits_2_with_one_line(tmp_path, content):
     path = tmp_path / "scene.yaml"
     if content is not None:
@@ -607,7 +618,8 @@ PARAMS_FILES = {  # case: (file content, or a special file's kind; what the one 
     "binary params file": (bytes(range(256)), "not UTF-8"),
     "alias bomb params file": (ALIAS_BOMB, "expands to more than 100000 YAML nodes"),
     "duplicate key params file": ("/**:\n  ros__parameters:\n    publish_rate: 50.0\n"
-                                  "    publish_rate: 100.0\n", "publish_rate: duplicate key (line 4)"),
+                                  "    publish_rate: 100.0\n",
+                                  "publish_rate: duplicate key (line 4)"),
     "nested params file": ("[" * 3000 + "]" * 3000, "nested deeper than"),
     "huge params file": ("#" * (2 << 20), "larger than"),
     "fifo params file": ("fifo", "not a regular file"),

@@ -1,6 +1,7 @@
 """Recording, replay and re-simulation as users run them: the installed `simulator`, `simulate`
 and `replay` executables in their own processes, real DDS (a random ROS_DOMAIN_ID, localhost
 discovery), and bags read back by independent readers (rosbags; mcap + mcap_ros2)."""
+import itertools
 import json
 import random
 import re
@@ -272,7 +273,8 @@ def test_a_node_bag_reads_back_with_rosbags(node_run):
     for topic, part in ((WHEELS, slice(0, 2)), (ARM, slice(2, 6))):
         commands = [(t, list(m.data)) for c, t, m in records if c == topic]
         assert commands[0] == (0, [0.0] * (part.stop - part.start))
-        for (t, values), (t_next, _) in zip(commands, commands[1:] + [(None, None)]):
+        for (t, values), (t_next, _) in zip(commands, commands[1:] + [(None, None)],
+                                            strict=True):
             assert t % PERIOD_NS == 0
             held_until = t_next if t_next is not None else max(recorded_joints)
             assert all(list(recorded_joints[s].effort[part]) == values
@@ -496,11 +498,11 @@ def test_replay_publishes_the_recorded_messages_in_order_at_the_recorded_rate(pr
         assert probe.messages(topic) == [m for _, m in expected], topic
     arrivals = [arrival for arrival, _ in probe.arrivals("/joint_states")]
     stamps = [t for t, _ in recorded["/joint_states"]]
-    for arrival, stamp in zip(arrivals, stamps):   # never early, loosely on time
+    for arrival, stamp in zip(arrivals, stamps, strict=True):   # never early, loosely on time
         assert arrival - arrivals[0] >= (stamp - stamps[0]) / 1e9 / rate - 0.01
     span = (stamps[-1] - stamps[0]) / 1e9 / rate
     assert span * 0.8 - 0.02 <= arrivals[-1] - arrivals[0] <= span * 1.25 + 0.1
-    gaps = sorted(b - a for a, b in zip(arrivals, arrivals[1:]))
+    gaps = sorted(b - a for a, b in itertools.pairwise(arrivals))
     assert abs(gaps[len(gaps) // 2] - 0.05 / rate) < 0.01   # median spacing: 50 ms / rate
     # … and /robot_description, latched, played first (its t = 0 message, before the start)
     assert f"played {sum(len(v) for v in recorded.values()) + 1} messages" in result.stdout

@@ -2,6 +2,7 @@
 built from its definition (test/interfaces_build.py, a cached fixture), real DDS on a random
 domain. Without tf2_msgs the node says so in one line and runs on. The whole tree (publish_tf
 all): test_node_view.py."""
+import itertools
 import os
 import random
 import signal
@@ -40,7 +41,7 @@ def test_publish_tf_base_carries_odom_to_base_footprint_alone_at_every_publicati
     assert {(row[1], row[2]) for row in rows} == {("odom", "base_footprint")}
     stamps = [int(row[0]) for row in rows]
     # Simulated-time stamps, one per publication period, none skipped or repeated.
-    assert all(b - a == PERIOD_NS for a, b in zip(stamps, stamps[1:])), stamps[:20]
+    assert all(b - a == PERIOD_NS for a, b in itertools.pairwise(stamps)), stamps[:20]
     assert all(abs(float(r[5]) ** 2 + float(r[6]) ** 2 - 1.0) < 1e-12 for r in rows)
 
 
