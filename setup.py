@@ -8,13 +8,17 @@ package_name = "mobile_manip_sim"
 setup(
     name=package_name,
     version="0.1.0",
-    packages=find_packages(exclude=["test", "test.*"]),
+    # config/ (the scenes, the params file, sweep specs) as packages of data, so that setuptools
+    # installs it without its ~45-line warning about importable directories left out of `packages`
+    packages=find_packages(exclude=["test", "test.*"]) + [
+        f"{package_name}.config", f"{package_name}.config.sweeps"],
     data_files=[
         ("share/ament_index/resource_index/packages", ["resource/" + package_name]),
         ("share/" + package_name, ["package.xml"]),
         ("share/" + package_name + "/config", glob("config/*.yaml") + glob("config/*.json")),
     ],
-    package_data={package_name: ["config/*.yaml", "config/*.json"]},
+    package_data={f"{package_name}.config": ["*.yaml", "*.json"],
+                  f"{package_name}.config.sweeps": ["*.yaml"]},
     include_package_data=True,
     python_requires=">=3.10",
     install_requires=[
@@ -28,7 +32,7 @@ setup(
     extras_require={"test": [
         "pytest", "pin", "mujoco", "rosbags", "mcap-ros2-support", "ros-jazzy-ament-package",
         "colcon-core", "colcon-ros", "colcon-python-setup-py", "colcon-package-information",
-        "colcon-package-selection", "hypothesis",
+        "colcon-package-selection", "hypothesis", "ruff",
     ]},
     zip_safe=True,
     maintainer="mobile_manip_sim developers",

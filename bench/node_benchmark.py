@@ -170,7 +170,8 @@ def main(argv=None) -> int:
          f"{paced['interval_mean']:.3f} ± {paced['interval_std']:.3f} ms", "10 ms"),
         ("/clock reception interval: p99 / max",
          f"{paced['interval_p99']:.3f} / {paced['interval_max']:.3f} ms", ""),
-        ("messages received / missing in the window", f"{paced['received']} / {paced['missing']}", "— / 0"),
+        ("messages received / missing in the window",
+         f"{paced['received']} / {paced['missing']}", "— / 0"),
         ("resident memory VmRSS (anonymous + file-backed + shmem)",
          f"{paced['rss']:.0f} MB ({paced['rss_anon']:.0f} + {paced['rss_file']:.0f} + "
          f"{paced['rss_shmem']:.0f})", "< 200 MB"),

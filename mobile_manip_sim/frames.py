@@ -2,7 +2,8 @@
 them. The URDF (urdf.py) is written from this tree, and /tf, /tf_static, bags and the live view
 publish its transforms, so a viewer always draws the multibody the dynamics integrates. No ROS.
 
-The tree (docs/model.md's kinematics, REP-105 names; `RobotModel.joint_names()` for the moving joints):
+The tree (docs/model.md's kinematics, REP-105 names; `RobotModel.joint_names()` for the moving
+joints):
 
     base_footprint                 on the floor under A (the root: the node's ``base_frame``)
     └─ base_footprint_joint   fixed, z = r                                     → base_link (A)
@@ -27,6 +28,7 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
+from .coordinates import JOINTS, YAW, X, Y, u_slide, u_turn
 from .model import RobotModel
 
 FOOTPRINT = "base_footprint"
@@ -37,7 +39,7 @@ WHEELS = (("right", -1.0), ("left", 1.0))   # side, sign of y
 
 class Joint(NamedTuple):
     """One joint of the tree, with bare frame names; ``index`` is its value's position in
-    /joint_states (q[3 + index] in the state), None for a fixed joint."""
+    /joint_states (q[JOINTS][index] in the state), None for a fixed joint."""
 
     name: str
     kind: str                       # fixed | continuous | prismatic
@@ -94,12 +96,12 @@ def _joints(model: RobotModel, root: str) -> list[Joint]:
                             (0.0, sign * float(base.half_track), 0.0), zero, (0.0, 1.0, 0.0),
                             index))
     parent, xyz = BASE_LINK, tuple(map(float, model.mount))
-    for k in range(model.n_links):
-        link, rod = f"arm_link_{k + 1}", f"arm_rod_{k + 1}"
-        joints.append(Joint(names[2 + 2 * k], "continuous", parent, link, xyz,
-                            tuple(map(float, model.joint_rpy[k])), (0.0, 0.0, 1.0), 2 + 2 * k))
-        joints.append(Joint(names[3 + 2 * k], "prismatic", link, rod, zero, zero,
-                            (1.0, 0.0, 0.0), 3 + 2 * k))
+    for k in range(1, model.n_links + 1):   # the arm's joints are indexed as u
+        link, rod, turn, slide = f"arm_link_{k}", f"arm_rod_{k}", u_turn(k), u_slide(k)
+        joints.append(Joint(names[turn], "continuous", parent, link, xyz,
+                            tuple(map(float, model.joint_rpy[k - 1])), (0.0, 0.0, 1.0), turn))
+        joints.append(Joint(names[slide], "prismatic", link, rod, zero, zero,
+                            (1.0, 0.0, 0.0), slide))
         parent, xyz = rod, zero
     joints.append(Joint("tip_joint", "fixed", parent, TIP, xyz, zero, None, None))
     return joints
@@ -132,7 +134,7 @@ class FrameTree:
         if joint.kind == "continuous":
             rotation = quaternion_multiply(rotation, axis_quaternion(joint.axis, value))
         elif joint.kind == "prismatic":   # origin rotations of the slides are identities
-            translation = tuple(t + a * value for t, a in zip(translation, joint.axis))
+            translation = tuple(t + a * value for t, a in zip(translation, joint.axis, strict=True))
         return Transform(self.frame(joint.parent), self.frame(joint.child), translation, rotation)
 
     def static_transforms(self) -> list[Transform]:
@@ -141,9 +143,10 @@ class FrameTree:
 
     def moving_transforms(self, q) -> list[Transform]:
         """Every moving joint at configuration ``q`` (what /tf carries besides the base)."""
-        return [self.transform(joint, float(q[3 + joint.index])) for joint in self.moving]
+        positions = q[JOINTS]
+        return [self.transform(joint, float(positions[joint.index])) for joint in self.moving]
 
     def base_transform(self, q, odom: str = "odom") -> Transform:
         """``odom`` → root: the base's planar pose (x, y, yaw) on the floor."""
-        return Transform(self.frame(odom), self.frame(self.root), (float(q[0]), float(q[1]), 0.0),
-                         axis_quaternion((0.0, 0.0, 1.0), float(q[2])))
+        return Transform(self.frame(odom), self.frame(self.root), (float(q[X]), float(q[Y]), 0.0),
+                         axis_quaternion((0.0, 0.0, 1.0), float(q[YAW])))

@@ -70,11 +70,14 @@ def summary_line(sim: Simulation, wall: float, simulated: float | None = None) -
 def run(scene: Scene, duration: float, sample_rate: float, settings=None, on_sample=None,
         progress=None) -> Simulation:
     """Simulate `duration` s from the scene's initial state with its constant efforts, calling
-    ``on_sample(sim)`` at every sample time (and ``progress.update(t)`` after it, if given);
+    ``on_sample(sim)`` at every sample time (and ``progress.update(t)`` after it, if given: a
+    `progress.Progress`, which also follows the simulated time between samples);
     returns the finished simulation. Its ``timing`` is (simulated s, wall s) from the end of the
     first sample that advanced time on, or None; its ``tracking`` the arm's `Tracking` when a
     controller drives the arm, else None."""
     sim = Simulation(scene, settings)
+    if progress:
+        progress.follow(lambda: sim.t)
     timing_from = None
     sim.tracking = Tracking(sim.nu - 2) if sim.arm_control.active else None
     for t in sample_times(duration, sample_rate):

@@ -22,6 +22,7 @@ from typing import NamedTuple
 import numpy as np
 
 from . import schema
+from .coordinates import OMEGA, YAW, V
 from .errors import UserError
 
 AXES = 3
@@ -95,7 +96,7 @@ class ImuNoise:
 
 def true_reading(q, u, u_dot, gravity: float) -> ImuReading:
     """What a perfect IMU at A reads at (q, u) with pseudo-accelerations ``u_dot``."""
-    yaw, v, omega, v_dot = float(q[2]), float(u[0]), float(u[1]), float(u_dot[0])
+    yaw, v, omega, v_dot = float(q[YAW]), float(u[V]), float(u[OMEGA]), float(u_dot[V])
     half = 0.5 * yaw
     return ImuReading((0.0, 0.0, float(np.sin(half)), float(np.cos(half))),
                       (0.0, 0.0, omega), (v_dot, v * omega, float(gravity)))

@@ -24,13 +24,21 @@ import time
 from .errors import UserError
 from .frames import FrameTree
 from .imu import Imu
-from .pacing import Pacer
-from .timeline import Grid
 from .messages import description, energy, imu, state_messages, tf_cdr, tf_static_cdr
+from .pacing import Pacer
 from .recording.cdr import exact_cdr
 from .recording.message_definitions import definition_text
-from .topics import (CLOCK_TOPIC, DESCRIPTION_TOPIC, ENERGY_TOPIC, IMU_TOPIC, LATCHED_TOPICS,
-                     LIVE_TOPIC_TYPES, TF_STATIC_TOPIC, TF_TOPIC)
+from .timeline import Grid
+from .topics import (
+    CLOCK_TOPIC,
+    DESCRIPTION_TOPIC,
+    ENERGY_TOPIC,
+    IMU_TOPIC,
+    LATCHED_TOPICS,
+    LIVE_TOPIC_TYPES,
+    TF_STATIC_TOPIC,
+    TF_TOPIC,
+)
 from .urdf import robot_description
 
 DEFAULT_PORT = 8765

@@ -17,14 +17,25 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Imu, JointState
 from std_msgs.msg import Float64MultiArray, String
 
+from .coordinates import JOINTS, OMEGA, YAW, V, X, Y
 from .recording.cdr import tf_message_cdr
 
 # Stamps come from the time line (timeline.py); topic names, types and QoS live in topics.py,
 # re-exported here for the message builders' users.
 from .timeline import NS  # noqa: F401
-from .topics import (ARM_TOPIC, CLOCK_TOPIC, CMD_VEL_TOPIC, COMMAND_QOS_DEPTH,  # noqa: F401
-                     COMMAND_TOPICS, JOINT_STATES_TOPIC, ODOM_TOPIC, STATE_QOS_DEPTH,
-                     STATE_TOPICS, TOPIC_TYPES, WHEEL_TOPIC)
+from .topics import (  # noqa: F401
+    ARM_TOPIC,
+    CLOCK_TOPIC,
+    CMD_VEL_TOPIC,
+    COMMAND_QOS_DEPTH,
+    COMMAND_TOPICS,
+    JOINT_STATES_TOPIC,
+    ODOM_TOPIC,
+    STATE_QOS_DEPTH,
+    STATE_TOPICS,
+    TOPIC_TYPES,
+    WHEEL_TOPIC,
+)
 
 # Ground truth from the model: a planar model knows z, roll and pitch exactly (all zero), so all
 # six pose and twist dimensions are known. A small positive diagonal rather than 0 keeps the
@@ -50,7 +61,9 @@ def applied_efforts(state) -> list[float]:
     """[τ_R, τ_L, τ_1, F_1, …]: the efforts the engine holds (after effort limits); in
     velocity mode the wheel torques the speed loop applies now."""
     wheels = state.wheel_torques() if hasattr(state, "wheel_torques") else state.wheel_efforts
-    return list(map(float, wheels)) + state.joint_efforts.tolist()
+    joints = (state.joint_efforts_applied() if hasattr(state, "joint_efforts_applied")
+              else state.joint_efforts)   # an arm controller's output, or the commanded efforts
+    return list(map(float, wheels)) + [float(v) for v in joints]
 
 
 def joint_state(state, stamp: int, names, efforts=None) -> JointState:
@@ -59,8 +72,8 @@ def joint_state(state, stamp: int, names, efforts=None) -> JointState:
     message = JointState()
     message.header.stamp = time_msg(stamp)
     message.name = list(names)
-    message.position = state.q[3:].tolist()
-    message.velocity = state.qdot()[3:].tolist()
+    message.position = state.q[JOINTS].tolist()
+    message.velocity = state.qdot()[JOINTS].tolist()
     message.effort = [float(v) for v in (applied_efforts(state) if efforts is None else efforts)]
     return message
 
@@ -74,12 +87,12 @@ def odometry(state, stamp: int, odom_frame: str = "odom",
     message.header.stamp = time_msg(stamp)
     message.header.frame_id = odom_frame
     message.child_frame_id = base_frame
-    message.pose.pose.position.x = float(q[0])
-    message.pose.pose.position.y = float(q[1])
-    message.pose.pose.orientation = yaw_quaternion(float(q[2]))
+    message.pose.pose.position.x = float(q[X])
+    message.pose.pose.position.y = float(q[Y])
+    message.pose.pose.orientation = yaw_quaternion(float(q[YAW]))
     message.pose.covariance = GROUND_TRUTH_COVARIANCE
-    message.twist.twist.linear.x = float(u[0])
-    message.twist.twist.angular.z = float(u[1])
+    message.twist.twist.linear.x = float(u[V])
+    message.twist.twist.angular.z = float(u[OMEGA])
     message.twist.covariance = GROUND_TRUTH_COVARIANCE
     return message
 
@@ -114,7 +127,7 @@ def command_values(topic: str, message) -> list[float]:
 
 def transform(odom: Odometry):
     """The /tf message (tf2_msgs/TFMessage) of ``odom``'s pose: odom_frame → base_frame at the
-    same stamp. Imports tf2_msgs, which only a ROS install (or tools/build_tf2_msgs.sh) has."""
+    same stamp. Imports tf2_msgs, which only a ROS install (or tools/build_interfaces.sh) has."""
     from geometry_msgs.msg import TransformStamped
     from tf2_msgs.msg import TFMessage
     pose = odom.pose.pose
@@ -184,3 +197,52 @@ def energy(state) -> Float64MultiArray:
     """[T, V, T + V] in J at the state (``state.dynamics.energy``)."""
     T, V = state.dynamics.energy(state.q, state.u)
     return float64_array([T, V, T + V])
+
+
+# --- the arm controllers' commands as a bag records them (topics.ARM_COMMAND_TOPICS) -----------
+
+def joint_trajectory(trajectory, names, stamp: int):
+    """trajectory_msgs/JointTrajectory of a `trajectory_goals.Trajectory` (joints ``names``, the
+    node's order; times in ns, exact as Durations), stamped ``stamp`` (when it applied)."""
+    from builtin_interfaces.msg import Duration
+    from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+
+    message = JointTrajectory(joint_names=list(names))
+    message.header.stamp = time_msg(stamp)
+    for i, t in enumerate(trajectory.times):
+        point = JointTrajectoryPoint(positions=trajectory.positions[i].tolist())
+        for field in ("velocities", "accelerations"):
+            rows = getattr(trajectory, field)
+            if rows is not None:
+                setattr(point, field, rows[i].tolist())
+        point.time_from_start = Duration(sec=int(t) // NS, nanosec=int(t) % NS)
+        message.points.append(point)
+    return message
+
+
+def trajectory_values(message):
+    """The `trajectory_goals.Trajectory` of a recorded JointTrajectory (the inverse of
+    ``joint_trajectory``): columns in the message's joint order."""
+    import numpy as np
+
+    from .trajectory_goals import Trajectory
+
+    points, n = message.points, len(message.joint_names)
+    times = np.array([p.time_from_start.sec * NS + p.time_from_start.nanosec for p in points],
+                     dtype=np.int64)
+
+    def rows(field):
+        values = [list(getattr(p, field)) for p in points]
+        return None if points and not any(values) else np.array(values, dtype=float).reshape(-1, n)
+    return Trajectory(times, rows("positions"), rows("velocities"), rows("accelerations"))
+
+
+def arm_command_message(mode: str, command, names, stamp: int):
+    """The recorded message of an arm controller's command (`timeline.apply_arm_command`)."""
+    return joint_trajectory(command, names, stamp) if mode == "joint_trajectory" \
+        else float64_array(command)
+
+
+def arm_command_values(mode: str, message):
+    """The command of a recorded arm message (the inverse of ``arm_command_message``)."""
+    return trajectory_values(message) if mode == "joint_trajectory" else list(message.data)

@@ -9,6 +9,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .coordinates import q_size, u_size
+
 
 def _frozen(values, shape) -> np.ndarray:
     array = np.array(values, dtype=float).reshape(shape)
@@ -61,7 +63,8 @@ class RobotModel:
 
     @staticmethod
     def build(base: Base, mount, links: list[dict]) -> "RobotModel":
-        """Links as dicts with length, mass_per_length, inertia_per_length (3×3), joint_rpy, stroke."""
+        """Links as dicts with length, mass_per_length, inertia_per_length (3×3), joint_rpy,
+        stroke."""
         n = len(links)
         rpy = np.array([link["joint_rpy"] for link in links], dtype=float).reshape(n, 3)
         return RobotModel(
@@ -82,12 +85,12 @@ class RobotModel:
     @property
     def n_q(self) -> int:
         """Configuration size: x, y, yaw, θ_R, θ_L, then q_i, l_i per link."""
-        return 5 + 2 * self.n_links
+        return q_size(self.n_links)
 
     @property
     def n_u(self) -> int:
         """Pseudo-velocity size: v, ω, then q̇_i, l̇_i per link."""
-        return 2 + 2 * self.n_links
+        return u_size(self.n_links)
 
     def joint_names(self) -> list[str]:
         """Names used in /joint_states and the URDF: wheels, then per link revolute, prismatic."""

@@ -46,11 +46,14 @@ def set_path(document: dict, path: str, value) -> None:
         last = depth == len(parts) - 1
         if isinstance(part, int):
             if not isinstance(node, list):
-                raise UserError(here, f"unknown key path: {path_label(parts[:depth]) or 'the scene'} is not a list")
+                raise UserError(here, f"unknown key path: "
+                                      f"{path_label(parts[:depth]) or 'the scene'} is not a list")
             if part >= len(node):
-                raise UserError(here, f"unknown key path: index {part} out of range (the list has {len(node)} entries)")
+                raise UserError(here, f"unknown key path: index {part} out of range (the list "
+                                      f"has {len(node)} entries)")
         elif not isinstance(node, dict):
-            raise UserError(here, f"unknown key path: {path_label(parts[:depth])} is a value, not a mapping")
+            raise UserError(here, f"unknown key path: {path_label(parts[:depth])} is a value, "
+                                  "not a mapping")
         elif part not in node and not last:
             if isinstance(parts[depth + 1], int):
                 raise UserError(here, f"unknown key path: the scene has no list {here} "
@@ -79,7 +82,8 @@ def check_known(document: dict, path: str, value) -> None:
     except UserError as error:
         known_prefix = path.startswith(error.key) or error.key.startswith(path)
         if error.problem.startswith("unknown key") and known_prefix:
-            raise UserError(path, error.problem if error.key == path else f"unknown key path: {error}") from None
+            raise UserError(path, error.problem if error.key == path
+                            else f"unknown key path: {error}") from None
 
 
 def parse_assignments(assignments: list[str], flag: str = "--set") -> dict:
@@ -89,5 +93,6 @@ def parse_assignments(assignments: list[str], flag: str = "--set") -> dict:
         path, equals, value = text.partition("=")
         if not equals or not path.strip():
             raise UserError(flag, f"expected KEY=VALUE, got {text!r}")
-        overrides[path.strip()] = schema.load_yaml(value, what=f"{flag} {schema.label(path.strip())}")
+        overrides[path.strip()] = schema.load_yaml(value,
+                                                   what=f"{flag} {schema.label(path.strip())}")
     return overrides

@@ -24,7 +24,6 @@ from __future__ import annotations
 import csv
 import os
 import stat
-import sys
 import time
 from pathlib import Path
 
@@ -32,33 +31,11 @@ from . import cli, schema
 from .errors import UserError
 from .headless import csv_columns, csv_row, run, summary_line
 from .limits import DURATION, SAMPLE_RATE
+from .progress import Progress
 from .scene import check_work, load_scene, make_integrator
 from .scene_overrides import parse_assignments, scene_with
 
 DEFAULT_VIEW_PORT = 8765           # --view without a port: Foxglove's default
-
-
-class Progress:
-    """A one-line progress bar on stderr, only when stderr is a terminal."""
-
-    def __init__(self, total: float, stream=sys.stderr):
-        self.total, self.stream = total, stream
-        self.active = stream.isatty()
-        self._last = -1
-
-    def update(self, done: float) -> None:
-        if not self.active:
-            return
-        percent = int(100 * done / self.total) if self.total > 0 else 100
-        if percent != self._last:
-            self._last = percent
-            bar = "#" * (percent // 4)
-            self.stream.write(f"\r[{bar:<25}] {percent:3d}%  t = {done:.3f} s")
-            self.stream.flush()
-
-    def close(self) -> None:
-        if self.active:
-            self.stream.write("\n")
 
 
 def _main(argv) -> int:
@@ -118,7 +95,7 @@ def _main(argv) -> int:
                     recorder.sample(sim)
 
         start = time.perf_counter()
-        progress = Progress(duration)
+        progress = Progress("simulate", duration, "s", rate_unit="s per wall s")
         try:
             sim = run(scene, duration, rate, settings, on_sample, progress)
         finally:

@@ -15,7 +15,8 @@ command in effect over segment k is chosen at its start t_k and held to t_{k+1}.
 - A bag records each command as applied, stamped with the segment start from which it was held,
   and only when it changed (`RunRecorder.commands`): the command over the segment starting at s
   is the latest record with stamp ≤ s (`CommandHistory`). Re-simulation and plots read it so.
-- `apply_commands` is how a segment's commands enter the engine (node and re-simulation alike);
+- `apply_commands` is how a segment's commands enter the engine (node and re-simulation alike),
+  `apply_arm_command` an arm controller's (position, velocity, trajectory: applied when given);
   `start_node_time_line` is the node's t = 0: the scene's initial state with ZERO efforts (a
   robot should not move before someone commands it), where `simulate` holds the scene's efforts.
 """
@@ -170,9 +171,10 @@ class CommandHistory:
 
 
 def start_node_time_line(sim) -> None:
-    """The node's t = 0 (at start and after ~/reset): initial state, zero efforts."""
+    """The node's t = 0 (at start and after ~/reset): initial state, zero efforts (an arm
+    controller holds the initial pose: `Simulation.reset`)."""
     sim.reset()
-    sim.set_efforts(np.zeros(2), np.zeros(sim.nu - 2))
+    sim.set_efforts(np.zeros(2), None if sim.arm_control.active else np.zeros(sim.nu - 2))
 
 
 def apply_commands(sim, base, joints, velocity: bool) -> tuple[np.ndarray, np.ndarray]:
@@ -189,3 +191,19 @@ def apply_commands(sim, base, joints, velocity: bool) -> tuple[np.ndarray, np.nd
         sim.set_efforts(base, joints)
         applied_base = sim.wheel_efforts
     return applied_base, sim.joint_efforts
+
+
+def apply_arm_command(sim, mode: str, command) -> None:
+    """An arm controller's command as it enters the engine at a segment start (node and
+    re-simulation alike): in ``mode`` position or velocity the n_arm values; in joint_trajectory
+    a `trajectory_goals.Trajectory` (times in integer ns; no points: hold where it is). A
+    command the engine refuses is its UserError."""
+    if mode == "position":
+        sim.set_arm_positions(command)
+    elif mode == "velocity":
+        sim.set_arm_velocities(command)
+    elif len(command.times) == 0:
+        sim.hold_arm()
+    else:
+        sim.set_arm_trajectory(command.times / NS, command.positions, command.velocities,
+                               command.accelerations)

@@ -15,6 +15,13 @@ creates every topic under its RELATIVE name (``odom``), so ``__ns:=/robot1`` put
   wheel_effort_controller/commands  std_msgs/msg/Float64MultiArray  command, depth 10
   arm_effort_controller/commands    std_msgs/msg/Float64MultiArray  command
   cmd_vel                           geometry_msgs/msg/Twist (or TwistStamped)  command, velocity mode
+  arm_position_controller/commands  std_msgs/msg/Float64MultiArray  command, arm_controller position
+  arm_velocity_controller/commands  std_msgs/msg/Float64MultiArray  command, arm_controller velocity
+  joint_trajectory_controller/joint_trajectory  trajectory_msgs/msg/JointTrajectory  command,
+                                    arm_controller joint_trajectory (and the action
+                                    joint_trajectory_controller/follow_joint_trajectory)
+  joint_trajectory_controller/controller_state  control_msgs/msg/JointTrajectoryControllerState
+                                    state, arm_controller joint_trajectory
 
 A bag holds the state topics, the view topics (what a viewer needs to draw the robot: /tf,
 /tf_static, /robot_description; the latched ones with their transient-local QoS) and the command
@@ -43,7 +50,7 @@ COMMAND_TOPICS = (WHEEL_TOPIC, ARM_TOPIC, CMD_VEL_TOPIC)
 # The base's command modes (the node's base_command parameter, a bag's base_command metadata)
 # and the topic that commands the base in each.
 BASE_COMMANDS = ("effort", "velocity")
-BASE_COMMAND_TOPICS = dict(zip(BASE_COMMANDS, (WHEEL_TOPIC, CMD_VEL_TOPIC)))
+BASE_COMMAND_TOPICS = dict(zip(BASE_COMMANDS, (WHEEL_TOPIC, CMD_VEL_TOPIC), strict=True))
 # In a bag cmd_vel is always a Twist (the applied v, ω; its log time says when it applied),
 # whichever of Twist or TwistStamped the node took.
 CMD_VEL_TYPE = "geometry_msgs/msg/Twist"
@@ -68,13 +75,36 @@ LIVE_TOPIC_TYPES.update({IMU_TOPIC: "sensor_msgs/msg/Imu",
 # Every topic one of our bags may hold.
 BAG_TOPIC_TYPES = {**TOPIC_TYPES, CMD_VEL_TOPIC: CMD_VEL_TYPE}
 
+# --- the arm's controllers (node parameter arm_controller; a bag's arm_controller metadata) ---
+# One command topic per mode, as ros2_controllers names them; joint_trajectory mode also has
+# the FollowJointTrajectory action and publishes the controller's state. A bag records the
+# commands of its run's mode as applied: arrays, or trajectories in the node's joint order,
+# stamped with the simulated time they applied (no points: hold where it is).
+ARM_POSITION_TOPIC = "/arm_position_controller/commands"
+ARM_VELOCITY_TOPIC = "/arm_velocity_controller/commands"
+TRAJECTORY_TOPIC = "/joint_trajectory_controller/joint_trajectory"
+TRAJECTORY_ACTION = "/joint_trajectory_controller/follow_joint_trajectory"
+CONTROLLER_STATE_TOPIC = "/joint_trajectory_controller/controller_state"
+TRAJECTORY_TYPE = "trajectory_msgs/msg/JointTrajectory"
+TRAJECTORY_ACTION_TYPE = "control_msgs/action/FollowJointTrajectory"
+CONTROLLER_STATE_TYPE = "control_msgs/msg/JointTrajectoryControllerState"
+ARM_COMMAND_TOPICS = {"effort": ARM_TOPIC, "position": ARM_POSITION_TOPIC,
+                      "velocity": ARM_VELOCITY_TOPIC, "joint_trajectory": TRAJECTORY_TOPIC}
+BAG_TOPIC_TYPES.update({ARM_POSITION_TOPIC: "std_msgs/msg/Float64MultiArray",
+                        ARM_VELOCITY_TOPIC: "std_msgs/msg/Float64MultiArray",
+                        TRAJECTORY_TOPIC: TRAJECTORY_TYPE})
+COMMAND_TOPICS = (*COMMAND_TOPICS, ARM_POSITION_TOPIC, ARM_VELOCITY_TOPIC, TRAJECTORY_TOPIC)
 
-def recorded_topics(base_command: str = "effort", view: bool = True) -> dict:
-    """Topic → type of the bag of a run whose base takes ``base_command`` (effort|velocity),
-    with the view topics unless ``view`` is false."""
-    base = BASE_COMMAND_TOPICS[base_command]
+
+def recorded_topics(base_command: str = "effort", view: bool = True,
+                    arm_controller: str = "effort") -> dict:
+    """Topic → type of the bag of a run whose base takes ``base_command`` (effort|velocity)
+    and whose arm is driven by ``arm_controller`` (ARM_COMMAND_TOPICS' modes), with the view
+    topics unless ``view`` is false."""
+    base, arm = BASE_COMMAND_TOPICS[base_command], ARM_COMMAND_TOPICS[arm_controller]
     return {topic: kind for topic, kind in BAG_TOPIC_TYPES.items()
             if (topic not in BASE_COMMAND_TOPICS.values() or topic == base)
+            and (topic not in ARM_COMMAND_TOPICS.values() or topic == arm)
             and (view or topic not in VIEW_TOPICS)}
 STATE_QOS_DEPTH = 100      # the node's state publishers: room for slow subscribers
 COMMAND_QOS_DEPTH = 10     # rclpy's default publisher depth, what command senders use

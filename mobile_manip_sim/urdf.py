@@ -36,6 +36,7 @@ import xml.etree.ElementTree as ET
 
 import numpy as np
 
+from .coordinates import rod
 from .effects import settings as effect_settings
 from .frames import BASE_LINK, FOOTPRINT, TIP, FrameTree
 from .scene import Scene
@@ -110,12 +111,12 @@ def robot_description(scene: Scene, root: str = FOOTPRINT, prefix: str = "") -> 
     model, effects = scene.robot, effect_settings(scene)
     tree = FrameTree(model, root, prefix)
     base = model.base
-    n = model.n_links
     d, r, b = base.com_offset, base.wheel_radius, base.half_track
     # the scene's bounds (None where it sets none) and damping, as the simulator applies them
     limits = effects.effort_limits
-    efforts = [None if limits is None or math.isinf(limits[j]) else limits[j] for j in range(2 + 2 * n)]
-    damping = np.zeros(2 + 2 * n) if effects.rate_damping is None else effects.rate_damping
+    efforts = [None if limits is None or math.isinf(limits[j]) else limits[j]
+               for j in range(model.n_u)]   # one per joint: the joints are indexed as u
+    damping = np.zeros(model.n_u) if effects.rate_damping is None else effects.rate_damping
 
     robot = ET.Element("robot", name=scene.name)
     for name, rgba in (("chassis", (0.3, 0.3, 0.35, 1.0)), ("wheel", (0.1, 0.1, 0.1, 1.0)),
@@ -139,7 +140,7 @@ def robot_description(scene: Scene, root: str = FOOTPRINT, prefix: str = "") -> 
             if I_w > 0.0:
                 _inertial(link, 0.0, (0.0, 0.0, 0.0), np.diag([0.0, I_w, 0.0]))
         elif joint.kind == "prismatic":
-            k = (joint.index - 2) // 2
+            k = rod(joint.index) - 1
             L, mu = float(model.length[k]), float(model.mass_per_length[k])
             J = np.asarray(model.inertia_per_length[k], dtype=float)
             # A solid round rod has J_xx = μ ρ²/2 per unit length: draw it with that radius ρ.
@@ -156,7 +157,7 @@ def robot_description(scene: Scene, root: str = FOOTPRINT, prefix: str = "") -> 
         element = _joint(robot, joint.name, joint.kind, tree.frame(joint.parent),
                          tree.frame(joint.child), xyz=joint.xyz, rpy=joint.rpy, axis=joint.axis)
         if joint.kind == "prismatic":
-            k = (joint.index - 2) // 2
+            k = rod(joint.index) - 1
             _limit(element, efforts[joint.index], lower=model.stroke[k][0],
                    upper=model.stroke[k][1])
         elif joint.index is not None and efforts[joint.index] is not None:

@@ -12,7 +12,8 @@ def rewrite_bag(source: Path, target: Path, transform=None, *, metadata=None, at
     `attachments` (name → new value, None = leave out) replace the recorded ones, `qos` (topic →
     offered_qos_profiles text) the recorded QoS."""
     bag = open_bag(source)
-    offered = {topic: channel["offered_qos_profiles"] for topic, channel in bag.channel_metadata().items()}
+    offered = {topic: channel["offered_qos_profiles"]
+               for topic, channel in bag.channel_metadata().items()}
     offered.update(qos or {})
     counts = {}
     with BagWriter(target) as writer:
@@ -26,5 +27,6 @@ def rewrite_bag(source: Path, target: Path, transform=None, *, metadata=None, at
                 writer.add_metadata(name, data)
         for message in bag.messages():
             index = counts[message.topic] = counts.get(message.topic, -1) + 1
-            data = message.data if transform is None else transform(message.topic, message.data, index)
+            data = (message.data if transform is None
+                    else transform(message.topic, message.data, index))
             writer.write(message.topic, data, message.log_time_ns, message.publish_time_ns)

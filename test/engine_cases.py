@@ -33,7 +33,8 @@ def paper_doc(**top) -> dict:
 def one_link_doc(*, joint_rpy=HORIZONTAL_AXIS, stroke=(0.0, 1.0), joints=(0.3, 0.5),
                  velocity=(0.0, 0.0, 0.0, 0.0), wheel_efforts=(0.0, 0.0), joint_efforts=(0.0, 0.0),
                  effects=None) -> dict:
-    """The paper's base carrying its first rod alone (1 m, 1 kg), gravity off unless `effects` says."""
+    """The paper's base carrying its first rod alone (1 m, 1 kg), gravity off unless `effects`
+    says."""
     doc = paper_doc()
     link = doc["robot"]["arm"]["links"][0]
     link["joint_rpy"] = list(joint_rpy)
@@ -72,12 +73,3 @@ def sampled(sim: Simulation, t_end: float, rate: float) -> tuple[np.ndarray, np.
         states[i] = sim.s
     return times, states
 
-
-def l_index(sim: Simulation, k: int) -> int:
-    """Index of l_k (1-based rod) in the state vector."""
-    return 4 + 2 * k
-
-
-def ld_index(sim: Simulation, k: int) -> int:
-    """Index of l̇_k in the state vector."""
-    return sim.nq + 2 * k + 1

@@ -29,7 +29,8 @@ def install() -> pathlib.Path:
                                  "--no-fund", "--no-save", *PACKAGES],
                                 capture_output=True, text=True, timeout=600)
         if result.returncode != 0:
-            raise RuntimeError(f"npm install failed:\n{result.stdout[-2000:]}\n{result.stderr[-2000:]}")
+            raise RuntimeError(f"npm install failed:\n{result.stdout[-2000:]}\n"
+                               f"{result.stderr[-2000:]}")
     return modules
 
 

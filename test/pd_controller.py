@@ -7,11 +7,12 @@ alone; on the state stamped STATES periods it pauses the simulator and exits.
 import sys
 
 import rclpy
-from ros_harness import spin_until
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 from std_srvs.srv import SetBool
+
+from ros_harness import spin_until
 
 TARGET = (0.6, 0.25, -0.4, 0.3)   # arm joints: q_1, l_1, q_2, l_2
 KP, KD = 20.0, 4.0

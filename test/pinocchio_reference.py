@@ -26,6 +26,8 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
+from mobile_manip_sim.coordinates import ARM_Q, ARM_U, JOINTS, YAW, X, Y
+
 
 def _rod_inertia(length: float, mass_per_length: float, J: np.ndarray) -> pin.Inertia:
     """Uniform slender rod on x ∈ [−L, 0] plus the cross-section inertia J·L about its centre."""
@@ -70,7 +72,8 @@ class ProjectedModel:
             R0 = np.array(robot_model.joint_rotation[k], dtype=float)
             placement = pin.SE3(R0, np.array(robot_model.mount, dtype=float) if k == 0
                                 else np.zeros(3))
-            revolute = model.addJoint(parent, pin.JointModelRZ(), placement, f"arm_revolute_{k + 1}")
+            revolute = model.addJoint(parent, pin.JointModelRZ(), placement,
+                                      f"arm_revolute_{k + 1}")
             prismatic = model.addJoint(revolute, pin.JointModelPX(), pin.SE3.Identity(),
                                        f"arm_prismatic_{k + 1}")
             inertia = _rod_inertia(float(robot_model.length[k]),
@@ -101,12 +104,12 @@ class ProjectedModel:
         S[2, 1] = 1.0                        # ω_z = ω
         S[3, 0], S[3, 1] = 1.0 / r, b / r    # θ̇_R = (v + bω)/r
         S[4, 0], S[4, 1] = 1.0 / r, -b / r   # θ̇_L = (v − bω)/r
-        S[5:, 2:] = np.eye(2 * n)
+        S[ARM_Q.start:, ARM_U] = np.eye(2 * n)   # the arm: the same coordinates in both
         self.S = S
 
     def full_configuration(self, q) -> np.ndarray:
         q = np.asarray(q, dtype=float)
-        return np.concatenate([[q[0], q[1], np.cos(q[2]), np.sin(q[2])], q[3:]])
+        return np.concatenate([[q[X], q[Y], np.cos(q[YAW]), np.sin(q[YAW])], q[JOINTS]])
 
     def full_velocity(self, u) -> np.ndarray:
         return self.S @ np.asarray(u, dtype=float)

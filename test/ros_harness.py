@@ -12,9 +12,10 @@ import time
 from pathlib import Path
 
 import rclpy
-from executables import executable
 from rclpy.context import Context
 from rclpy.executors import SingleThreadedExecutor
+
+from executables import executable
 from waiting import TimedOut, found, wait_for  # noqa: F401  (re-exported: one harness)
 
 STOP_TIMEOUT = 15.0   # s a stopped node may take to exit before it is killed

@@ -12,36 +12,23 @@ import sys
 import numpy as np
 import pytest
 
+import robots
+from mobile_manip_sim.coordinates import SLIDES_U, rod
 from mobile_manip_sim.dynamics import Dynamics, articulated, kernels
-from mobile_manip_sim.model import Base, RobotModel
-
 
 LINK_COUNTS = [0, 1, 2, 3, 4, 5, 8, 12, 16, 20, 24, 32]
 EPS = np.finfo(float).eps
 
 
 def random_robot(seed, n):
-    """A random robot of n links (any joint rotations, lengths, masses, inertias, base) and a
-    random state, gravity and payload, reproducible from seed."""
+    """A random robot of n links (`robots.random_robot`), a random gravity and payload, and a
+    random state with the extensions up to 10 % past the stops, reproducible from seed."""
     rng = np.random.default_rng(seed)
-    base = Base(mass=rng.uniform(1.0, 20.0), yaw_inertia=rng.uniform(0.01, 1.0),
-                com_offset=rng.uniform(-0.3, 0.3), wheel_radius=rng.uniform(0.03, 0.2),
-                half_track=rng.uniform(0.1, 0.4), wheel_inertia=rng.uniform(0.0, 1e-2))
-    links = []
-    for _ in range(n):
-        L = rng.uniform(0.2, 1.5)
-        A = rng.normal(size=(3, 3)) * 0.03
-        links.append(dict(length=L, mass_per_length=rng.uniform(0.2, 5.0),
-                          inertia_per_length=A @ A.T + 1e-5 * np.eye(3),
-                          joint_rpy=rng.uniform(-np.pi, np.pi, 3), stroke=[0.0, L]))
-    model = RobotModel.build(base, rng.uniform(-0.3, 0.3, 3), links)
+    model = robots.random_robot(rng, n)
     dyn = Dynamics(model, gravity=rng.uniform(0.0, 12.0),
                    tip_mass=0.0 if seed % 3 == 0 else rng.uniform(0.1, 3.0))
-    q = np.empty(model.n_q)
-    q[:5] = rng.uniform(-np.pi, np.pi, 5)
-    q[5::2] = rng.uniform(-np.pi, np.pi, n)
-    q[6::2] = rng.uniform(-0.1, 1.1, n) * model.length
-    return rng, model, dyn, q, rng.normal(size=model.n_u), rng.normal(size=model.n_u)
+    q, u = robots.random_state(rng, model, beyond=0.1)
+    return rng, model, dyn, q, u, rng.normal(size=model.n_u)
 
 
 def by_columns(dyn, q):
@@ -110,11 +97,12 @@ def test_locked_pseudo_velocities_get_zero_acceleration_and_the_reduced_solve(n)
         assert np.abs(ud - ud_ref).max() <= tol
         # The force each locked slide transmits, read off the same pass, is the generalized
         # force M u̇ + h of its l̇_k (what its stop must supply beyond Q).
-        slides = [j for j in locked if j >= 3 and j % 2 == 1]
+        slides = [j for j in locked if j in range(nu)[SLIDES_U]]
         transmitted = M @ ud_ref + h
         for j in slides:
             scale = 1.0 + np.abs(M[j]).max() * np.abs(ud_ref).max() + abs(h[j])
-            assert abs(dyn.ws.slide_force[(j - 1) // 2] - transmitted[j]) <= 1e3 * kappa * EPS * scale
+            assert (abs(dyn.ws.slide_force[rod(j)] - transmitted[j])
+                    <= 1e3 * kappa * EPS * scale)
 
 
 def test_cholesky_and_articulated_paths_agree_on_the_paper_robot():
@@ -122,10 +110,11 @@ def test_cholesky_and_articulated_paths_agree_on_the_paper_robot():
     dyn = Dynamics(load_scene().robot, gravity=10.0, tip_mass=0.2)
     rng = np.random.default_rng(11)
     for _ in range(20):
-        q, u, Q = rng.normal(size=9), rng.normal(size=6), rng.normal(size=6)
-        q[6::2] = rng.uniform(0.0, 1.0, 2)
+        q, u = robots.random_state(rng, dyn.model)
+        Q = rng.normal(size=dyn.model.n_u)
         np.testing.assert_allclose(dyn.forward_dynamics(q, u, Q),
-                                   dyn.forward_dynamics_by_cholesky(q, u, Q), rtol=1e-11, atol=1e-12)
+                                   dyn.forward_dynamics_by_cholesky(q, u, Q),
+                                   rtol=1e-11, atol=1e-12)
 
 
 def test_pure_python_and_compiled_kernels_agree():
@@ -143,7 +132,8 @@ def test_pure_python_and_compiled_kernels_agree():
         "    Q = rng.normal(size=model.n_u)\n"
         "    free = np.arange(model.n_u); free[1] = -1 if model.n_u > 2 else 1\n"
         "    ud = np.empty(model.n_u)\n"
-        "    articulated.forward_dynamics(dyn.model_record, q, u, Q, dyn.gravity, free, dyn.ws, ud)\n"
+        "    articulated.forward_dynamics(dyn.model_record, q, u, Q, dyn.gravity, free, dyn.ws,\n"
+        "                                 ud)\n"
         "    out['values'] += [dyn.mass_matrix(q).tolist(), dyn.bias(q, u).tolist(),\n"
         "                      list(dyn.energy(q, u)), dyn.forward_dynamics(q, u, Q).tolist(),\n"
         "                      ud.tolist()]\n"
@@ -157,6 +147,6 @@ def test_pure_python_and_compiled_kernels_agree():
     python, compiled = results
     assert python["compiled"] is False and python["kind"] == "function"          # really Python …
     assert compiled["compiled"] is True and compiled["kind"] == "CPUDispatcher"  # … really numba
-    for python_value, compiled_value in zip(python["values"], compiled["values"]):
+    for python_value, compiled_value in zip(python["values"], compiled["values"], strict=True):
         np.testing.assert_allclose(np.array(python_value), np.array(compiled_value),
                                    rtol=1e-12, atol=1e-12)

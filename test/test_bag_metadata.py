@@ -16,15 +16,15 @@ import yaml
 from bag_rewrite import rewrite_bag
 from hostile_yaml import ALIAS_BOMB
 from mobile_manip_sim import schema
+from mobile_manip_sim.errors import EXIT_USER_ERROR, UserError
+from mobile_manip_sim.headless import run as simulate_run
 from mobile_manip_sim.plot import cli as plot
+from mobile_manip_sim.recording.bag_reader import open_bag
+from mobile_manip_sim.recording.headless import HeadlessRecorder
+from mobile_manip_sim.recording.rosbag2_metadata import bag_information
 from mobile_manip_sim.replay import cli as replay
 from mobile_manip_sim.replay.play import qos_profile
-from mobile_manip_sim.errors import EXIT_USER_ERROR, UserError
-from mobile_manip_sim.recording.bag_reader import open_bag
-from mobile_manip_sim.recording.rosbag2_metadata import bag_information
-from mobile_manip_sim.recording.headless import HeadlessRecorder
 from mobile_manip_sim.scene import load_scene, make_integrator
-from mobile_manip_sim.headless import run as simulate_run
 
 RATE, DURATION = 20.0, 0.2
 BOUND_S = 5.0       # wall seconds a refusal may take (the good bag re-simulates in well under 1 s)
@@ -98,20 +98,34 @@ def keyed(key):
 
 FILE = "bag_0.mcap"
 METADATA_YAML = [  # (case id, damage: text → text, key after "metadata.yaml: ", problem)
-    ("path list for path", edited(setting(["relative_file_paths"], [[FILE]])), keyed("relative_file_paths[0]"), "expected a string"),
-    ("paths a string", edited(setting(["relative_file_paths"], FILE)), keyed("relative_file_paths"), "expected a list"),
-    ("paths a mapping", edited(setting(["relative_file_paths"], {FILE: 1})), keyed("relative_file_paths"), "expected a list"),
-    ("paths empty", edited(setting(["relative_file_paths"], [])), keyed("relative_file_paths"), "at least 1"),
-    ("paths null", edited(setting(["relative_file_paths"], None)), keyed("relative_file_paths"), "got null"),
-    ("path number", edited(setting(["relative_file_paths"], [7])), keyed("relative_file_paths[0]"), "expected a string"),
-    ("path empty", edited(setting(["relative_file_paths"], [""])), keyed("relative_file_paths[0]"), "name of a file"),
-    ("path dot dot", edited(setting(["relative_file_paths"], [".."])), keyed("relative_file_paths[0]"), "name of a file"),
-    ("path NUL", edited(setting(["relative_file_paths"], ["a\x00b.mcap"])), keyed("relative_file_paths[0]"), "name of a file"),
-    ("path too long", edited(setting(["relative_file_paths"], ["x" * 5000])), keyed("relative_file_paths[0]"), "longer than"),
-    ("path listed twice", edited(setting(["relative_file_paths"], [FILE, FILE])), keyed("relative_file_paths[1]"), "listed twice"),
-    ("path missing file", edited(setting(["relative_file_paths"], ["other.mcap"])), "other.mcap", "listed in metadata.yaml but missing"),
-    ("too many paths", edited(setting(["relative_file_paths"], [FILE] * 10_001)), keyed("relative_file_paths"), "at most 10000"),
-    ("paths missing", edited(removing("relative_file_paths")), keyed("relative_file_paths"), "missing"),
+    ("path list for path", edited(setting(["relative_file_paths"], [[FILE]])),
+     keyed("relative_file_paths[0]"), "expected a string"),
+    ("paths a string", edited(setting(["relative_file_paths"], FILE)), keyed("relative_file_paths"),
+     "expected a list"),
+    ("paths a mapping", edited(setting(["relative_file_paths"], {FILE: 1})),
+     keyed("relative_file_paths"), "expected a list"),
+    ("paths empty", edited(setting(["relative_file_paths"], [])), keyed("relative_file_paths"),
+     "at least 1"),
+    ("paths null", edited(setting(["relative_file_paths"], None)), keyed("relative_file_paths"),
+     "got null"),
+    ("path number", edited(setting(["relative_file_paths"], [7])), keyed("relative_file_paths[0]"),
+     "expected a string"),
+    ("path empty", edited(setting(["relative_file_paths"], [""])), keyed("relative_file_paths[0]"),
+     "name of a file"),
+    ("path dot dot", edited(setting(["relative_file_paths"], [".."])),
+     keyed("relative_file_paths[0]"), "name of a file"),
+    ("path NUL", edited(setting(["relative_file_paths"], ["a\x00b.mcap"])),
+     keyed("relative_file_paths[0]"), "name of a file"),
+    ("path too long", edited(setting(["relative_file_paths"], ["x" * 5000])),
+     keyed("relative_file_paths[0]"), "longer than"),
+    ("path listed twice", edited(setting(["relative_file_paths"], [FILE, FILE])),
+     keyed("relative_file_paths[1]"), "listed twice"),
+    ("path missing file", edited(setting(["relative_file_paths"], ["other.mcap"])), "other.mcap",
+     "listed in metadata.yaml but missing"),
+    ("too many paths", edited(setting(["relative_file_paths"], [FILE] * 10_001)),
+     keyed("relative_file_paths"), "at most 10000"),
+    ("paths missing", edited(removing("relative_file_paths")), keyed("relative_file_paths"),
+     "missing"),
     ("version missing", edited(removing("version")), keyed("version"), "missing"),
     ("version newer", edited(setting(["version"], 10)), keyed("version"), "must be in [1, 9]"),
     ("version zero", edited(setting(["version"], 0)), keyed("version"), "must be in [1, 9]"),
@@ -119,70 +133,105 @@ METADATA_YAML = [  # (case id, damage: text → text, key after "metadata.yaml: 
     ("version float", edited(setting(["version"], 9.0)), keyed("version"), "expected an integer"),
     ("version bool", edited(setting(["version"], True)), keyed("version"), "expected an integer"),
     ("version huge", edited(setting(["version"], 10**40)), keyed("version"), "expected an integer"),
-    ("storage other", edited(setting(["storage_identifier"], "sqlite3")), "bag", "storage_identifier 'sqlite3'"),
-    ("storage list", edited(setting(["storage_identifier"], ["mcap"])), keyed("storage_identifier"), "expected a string"),
-    ("storage missing", edited(removing("storage_identifier")), keyed("storage_identifier"), "missing"),
+    ("storage other", edited(setting(["storage_identifier"], "sqlite3")), "bag",
+     "storage_identifier 'sqlite3'"),
+    ("storage list", edited(setting(["storage_identifier"], ["mcap"])), keyed("storage_identifier"),
+     "expected a string"),
+    ("storage missing", edited(removing("storage_identifier")), keyed("storage_identifier"),
+     "missing"),
     ("unknown key", edited(setting(["colour"], "red")), keyed("colour"), "unknown key"),
-    ("count negative", edited(setting(["message_count"], -1)), keyed("message_count"), "must be in"),
-    ("count float", edited(setting(["message_count"], 1.5)), keyed("message_count"), "expected an integer"),
-    ("count past int64", edited(setting(["message_count"], 2**63)), keyed("message_count"), "must be in"),
-    ("count text", edited(setting(["message_count"], "many")), keyed("message_count"), "expected an integer"),
-    ("duration negative", edited(setting(["duration", "nanoseconds"], -5)), keyed("duration.nanoseconds"), "must be in"),
+    ("count negative", edited(setting(["message_count"], -1)), keyed("message_count"),
+     "must be in"),
+    ("count float", edited(setting(["message_count"], 1.5)), keyed("message_count"),
+     "expected an integer"),
+    ("count past int64", edited(setting(["message_count"], 2**63)), keyed("message_count"),
+     "must be in"),
+    ("count text", edited(setting(["message_count"], "many")), keyed("message_count"),
+     "expected an integer"),
+    ("duration negative", edited(setting(["duration", "nanoseconds"], -5)),
+     keyed("duration.nanoseconds"), "must be in"),
     ("duration scalar", edited(setting(["duration"], 5)), keyed("duration"), "expected a mapping"),
-    ("duration unknown key", edited(setting(["duration", "seconds"], 5)), keyed("duration.seconds"), "unknown key"),
+    ("duration unknown key", edited(setting(["duration", "seconds"], 5)), keyed("duration.seconds"),
+     "unknown key"),
     ("duration empty", edited(setting(["duration"], {})), keyed("duration.nanoseconds"), "missing"),
-    ("start float", edited(setting(["starting_time", "nanoseconds_since_epoch"], 1e30)), keyed("starting_time.nanoseconds_since_epoch"), "expected an integer"),
+    ("start float", edited(setting(["starting_time", "nanoseconds_since_epoch"], 1e30)),
+     keyed("starting_time.nanoseconds_since_epoch"), "expected an integer"),
     ("start null", edited(setting(["starting_time"], None)), keyed("starting_time"), "got null"),
-    ("topics mapping", edited(setting(["topics_with_message_count"], {})), keyed("topics_with_message_count"), "expected a list"),
-    ("topic name list", edited(setting(["topics_with_message_count", 0, "topic_metadata", "name"], ["x"])),
+    ("topics mapping", edited(setting(["topics_with_message_count"], {})),
+     keyed("topics_with_message_count"), "expected a list"),
+    ("topic name list",
+     edited(setting(["topics_with_message_count", 0, "topic_metadata", "name"], ["x"])),
      keyed("topics_with_message_count[0].topic_metadata.name"), "expected a string"),
-    ("topic type missing", edited(lambda info: info["topics_with_message_count"][0]["topic_metadata"].pop("type")),
+    ("topic type missing",
+     edited(lambda info: info["topics_with_message_count"][0]["topic_metadata"].pop("type")),
      keyed("topics_with_message_count[0].topic_metadata.type"), "missing"),
-    ("topic unknown key", edited(setting(["topics_with_message_count", 1, "topic_metadata", "colour"], 1)),
+    ("topic unknown key",
+     edited(setting(["topics_with_message_count", 1, "topic_metadata", "colour"], 1)),
      keyed("topics_with_message_count[1].topic_metadata.colour"), "unknown key"),
-    ("topic qos number", edited(setting(["topics_with_message_count", 0, "topic_metadata", "offered_qos_profiles"], 5)),
+    ("topic qos number",
+     edited(setting(["topics_with_message_count", 0, "topic_metadata", "offered_qos_profiles"], 5)),
      keyed("topics_with_message_count[0].topic_metadata.offered_qos_profiles"), "expected a list"),
-    ("topic qos list of numbers", edited(setting(["topics_with_message_count", 0, "topic_metadata", "offered_qos_profiles"], [5])),
-     keyed("topics_with_message_count[0].topic_metadata.offered_qos_profiles[0]"), "expected a mapping"),
+    ("topic qos list of numbers",
+     edited(setting(["topics_with_message_count", 0, "topic_metadata", "offered_qos_profiles"],
+                    [5])),
+     keyed("topics_with_message_count[0].topic_metadata.offered_qos_profiles[0]"),
+     "expected a mapping"),
     ("topic count text", edited(setting(["topics_with_message_count", 2, "message_count"], "3")),
      keyed("topics_with_message_count[2].message_count"), "expected an integer"),
     ("topic entry a string", edited(setting(["topics_with_message_count", 0], "/odom")),
      keyed("topics_with_message_count[0]"), "expected a mapping"),
-    ("topic metadata missing", edited(lambda info: info["topics_with_message_count"][0].pop("topic_metadata")),
+    ("topic metadata missing",
+     edited(lambda info: info["topics_with_message_count"][0].pop("topic_metadata")),
      keyed("topics_with_message_count[0].topic_metadata"), "missing"),
-    ("files path list", edited(setting(["files", 0, "path"], [FILE])), keyed("files[0].path"), "expected a string"),
-    ("files count text", edited(setting(["files", 0, "message_count"], "many")), keyed("files[0].message_count"), "expected an integer"),
-    ("files duration list", edited(setting(["files", 0, "duration"], [1])), keyed("files[0].duration"), "expected a mapping"),
+    ("files path list", edited(setting(["files", 0, "path"], [FILE])), keyed("files[0].path"),
+     "expected a string"),
+    ("files count text", edited(setting(["files", 0, "message_count"], "many")),
+     keyed("files[0].message_count"), "expected an integer"),
+    ("files duration list", edited(setting(["files", 0, "duration"], [1])),
+     keyed("files[0].duration"), "expected a mapping"),
     ("files entry null", edited(setting(["files", 0], None)), keyed("files[0]"), "got null"),
     ("files a string", edited(setting(["files"], FILE)), keyed("files"), "expected a list"),
-    ("compression null", edited(setting(["compression_format"], None)), keyed("compression_format"), "got null"),
-    ("compression number", edited(setting(["compression_mode"], 1)), keyed("compression_mode"), "expected a string"),
-    ("custom data list value", edited(setting(["custom_data"], {"a": [1]})), keyed("custom_data.a"), "expected a string"),
-    ("custom data list", edited(setting(["custom_data"], [1])), keyed("custom_data"), "expected a mapping"),
-    ("custom data number key", edited(setting(["custom_data"], {1: "x"})), keyed("custom_data"), "expected a string"),
-    ("distro mapping", edited(setting(["ros_distro"], {})), keyed("ros_distro"), "expected a string"),
+    ("compression null", edited(setting(["compression_format"], None)), keyed("compression_format"),
+     "got null"),
+    ("compression number", edited(setting(["compression_mode"], 1)), keyed("compression_mode"),
+     "expected a string"),
+    ("custom data list value", edited(setting(["custom_data"], {"a": [1]})), keyed("custom_data.a"),
+     "expected a string"),
+    ("custom data list", edited(setting(["custom_data"], [1])), keyed("custom_data"),
+     "expected a mapping"),
+    ("custom data number key", edited(setting(["custom_data"], {1: "x"})), keyed("custom_data"),
+     "expected a string"),
+    ("distro mapping", edited(setting(["ros_distro"], {})), keyed("ros_distro"),
+     "expected a string"),
     ("document a list", lambda text: "- 1\n- 2\n", "metadata.yaml", "expected a mapping"),
     ("document empty", lambda text: "", "metadata.yaml", "got null"),
     ("document a number", lambda text: "3\n", "metadata.yaml", "expected a mapping"),
     ("root missing", lambda text: "other: {}\n", "other", "unknown key"),
     ("root a list", lambda text: f"{ROOT}: [1]\n", ROOT, "expected a mapping"),
     ("root twice", lambda text: text + text.splitlines()[0] + "\n", ROOT, "duplicate key"),
-    ("duplicate inner key", lambda text: text.replace("  version: 9\n", "  version: 9\n  version: 9\n"), "version", "duplicate key"),
+    ("duplicate inner key",
+     lambda text: text.replace("  version: 9\n", "  version: 9\n  version: 9\n"), "version",
+     "duplicate key"),
     ("alias bomb", lambda text: ALIAS_BOMB, "metadata.yaml", "expands to more than"),
     ("recursive alias", lambda text: "a: &a [*a]\n", "metadata.yaml", "recursive alias"),
     ("nesting 3000", lambda text: "[" * 3000 + "]" * 3000, "metadata.yaml", "nested deeper than"),
-    ("huge integer", lambda text: text.replace("  version: 9", "  version: " + "9" * 5000), keyed("version"), "expected an integer"),
+    ("huge integer", lambda text: text.replace("  version: 9", "  version: " + "9" * 5000),
+     keyed("version"), "expected an integer"),
     ("larger than 1 MiB", lambda text: text + "#" * (1 << 20), "metadata.yaml", "larger than"),
     ("not YAML", lambda text: text + "\n  ]: [\n", "metadata.yaml", "not valid YAML"),
-    ("tab indent", lambda text: text.replace("  version", "\tversion", 1), "metadata.yaml", "not valid YAML"),
-    ("YAML 1.1 octal version", lambda text: text.replace("  version: 9", "  version: 011"), keyed("version"), "must be in [1, 9]"),
-    ("python tag", lambda text: "!!python/object:os.system {}\n", "metadata.yaml", "not valid YAML"),
+    ("tab indent", lambda text: text.replace("  version", "\tversion", 1), "metadata.yaml",
+     "not valid YAML"),
+    ("YAML 1.1 octal version", lambda text: text.replace("  version: 9", "  version: 011"),
+     keyed("version"), "must be in [1, 9]"),
+    ("python tag", lambda text: "!!python/object:os.system {}\n", "metadata.yaml",
+     "not valid YAML"),
 ]
 
 
 @pytest.mark.parametrize("damage, key, problem", [case[1:] for case in METADATA_YAML],
                          ids=[case[0] for case in METADATA_YAML])
-def test_damaged_metadata_yaml_is_one_line_naming_the_key(good_bag, tmp_path, capsys, damage, key, problem):
+def test_damaged_metadata_yaml_is_one_line_naming_the_key(good_bag, tmp_path, capsys, damage, key,
+                                                          problem):
     bag = tmp_path / "bag"
     shutil.copytree(good_bag, bag)
     metadata = bag / "metadata.yaml"
@@ -207,10 +256,12 @@ def special_metadata(tmp_path: Path, kind: str) -> Path:
     return tmp_path
 
 
-@pytest.mark.parametrize("kind, problem", [("fifo", "not a regular file"), ("directory", "not a regular file"),
-                                           ("device", "not a regular file"), ("binary", "not UTF-8"),
-                                           ("unreadable", "no such bag")])
-def test_a_metadata_yaml_that_is_no_text_file_is_refused_without_reading(good_bag, tmp_path, capsys, kind, problem):
+@pytest.mark.parametrize("kind, problem",
+                         [("fifo", "not a regular file"), ("directory", "not a regular file"),
+                          ("device", "not a regular file"), ("binary", "not UTF-8"),
+                          ("unreadable", "no such bag")])
+def test_a_metadata_yaml_that_is_no_text_file_is_refused_without_reading(good_bag, tmp_path, capsys,
+                                                                         kind, problem):
     bag = tmp_path / "bag"
     shutil.copytree(good_bag, bag)
     (bag / "metadata.yaml").unlink()
@@ -242,7 +293,8 @@ RUN_METADATA = [  # (case id, changes to the map (None removes), key, problem)
     ("rtol 2", {"rtol": "2"}, f"{RUN}.rtol", "must be in"),
     ("atol 250 digits", {"atol": "9" * 250}, f"{RUN}.atol", "longer than 200"),
     ("atol 1e400", {"atol": "1e400"}, f"{RUN}.atol", "must be finite"),
-    ("method unknown", {"integrator_method": "euler2"}, f"{RUN}.integrator_method", "unknown method"),
+    ("method unknown", {"integrator_method": "euler2"}, f"{RUN}.integrator_method",
+     "unknown method"),
     ("method empty", {"integrator_method": ""}, f"{RUN}.integrator_method", "unknown method"),
     ("method missing", {"integrator_method": None}, f"{RUN}.integrator_method", "missing"),
     ("source unknown", {"source": "elsewhere"}, f"{RUN}.source", "expected node or simulate"),
@@ -255,18 +307,32 @@ RUN_METADATA = [  # (case id, changes to the map (None removes), key, problem)
     ("duration zero", {"duration": "0"}, f"{RUN}.duration", "must be in"),
     ("sample rate missing", {"sample_rate": None}, f"{RUN}.sample_rate", "missing"),
     ("sample rate 1e9", {"sample_rate": "1e9"}, f"{RUN}.sample_rate", "must be in"),
-    ("samples beyond the limit", {"integrator_method": "dop853", "sample_rate": "1e6", "duration": "1e6"},
+    ("samples beyond the limit",
+     {"integrator_method": "dop853", "sample_rate": "1e6", "duration": "1e6"},
      f"{RUN}.sample_rate", "more than 1000000 samples"),
-    ("steps beyond the limit", {"duration": "1e6", "dt": "1e-6", "sample_rate": "1e-6"}, f"{RUN}.duration", "more than 10000000 steps"),
+    ("steps beyond the limit", {"duration": "1e6", "dt": "1e-6", "sample_rate": "1e-6"},
+     f"{RUN}.duration", "more than 10000000 steps"),
     ("sample rate negative", {"sample_rate": "-20"}, f"{RUN}.sample_rate", "must be in"),
     ("value too long", {"scene_name": "x" * 201}, f"{RUN}.scene_name", "longer than 200"),
     ("node source without its rate", {"source": "node"}, f"{RUN}.publish_rate", "missing"),
+    # an arm controller's settings (node runs not in effort mode)
+    ("arm controller unknown", {"arm_controller": "torque"}, f"{RUN}.arm_controller",
+     "unknown mode 'torque'"),
+    ("arm gains missing", {"arm_controller": "position"}, f"{RUN}.arm_kp", "missing"),
+    ("arm gains text", {"arm_controller": "position", "arm_kp": "stiff", "arm_ki": "0.0",
+                        "arm_kd": "1.0"}, f"{RUN}.arm_kp", "expected numbers"),
+    ("arm gain negative", {"arm_controller": "position", "arm_kp": "-1.0", "arm_ki": "0.0",
+                           "arm_kd": "1.0"}, f"{RUN}.arm_gains.kp", "expected numbers in"),
+    ("arm feedforward unknown", {"arm_controller": "position", "arm_kp": "1.0", "arm_ki": "0.0",
+                                 "arm_kd": "1.0", "arm_feedforward": "magic"},
+     f"{RUN}.arm_feedforward", "unknown feedforward"),
 ]
 
 
 @pytest.mark.parametrize("changes, key, problem", [case[1:] for case in RUN_METADATA],
                          ids=[case[0] for case in RUN_METADATA])
-def test_damaged_run_metadata_is_one_line_naming_the_key(good_bag, tmp_path, capsys, changes, key, problem):
+def test_damaged_run_metadata_is_one_line_naming_the_key(good_bag, tmp_path, capsys, changes, key,
+                                                         problem):
     recorded = open_bag(good_bag).metadata()[RUN]
     damaged = {name: value for name, value in {**recorded, **changes}.items() if value is not None}
     rewrite_bag(good_bag, tmp_path / "bag", metadata={RUN: damaged})
@@ -288,22 +354,30 @@ SCENE = [  # (case id, scene.yaml bytes, problem)
     ("duplicate key", (SCENE_TEXT + "duration: 2.0\n").encode(), "duration: duplicate key"),
     ("nesting 3000", ("robot: " + "[" * 3000 + "]" * 3000).encode(), "nested deeper than"),
     ("not UTF-8", b"name: caf\xe9\n", "not UTF-8"),
-    ("huge integer", SCENE_TEXT.replace("duration: 1.5", "duration: " + "1" * 400).encode(), "duration: number too large"),
-    ("null method", SCENE_TEXT.replace("method: dop853", "method: null").encode(), "integrator.method: expected a value, got null"),
-    ("radius 1e-300", SCENE_TEXT.replace("wheel_radius: 0.08", "wheel_radius: 1.0e-300").encode(), "robot.base.wheel_radius: must be in"),
-    ("mass 1e308", SCENE_TEXT.replace("mass: 6.64", "mass: 1.0e308").encode(), "robot.base.mass: must be in"),
-    ("duration 1e308", SCENE_TEXT.replace("duration: 1.5", "duration: 1.0e308").encode(), "duration: must be in"),
+    ("huge integer", SCENE_TEXT.replace("duration: 1.5", "duration: " + "1" * 400).encode(),
+     "duration: number too large"),
+    ("null method", SCENE_TEXT.replace("method: dop853", "method: null").encode(),
+     "integrator.method: expected a value, got null"),
+    ("radius 1e-300", SCENE_TEXT.replace("wheel_radius: 0.08", "wheel_radius: 1.0e-300").encode(),
+     "robot.base.wheel_radius: must be in"),
+    ("mass 1e308", SCENE_TEXT.replace("mass: 6.64", "mass: 1.0e308").encode(),
+     "robot.base.mass: must be in"),
+    ("duration 1e308", SCENE_TEXT.replace("duration: 1.5", "duration: 1.0e308").encode(),
+     "duration: must be in"),
     ("robot missing", b"name: x\n", "robot: missing"),
     ("a list", b"- 1\n", "expected a mapping"),
     ("empty", b"", "empty"),
     ("larger than 1 MiB", SCENE_TEXT.encode() + b"#" * (1 << 20), "larger than"),
     ("1000 links", yaml.safe_dump({**yaml.safe_load(SCENE_TEXT), "robot": {
-        **yaml.safe_load(SCENE_TEXT)["robot"], "arm": {"links": [yaml.safe_load(SCENE_TEXT)["robot"]["arm"]["links"][0]] * 1000}}}).encode(),
+        **yaml.safe_load(SCENE_TEXT)["robot"],
+        "arm": {"links": [yaml.safe_load(SCENE_TEXT)["robot"]["arm"]["links"][0]] * 1000}}}
+    ).encode(),
      "robot.arm.links: at most 64 entries"),
 ]
 
 
-@pytest.mark.parametrize("text, problem", [case[1:] for case in SCENE], ids=[case[0] for case in SCENE])
+@pytest.mark.parametrize("text, problem", [case[1:] for case in SCENE],
+                         ids=[case[0] for case in SCENE])
 def test_a_damaged_embedded_scene_is_one_line(good_bag, tmp_path, capsys, text, problem):
     rewrite_bag(good_bag, tmp_path / "bag", attachments={"scene.yaml": text})
     for argv in commands(tmp_path / "bag", tmp_path / "out"):
@@ -332,8 +406,9 @@ IMPACTS = [  # (case id, impacts.json bytes, key, problem)
     ("link beyond the arm", impact(link=99), "impact 1.link", "must be in [1, 2]"),
     ("link zero", impact(link=0), "impact 1.link", "must be in [1, 2]"),
     ("link float", impact(link=1.5), "impact 1.link", "expected an integer"),
-    ("link infinite", b'[{"time": 0.1, "link": Infinity, "stop": "lower", "ld_before": 0, "ld_after": 0, '
-                      b'"energy_lost": 0, "resting": false}]', "impact 1.link", "expected an integer"),
+    ("link infinite",
+     b'[{"time": 0.1, "link": Infinity, "stop": "lower", "ld_before": 0, "ld_after": 0, '
+     b'"energy_lost": 0, "resting": false}]', "impact 1.link", "expected an integer"),
     ("time NaN", b'[{"time": NaN, "link": 1, "stop": "lower", "ld_before": 0, "ld_after": 0, '
                  b'"energy_lost": 0, "resting": false}]', "impact 1.time", "must be finite"),
     ("time 1e400", b'[{"time": 1e400, "link": 1, "stop": "lower", "ld_before": 0, "ld_after": 0, '
@@ -344,12 +419,15 @@ IMPACTS = [  # (case id, impacts.json bytes, key, problem)
     ("stop list", impact(stop=["lower"]), "impact 1.stop", "expected lower or upper"),
     ("resting number", impact(resting=5), "impact 1.resting", "expected true or false"),
     ("resting null", b'[{"time": 0.1, "link": 1, "stop": "lower", "ld_before": 0, "ld_after": 0, '
-                      b'"energy_lost": 0, "resting": null}]', "impact 1.resting", "expected true or false"),
+                      b'"energy_lost": 0, "resting": null}]', "impact 1.resting",
+     "expected true or false"),
 ]
 
 
-@pytest.mark.parametrize("data, key, problem", [case[1:] for case in IMPACTS], ids=[case[0] for case in IMPACTS])
-def test_damaged_impacts_are_one_line_naming_the_record(good_bag, tmp_path, capsys, data, key, problem):
+@pytest.mark.parametrize("data, key, problem", [case[1:] for case in IMPACTS],
+                         ids=[case[0] for case in IMPACTS])
+def test_damaged_impacts_are_one_line_naming_the_record(good_bag, tmp_path, capsys, data, key,
+                                                        problem):
     import json
 
     data = data if isinstance(data, bytes) else json.dumps(data).encode()

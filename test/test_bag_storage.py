@@ -1,10 +1,10 @@
 """Bag storage: bags we write are read back by independent readers (rosbags, mcap + mcap_ros2),
 and our reader survives truncation, SIGKILL and damaged files with one-line errors."""
 
-import re
 import errno
 import os
 import random
+import re
 import signal
 import subprocess
 import sys
@@ -21,7 +21,7 @@ from mcap_ros2.decoder import DecoderFactory
 from nav_msgs.msg import Odometry
 from rclpy.serialization import serialize_message
 from rosbags.rosbag2 import Reader as RosbagsReader
-from rosbags.typesys import Stores, get_typestore, get_types_from_msg
+from rosbags.typesys import Stores, get_types_from_msg, get_typestore
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray

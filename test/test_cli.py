@@ -9,7 +9,8 @@ import pytest
 from mobile_manip_sim import cli
 
 
-@pytest.mark.parametrize("signum, status", [(signal.SIGINT, 130), (signal.SIGTERM, cli.EXIT_TERMINATED)])
+@pytest.mark.parametrize("signum, status",
+                         [(signal.SIGINT, 130), (signal.SIGTERM, cli.EXIT_TERMINATED)])
 def test_a_stop_signal_inside_a_critical_block_is_raised_when_the_block_ends(signum, status):
     events = []
 

@@ -167,7 +167,7 @@ def test_every_page_has_examples_that_run():
     """A page whose every block is marked no-run would test nothing."""
     for page in PAGES:
         runnable = [b for b in blocks(page) if b.language in RUN and not b.marker]
-        if page.name != "interfaces.md":   # its one example downloads and builds (test_tf.py runs it)
+        if page.name != "interfaces.md":   # its one example downloads and builds (test_interfaces_build.py runs it)
             assert runnable, f"{page.name}: no block runs"
 
 

@@ -2,43 +2,19 @@
 import numpy as np
 import pytest
 
+from mobile_manip_sim.coordinates import V
 from mobile_manip_sim.dynamics import Dynamics, constraint_residuals
 from mobile_manip_sim.engine.simulation import Simulation
 from mobile_manip_sim.scene import load_scene, parse_scene
+from robots import random_robot_document, random_state
 
 SEEDS = range(12)
-
-
-def random_scene_doc(rng, n_links, gravity=10.0):
-    """A scene document for a random robot: any joint rotations, masses, lengths, inertias."""
-    links = []
-    for _ in range(n_links):
-        length = rng.uniform(0.3, 1.5)
-        A = rng.normal(size=(3, 3)) * 0.01
-        links.append({"length": length, "mass_per_length": rng.uniform(0.3, 3.0),
-                      "inertia_per_length": (A @ A.T + 1e-4 * np.eye(3)).tolist(),
-                      "joint_rpy": rng.uniform(-np.pi, np.pi, 3).tolist()})
-    return {
-        "robot": {"base": {"mass": rng.uniform(2, 10), "yaw_inertia": rng.uniform(0.02, 0.5),
-                           "com_offset": rng.uniform(-0.3, 0.3), "wheel_radius": rng.uniform(0.04, 0.2),
-                           "half_track": rng.uniform(0.1, 0.4), "wheel_inertia": rng.uniform(0.0, 0.01)},
-                  "arm": {"mount": rng.uniform(-0.2, 0.3, 3).tolist(), "links": links}},
-        "initial": {"joints": [v for link in links for v in (rng.uniform(-1, 1), rng.uniform(0.2, 0.8) * link["length"])],
-                    "velocity": rng.normal(size=2 + 2 * n_links).tolist()},
-        "effects": {"gravity": gravity, "wheel_inertia": True},
-    }
-
-
-def random_state(rng, model):
-    q = rng.normal(size=model.n_q)
-    q[6::2] = rng.uniform(0, 1, model.n_links) * model.length
-    return q, rng.normal(size=model.n_u)
 
 
 @pytest.mark.parametrize("seed", SEEDS)
 def test_mass_matrix_is_symmetric_positive_definite(seed):
     rng = np.random.default_rng(seed)
-    scene = parse_scene(random_scene_doc(rng, seed % 6))
+    scene = parse_scene(random_robot_document(rng, seed % 6))
     dyn = Dynamics(scene.robot, gravity=10.0)
     q, _ = random_state(rng, scene.robot)
     M = dyn.mass_matrix(q)
@@ -49,7 +25,7 @@ def test_mass_matrix_is_symmetric_positive_definite(seed):
 @pytest.mark.parametrize("seed", SEEDS)
 def test_inverse_and_forward_dynamics_invert_each_other(seed):
     rng = np.random.default_rng(100 + seed)
-    scene = parse_scene(random_scene_doc(rng, seed % 6))
+    scene = parse_scene(random_robot_document(rng, seed % 6))
     dyn = Dynamics(scene.robot, gravity=9.81)
     q, u = random_state(rng, scene.robot)
     ud = rng.normal(size=scene.robot.n_u)
@@ -63,7 +39,7 @@ def test_inverse_and_forward_dynamics_invert_each_other(seed):
 def test_kinetic_energy_is_half_u_M_u(seed):
     """T from the velocities of every rod point equals ½ uᵀ M u with M from the recursion."""
     rng = np.random.default_rng(200 + seed)
-    scene = parse_scene(random_scene_doc(rng, seed % 6))
+    scene = parse_scene(random_robot_document(rng, seed % 6))
     dyn = Dynamics(scene.robot, gravity=0.0, tip_mass=rng.uniform(0, 1))
     q, u = random_state(rng, scene.robot)
     T, _ = dyn.energy(q, u)
@@ -74,7 +50,7 @@ def test_kinetic_energy_is_half_u_M_u(seed):
 def test_energy_rate_equals_power_of_generalized_forces(seed):
     """d(T + V)/dt = Q·u along the motion u̇ = f(q, u, Q), at random states and efforts."""
     rng = np.random.default_rng(300 + seed)
-    scene = parse_scene(random_scene_doc(rng, seed % 6))
+    scene = parse_scene(random_robot_document(rng, seed % 6))
     dyn = Dynamics(scene.robot, gravity=10.0, tip_mass=0.3)
     q, u = random_state(rng, scene.robot)
     Q = rng.normal(size=scene.robot.n_u)
@@ -90,7 +66,7 @@ def test_energy_rate_equals_power_of_generalized_forces(seed):
 def test_gravity_as_root_acceleration_equals_gravity_from_the_potential(seed):
     """h(q, 0) with gravity on is ∂V/∂u: the potential's rate along each pseudo-velocity."""
     rng = np.random.default_rng(400 + seed)
-    scene = parse_scene(random_scene_doc(rng, seed % 6))
+    scene = parse_scene(random_robot_document(rng, seed % 6))
     dyn = Dynamics(scene.robot, gravity=9.81, tip_mass=0.5)
     q, _ = random_state(rng, scene.robot)
     zero = np.zeros(scene.robot.n_u)
@@ -101,13 +77,14 @@ def test_gravity_as_root_acceleration_equals_gravity_from_the_potential(seed):
         qd = dyn.configuration_rate(q, np.eye(scene.robot.n_u)[k])
         V_plus, V_minus = dyn.energy(q + eps * qd, zero)[1], dyn.energy(q - eps * qd, zero)[1]
         G_potential.append((V_plus - V_minus) / (2 * eps))
-    np.testing.assert_allclose(G_trick, G_potential, rtol=0, atol=1e-7 * (1 + np.abs(G_trick).max()))
+    np.testing.assert_allclose(G_trick, G_potential, rtol=0,
+                               atol=1e-7 * (1 + np.abs(G_trick).max()))
 
 
 @pytest.mark.parametrize("gravity", [0.0, 10.0])
 def test_energy_is_conserved_without_efforts(gravity):
     """Zero efforts, no dissipation, a tight DOP853: T + V stays put to 1e-9 relative over 5 s."""
-    doc = random_scene_doc(np.random.default_rng(7), 2, gravity=gravity)
+    doc = random_robot_document(np.random.default_rng(7), 2, gravity=gravity)
     doc["integrator"] = {"method": "dop853", "rtol": 1e-12, "atol": 1e-12}
     sim = Simulation(parse_scene(doc))
     E0 = sim.total_energy()
@@ -123,4 +100,4 @@ def test_constraint_residuals_stay_at_round_off_along_the_paper_run():
     for k in range(1, 151):
         sim.advance_to(0.01 * k)
         worst = max(worst, *map(abs, constraint_residuals(sim.model, sim.q, sim.qdot())))
-    assert sim.u[0] != 0.0 and worst < 1e-14
+    assert sim.u[V] != 0.0 and worst < 1e-14

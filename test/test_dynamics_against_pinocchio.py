@@ -9,44 +9,23 @@ import numpy as np
 import pytest
 
 from mobile_manip_sim.dynamics import Dynamics
-from mobile_manip_sim.model import Base, RobotModel
-
 from pinocchio_reference import build_projected_model
+from robots import random_configuration, random_robot, random_state
 
 SEEDS = list(range(60))
 TOL = 1e-9
 
 
-def random_spd(rng, scale):
-    A = rng.normal(size=(3, 3)) * scale
-    return A @ A.T + scale ** 2 * np.eye(3) * rng.uniform(0.1, 1.0)
-
-
 def random_case(seed, n=None):
-    """A random robot (n links, default seed % 7), gravity, payload and state, from `seed`."""
+    """A random robot (n links, default seed % 7), gravity, payload and state (the extensions up to
+    10 % past the stops), from `seed`."""
     rng = np.random.default_rng(seed)
     n = seed % 7 if n is None else n  # every link count 0–6 appears
-    base = Base(mass=rng.uniform(1.0, 20.0), yaw_inertia=rng.uniform(0.01, 1.0),
-                com_offset=rng.uniform(-0.3, 0.3), wheel_radius=rng.uniform(0.03, 0.2),
-                half_track=rng.uniform(0.1, 0.4), wheel_inertia=rng.uniform(1e-4, 1e-2))
-    links = []
-    for _ in range(n):
-        L = rng.uniform(0.2, 2.0)
-        links.append(dict(length=L, mass_per_length=rng.uniform(0.2, 5.0),
-                          inertia_per_length=random_spd(rng, 0.03),
-                          joint_rpy=rng.uniform(-np.pi, np.pi, 3), stroke=[0.0, L]))
-    mount = rng.uniform(-0.3, 0.3, 3)
-    model = RobotModel.build(base, mount, links)
+    model = random_robot(rng, n)
     gravity = rng.uniform(5.0, 12.0)
     tip_mass = 0.0 if seed % 3 == 0 else rng.uniform(0.1, 3.0)
     wheel_inertia = seed % 5 != 4
-    q = np.empty(model.n_q)
-    q[:2] = rng.uniform(-5.0, 5.0, 2)
-    q[2:5] = rng.uniform(-np.pi, np.pi, 3)
-    for k in range(n):
-        q[5 + 2 * k] = rng.uniform(-np.pi, np.pi)
-        q[6 + 2 * k] = rng.uniform(-0.1, 1.1) * model.length[k]  # slightly past the stops too
-    u = rng.normal(size=model.n_u)
+    q, u = random_state(rng, model, beyond=0.1)
     ud = rng.normal(size=model.n_u)
     dyn = Dynamics(model, gravity=gravity, tip_mass=tip_mass, wheel_inertia=wheel_inertia)
     ref = build_projected_model(model, gravity, tip_mass=tip_mass, wheel_inertia=wheel_inertia)
@@ -54,7 +33,8 @@ def random_case(seed, n=None):
 
 
 # every link count 0–6 over SEEDS, and three 10-link robots
-@pytest.mark.parametrize("seed, n", [(seed, None) for seed in SEEDS] + [(2000 + s, 10) for s in range(3)])
+@pytest.mark.parametrize("seed, n",
+                         [(seed, None) for seed in SEEDS] + [(2000 + s, 10) for s in range(3)])
 def test_mass_matrix_equals_projected_pinocchio_crba(seed, n):
     _, _, dyn, ref, q, _, _ = random_case(seed, n)
     M, M_ref = dyn.mass_matrix(q), ref.mass_matrix(q)
@@ -97,11 +77,7 @@ def test_kinetic_energy_equals_pinocchio_kinetic_energy(seed):
 @pytest.mark.parametrize("seed", SEEDS)
 def test_potential_energy_equals_pinocchio_potential_up_to_a_constant(seed):
     rng, model, dyn, ref, q, u, _ = random_case(seed)
-    q2 = q.copy()
-    q2[:3] = rng.uniform(-5.0, 5.0, 3)  # the base moves in the plane: V must not change with it
-    for k in range(model.n_links):
-        q2[5 + 2 * k] = rng.uniform(-np.pi, np.pi)
-        q2[6 + 2 * k] = rng.uniform(0.0, 1.0) * model.length[k]
+    q2 = random_configuration(rng, model)   # the base moves in the plane too: V must not see it
     _, V1 = dyn.energy(q, u)
     _, V2 = dyn.energy(q2, u)
     dV_ref = ref.potential_energy(q2) - ref.potential_energy(q)

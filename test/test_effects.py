@@ -11,13 +11,27 @@ import math
 import numpy as np
 import pytest
 
-from mobile_manip_sim.engine.system import CROSSING_CHECKS, DAMPING_STAGE, REDUCED_SOLVE, RHS_EVALS
+from engine_cases import CONFIG, base_only_doc, one_link_doc, paper_doc, sampled, simulation
+from mobile_manip_sim.coordinates import (
+    ARM_Q,
+    ARM_U,
+    BASE_U,
+    OMEGA,
+    WHEEL_L,
+    WHEEL_R,
+    V,
+    X,
+    q_joint,
+    q_slide,
+    u_slide,
+    u_turn,
+)
 from mobile_manip_sim.effects import SETTING_OF_EFFECT, EffectSettings, settings
-from mobile_manip_sim.scene import EFFECT_NAMES, load_scene, make_integrator, parse_scene
 from mobile_manip_sim.engine.simulation import Simulation
-
-from engine_cases import CONFIG, base_only_doc, ld_index, one_link_doc, paper_doc, sampled, simulation
+from mobile_manip_sim.engine.system import CROSSING_CHECKS, DAMPING_STAGE, REDUCED_SOLVE, RHS_EVALS
+from mobile_manip_sim.scene import EFFECT_NAMES, load_scene, make_integrator, parse_scene
 from pinocchio_reference import build_projected_model
+from robots import random_state
 
 TIGHT = dict(rtol=1e-12, atol=1e-14)
 PAPER = paper_doc()
@@ -35,17 +49,14 @@ def free_arm_doc(**effects):
 def random_states(sim, count, seed):
     rng = np.random.default_rng(seed)
     for _ in range(count):
-        q = np.array(sim.q)
-        q[:5] = rng.uniform(-2.0, 2.0, 5)
-        q[5::2] = rng.uniform(-math.pi, math.pi, sim.model.n_links)
-        q[6::2] = rng.uniform(0.1, 0.9, sim.model.n_links)
-        yield q, rng.normal(size=sim.nu)
+        yield random_state(rng, sim.model)
 
 
 def simpson(values, dt):
     """∫ over uniformly spaced samples (an even number of intervals)."""
     assert (len(values) - 1) % 2 == 0
-    return dt / 3.0 * (values[0] + values[-1] + 4.0 * values[1:-1:2].sum() + 2.0 * values[2:-1:2].sum())
+    return dt / 3.0 * (values[0] + values[-1] + 4.0 * values[1:-1:2].sum()
+                       + 2.0 * values[2:-1:2].sum())
 
 
 # --- gravity -------------------------------------------------------------------------------
@@ -70,7 +81,8 @@ def test_gravity_changes_only_the_potential_force():
         h_gravity = on.dynamics.bias(q, u) - off.dynamics.bias(q, u)
         assert np.allclose(h_gravity, on.dynamics.bias(q, np.zeros_like(u)), rtol=0, atol=1e-12)
         qdot, eps = on.dynamics.configuration_rate(q, u), 1e-6
-        dV = (on.dynamics.energy(q + eps * qdot, u)[1] - on.dynamics.energy(q - eps * qdot, u)[1]) / (2 * eps)
+        dV = (on.dynamics.energy(q + eps * qdot, u)[1]
+              - on.dynamics.energy(q - eps * qdot, u)[1]) / (2 * eps)
         assert h_gravity @ u == pytest.approx(dV, rel=1e-7, abs=1e-9)
 
 
@@ -100,14 +112,15 @@ def test_wheel_inertia_adds_the_wheel_spin_to_the_base_block_only():
 def test_wheel_torque_accelerates_the_base_as_its_inertia_says(wheel_inertia):
     """Base alone, equal wheel torques from rest: x = ½ a t², a = (2τ/r) / (M + 2 I_w / r²)."""
     tau = 0.3
-    sim = simulation(base_only_doc(wheel_efforts=(tau, tau), effects={"wheel_inertia": wheel_inertia}),
+    sim = simulation(base_only_doc(wheel_efforts=(tau, tau),
+                                   effects={"wheel_inertia": wheel_inertia}),
                      "rk4", dt=1e-3)
     sim.advance_to(0.5)
     I_w, r = BASE["wheel_inertia"] if wheel_inertia else 0.0, BASE["wheel_radius"]
     a = (2 * tau / r) / (BASE["mass"] + 2 * I_w / r ** 2)
-    assert sim.q[0] == pytest.approx(0.5 * a * 0.5 ** 2, rel=1e-12)
-    assert sim.u[0] == pytest.approx(a * 0.5, rel=1e-12)
-    assert sim.q[3] == sim.q[4] == pytest.approx(sim.q[0] / r, rel=1e-12)   # rolling, no slip
+    assert sim.q[X] == pytest.approx(0.5 * a * 0.5 ** 2, rel=1e-12)
+    assert sim.u[V] == pytest.approx(a * 0.5, rel=1e-12)
+    assert sim.q[WHEEL_R] == sim.q[WHEEL_L] == pytest.approx(sim.q[X] / r, rel=1e-12)   # no slip
 
 
 def test_wheel_inertia_is_irrelevant_with_the_base_held():
@@ -132,7 +145,7 @@ def test_joint_damping_dissipates_exactly_the_viscous_work():
     E0 = sim.total_energy()
     _, states = sampled(sim, 0.5, 2000)
     u = states[:, sim.nq:sim.nq + sim.nu]
-    dissipated = simpson((u[:, 2:] ** 2 * JOINT_DAMPING).sum(axis=1), 1 / 2000)
+    dissipated = simpson((u[:, ARM_U] ** 2 * JOINT_DAMPING).sum(axis=1), 1 / 2000)
     assert dissipated > 0.1
     assert E0 - sim.total_energy() == pytest.approx(dissipated, rel=1e-8)
     assert abs(sim.energy_error()) < 1e-9 * dissipated
@@ -150,7 +163,8 @@ def test_joint_damping_changes_only_the_viscous_force():
         assert np.array_equal(d1[:nq], d0[:nq])
         M = plain.dynamics.mass_matrix(q)
         nu = plain.nu
-        assert np.allclose(d1[nq:nq + nu] - d0[nq:nq + nu], np.linalg.solve(M, -c * u), rtol=1e-10, atol=1e-12)
+        assert np.allclose(d1[nq:nq + nu] - d0[nq:nq + nu], np.linalg.solve(M, -c * u),
+                           rtol=1e-10, atol=1e-12)
         assert d1[-1] - d0[-1] == pytest.approx(-(c * u * u).sum(), rel=1e-12)
 
 
@@ -163,19 +177,20 @@ def test_a_damped_joint_slows_exponentially(joint):
     if joint == "revolute":
         mu, L, J_zz = link["mass_per_length"], link["length"], link["inertia_per_length"][2]
         inertia = mu * (l ** 3 - (l - L) ** 3) / 3.0 + J_zz * L
-        damping, velocity, locked, j = [c, 0.0], (0.0, 0.0, u0, 0.0), "arm_prismatic_1", 2
+        damping, velocity, locked, j = [c, 0.0], (0.0, 0.0, u0, 0.0), "arm_prismatic_1", u_turn(1)
     else:
         inertia = link["mass_per_length"] * link["length"]
-        damping, velocity, locked, j = [0.0, c], (0.0, 0.0, 0.0, u0), "arm_revolute_1", 3
+        damping, velocity, locked, j = [0.0, c], (0.0, 0.0, 0.0, u0), "arm_revolute_1", u_slide(1)
     doc = one_link_doc(joints=(0.3, l), velocity=velocity, effects={
         "fixed_base": True, "locked_joints": [locked], "joint_damping": damping})
     sim = simulation(doc, "dop853", **TIGHT)
     for t in (0.25, 0.5, 1.0):
         sim.advance_to(t)
         assert sim.u[j] == pytest.approx(u0 * math.exp(-c * t / inertia), rel=1e-9)
-    coordinate = sim.q[j + 3]
+    coordinate = sim.q[q_joint(j)]
     start = 0.3 if joint == "revolute" else l
-    assert coordinate - start == pytest.approx(u0 * inertia / c * (1 - math.exp(-c / inertia)), rel=1e-9)
+    assert coordinate - start == pytest.approx(u0 * inertia / c * (1 - math.exp(-c / inertia)),
+                                               rel=1e-9)
 
 
 @pytest.mark.parametrize("com_offset", [0.0, BASE["com_offset"]])
@@ -191,10 +206,12 @@ def test_wheel_damping_slows_the_base_as_rolling_resistance(com_offset):
     E0 = sim.total_energy()
     _, states = sampled(sim, 1.0, 1000)
     if com_offset == 0.0:
-        assert M[0, 1] == 0.0
-        assert sim.u[0] == pytest.approx(v0 * math.exp(-2 * c / r ** 2 / M[0, 0]), rel=1e-9)
-        assert sim.u[1] == pytest.approx(w0 * math.exp(-2 * c * b ** 2 / r ** 2 / M[1, 1]), rel=1e-9)
-    v, w = states[:, sim.nq], states[:, sim.nq + 1]
+        assert M[V, OMEGA] == 0.0
+        assert sim.u[V] == pytest.approx(v0 * math.exp(-2 * c / r ** 2 / M[V, V]), rel=1e-9)
+        assert sim.u[OMEGA] == pytest.approx(w0 * math.exp(-2 * c * b ** 2 / r ** 2
+                                                           / M[OMEGA, OMEGA]), rel=1e-9)
+    u = states[:, sim.nq:sim.nq + sim.nu]
+    v, w = u[:, V], u[:, OMEGA]
     wheel_rates = np.array([(v + b * w) / r, (v - b * w) / r])
     dissipated = simpson(c * (wheel_rates ** 2).sum(axis=0), 1 / 1000)
     assert dissipated > 0.1 * E0
@@ -219,7 +236,8 @@ def test_effort_limits_saturate_the_commands():
     over, s_over = limited_run([1.0, -1.0], [10.0, -10.0, 5.0, -0.6])
     at, s_at = limited_run([0.15, -0.15], [4.0, -6.0, 1.0, -0.5])
     assert np.array_equal(s_over, s_at)
-    assert list(over.wheel_efforts) == [0.15, -0.15] and list(over.joint_efforts) == [4.0, -6.0, 1.0, -0.5]
+    assert list(over.wheel_efforts) == [0.15, -0.15]
+    assert list(over.joint_efforts) == [4.0, -6.0, 1.0, -0.5]
     assert abs(over.energy_error()) < 1e-9   # the work booked is that of the saturated efforts
 
 
@@ -237,18 +255,19 @@ def test_effort_limits_saturate_the_scene_efforts_too():
 
 # --- locked joints and the fixed base ------------------------------------------------------
 
-@pytest.mark.parametrize("name, j", [("arm_revolute_2", 4), ("arm_prismatic_1", 3)])
+@pytest.mark.parametrize("name, j", [("arm_revolute_2", u_turn(2)),
+                                     ("arm_prismatic_1", u_slide(1))])
 def test_a_locked_joint_stays_fixed_and_moves_the_rest_like_a_stiff_joint(name, j):
     """Locked (removed from the problem) vs free but held by a PD of stiffness K updated every
     10 µs (rk4): the other coordinates agree to O(1/K) and converge as K grows."""
     locked = simulation(free_arm_doc(locked_joints=[name]), "dop853", **TIGHT)
     assert locked.u[j] == 0.0   # the scene's initial velocity of a locked DOF is dropped
-    q0 = locked.q[j + 3]
+    q0 = locked.q[q_joint(j)]
     _, states = sampled(locked, 0.05, 1000)
-    assert np.all(states[:, j + 3] == q0) and np.all(states[:, locked.nq + j] == 0.0)
+    assert np.all(states[:, q_joint(j)] == q0) and np.all(states[:, locked.nq + j] == 0.0)
     assert locked.system.counters[REDUCED_SOLVE] == locked.system.counters[RHS_EVALS]
     assert abs(locked.energy_error()) < 1e-10
-    others = [i for i in range(locked.s.size - 1) if i not in (j + 3, locked.nq + j)]
+    others = [i for i in range(locked.s.size - 1) if i not in (q_joint(j), locked.nq + j)]
     errors = []
     for K in (1e7, 1e8):
         stiff = simulation(free_arm_doc(), "rk4", dt=1e-5)
@@ -257,7 +276,7 @@ def test_a_locked_joint_stays_fixed_and_moves_the_rest_like_a_stiff_joint(name, 
         efforts = np.array(stiff.joint_efforts)
         for i in range(1, 5001):
             command = efforts.copy()
-            command[j - 2] += K * (q0 - stiff.q[j + 3]) - C * stiff.u[j]
+            command[j - ARM_U.start] += K * (q0 - stiff.q[q_joint(j)]) - C * stiff.u[j]
             stiff.set_efforts(joints=command)
             stiff.advance_to(i * 1e-5)
         errors.append(np.max(np.abs(stiff.s[others] - locked.s[others])))
@@ -274,34 +293,36 @@ def test_fixed_base_holds_the_base_and_leaves_the_arm_alone_dynamics():
     """Base coordinates bit-for-bit constant; u̇ of the arm = M_arm⁻¹ (Q − h)_arm from Pinocchio's
     independent M and h with v = ω = 0."""
     sim = simulation(free_arm_doc(fixed_base=True), "dop853", **TIGHT)
-    base0 = np.concatenate([sim.q[:5], sim.u[:2]])
-    assert np.all(sim.u[:2] == 0.0)
+    base = np.r_[:ARM_Q.start, sim.nq + BASE_U.start:sim.nq + BASE_U.stop]   # pose, wheels; v, ω
+    base0 = sim.s[base]
+    assert np.all(sim.u[BASE_U] == 0.0)
     _, states = sampled(sim, 0.3, 100)
-    assert np.all(np.concatenate([states[:, :5], states[:, sim.nq:sim.nq + 2]], axis=1) == base0)
+    assert np.all(states[:, base] == base0)
     ref = build_projected_model(sim.model, 10.0, wheel_inertia=True)
     Q = np.array(sim.system.Q_cmd)
     for q, u in random_states(sim, 5, seed=5):
-        u[:2] = 0.0
+        u[BASE_U] = 0.0
         s = sim.system.state(q, u)
         ud = sim.system.derivative(s)[sim.nq:sim.nq + sim.nu]
         M, h = ref.mass_matrix(q), ref.bias(q, u)
-        expected = np.linalg.solve(M[2:, 2:], (Q - h)[2:])
-        assert np.all(ud[:2] == 0.0)
-        assert np.allclose(ud[2:], expected, rtol=1e-9, atol=1e-9)
+        expected = np.linalg.solve(M[ARM_U, ARM_U], (Q - h)[ARM_U])
+        assert np.all(ud[BASE_U] == 0.0)
+        assert np.allclose(ud[ARM_U], expected, rtol=1e-9, atol=1e-9)
 
 
 def test_fixed_base_moves_the_arm_like_an_immovable_base():
     """The same robot with a base 10¹² times heavier, free: the arm's motion agrees."""
     held = simulation(free_arm_doc(fixed_base=True), "dop853", **TIGHT)
     heavy_doc = free_arm_doc()
-    heavy_doc["robot"]["base"] = dict(BASE, mass=BASE["mass"] * 1e12, yaw_inertia=BASE["yaw_inertia"] * 1e12)
-    heavy_doc["initial"]["velocity"][:2] = [0.0, 0.0]
+    heavy_doc["robot"]["base"] = dict(BASE, mass=BASE["mass"] * 1e12,
+                                      yaw_inertia=BASE["yaw_inertia"] * 1e12)
+    heavy_doc["initial"]["velocity"][BASE_U] = [0.0, 0.0]
     heavy = simulation(heavy_doc, "dop853", **TIGHT)
     for t in (0.1, 0.3):
         held.advance_to(t)
         heavy.advance_to(t)
-        assert np.max(np.abs(heavy.q[5:] - held.q[5:])) < 1e-8
-        assert np.max(np.abs(heavy.u[2:] - held.u[2:])) < 1e-8
+        assert np.max(np.abs(heavy.q[ARM_Q] - held.q[ARM_Q])) < 1e-8
+        assert np.max(np.abs(heavy.u[ARM_U] - held.u[ARM_U])) < 1e-8
 
 
 # --- payload -------------------------------------------------------------------------------
@@ -332,7 +353,8 @@ def test_payload_adds_only_the_tip_mass_terms():
             du = np.zeros(plain.nu)
             du[k] = 1.0
             qdot = plain.dynamics.configuration_rate(q, du)
-            J[:, k] = (ref.tip_position(q + eps * qdot) - ref.tip_position(q - eps * qdot)) / (2 * eps)
+            J[:, k] = (ref.tip_position(q + eps * qdot)
+                       - ref.tip_position(q - eps * qdot)) / (2 * eps)
         dM = loaded.dynamics.mass_matrix(q) - plain.dynamics.mass_matrix(q)
         assert np.allclose(dM, m * J.T @ J, rtol=1e-6, atol=1e-7)
 
@@ -352,8 +374,9 @@ def test_an_effect_that_is_off_does_no_work(method):
     def counters(doc):
         sim = simulation(doc, method, dt=1e-3)
         sim.advance_to(0.3)
-        return dict(zip(("rhs", "damping", "reduced", "crossing"),
-                        sim.system.counters[[RHS_EVALS, DAMPING_STAGE, REDUCED_SOLVE, CROSSING_CHECKS]]))
+        stages = [RHS_EVALS, DAMPING_STAGE, REDUCED_SOLVE, CROSSING_CHECKS]
+        return dict(zip(("rhs", "damping", "reduced", "crossing"), sim.system.counters[stages],
+                        strict=True))
 
     bare = counters(free_arm_doc())
     assert bare["rhs"] > 0 and bare["damping"] == bare["reduced"] == bare["crossing"] == 0
@@ -394,7 +417,8 @@ def test_each_effect_sets_exactly_its_one_setting_and_off_leaves_it_absent():
     bare = settings(parse_scene(paper_doc(effects={})))
     assert bare == EffectSettings()   # every setting absent
     for name in EFFECT_NAMES:
-        assert changed_settings(paper_doc(effects={name: EFFECT_ON[name]})) == [SETTING_OF_EFFECT[name]]
+        changed = changed_settings(paper_doc(effects={name: EFFECT_ON[name]}))
+        assert changed == [SETTING_OF_EFFECT[name]]
     off = {"gravity": 0.0, "stroke_limits": False, "wheel_inertia": False, "wheel_damping": 0.0,
            "effort_limits": {}, "locked_joints": [], "fixed_base": False}
     assert changed_settings(paper_doc(effects=off)) == []
@@ -435,7 +459,7 @@ def test_every_example_scene_runs(path):
     sim.advance_to(0.2)
     assert sim.t == pytest.approx(0.2, abs=1e-12) and sim.steps >= 0.2 / scene.integrator.dt - 1
     assert not np.allclose(sim.s[:-1], start[:-1], rtol=0, atol=1e-6)   # something moved
-    for k in range(scene.robot.n_links):
+    for k in range(1, scene.robot.n_links + 1):
         if scene.effects.stroke_limits:
-            lo, hi = scene.robot.stroke[k]
-            assert lo - 1e-9 <= sim.q[6 + 2 * k] <= hi + 1e-9
+            lo, hi = scene.robot.stroke[k - 1]
+            assert lo - 1e-9 <= sim.q[q_slide(k)] <= hi + 1e-9

@@ -1,5 +1,6 @@
-"""Stroke end stops (docs/model.md "Stroke end stops", engine/stops.py): located impacts, the impulse
-law's energy loss, resting and leaving, no tunnelling, no Zeno, impulse vs the paper's reflect.
+"""Stroke end stops (docs/model.md "Stroke end stops", engine/stops.py): located impacts, the
+impulse law's energy loss, resting and leaving, no tunnelling, no Zeno, impulse vs the paper's
+reflect.
 
 Several cases have exact answers: a rod whose l̇ row of M is diagonal and whose h_l is constant
 moves as l̈ = F/m, a quadratic in t that RK4 and every adaptive method reproduce to round-off, so
@@ -12,12 +13,14 @@ import numpy as np
 import pytest
 from scipy import integrate
 
-from mobile_manip_sim.engine import adaptive_stepping, events
+from engine_cases import one_link_doc, paper_doc, sampled, simulation
+from mobile_manip_sim.engine import adaptive_stepping, events, layout
 from mobile_manip_sim.engine import runge_kutta as rk
 from mobile_manip_sim.engine.simulation import Simulation
 from mobile_manip_sim.scene import load_scene, make_integrator
 
-from engine_cases import l_index, ld_index, one_link_doc, paper_doc, sampled, simulation
+L_1, L_2 = layout.q_slide(1), layout.q_slide(2)   # l_1, l_2 in q
+LD_1 = layout.u_slide(1)   # l̇_1 in u
 
 TIGHT = dict(rtol=1e-11, atol=1e-13)
 SCIPY = {"rk45": integrate.RK45, "dop853": integrate.DOP853, "radau": integrate.Radau,
@@ -51,7 +54,7 @@ def bouncing_doc(restitution, **effects):
 def assert_in_stroke(sim, states, tol=1e-9):
     for k in range(1, sim.model.n_links + 1):
         lo, hi = sim.stroke[k - 1]
-        l = states[:, l_index(sim, k)]
+        l = states[:, layout.q_slide(k)]
         assert l.min() >= lo - tol and l.max() <= hi + tol, (k, l.min() - lo, l.max() - hi)
 
 
@@ -89,7 +92,7 @@ def test_each_impact_loses_the_energy_of_the_impulse_law(restitution, fixed_base
     sim.advance_to(1.0 if restitution else 2.0)
     assert len(sim.impacts) >= (5 if restitution else 3) and len(sim.probed) == len(sim.impacts)
     expected_total = 0.0
-    for impact, (q, u_before, u_after, free, held) in zip(sim.impacts, sim.probed):
+    for impact, (q, u_before, u_after, free, held) in zip(sim.impacts, sim.probed, strict=True):
         j = 2 * impact.link + 1
         M = sim.dynamics.mass_matrix(q)[np.ix_(free, free)]
         w = np.linalg.solve(M, np.eye(len(free))[free.index(j)])   # M⁻¹ e_k
@@ -143,14 +146,14 @@ def test_a_rod_pushed_into_its_stop_rests_and_leaves_when_pulled(side, method, s
     assert impact.stop == ("lower" if side < 0 else "upper") and impact.resting
     assert impact.ld_after == 0.0 and side * impact.ld_before > 0.4
     after = np.arange(states.shape[0]) / 1000 > impact.time
-    assert np.all(states[after, l_index(sim, 1)] == stop)
-    assert np.all(states[after, ld_index(sim, 1)] == 0.0)
+    assert np.all(states[after, layout.q_slide(1)] == stop)
+    assert np.all(states[after, layout.ld(sim.nq, 1)] == 0.0)
     assert sim.resting[0] == side
     # Reverse the force: the rod leaves at once and moves away from the stop.
     sim.set_efforts(joints=(0.0, -F))
     assert sim.resting[0] == 0
     _, later = sampled_from(sim, 0.8, 1.0, 1000)
-    l = later[:, l_index(sim, 1)]
+    l = later[:, layout.q_slide(1)]
     assert np.all(-side * np.diff(l) > 0.0)
     assert -side * (l[-1] - stop) > 0.05
     assert len(sim.impacts) == 1
@@ -185,7 +188,7 @@ def test_a_rod_pressed_by_less_than_the_stop_holds_stays():
     sim.advance_to(0.8)
     sim.set_efforts(joints=(0.0, 1.0))
     sim.advance_to(1.0)
-    assert sim.resting[0] == 1 and sim.q[6] == 0.9 and sim.u[3] == 0.0
+    assert sim.resting[0] == 1 and sim.q[L_1] == 0.9 and sim.u[LD_1] == 0.0
 
 
 VERTICAL = dict(joints=(math.pi / 2, 0.5), stroke=(0.0, 1.0))   # rod 1 straight up
@@ -219,14 +222,14 @@ def test_a_bouncing_rod_comes_to_rest_without_zeno(method, settings):
     else:
         pytest.fail("the rod never came to rest")
     assert n == len(sim.impacts) - 1 and 5 < n < 20
-    assert sim.resting[0] == -1 and sim.q[6] == 0.0 and sim.u[3] == 0.0
+    assert sim.resting[0] == -1 and sim.q[L_1] == 0.0 and sim.u[LD_1] == 0.0
     sim.set_efforts(joints=(0.0, 9.0))      # less than the weight μ L g = 10 N
     sim.advance_to(1.6)
-    assert sim.resting[0] == -1 and sim.q[6] == 0.0
+    assert sim.resting[0] == -1 and sim.q[L_1] == 0.0
     sim.set_efforts(joints=(0.0, 12.0))     # more: l̈ = 2 m/s² upward
     sim.advance_to(1.7)
     assert sim.resting[0] == 0
-    assert sim.q[6] == pytest.approx(0.5 * 2.0 * 0.1 ** 2, rel=1e-9)
+    assert sim.q[L_1] == pytest.approx(0.5 * 2.0 * 0.1 ** 2, rel=1e-9)
 
 
 @pytest.mark.parametrize("method, settings", [("rk4", dict(dt=1e-3)), ("rk4", dict(dt=0.05)),
@@ -243,7 +246,7 @@ def test_a_rod_chattering_with_no_rest_speed_is_held_at_the_zeno_point(method, s
     assert_in_stroke(sim, states)
     v0 = math.sqrt(2.0 * g * 0.5)
     t_zeno = math.sqrt(2.0 * 0.5 / g) + 2.0 * v0 / g * e / (1.0 - e)
-    assert sim.resting[0] == -1 and sim.q[6] == 0.0 and sim.u[3] == 0.0
+    assert sim.resting[0] == -1 and sim.q[L_1] == 0.0 and sim.u[LD_1] == 0.0
     assert sim.impacts[-1].resting and sim.impacts[-1].time == pytest.approx(t_zeno, abs=1e-6)
     assert len(sim.impacts) < 200
 
@@ -251,7 +254,8 @@ def test_a_rod_chattering_with_no_rest_speed_is_held_at_the_zeno_point(method, s
 # --- the Zeno guard (events.zeno_guard: one for every method, on the impact times) ---------
 
 @pytest.mark.parametrize("method, settings", [("rk4", dict(dt=1e-3)), ("rk4", dict(dt=0.05)),
-                                              ("dop853", TIGHT), ("rk45", dict(rtol=1e-8, atol=1e-11)),
+                                              ("dop853", TIGHT),
+                                              ("rk45", dict(rtol=1e-8, atol=1e-11)),
                                               ("radau", dict(rtol=1e-8))])
 def test_every_method_holds_a_chattering_rod_at_the_same_impact(method, settings):
     """The same guard governs fixed-step and adaptive methods and reads the impact times alone:
@@ -282,8 +286,9 @@ def test_every_method_holds_a_chattering_rod_at_the_same_impact(method, settings
 def test_two_rods_trading_impacts_with_no_rest_speed_both_end_held(method, settings):
     """Rod 2 pushed into its upper stop by 20 N, rod 1 falling onto its lower one (revolute
     joints locked, gravity, e = 0.5, rest_speed 0): each rod's small bounces kick the other off
-    its stop, which cannot pull, so the two trade ever smaller impacts. No rest speed ends that; the guard's
-    runs per rod and stop do, and both rods end held with a bounded number of impacts."""
+    its stop, which cannot pull, so the two trade ever smaller impacts. No rest speed ends that;
+    the guard's runs per rod and stop do, and both rods end held with a bounded number of
+    impacts."""
     doc = paper_doc(efforts={"wheels": [0.0, 0.0], "joints": [0.0, 0.0, 0.0, 20.0]},
                     effects={"gravity": 10.0, "wheel_inertia": True,
                              "locked_joints": ["arm_revolute_1", "arm_revolute_2"],
@@ -317,7 +322,8 @@ def fast_rod_doc(side, restitution, fixed_step, overshoot):
         l0 = 1.0 - l0
     return (one_link_doc(joints=(0.0, l0), velocity=(0.0, 0.0, 0.0, side * speed),
                          joint_efforts=(0.0, -side * accel),
-                         effects={"fixed_base": True, "stroke_limits": {"restitution": restitution}}),
+                         effects={"fixed_base": True,
+                                  "stroke_limits": {"restitution": restitution}}),
             l0, speed, accel)
 
 
@@ -332,7 +338,7 @@ def engine_step_ends(doc, method, settings, t_end):
     for t in np.linspace(0.0, t_end, 2001)[1:]:
         sim.advance_to(t)
         solve = sim._solve
-        ends[solve.status[adaptive_stepping.STEP_T0]] = solve.work[rk.WORK_Y1][l_index(sim, 1)]
+        ends[solve.status[adaptive_stepping.STEP_T0]] = solve.work[rk.WORK_Y1][layout.q_slide(1)]
     assert len(ends) > 1
     return list(ends.values())
 
@@ -363,7 +369,7 @@ def test_a_rod_that_crosses_and_returns_within_one_step_is_caught(method, side, 
         ends = []
         while solver.status == "running":
             solver.step()
-            ends.append(solver.y[l_index(sim, 1)])
+            ends.append(solver.y[layout.q_slide(1)])
         assert all(side * (l - stop) < 0.0 for l in ends)
     if method in ("rk45", "dop853"):   # … nor of the engine's own solve
         assert all(side * (l - stop) < 0.0 for l in engine_step_ends(doc, method, settings, t_end))
@@ -376,7 +382,7 @@ def test_a_rod_that_crosses_and_returns_within_one_step_is_caught(method, side, 
     assert impact.ld_before == pytest.approx(ld_hit, abs=tol)
     assert impact.ld_after == pytest.approx(-restitution * ld_hit, abs=tol)
     lo, hi = sim.stroke[0]
-    assert lo - 1e-9 <= sim.q[6] <= hi + 1e-9
+    assert lo - 1e-9 <= sim.q[L_1] <= hi + 1e-9
 
 
 @pytest.mark.parametrize("method, settings", [("rk4", dict(dt=0.01)), ("euler", dict(dt=0.01)),
@@ -391,7 +397,7 @@ def test_a_rod_faster_than_its_stroke_per_step_bounces_at_every_stop(method, set
     times = [impact.time for impact in sim.impacts]
     assert times == pytest.approx(0.0025 + 0.005 * np.arange(20), abs=1e-12)
     assert [impact.stop for impact in sim.impacts] == ["upper", "lower"] * 10
-    assert sim.q[6] == pytest.approx(0.5, abs=1e-12) and sim.u[3] == 20.0
+    assert sim.q[L_1] == pytest.approx(0.5, abs=1e-12) and sim.u[LD_1] == 20.0
 
 
 # --- the impact law ------------------------------------------------------------------------
@@ -480,7 +486,7 @@ def test_a_rod_leaving_its_stop_is_released_at_the_located_instant():
 
     reference, tight = states("dop853", rtol=1e-13, atol=1e-14)
     assert [impact.link for impact in tight.impacts] == [2, 1, 2]
-    assert tight.resting[1] == 0 and tight.q[8] > 0.1        # rod 2 really left its stop
+    assert tight.resting[1] == 0 and tight.q[L_2] > 0.1        # rod 2 really left its stop
     coarse, _ = states("rk4", dt=3e-4)
     fine, _ = states("rk4", dt=1e-4)
     assert np.abs(coarse - reference).max() < 1e-8

@@ -5,20 +5,24 @@ Every case is one change to the valid paper scene, so the change alone is what f
 each kind runs as a real process (a few at a time: each pays the interpreter's start-up); the
 variants call the same entry point, `simulate.main`, in this process.
 """
+import json
 import math
 import subprocess
 import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
 
 import numpy as np
 import pytest
 import yaml
 
+from engine_cases import paper_doc, simulation
+from huge_commands import COMMANDS
+from huge_commands import apply as apply_command
 from mobile_manip_sim import simulate
 from mobile_manip_sim.errors import UserError
-
-from engine_cases import paper_doc, simulation
+from mobile_manip_sim.methods import METHODS
 
 
 def edit(path, value):
@@ -68,7 +72,8 @@ CASES = {
                                           "effects.joint_damping"),
     "negative joint damping": (edit(["effects", "joint_damping"], [-1.0, 0.0, 0.0, 0.0]), [],
                                "effects.joint_damping[0]"),
-    "effort limits of the wrong length": (edit(["effects", "effort_limits"], {"joints": [1.0, 2.0]}),
+    "effort limits of the wrong length": (edit(["effects", "effort_limits"],
+                                               {"joints": [1.0, 2.0]}),
                                           [], "effects.effort_limits.joints"),
     "zero effort limit": (edit(["effects", "effort_limits"], {"wheels": 0.0}), [],
                           "effects.effort_limits.wheels"),
@@ -90,11 +95,14 @@ CASES = {
                              "robot.arm.links[1].mass_per_length"),
     "zero rod length": (edit(["robot", "arm", "links", 0, "length"], 0.0), [],
                         "robot.arm.links[0].length"),
-    "zero wheel radius": (edit(["robot", "base", "wheel_radius"], 0.0), [], "robot.base.wheel_radius"),
+    "zero wheel radius": (edit(["robot", "base", "wheel_radius"], 0.0), [],
+                          "robot.base.wheel_radius"),
     "nan base mass": (edit(["robot", "base", "mass"], NAN), [], "robot.base.mass"),
     "infinite gravity": (edit(["effects", "gravity"], INF), [], "effects.gravity"),
-    "nan initial joint": (edit(["initial", "joints"], [0.3, NAN, -0.2, 0.5]), [], "initial.joints[1]"),
-    "a string for a number": (edit(["robot", "base", "half_track"], "wide"), [], "robot.base.half_track"),
+    "nan initial joint": (edit(["initial", "joints"], [0.3, NAN, -0.2, 0.5]), [],
+                          "initial.joints[1]"),
+    "a string for a number": (edit(["robot", "base", "half_track"], "wide"), [],
+                              "robot.base.half_track"),
     "stroke beyond the rod": (edit(["robot", "arm", "links", 0, "stroke"], [0.0, 1.5]), [],
                               "robot.arm.links[0].stroke[1]"),
     "stroke below zero": (edit(["robot", "arm", "links", 1, "stroke"], [-0.1, 1.0]), [],
@@ -107,7 +115,8 @@ CASES = {
                                            "initial.joints"),
     "initial velocity of the wrong length": (edit(["initial", "velocity"], [0.0] * 5), [],
                                              "initial.velocity"),
-    "mount of the wrong length": (edit(["robot", "arm", "mount"], [0.0, 0.2]), [], "robot.arm.mount"),
+    "mount of the wrong length": (edit(["robot", "arm", "mount"], [0.0, 0.2]), [],
+                                  "robot.arm.mount"),
     "pose of the wrong length": (edit(["initial", "pose"], [0.0, 0.0]), [], "initial.pose"),
 }
 
@@ -155,7 +164,8 @@ def arguments(case_id, tmp_dir):
 
 
 def run_case(case_id, tmp_dir):
-    return subprocess.run([sys.executable, "-m", "mobile_manip_sim.simulate", *arguments(case_id, tmp_dir)],
+    return subprocess.run([sys.executable, "-m", "mobile_manip_sim.simulate",
+                           *arguments(case_id, tmp_dir)],
                           capture_output=True, text=True, timeout=120)
 
 
@@ -180,7 +190,7 @@ def results(tmp_path_factory):
             outcomes = list(pool.map(lambda case_id: run_case(case_id, tmp_dir), ids))
     finally:
         del CASES["valid scene"]
-    return dict(zip(ids, outcomes))
+    return dict(zip(ids, outcomes, strict=True))
 
 
 def test_the_unbroken_scene_runs(results):
@@ -226,7 +236,8 @@ def test_a_bad_command_is_rejected_and_the_last_one_kept(wheels, joints, key):
     with pytest.raises(UserError) as error:
         sim.set_efforts(wheels=wheels, joints=joints)
     assert error.value.key == key
-    assert np.array_equal(sim.wheel_efforts, before[0]) and np.array_equal(sim.joint_efforts, before[1])
+    assert np.array_equal(sim.wheel_efforts, before[0])
+    assert np.array_equal(sim.joint_efforts, before[1])
     assert np.array_equal(sim.system.Q_cmd, before[2])
 
 
@@ -236,8 +247,9 @@ def test_a_numerical_blow_up_says_when_and_exits_1(tmp_path):
     doc["integrator"] = {"method": "euler", "dt": 0.01}
     scene = tmp_path / "stiff.yaml"
     scene.write_text(yaml.safe_dump(doc))
-    result = subprocess.run([sys.executable, "-m", "mobile_manip_sim.simulate", "--scene", str(scene),
-                             "--duration", "1.0", "--out", str(tmp_path / "out.csv")],
+    result = subprocess.run([sys.executable, "-m", "mobile_manip_sim.simulate",
+                             "--scene", str(scene), "--duration", "1.0",
+                             "--out", str(tmp_path / "out.csv")],
                             capture_output=True, text=True, timeout=120)
     lines = result.stderr.strip().splitlines()
     assert result.returncode == 1 and len(lines) == 1, result.stderr
@@ -267,8 +279,10 @@ CRAWLS = {"a huge command after a reset": huge_command_after_reset,
                                                            rtol=1e-14, atol=1e-20)}
 
 
-@pytest.mark.parametrize("method, case", [(method, case) for method in ("radau", "bdf") for case in CRAWLS]
-                         + [(method, "a huge command after a reset") for method in ("rk45", "dop853")])
+@pytest.mark.parametrize("method, case",
+                         [(method, case) for method in ("radau", "bdf") for case in CRAWLS]
+                         + [(method, "a huge command after a reset")
+                            for method in ("rk45", "dop853")])
 def test_an_adaptive_solver_that_cannot_follow_stops_promptly_in_one_line(case, method):
     from mobile_manip_sim.engine.simulation import StepLimitError
 
@@ -288,18 +302,26 @@ def test_simulate_exits_2_with_one_line_when_bdf_cannot_follow(tmp_path):
     scene.write_text(yaml.safe_dump({**featherweight_rods_doc(), "integrator": {
         "method": "bdf", "rtol": 1e-14, "atol": 1e-20}}))
     start = time.monotonic()
-    result = subprocess.run([sys.executable, "-m", "mobile_manip_sim.simulate", "--scene", str(scene),
-                             "--duration", "1.0", "--out", str(tmp_path / "out.csv")],
+    result = subprocess.run([sys.executable, "-m", "mobile_manip_sim.simulate",
+                             "--scene", str(scene), "--duration", "1.0",
+                             "--out", str(tmp_path / "out.csv")],
                             capture_output=True, text=True, timeout=120)
     lines = result.stderr.strip().splitlines()
     assert result.returncode == 2 and len(lines) == 1, result.stderr
-    assert ": error: integrator.rtol: t = " in lines[0] and "bdf cannot follow" in lines[0], lines[0]
+    assert ": error: integrator.rtol: t = " in lines[0], lines[0]
+    assert "bdf cannot follow" in lines[0], lines[0]
     assert time.monotonic() - start < 60
 
 
 def test_the_step_watch_tells_a_crawl_from_a_restart():
-    from mobile_manip_sim.engine.step_watch import (BUDGET_SPAN, BUDGET_STEPS, FLOOR_STEPS, describe,
-                                                    make_watch, watch_step)
+    from mobile_manip_sim.engine.step_watch import (
+        BUDGET_SPAN,
+        BUDGET_STEPS,
+        FLOOR_STEPS,
+        describe,
+        make_watch,
+        watch_step,
+    )
 
     def first_problem(steps, t=0.0):
         watch = make_watch()
@@ -320,4 +342,98 @@ def test_the_step_watch_tells_a_crawl_from_a_restart():
     slow = BUDGET_SPAN / BUDGET_STEPS
     assert first_problem([0.9 * slow] * BUDGET_STEPS)[0] == BUDGET_STEPS
     assert first_problem([1.1 * slow] * (3 * BUDGET_STEPS)) is None
-    assert first_problem([1.1 * slow] * BUDGET_STEPS + [0.9 * slow] * BUDGET_STEPS)[0] == 2 * BUDGET_STEPS
+    slow_then_fast = [1.1 * slow] * BUDGET_STEPS + [0.9 * slow] * BUDGET_STEPS
+    assert first_problem(slow_then_fast)[0] == 2 * BUDGET_STEPS
+
+
+# --- huge finite commands right after a reset, every method (issue 22) ------------------------
+
+@pytest.fixture(scope="module")
+def huge_commands():
+    """test/huge_commands.py's cases, run in their own process: the timeout is only a safety net
+    (a regression that loops would otherwise hang the test run); what bounds each case is the
+    step watch, asserted below as a step count."""
+    result = subprocess.run([sys.executable, "huge_commands.py"], capture_output=True, text=True,
+                            timeout=600, cwd=Path(__file__).parent)
+    assert result.returncode == 0, result.stderr
+    return [json.loads(line) for line in result.stdout.splitlines()]
+
+
+def check_huge_command(case):
+    """One line of the right kind; no more steps than the step watch allows; a reset recovers."""
+    from mobile_manip_sim.engine.step_watch import BUDGET_STEPS
+
+    method, error, message = case["method"], case["error"], case["message"]
+    assert error in ("UserError", "SimulationError", "StepLimitError"), case
+    assert "\n" not in message and len(message) < 300, message
+    if error == "UserError":   # its forces overflow: refused, naming the command
+        assert message.startswith(f"efforts.{case['command'].replace('all', 'wheels')}: "), message
+        assert case["steps"] == 0
+    elif METHODS[method].fixed_step:   # the numbers go bad within the first steps
+        assert error == "SimulationError" and "non-finite" in message, message
+    else:   # every adaptive method: the step watch's one line, naming the setting
+        assert error == "StepLimitError" and message.startswith("integrator.rtol: t = "), message
+        assert f"{method} cannot follow" in message, message
+    assert case["steps"] <= BUDGET_STEPS
+    assert case["recovered"], case
+
+
+def test_huge_commands_after_a_reset_fail_in_one_line_for_every_method(huge_commands):
+    assert [(c["method"], c["command"], c["values"]) for c in huge_commands] == [
+        (method, group, values) for method in METHODS for group, values in COMMANDS]
+    for case in huge_commands:
+        check_huge_command(case)
+    # both ways of failing are met: refused at the command, and failed by the integrator
+    kinds = {(c["method"], c["error"]) for c in huge_commands}
+    assert {(m, "UserError") for m in METHODS} <= kinds
+    assert {(m, "StepLimitError") for m in METHODS if not METHODS[m].fixed_step} <= kinds
+
+
+@pytest.mark.parametrize("group, values", [("wheels", [1e308, 1e308]), ("wheels", [-1e308, 1e308]),
+                                           ("cmd_vel", [1e308, 0.0]), ("cmd_vel", [0.0, 1e308])])
+def test_a_command_whose_forces_overflow_is_refused_and_the_last_one_kept(group, values):
+    sim = simulation(paper_doc(), "rk4")
+    sim.set_efforts(wheels=[0.1, 0.2])
+    before = (sim.wheel_efforts.copy(), sim.system.Q_cmd.copy(), sim.system.control.copy())
+    with pytest.raises(UserError) as error:
+        apply_command(sim, group, values)
+    assert error.value.key == f"efforts.{group}" and "overflows" in str(error.value)
+    assert np.array_equal(sim.wheel_efforts, before[0])
+    assert np.array_equal(sim.system.Q_cmd, before[1])
+    assert np.array_equal(sim.system.control, before[2])
+    sim.advance_to(0.01)   # still the last valid command
+    assert np.all(np.isfinite(sim.s))
+
+
+def resimulated_with_a_huge_command(method, values, tmp_dir):
+    """`replay --resimulate` of a headless bag of `method` whose wheel command at t = 0 is
+    rewritten to `values` (scene efforts are bounded by 1e6: a bag is how such a command comes)."""
+    from bag_rewrite import rewrite_bag
+    from executables import executable
+    from mobile_manip_sim.messages import float64_array
+    from mobile_manip_sim.recording.cdr import exact_cdr
+    from mobile_manip_sim.topics import WHEEL_TOPIC
+
+    scene = tmp_dir / f"{method}.yaml"
+    scene.write_text(yaml.safe_dump({**paper_doc(), "integrator": {"method": method}}))
+    recorded, altered = tmp_dir / f"{method}_bag", tmp_dir / f"{method}_huge"
+    result = subprocess.run([executable("simulate"), "--scene", str(scene), "--duration", "0.1",
+                             "--out", str(tmp_dir / f"{method}.csv"), "--record", str(recorded)],
+                            capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr
+    rewrite_bag(recorded, altered, lambda topic, data, index: exact_cdr(float64_array(values))
+                if topic == WHEEL_TOPIC else data)
+    return subprocess.run([executable("replay"), str(altered), "--resimulate"],
+                          capture_output=True, text=True, timeout=300)
+
+
+@pytest.mark.parametrize("method, values, key", [
+    ("dop853", [1e308, 1e308], "efforts.wheels"),   # spun for ever, deaf to SIGINT
+    ("rk45", [1e300, 1e300], "integrator.rtol"),
+    ("radau", [1e300, 1e300], "integrator.rtol"),   # a 50-line traceback of lu_factor
+    ("bdf", [1e300, -1e300], "integrator.rtol")])
+def test_resimulating_a_bag_of_huge_commands_is_one_line_and_status_2(method, values, key,
+                                                                       tmp_path):
+    result = resimulated_with_a_huge_command(method, values, tmp_path)
+    assert_one_line_naming(key, result.returncode, "", result.stderr)
+    assert result.stderr.startswith(f"replay: error: {key}: "), result.stderr

@@ -8,21 +8,17 @@ Each case has an answer that cannot be tuned: a closed form (a rigid spin-up at 
 acceleration, a rod bouncing under gravity alone), docs/model.md's multi-contact law worked by hand,
 or a sign (a stop only pushes).
 """
-import copy
 import math
 import warnings
 
 import numpy as np
 import pytest
 
-from mobile_manip_sim.engine import events
-from mobile_manip_sim.engine.simulation import Simulation
-from mobile_manip_sim.scene import parse_scene
+from engine_cases import one_link_doc, paper_doc, simulation
+from mobile_manip_sim.engine import events, layout
 
-try:
-    from .engine_cases import one_link_doc, paper_doc, simulation
-except ImportError:  # test/ is not a package: pytest puts it on sys.path
-    from engine_cases import one_link_doc, paper_doc, simulation
+L_2 = layout.q_slide(2)   # l_2 in q
+LD_1, LD_2, QD_1 = layout.u_slide(1), layout.u_slide(2), layout.u_turn(1)   # l̇_1, l̇_2, q̇_1 in u
 
 TIGHT = dict(rtol=1e-12, atol=1e-14)
 
@@ -65,7 +61,7 @@ def test_a_release_due_inside_a_step_happens_at_the_closed_form_instant(method, 
     before = simulation(doc, method, **settings)
     before.advance_to(math.floor(T_RELEASE * 1e3) * 1e-3)   # the grid step before the release
     assert list(before.resting) == [1, -1]
-    assert before.u[2] == pytest.approx(ALPHA * before.t, rel=1e-12)   # the spin-up is exact
+    assert before.u[QD_1] == pytest.approx(ALPHA * before.t, rel=1e-12)   # the spin-up is exact
     before.advance_to(T_RELEASE - 1e-9)
     assert list(before.resting) == [1, -1]
     after = simulation(doc, method, **settings)
@@ -76,7 +72,7 @@ def test_a_release_due_inside_a_step_happens_at_the_closed_form_instant(method, 
     on_grid.advance_to(math.ceil(T_RELEASE * 1e3) * 1e-3)
     assert list(on_grid.resting) == [1, 0]
     on_grid.advance_to(on_grid.t + 2e-3)
-    assert on_grid.q[8] > 0.0 and on_grid.u[5] > 0.0
+    assert on_grid.q[L_2] > 0.0 and on_grid.u[LD_2] > 0.0
     assert all(i.time < 1e-6 and i.resting for i in on_grid.impacts)   # settling at the start
 
 
@@ -95,7 +91,7 @@ def test_after_a_release_inside_a_step_the_run_converges_at_the_methods_order(me
     reference = spin_up_state("dop853", t_end, **TIGHT)
     errors = [np.abs(spin_up_state(method, t_end, dt=dt) - reference).max()
               for dt in (8e-3, 4e-3, 2e-3)]
-    rates = [math.log2(a / b) for a, b in zip(errors, errors[1:])]
+    rates = [math.log2(a / b) for a, b in zip(errors[:-1], errors[1:], strict=True)]
     assert all(abs(rate - order) < 0.5 for rate in rates), (errors, rates)
 
 
@@ -120,9 +116,11 @@ def collinear_doc(dl2=0.0):
     return doc
 
 
-@pytest.mark.parametrize("dl2", [0.0, 1e-15, -1e-15, 2e-10], ids=["exact", "+1e-15", "-1e-15", "+2e-10"])
-@pytest.mark.parametrize("method, settings", [("rk4", dict(dt=1e-3)), ("semi_implicit_euler", dict(dt=1e-3)),
-                                              ("dop853", dict(rtol=1e-9, atol=1e-12)), ("radau", dict(rtol=1e-8))])
+@pytest.mark.parametrize("dl2", [0.0, 1e-15, -1e-15, 2e-10],
+                         ids=["exact", "+1e-15", "-1e-15", "+2e-10"])
+@pytest.mark.parametrize("method, settings",
+                         [("rk4", dict(dt=1e-3)), ("semi_implicit_euler", dict(dt=1e-3)),
+                          ("dop853", dict(rtol=1e-9, atol=1e-12)), ("radau", dict(rtol=1e-8))])
 def test_two_rods_reaching_their_stops_together_are_one_impact(method, settings, dl2):
     sim = simulation(collinear_doc(dl2), method, **settings)
     sim.advance_to(0.02)
@@ -134,7 +132,8 @@ def test_two_rods_reaching_their_stops_together_are_one_impact(method, settings,
     assert detail.u_after[j1] == pytest.approx(-0.5, abs=1e-12)
     assert detail.u_after[j2] == pytest.approx(1.0, abs=1e-12)
     assert sum(i.energy_lost for i in sim.impacts) == pytest.approx(0.375, abs=1e-12)
-    assert sim.u[3] == pytest.approx(-0.5, abs=1e-12) and sim.u[5] == pytest.approx(1.0, abs=1e-12)
+    assert sim.u[LD_1] == pytest.approx(-0.5, abs=1e-12)
+    assert sim.u[LD_2] == pytest.approx(1.0, abs=1e-12)
     assert not sim.resting.any()
 
 
@@ -231,8 +230,8 @@ def pushes_only(sim, detail, impact, tol):
     M = sim.dynamics.mass_matrix(detail.q)
     impulse = M @ (detail.u_after - detail.u_before)
     for k in range(1, sim.model.n_links + 1):
-        j = 2 * k + 1
-        l = detail.q[4 + 2 * k]
+        j = layout.u_slide(k)
+        l = detail.q[layout.q_slide(k)]
         lo, hi = sim.stroke[k - 1]
         if l == lo:
             assert impulse[j] >= -tol, (impact, impulse[j])
@@ -240,7 +239,8 @@ def pushes_only(sim, detail, impact, tol):
             assert impulse[j] <= tol, (impact, impulse[j])
 
 
-@pytest.mark.parametrize("method, settings", [("rk4", dict(dt=1e-3)), ("dop853", dict(rtol=1e-10, atol=1e-12))])
+@pytest.mark.parametrize("method, settings",
+                         [("rk4", dict(dt=1e-3)), ("dop853", dict(rtol=1e-10, atol=1e-12))])
 def test_settling_impacts_never_let_a_stop_pull(method, settings):
     """rest_speed 0.05 m/s: the last impacts arrive slower than it and are solved with e = 0
     by the same unilateral law, so a neighbour that an impulse would throw off is thrown off
@@ -249,19 +249,20 @@ def test_settling_impacts_never_let_a_stop_pull(method, settings):
     sim = simulation(two_pressed_rods_doc(0.05), method, **settings)
     sim.advance_to(1.5)
     assert list(sim.resting) == [-1, 1]
-    slow = [(i, d) for i, d in zip(sim.impacts, sim.impact_details)
+    slow = [(i, d) for i, d in zip(sim.impacts, sim.impact_details, strict=True)
             if abs(i.ld_before) < 0.05 / 0.5 and not d.held]
     assert slow, "the scene has settling impacts"
     for impact, detail in slow:
         pushes_only(sim, detail, impact, 1e-12)
-    for impact, detail in zip(sim.impacts, sim.impact_details):
+    for impact, detail in zip(sim.impacts, sim.impact_details, strict=True):
         pushes_only(sim, detail, impact, 1e-12 if not detail.held else 1e-4)
 
 
 # --- semi-implicit Euler with stops that rebound --------------------------------------------
 
 def test_semi_implicit_euler_with_rebounding_stops_warns_in_one_line():
-    with pytest.warns(RuntimeWarning, match="semi_implicit_euler with end stops that rebound") as caught:
+    with pytest.warns(RuntimeWarning,
+                      match="semi_implicit_euler with end stops that rebound") as caught:
         simulation(collinear_doc(), "semi_implicit_euler", dt=1e-3)
     assert len(caught) == 1 and "\n" not in str(caught[0].message)
     plastic = collinear_doc()

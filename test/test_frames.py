@@ -6,10 +6,12 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
+from mobile_manip_sim.coordinates import JOINTS, YAW, X, Y
 from mobile_manip_sim.frames import FOOTPRINT, FrameTree, rpy_quaternion
 from mobile_manip_sim.model import rpy_matrix
 from mobile_manip_sim.urdf import robot_description
-from test_urdf import SCENES, core_dynamics, random_configuration
+from robots import random_configuration
+from test_urdf import SCENES, core_dynamics
 
 TOL = 1e-9
 PREFIX = "robot1/"
@@ -47,8 +49,8 @@ def full_configuration(model, robot, q):
     """Pinocchio's configuration of the URDF model (planar root, then joints by name)."""
     q_full = np.zeros(model.nq)
     root = model.joints[1]
-    q_full[root.idx_q:root.idx_q + 4] = q[0], q[1], np.cos(q[2]), np.sin(q[2])
-    for name, value in zip(robot.joint_names(), q[3:]):
+    q_full[root.idx_q:root.idx_q + 4] = q[X], q[Y], np.cos(q[YAW]), np.sin(q[YAW])
+    for name, value in zip(robot.joint_names(), q[JOINTS], strict=True):
         joint = model.joints[model.getJointId(name)]
         if joint.nq == 2:
             q_full[joint.idx_q:joint.idx_q + 2] = np.cos(value), np.sin(value)

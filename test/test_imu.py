@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import yaml
 
+from mobile_manip_sim.coordinates import OMEGA, YAW, X, Y
 from mobile_manip_sim.engine.simulation import Simulation
 from mobile_manip_sim.errors import UserError
 from mobile_manip_sim.imu import Imu, ImuNoise, ImuReading
@@ -65,7 +66,7 @@ def test_turning_at_omega_the_z_rate_is_omega(omega):
     for k in range(1, 5):
         sim.advance_to(0.1 * k)
         rate = imu.read(sim, k).angular_velocity
-        assert rate[:2] == (0.0, 0.0) and rate[2] == sim.u[1]
+        assert rate[:2] == (0.0, 0.0) and rate[2] == sim.u[OMEGA]
     # the turn swings the offset centre of mass: the axle accelerates forward, v̇ = d ω² > 0 at 0
     start = Imu().read(Simulation(base_only(velocity=(0.0, omega)), tight()), 0)
     assert start.linear_acceleration[0] > 0.0 and start.linear_acceleration[2] == G
@@ -73,8 +74,9 @@ def test_turning_at_omega_the_z_rate_is_omega(omega):
 
 def test_acceleration_is_the_derivative_of_the_base_velocity():
     """The paper's run (base and arm accelerating) before its first impact, sampled at 1 kHz by
-    DOP853 at rtol 1e-12 every 0.2 ms: the specific force minus gravity, turned into odom, equals the central
-    difference of the velocity of A, (ẋ, ẏ), to 1e-6 m/s² (its truncation error ~3e-8)."""
+    DOP853 at rtol 1e-12 every 0.2 ms: the specific force minus gravity, turned into odom, equals
+    the central difference of the velocity of A, (ẋ, ẏ), to 1e-6 m/s² (its truncation error
+    ~3e-8)."""
     scene = load_scene(PAPER)
     sim = Simulation(scene, tight())
     imu = Imu()
@@ -84,9 +86,9 @@ def test_acceleration_is_the_derivative_of_the_base_velocity():
     for k, t in enumerate(times):
         sim.advance_to(float(t))
         qdot = sim.qdot()
-        velocity.append(qdot[:2].copy())
+        velocity.append(qdot[[X, Y]])
         reading = imu.read(sim, k)
-        c, s = np.cos(sim.q[2]), np.sin(sim.q[2])
+        c, s = np.cos(sim.q[YAW]), np.sin(sim.q[YAW])
         fx, fy, fz = reading.linear_acceleration
         force.append((c * fx - s * fy, s * fx + c * fy))
         assert fz == G
@@ -146,7 +148,8 @@ def test_noise_is_a_pure_function_of_seed_and_sample_index():
     other = copy.replace(NOISE, seed=1235) if hasattr(copy, "replace") else ImuNoise(
         NOISE.angular_velocity_stddev, NOISE.angular_velocity_bias,
         NOISE.linear_acceleration_stddev, NOISE.linear_acceleration_bias, 1235)
-    assert all(a != b for a, b in zip(forward, (other.disturb(TRUTH, k) for k in range(50))))
+    disturbed = [other.disturb(TRUTH, k) for k in range(50)]
+    assert all(a != b for a, b in zip(forward, disturbed, strict=True))
     assert ImuNoise().disturb(TRUTH, 7) == TRUTH
 
 

@@ -12,11 +12,10 @@ import sys
 import numpy as np
 import pytest
 
+from engine_cases import PAPER_SCENE, paper_doc, sampled, simulation
 from mobile_manip_sim import methods
 from mobile_manip_sim.errors import UserError
 from mobile_manip_sim.scene import FIXED_STEP_METHODS, METHODS
-
-from engine_cases import PAPER_SCENE, paper_doc, sampled, simulation
 
 ADAPTIVE_METHODS = [m for m in METHODS if m not in FIXED_STEP_METHODS]
 T_END = 0.2
@@ -47,10 +46,12 @@ def test_every_fixed_step_method_the_engine_runs_has_an_order_to_be_tested_at():
     from mobile_manip_sim.engine import fixed_step
     from mobile_manip_sim.engine import runge_kutta as rk
     from mobile_manip_sim.engine.simulation import CORES
-    assert set(FIXED_STEP_METHODS) == {name for name, m in methods.METHODS.items() if m.stepper == "stepping"}
+    assert set(FIXED_STEP_METHODS) == {name for name, m in methods.METHODS.items()
+                                       if m.stepper == "stepping"}
     # the ids the compiled cores branch on are the registry's, one per method
     compiled = {methods.IDS[name] for name, m in methods.METHODS.items() if m.stepper in CORES}
-    assert {fixed_step.EULER, fixed_step.SEMI_IMPLICIT_EULER, fixed_step.RK4, rk.RK45, rk.DOP853} == compiled
+    assert compiled == {fixed_step.EULER, fixed_step.SEMI_IMPLICIT_EULER, fixed_step.RK4,
+                        rk.RK45, rk.DOP853}
     assert len(compiled) == 5
 
 
@@ -70,7 +71,7 @@ def test_every_adaptive_method_meets_its_tolerance(reference, method):
     rtols = (1e-4, 1e-6, 1e-8)
     errors = [final_error(reference, method, rtol=r, atol=1e-3 * r) for r in rtols]
     assert errors[0] > errors[1] > errors[2], errors
-    for rtol, error in zip(rtols, errors):
+    for rtol, error in zip(rtols, errors, strict=True):
         assert error < 100 * rtol, (rtol, error)
 
 
@@ -106,7 +107,8 @@ def commanded_run(method, **settings):
     states = []
     for i in range(1, 121):
         if i % 20 == 0:
-            sim.set_efforts(wheels=[0.1 * math.sin(i), 0.2], joints=[4.5 + (i % 40) / 10, 7.0, 0.0, 1.0])
+            sim.set_efforts(wheels=[0.1 * math.sin(i), 0.2],
+                            joints=[4.5 + (i % 40) / 10, 7.0, 0.0, 1.0])
         sim.advance_to(i / 100)
         states.append(sim.s.copy())
     return np.array(states), [impact.as_dict() for impact in sim.impacts], sim.stats()
@@ -143,4 +145,5 @@ def test_repeating_the_simulate_cli_gives_identical_bytes(tmp_path):
         assert len(result.stdout.strip().splitlines()) == 1   # the summary line
         outputs.append((out.read_bytes(), out.with_suffix(".impacts.csv").read_bytes()))
     assert outputs[0] == outputs[1]
-    assert outputs[0][0].count(b"\n") == 202 and outputs[0][1].count(b"\n") == 4   # header + 3 impacts in 1 s
+    assert outputs[0][0].count(b"\n") == 202
+    assert outputs[0][1].count(b"\n") == 4   # header + 3 impacts in 1 s

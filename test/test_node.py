@@ -394,31 +394,56 @@ def test_a_non_finite_state_pauses_the_node_until_reset(fresh, simulator):
     assert simulator.process.poll() is None
 
 
-@pytest.mark.parametrize("method", ["radau", "bdf"])
-def test_a_crawling_implicit_solver_pauses_the_node_until_reset(probe, simulator, tmp_path, method):
-    """radau/bdf and a wheel command of 1e30 right after ~/reset: the solver used to shrink its
-    step towards ulp(0) for good (/clock stuck, services dead, signals ignored). Its step floor
-    ends the segment in one error line naming the tolerance; the node pauses, ~/reset recovers."""
+# (method, command topic, values, the key its one failure line names). Each came right after
+# ~/reset: radau/bdf crawled towards ulp(0) for good (1e30) or lost their stepping thread to a
+# lu_factor traceback (1e300); dop853/rk45 spun at 90 % CPU on [1e308, 1e308], /clock at 0.
+HUGE_COMMANDS = [("radau", "wheels", [1e30, 1e30], "integrator.rtol"),
+                 ("bdf", "wheels", [1e30, 1e30], "integrator.rtol"),
+                 ("radau", "wheels", [1e300, 1e300], "integrator.rtol"),
+                 ("bdf", "cmd_vel", [1e300, 0.0], "integrator.rtol"),
+                 ("dop853", "wheels", [1e308, 1e308], "efforts.wheels"),
+                 ("rk45", "cmd_vel", [1e308, 1e308], "efforts.cmd_vel")]
+
+
+@pytest.mark.parametrize("method, topic, values, key", HUGE_COMMANDS,
+                         ids=[f"{m}-{t}-{v[0]:g}" for m, t, v, _ in HUGE_COMMANDS])
+def test_a_huge_command_after_a_reset_pauses_the_node_until_reset(probe, simulator, tmp_path,
+                                                                  method, topic, values, key):
+    """Each segment failure ends in one error line naming the cause ("simulation failed …"); the
+    node pauses, answers services, and ~/reset brings publishing back."""
+    from geometry_msgs.msg import Twist
     probe.pause(True)
-    name = f"{method}_sim"
+    name = f"huge_{method}_sim"
+    velocity = ["-p", "base_command:=velocity"] if topic == "cmd_vel" else []
     node = start_simulator(probe, tmp_path, "-p", f"integrator.method:={method}",
-                           "-p", "real_time_factor:=5.0", "-r", f"__node:={name}")
+                           "-p", "real_time_factor:=5.0", *velocity, "-r", f"__node:={name}")
     reset = probe.node.create_client(Trigger, f"/{name}/reset")
     pause = probe.node.create_client(SetBool, f"/{name}/pause")
+    twist = probe.node.create_publisher(Twist, "/cmd_vel", 10)
+
+    def send(v):
+        if topic == "wheels":
+            probe.send(wheels=v)
+        else:
+            message = Twist()
+            message.linear.x, message.angular.z = v
+            twist.publish(message)
     try:
-        wait_for(lambda: reset.service_is_ready() and pause.service_is_ready(), "its services")
+        wait_for(lambda: reset.service_is_ready() and pause.service_is_ready()
+                 and (topic == "wheels" or twist.get_subscription_count() > 0), "its services")
         assert probe.call(pause, SetBool.Request(data=True)).success
         assert probe.call(reset, Trigger.Request()).success
-        probe.send(wheels=[1e30, 1e30])
+        send(values)
         assert probe.call(pause, SetBool.Request(data=False)).success
         failed = wait_for(lambda: [line for line in node.output().splitlines()
                                    if "simulation failed" in line], "the engine's error in the log")
-        assert len(failed) == 1 and "integrator.rtol: " in failed[0], failed
-        assert "cannot follow the solution" in failed[0], failed[0]
+        assert len(failed) == 1 and f"{key}: " in failed[0], failed
+        assert "; paused, call ~/reset" in failed[0], failed[0]
+        assert "Traceback" not in node.output(), node.output()
         response = probe.call(pause, SetBool.Request(data=False))
         assert not response.success and "call ~/reset" in response.message
         marks = probe.marks()
-        probe.send(wheels=[0.0, 0.0])
+        send([0.0, 0.0])
         assert probe.call(reset, Trigger.Request()).success
         assert probe.call(pause, SetBool.Request(data=False)).success
         wait_for(lambda: len(probe.snapshot("joints")) >= marks["joints"] + 20, "publishing after the reset")
@@ -426,6 +451,7 @@ def test_a_crawling_implicit_solver_pauses_the_node_until_reset(probe, simulator
     finally:
         probe.node.destroy_client(reset)
         probe.node.destroy_client(pause)
+        probe.node.destroy_publisher(twist)
         assert node.stop() == 0, node.output()
 
 
@@ -602,6 +628,16 @@ PARAMETERS = {  # case: (arguments, the key named, what the one line says)
     # in the declared range [0, 1], but a step of 1e-10 s would take 1e8 steps per publication
     "dt 1e-10": (["-p", "integrator.method:=rk4", "-p", "integrator.dt:=1e-10"], "integrator.dt",
                  "must be in [1e-09, 1]"),
+    # the arm controller (issue 18)
+    "arm mode unknown": (["-p", "arm_controller:=torque"], "arm_controller", "unknown mode"),
+    "arm gains per joint": (["-p", "arm_controller:=position", "-p", "arm_gains.kp:=[1.0, 2.0]"],
+                            "arm_gains.kp", "expected one number or 4"),
+    "arm gain text": (["-p", "arm_controller:=position", "-p", "arm_gains.kd:=stiff"],
+                      "arm_gains.kd", "expected a number or a list of numbers"),
+    "arm gain negative": (["-p", "arm_controller:=position", "-p", "arm_gains.ki:=-1.0"],
+                          "arm_gains.ki", "expected numbers in"),
+    "feedforward unknown": (["-p", "arm_feedforward:=magic"], "arm_feedforward",
+                            "unknown feedforward"),
 }
 
 

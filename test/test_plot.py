@@ -17,16 +17,29 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
+from mobile_manip_sim.coordinates import (
+    ARM_U,
+    JOINTS,
+    OMEGA,
+    WHEELS,
+    YAW,
+    V,
+    X,
+    Y,
+    q_slide,
+    q_turn,
+    u_turn,
+)
+from mobile_manip_sim.engine.simulation import DEFAULT_WHEEL_SPEED_GAINS, Simulation
+from mobile_manip_sim.errors import EXIT_USER_ERROR
+from mobile_manip_sim.headless import run as simulate_run
 from mobile_manip_sim.plot import cli as plot_cli
 from mobile_manip_sim.plot.energy import impact_losses, work
 from mobile_manip_sim.plot.figures import HEADING_MARKS, RESIDUAL_FLOOR, plot
 from mobile_manip_sim.plot.run import load_run
-from mobile_manip_sim.engine.simulation import DEFAULT_WHEEL_SPEED_GAINS, Simulation
-from mobile_manip_sim.errors import EXIT_USER_ERROR
 from mobile_manip_sim.recording.bag_writer import BagWriter, qos_yaml
-from mobile_manip_sim.scene import load_scene, parse_scene
 from mobile_manip_sim.recording.headless import HeadlessRecorder
-from mobile_manip_sim.headless import run as simulate_run
+from mobile_manip_sim.scene import load_scene, parse_scene
 from mobile_manip_sim.timeline import sample_times
 
 BIN = Path(sys.executable).parent
@@ -95,8 +108,8 @@ def write_bag(path: Path, scene, duration: float, joint_states=True) -> Simulati
             q, u, qdot = sim.q, sim.u, sim.qdot()
             if joint_states:
                 state = JointState(name=names,
-                                   position=[*q[3:5].tolist(), *q[5:].tolist()],
-                                   velocity=[*qdot[3:5].tolist(), *u[2:].tolist()],
+                                   position=q[JOINTS].tolist(),
+                                   velocity=[*qdot[WHEELS].tolist(), *u[ARM_U].tolist()],
                                    effort=[*sim.wheel_efforts.tolist(),
                                            *sim.joint_efforts.tolist()])
                 state.header.stamp.sec, state.header.stamp.nanosec = stamp["sec"], stamp["nanosec"]
@@ -105,10 +118,11 @@ def write_bag(path: Path, scene, duration: float, joint_states=True) -> Simulati
             odometry.header.frame_id = "odom"
             odometry.header.stamp.sec = stamp["sec"]
             odometry.header.stamp.nanosec = stamp["nanosec"]
-            odometry.pose.pose.position.x, odometry.pose.pose.position.y = float(q[0]), float(q[1])
-            odometry.pose.pose.orientation.z = math.sin(q[2] / 2)
-            odometry.pose.pose.orientation.w = math.cos(q[2] / 2)
-            odometry.twist.twist.linear.x, odometry.twist.twist.angular.z = float(u[0]), float(u[1])
+            odometry.pose.pose.position.x, odometry.pose.pose.position.y = float(q[X]), float(q[Y])
+            odometry.pose.pose.orientation.z = math.sin(q[YAW] / 2)
+            odometry.pose.pose.orientation.w = math.cos(q[YAW] / 2)
+            odometry.twist.twist.linear.x = float(u[V])
+            odometry.twist.twist.angular.z = float(u[OMEGA])
             bag.write("/odom", serialize_message(odometry), log_ns)
         bag.add_attachment("scene.yaml", "application/yaml", scene.to_yaml().encode())
         impacts = json.dumps([impact.as_dict() for impact in sim.impacts], default=_plain)
@@ -140,7 +154,6 @@ def check_figures(figures, run):
         assert "(" in figure.axes[-1].get_xlabel(), f"{name}: x label without a unit"
         for axes in figure.axes:
             assert "(" in axes.get_ylabel(), f"{name}: y label without a unit"
-    names = run.joint_names()
     hit = impacted_links(run)
 
     def lines(name, index=0):
@@ -156,10 +169,10 @@ def check_figures(figures, run):
     for name, joint in (("joint_angles", "arm_revolute"), ("extensions", "arm_prismatic")):
         for i in range(1, n + 1):
             assert any(f"{joint}_{i}" in text for text in legend(name)), (name, i)
-    for i in range(n):  # the data: q_i, l_i, q̇_i, l̇_i against t
-        np.testing.assert_array_equal(lines("joint_angles")[i].get_ydata(), run.q[:, 5 + 2 * i])
-        np.testing.assert_array_equal(lines("extensions")[i].get_ydata(), run.q[:, 6 + 2 * i])
-        np.testing.assert_array_equal(lines("joint_rates")[i].get_ydata(), run.u[:, 2 + 2 * i])
+    for i, k in enumerate(range(1, n + 1)):  # the data: q_k, l_k, q̇_k, l̇_k against t
+        np.testing.assert_array_equal(lines("joint_angles")[i].get_ydata(), run.q[:, q_turn(k)])
+        np.testing.assert_array_equal(lines("extensions")[i].get_ydata(), run.q[:, q_slide(k)])
+        np.testing.assert_array_equal(lines("joint_rates")[i].get_ydata(), run.u[:, u_turn(k)])
         np.testing.assert_array_equal(lines("extension_rates")[i].get_xdata(), run.t)
 
     # the stroke ends, dashed, at the scene's limits
@@ -177,7 +190,7 @@ def check_figures(figures, run):
 
     path_lines = lines("base_path")
     assert len(path_lines) == (3 if n else 2)     # base, tip (with an arm), start markers
-    np.testing.assert_array_equal(path_lines[0].get_xdata(), run.q[:, 0])
+    np.testing.assert_array_equal(path_lines[0].get_xdata(), run.q[:, X])
     arrows = figures["base_path"].axes[0].collections
     assert len(arrows) == 1 and 3 <= len(arrows[0].get_offsets()) <= HEADING_MARKS + 1
     assert figures["base_path"].axes[0].get_aspect() == 1.0
@@ -235,6 +248,24 @@ def test_bag_gives_the_same_figures_as_the_csv_of_the_same_run(paper_bag, paper_
     np.testing.assert_allclose(run.u, csv_run.u, rtol=0, atol=1e-12)
     np.testing.assert_allclose(run.energy, csv_run.energy, rtol=0, atol=1e-12)
     assert run.impacts == csv_run.impacts
+
+
+def test_every_title_of_every_figure_fits_inside_it(paper_bag, paper_csv):
+    """The energy figure's subtitle ran past both edges for a bag (its effort source is long)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    from mobile_manip_sim.plot.figures import make_figures
+    for source in (paper_csv, paper_bag[0]):
+        for name, figure in make_figures(load_run(source)).items():
+            renderer = FigureCanvasAgg(figure).get_renderer()
+            figure.draw(renderer)
+            titles = [figure._suptitle] + [axes.title for axes in figure.axes]
+            for title in filter(None, titles):
+                if not title.get_text():
+                    continue
+                box = title.get_window_extent(renderer)
+                assert 0 <= box.x0 and box.x1 <= figure.bbox.width, (name, title.get_text())
+                assert 0 <= box.y0 and box.y1 <= figure.bbox.height, (name, title.get_text())
 
 
 def test_the_plot_executable_writes_png_files_and_index(paper_csv, tmp_path):
@@ -386,8 +417,7 @@ def record_node_bag(path: Path, scene, sent: dict, timeout_ns: int, duration: fl
     ``gains`` (kp, ki) the base takes velocity commands (v, ω), as with base_command velocity."""
     from mobile_manip_sim.messages import state_messages
     from mobile_manip_sim.recording.recorder import RunRecorder
-    from mobile_manip_sim.timeline import (CommandSlot, Grid, apply_commands,
-                                           start_node_time_line)
+    from mobile_manip_sim.timeline import CommandSlot, Grid, apply_commands, start_node_time_line
 
     grid = Grid(SAMPLE_RATE)
     sim = Simulation(scene)
@@ -404,7 +434,7 @@ def record_node_bag(path: Path, scene, sent: dict, timeout_ns: int, duration: fl
             stamp = grid.stamp(k)
             recorder.states(stamp, state_messages(sim, stamp, scene.robot.joint_names()))
             recorder.impacts(sim.impacts)
-            for slot, values in zip(slots, sent.get(stamp, ())):
+            for slot, values in zip(slots, sent.get(stamp, ()), strict=False):
                 slot.receive(values, stamp)
             held = [slot.held(stamp, timeout_ns)[0] for slot in slots]
             recorder.commands(stamp, *apply_commands(sim, *held, gains is not None))

@@ -208,10 +208,11 @@ def node_run(probe, tmp_path_factory):
         for wheels, arm in SENT:
             probe.wheels.publish(Float64MultiArray(data=wheels))
             probe.arm.publish(Float64MultiArray(data=arm))
-            wait_for(lambda w=wheels: any(list(m.effort[:2]) == w
-                                          for m in probe.messages("/joint_states")),
-                     f"the efforts {wheels} in /joint_states")
-            time.sleep(0.05)
+            # Both applied (the two topics arrive independently) before the next pair is sent:
+            # otherwise one segment could take two arm commands and record only the later.
+            wait_for(lambda w=wheels, a=arm: any(list(m.effort[:2]) == w and list(m.effort[2:]) == a
+                                                 for m in probe.messages("/joint_states")),
+                     f"the efforts {wheels} and {arm} in /joint_states")
         count = len(probe.messages("/joint_states"))
         wait_for(lambda: len(probe.messages("/joint_states")) >= count + 50, "50 more states")
     finally:
@@ -490,6 +491,11 @@ def test_replay_publishes_the_recorded_messages_in_order_at_the_recorded_rate(pr
     assert abs(gaps[len(gaps) // 2] - 0.05 / rate) < 0.01   # median spacing: 50 ms / rate
     # … and /robot_description, latched, played first (its t = 0 message, before the start)
     assert f"played {sum(len(v) for v in recorded.values()) + 1} messages" in result.stdout
+    # The time printed is the playing's: at least the bag's span at that rate (paced, never
+    # early), and it leaves out the wait for subscribers and the final acknowledgements.
+    played_in = float(re.search(r" in ([\d.]+) s \(rate", result.stdout)[1])
+    last = max(t for messages in recorded.values() for t, _ in messages)
+    assert played_in >= (last - start) / 1e9 / rate - 0.001, result.stdout
 
 
 def test_replay_without_waiting_still_reaches_a_subscriber_that_already_runs(probe,

@@ -71,7 +71,8 @@ def test_one_step_equals_scipys_step(method, h):
     assert relative(out, solver.y) < 1e-14
     assert relative(f1, solver.f) < 1e-14
     # DOP853's late stages have |a_ij| up to 44: summation order alone moves them by ~1e-14
-    np.testing.assert_allclose(K[:tab.n_stages + 1], solver.K, rtol=0, atol=1e-13 * np.abs(solver.K).max())
+    np.testing.assert_allclose(K[:tab.n_stages + 1], solver.K, rtol=0,
+                               atol=1e-13 * np.abs(solver.K).max())
     scale = atol + rtol * np.maximum(np.abs(s0), np.abs(out))
     ours = rk.error_norm(IDS[method], err, s0, out, rtol, atol)
     theirs = solver._estimate_error_norm(solver.K, h, scale)
@@ -81,8 +82,9 @@ def test_one_step_equals_scipys_step(method, h):
     assert h_next == pytest.approx(solver.h_abs, rel=1e-9)
     assert rk.initial_step(IDS[method], system.data, s0, f0, DURATION, rtol, atol, np.inf,
                            np.zeros(s0.size), np.zeros(s0.size)) == pytest.approx(
-        integrate._ivp.common.select_initial_step(lambda t, y: system.derivative(y), 0.0, s0, DURATION,
-                                                  np.inf, f0, 1, tab.error_order, rtol, atol), rel=1e-12)
+        integrate._ivp.common.select_initial_step(lambda t, y: system.derivative(y), 0.0, s0,
+                                                  DURATION, np.inf, f0, 1, tab.error_order, rtol,
+                                                  atol), rel=1e-12)
 
 
 def test_step_control_grows_shrinks_and_holds_after_a_rejection():
@@ -250,7 +252,7 @@ def test_cost_falls_as_rtol_loosens_and_error_follows_rtol(reference):
     # holds a sample; at rtol 1e-4 7 of 9 take their dense output from their stages, at 1e-10
     # all but one need the 3 extra ones. The bound checked is 0.26 (it was 0.3 with 173/590).
     assert evals[0] <= 0.26 * evals[2]
-    for rtol, error in zip((1e-4, 1e-7, 1e-10), errors):
+    for rtol, error in zip((1e-4, 1e-7, 1e-10), errors, strict=True):
         assert rtol / 30 < error < 30 * rtol
 
 
@@ -268,11 +270,13 @@ def small_case():
         rk.rk_step(m, system.data, s0, f0, 0.05, out, f1, K, err)
         rk.dense_prepare(m, system.data, s0, out, f0, f1, 0.05, K, coeffs)
         rk.dense_eval(m, coeffs, s0, 0.05, 0.3, y)
-        h0 = rk.initial_step(m, system.data, s0, f0, DURATION, 1e-6, 1e-8, np.inf, np.zeros(n), np.zeros(n))
+        h0 = rk.initial_step(m, system.data, s0, f0, DURATION, 1e-6, 1e-8, np.inf, np.zeros(n),
+                             np.zeros(n))
         samples, sim = engine_run(method, 1e-5, stops=False, times=SAMPLES[15::15])
         counts = [sim.steps, sim.rhs_evaluations]
         values[method] = [out.tolist(), err.tolist(), y.tolist(), h0,
-                          rk.error_norm(m, err, s0, out, 1e-6, 1e-8), list(counts), samples.tolist()]
+                          rk.error_norm(m, err, s0, out, 1e-6, 1e-8), list(counts),
+                          samples.tolist()]
         rows, sim = engine_run(method, 1e-7)
         values[method + " with stops"] = [[sim.steps, sim.rhs_evaluations],
                                           [impact.time for impact in sim.impacts], rows.tolist()]
@@ -286,7 +290,7 @@ def test_pure_python_path_gives_the_compiled_numbers():
     for method in ("rk45", "dop853"):
         py, co = python[method], compiled[method]
         assert py[5] == co[5]   # the same steps and evaluations
-        for a, b in zip(py, co):
+        for a, b in zip(py, co, strict=True):
             np.testing.assert_allclose(np.array(a, dtype=float), np.array(b, dtype=float),
                                        rtol=1e-12, atol=1e-13)
         py, co = python[method + " with stops"], compiled[method + " with stops"]
@@ -341,7 +345,7 @@ def test_with_stops_cost_falls_as_rtol_loosens_and_error_follows_rtol(method, st
         errors.append(np.max(np.abs(rows[:, :-1] - stops_reference)))
     assert evals[0] < evals[1] < evals[2], evals
     assert errors[0] > 10 * errors[1] > 100 * errors[2], errors
-    for rtol, error in zip(rtols, errors):
+    for rtol, error in zip(rtols, errors, strict=True):
         assert rtol / 30 < error < 300 * rtol, (rtol, error)
 
 

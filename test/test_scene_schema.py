@@ -11,13 +11,12 @@ import time
 import pytest
 import yaml
 
+from engine_cases import paper_doc
 from hostile_yaml import ALIAS_BOMB
 from mobile_manip_sim import schema
 from mobile_manip_sim.errors import UserError
 from mobile_manip_sim.recording.bag_format import checked_run_metadata
 from mobile_manip_sim.scene import parse_scene, scene_from_text
-
-from engine_cases import paper_doc
 
 MAX_MESSAGE = 300
 
@@ -262,6 +261,7 @@ def test_shared_aliases_within_the_budget_still_load():
 
 def test_every_shipped_scene_still_loads(tmp_path):
     from pathlib import Path
+
     from mobile_manip_sim.scene import load_scene
     config = Path(__file__).resolve().parents[1] / "config"
     scenes = [p for p in sorted(config.glob("*.yaml")) if not p.name.endswith(".params.yaml")]
@@ -275,7 +275,8 @@ def test_special_files_are_refused_without_reading(tmp_path):
     fifo = tmp_path / "fifo.yaml"
     os.mkfifo(fifo)
     for path, problem in (("/dev/zero", "not a regular file"), (fifo, "not a regular file"),
-                          (tmp_path, "not a regular file"), (tmp_path / "none.yaml", "cannot read")):
+                          (tmp_path, "not a regular file"),
+                          (tmp_path / "none.yaml", "cannot read")):
         start = time.perf_counter()
         with pytest.raises(UserError, match=problem):
             schema.load_yaml(__import__("pathlib").Path(path), what="scene")

@@ -83,7 +83,8 @@ def test_a_failed_out_leaves_the_recorded_bag_closed_and_whole(tmp_path):
     assert (tmp_path / "bag" / "metadata.yaml").is_file()
     replayed = subprocess.run([executable("replay"), str(tmp_path / "bag"), "--resimulate"],
                               capture_output=True, text=True, timeout=120)
-    assert replayed.returncode == 0 and "IDENTICAL" in replayed.stdout, replayed.stdout + replayed.stderr
+    assert replayed.returncode == 0 and "IDENTICAL" in replayed.stdout, (replayed.stdout
+                                                                         + replayed.stderr)
     assert "no summary" not in replayed.stderr
 
 
@@ -127,8 +128,9 @@ def _started(tmp_path, *extra):
     return process
 
 
-@pytest.mark.parametrize("sig, status, method", [(signal.SIGINT, 130, []), (signal.SIGTERM, 143, []),
-                                                 (signal.SIGINT, 130, ["--method", "radau"])])
+@pytest.mark.parametrize("sig, status, method",
+                         [(signal.SIGINT, 130, []), (signal.SIGTERM, 143, []),
+                          (signal.SIGINT, 130, ["--method", "radau"])])
 def test_a_signal_stops_promptly_and_closes_the_bag(tmp_path, sig, status, method):
     process = _started(tmp_path, "--record", tmp_path / "bag", *method)
     sent = time.monotonic()
@@ -153,7 +155,8 @@ def test_real_time_factor_leaves_out_start_up(tmp_path):
     assert result.returncode == 0, result.stderr
     wall = float(result.stdout.split(" s in ")[1].split(" s wall")[0])
     rtf = float(result.stdout.split("real-time factor ")[1].split(")")[0])
-    assert rtf * wall < 0.3 - 0.005, result.stdout  # the first sample interval (compiling) is left out
+    # the first sample interval (compiling) is left out
+    assert rtf * wall < 0.3 - 0.005, result.stdout
     # The interpreter's start-up and imports (numpy, scipy, numba) take well over 0.3 s.
     assert wall < elapsed - 0.3, (wall, elapsed)
 

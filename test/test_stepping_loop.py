@@ -5,12 +5,12 @@ import math
 import threading
 
 import pytest
-from waiting import wait_for
 
 from mobile_manip_sim.engine.simulation import SimulationError
 from mobile_manip_sim.node.loop import MAX_WAIT, WATCHDOG_SECONDS, State, SteppingLoop
 from mobile_manip_sim.pacing import Pacer
 from mobile_manip_sim.timeline import Grid
+from waiting import wait_for
 
 RATE = 100
 PERIOD = 1.0 / RATE
@@ -94,7 +94,8 @@ def test_pause_stops_time_and_resume_goes_on_from_the_next_state_without_a_gap()
     assert harness.loop.pause(True) == (True, "already paused at t = 0.050000000 s")
     for _ in range(5):
         harness.loop.turn()
-    assert harness.ks()[-1] == 5 and harness.waits[-1] is None and harness.loop.state is State.PAUSED
+    assert harness.ks()[-1] == 5 and harness.waits[-1] is None
+    assert harness.loop.state is State.PAUSED
     harness.clock.now += 100.0            # a long pause
     assert harness.loop.pause(False) == (True, "resumed at t = 0.050000000 s")
     resumed = harness.clock.now

@@ -7,21 +7,19 @@ import os
 import signal
 import socket
 import subprocess
-import sys
 import time
 from pathlib import Path
 
 import pyarrow.parquet as pq
 import pytest
-from waiting import wait_for
 
+from executables import executable
+from hostile_yaml import ALIAS_BOMB
 from mobile_manip_sim.errors import EXIT_USER_ERROR, UserError
 from mobile_manip_sim.scene import load_scene
 from mobile_manip_sim.scene_overrides import parse_assignments
 from mobile_manip_sim.sweep.runner import run_one
-
-from executables import executable
-from hostile_yaml import ALIAS_BOMB
+from waiting import wait_for
 
 # 24 runs: a negative mass (8 runs fail, naming the key), two integrators, four random draws.
 SMALL = """\
@@ -48,8 +46,9 @@ random:
   vary:
     initial.velocity[3]: {uniform: [-0.2, 0.2]}
 """
-DETERMINISTIC = ["run", "status", "error", "t", "x", "y", "yaw", "q1", "l1", "q2", "l2", "v", "omega",
-                 "qd1", "ld1", "qd2", "ld2", "energy", "energy_error", "impacts", "steps", "rhs_evaluations"]
+DETERMINISTIC = ["run", "status", "error", "t", "x", "y", "yaw", "q1", "l1", "q2", "l2", "v",
+                 "omega", "qd1", "ld1", "qd2", "ld2", "energy", "energy_error", "impacts", "steps",
+                 "rhs_evaluations"]
 
 
 def free_port() -> int:
@@ -141,9 +140,9 @@ def killed_worker_table(long_spec, tmp_path_factory):
         for _ in range(2):
             worker_port = free_port()
             workers.append(f"tcp://127.0.0.1:{worker_port}")
-            processes.append(start([executable("dask"), "worker", address, "--nthreads", "1", "--no-nanny",
-                                    "--host", "127.0.0.1", "--worker-port", str(worker_port),
-                                    "--no-dashboard"]))
+            processes.append(start([executable("dask"), "worker", address, "--nthreads", "1",
+                                    "--no-nanny", "--host", "127.0.0.1",
+                                    "--worker-port", str(worker_port), "--no-dashboard"]))
         worker_a, victim, victim_address = workers[0], processes[2], workers[1]
         with Client(address, timeout=90) as client:
             client.wait_for_workers(2, timeout=90)
@@ -154,12 +153,15 @@ def killed_worker_table(long_spec, tmp_path_factory):
                 Event("release-worker-a").wait(timeout=300)
 
             held = client.submit(hold_worker_a, workers=[worker_a], pure=False, key="hold-worker-a")
-            wait_for(lambda: client.processing([worker_a])[worker_a], "worker A to hold its task", 90)
-            driver = start([executable("sweep"), str(long_spec), "--out", str(out), "--scheduler", address])
+            wait_for(lambda: client.processing([worker_a])[worker_a], "worker A to hold its task",
+                     90)
+            driver = start([executable("sweep"), str(long_spec), "--out", str(out),
+                            "--scheduler", address])
             processes.append(driver)
 
             def sweep_task_on_a():
-                return any(str(key).startswith("runs-") for key in client.processing([worker_a])[worker_a])
+                return any(str(key).startswith("runs-")
+                           for key in client.processing([worker_a])[worker_a])
             wait_for(sweep_task_on_a, "a sweep task queued on worker A", 90)
             rows = wait_for(lambda: [r for r in parts(out) if r["worker"] == victim_address],
                             "a run finished by worker B", 90)
@@ -179,7 +181,8 @@ def killed_worker_table(long_spec, tmp_path_factory):
 def test_a_killed_worker_has_its_runs_redone_and_every_run_is_present_once(killed_worker_table):
     rows, _, victim = killed_worker_table
     assert [row["run"] for row in rows] == list(range(40))
-    assert all(row["status"] == "ok" for row in rows), [row["error"] for row in rows if row["error"]]
+    assert all(row["status"] == "ok" for row in rows), [row["error"] for row in rows
+                                                        if row["error"]]
     workers = {row["worker"] for row in rows}
     assert victim in workers and len(workers) == 2
 
@@ -210,8 +213,8 @@ def test_sweep_rows_are_bit_for_bit_what_simulate_gives(small, tmp_path):
     varied = ["robot.arm.links[0].mass_per_length", "integrator.method", "initial.velocity[2]"]
     processes = []
     for row in chosen:
-        settings = [f"--set={path}={row[path]!r}" if isinstance(row[path], float) else f"--set={path}={row[path]}"
-                    for path in varied]
+        settings = [f"--set={path}={row[path]!r}" if isinstance(row[path], float)
+                    else f"--set={path}={row[path]}" for path in varied]
         csv_path = tmp_path / f"run{row['run']}.csv"
         processes.append((row, csv_path, start([executable("simulate"), "--duration", "0.5",
                                                 "--out", str(csv_path), *settings])))
@@ -228,7 +231,9 @@ def test_sweep_rows_are_bit_for_bit_what_simulate_gives(small, tmp_path):
             stop(process)
 
 
-def test_resume_after_sigint_gives_the_same_table_without_redoing_a_run(long_spec, killed_worker_table, tmp_path):
+def test_resume_after_sigint_gives_the_same_table_without_redoing_a_run(long_spec,
+                                                                        killed_worker_table,
+                                                                        tmp_path):
     out = tmp_path / "out"
     driver = start([executable("sweep"), str(long_spec), "--out", str(out), "--workers", "1"])
     try:
@@ -265,7 +270,8 @@ def test_resume_after_sigint_gives_the_same_table_without_redoing_a_run(long_spe
     ("duration: 1\n", "grid: nothing to sweep"),
     # simulate's bounds and work limits (issue 22)
     ("duration: 1e300\ngrid: {integrator.method: [rk4]}\n", "duration: must be in (0, 1e+06]"),
-    ("sample_rate: 1e9\ngrid: {integrator.method: [rk4]}\n", "sample_rate: must be in [1e-06, 1e+06]"),
+    ("sample_rate: 1e9\ngrid: {integrator.method: [rk4]}\n",
+     "sample_rate: must be in [1e-06, 1e+06]"),
     ("duration: 100000\nsample_rate: 100\ngrid: {integrator.method: [dop853]}\n",
      "sample_rate: 100000 s × 100 Hz is more than 1000000 samples"),
     ("duration: 100000\ngrid: {integrator.method: [dop853]}\n",
@@ -296,12 +302,14 @@ def test_bad_specs_are_one_line_naming_the_key(tmp_path, text, key):
 
 @pytest.mark.parametrize("content, problem", [
     (ALIAS_BOMB, "expands to more than 100000 YAML nodes"),
-    ("grid: {integrator.method: [rk4]}\ngrid: {integrator.method: [euler]}\n", "grid: duplicate key"),
+    ("grid: {integrator.method: [rk4]}\ngrid: {integrator.method: [euler]}\n",
+     "grid: duplicate key"),
     ("grid: " + "[" * 3000 + "]" * 3000, "nested deeper than 64 levels"),
     (b"grid: \xff\n", "not UTF-8"), ("#" * (2 << 20), "larger than"),
     ("fifo", "not a regular file"), ("/dev/zero", "not a regular file"),
     ("grid: !!python/object:os.system {}\n", "not valid YAML"),
-    ("duration: !!float abc\ngrid: {integrator.method: [rk4]}\n", "line 1: !!float 'abc' is not a YAML 1.2 float"),
+    ("duration: !!float abc\ngrid: {integrator.method: [rk4]}\n",
+     "line 1: !!float 'abc' is not a YAML 1.2 float"),
     ("%YAML 1.1\n---\ngrid: {integrator.method: [rk4]}\n", "a %YAML 1.1 directive"),
 ])
 def test_hostile_spec_files_are_one_line_without_reading_on(tmp_path, content, problem):
@@ -326,17 +334,20 @@ def test_simulate_set_values_are_read_by_the_same_loader():
     with pytest.raises(UserError) as caught:
         parse_assignments(["robot.base.mass=[*a]"])
     assert str(caught.value).startswith("--set robot.base.mass: not valid YAML")
-    assert parse_assignments(["integrator.rtol=1e-10", "name=yes"]) == {"integrator.rtol": 1e-10, "name": "yes"}
+    assert parse_assignments(["integrator.rtol=1e-10", "name=yes"]) == {
+        "integrator.rtol": 1e-10, "name": "yes"}
 
 
 def test_an_unreachable_scheduler_is_one_line(tmp_path):
     spec = tmp_path / "ok.yaml"
     spec.write_text("duration: 0.1\ngrid: {integrator.method: [rk4]}\n")
     address = f"tcp://127.0.0.1:{free_port()}"
-    result = sweep(spec, tmp_path / "out", "--scheduler", address, "--connect-timeout", "1", timeout=60)
+    result = sweep(spec, tmp_path / "out", "--scheduler", address, "--connect-timeout", "1",
+                   timeout=60)
     assert result.returncode == EXIT_USER_ERROR
     lines = result.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith(f"sweep: error: --scheduler: cannot reach {address}"), result.stderr
+    assert len(lines) == 1, result.stderr
+    assert lines[0].startswith(f"sweep: error: --scheduler: cannot reach {address}"), result.stderr
 
 
 def test_a_run_past_its_time_limit_is_failed():
@@ -346,7 +357,9 @@ def test_a_run_past_its_time_limit_is_failed():
 
 
 def test_simulate_set_names_a_bad_key(tmp_path):
-    result = subprocess.run([executable("simulate"), "--set", "robot.arm.linkz=1", "--out", str(tmp_path / "x.csv")],
+    result = subprocess.run([executable("simulate"), "--set", "robot.arm.linkz=1", "--out",
+                             str(tmp_path / "x.csv")],
                             capture_output=True, text=True, timeout=60)
     assert result.returncode == EXIT_USER_ERROR
-    assert result.stderr.strip().startswith("simulate: error: robot.arm.linkz: unknown key"), result.stderr
+    assert result.stderr.strip().startswith("simulate: error: robot.arm.linkz: unknown key"), \
+        result.stderr

@@ -1,5 +1,5 @@
 """/tf as a ROS user sees it: the node and a subscriber in separate processes, with tf2_msgs
-built from its definition (test/tf2_msgs_build.py, a cached fixture), real DDS on a random
+built from its definition (test/interfaces_build.py, a cached fixture), real DDS on a random
 domain. Without tf2_msgs the node says so in one line and runs on."""
 import os
 import random
@@ -8,9 +8,7 @@ import subprocess
 import sys
 import threading
 
-import pytest
-
-import tf2_msgs_build
+import interfaces_build
 from executables import executable
 from ros_harness import child_env
 
@@ -19,13 +17,8 @@ LISTENER = os.path.join(os.path.dirname(__file__), "tf_listener.py")
 PERIOD_NS = 10 ** 7   # publish_rate 100 Hz
 
 
-@pytest.fixture(scope="session")
-def tf2_prefix():
-    return tf2_msgs_build.build()
-
-
-def test_tf_carries_odom_to_base_footprint_at_every_publication(tf2_prefix, tmp_path):
-    env = tf2_msgs_build.environment(tf2_prefix, child_env(random.randrange(1, 100)))
+def test_tf_carries_odom_to_base_footprint_at_every_publication(interfaces_prefix, tmp_path):
+    env = interfaces_build.environment(interfaces_prefix, child_env(random.randrange(1, 100)))
     listener = subprocess.Popen([sys.executable, LISTENER, "200"], env=env,
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     node = subprocess.Popen([SIMULATOR, "--ros-args", "-p", "integrator.method:=rk4",

@@ -1,5 +1,5 @@
 """/tf and /tf_static payloads (`cdr.tf_message_cdr`, encoded without tf2_msgs) are what rclpy
-serialises where tf2_msgs is installed (built by tools/build_tf2_msgs.sh), byte for byte, and
+serialises where tf2_msgs is installed (built by tools/build_interfaces.sh), byte for byte, and
 decode with rosbags and mcap_ros2 from the bundled definition; the bundled type hash is
 rosidl's and rosbags'."""
 import json
@@ -8,16 +8,17 @@ import sys
 
 import numpy as np
 import pytest
-from mcap_ros2.decoder import DecoderFactory
 from mcap.records import Schema
+from mcap_ros2.decoder import DecoderFactory
 from rosbags.typesys import Stores, get_typestore
 
-import tf2_msgs_build
+import interfaces_build
 from mobile_manip_sim.frames import FrameTree
 from mobile_manip_sim.messages import tf_cdr, tf_static_cdr
 from mobile_manip_sim.recording.cdr import TF_MESSAGE_TYPE, tf_message_cdr
 from mobile_manip_sim.recording.message_definitions import BUNDLED, definition_text, type_hash
-from test_urdf import SCENES, random_configuration
+from robots import random_configuration
+from test_urdf import SCENES
 
 STAMP = 12 * 10 ** 9 + 345_678_901
 
@@ -58,8 +59,8 @@ print(json.dumps(out))
 """
 
 
-def test_payloads_equal_rclpys_serialisation_with_tf2_msgs():
-    env = tf2_msgs_build.environment(tf2_msgs_build.build(), dict(__import__("os").environ))
+def test_payloads_equal_rclpys_serialisation_with_tf2_msgs(interfaces_prefix):
+    env = interfaces_build.environment(interfaces_prefix, dict(__import__("os").environ))
     cases = payloads()
     result = subprocess.run([sys.executable, "-c", RCLPY_SERIALISE], env=env, text=True,
                             input=json.dumps([(n, s, as_dicts(t)) for n, s, t in cases]),
@@ -81,7 +82,7 @@ def test_payloads_decode_with_rosbags_and_mcap_ros2(case):
     other = DecoderFactory().decoder_for("cdr", schema)(data)
     for message in (decoded, other):
         assert len(message.transforms) == len(transforms)
-        for got, t in zip(message.transforms, transforms):
+        for got, t in zip(message.transforms, transforms, strict=True):
             assert (got.header.stamp.sec * 10 ** 9 + got.header.stamp.nanosec) == stamp
             assert (got.header.frame_id, got.child_frame_id) == (t.parent, t.child)
             tr, ro = got.transform.translation, got.transform.rotation
@@ -89,11 +90,11 @@ def test_payloads_decode_with_rosbags_and_mcap_ros2(case):
             assert (ro.x, ro.y, ro.z, ro.w) == t.rotation
 
 
-def test_bundled_definition_and_hash_are_the_upstream_ones():
+def test_bundled_definition_and_hash_are_the_upstream_ones(interfaces_prefix):
     text, rihs = BUNDLED[TF_MESSAGE_TYPE]
     assert type_hash(TF_MESSAGE_TYPE) == rihs == get_typestore(Stores.ROS2_JAZZY).hash_rihs01(
         TF_MESSAGE_TYPE)
-    built = tf2_msgs_build.build() / "share" / "tf2_msgs" / "msg"
+    built = interfaces_prefix / "share" / "tf2_msgs" / "msg"
     assert (built / "TFMessage.msg").read_text() == text
     hashes = json.loads((built / "TFMessage.json").read_text())["type_hashes"]
     assert {h["type_name"]: h["hash_string"] for h in hashes}[TF_MESSAGE_TYPE] == rihs

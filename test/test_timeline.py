@@ -5,8 +5,15 @@ from fractions import Fraction
 import numpy as np
 import pytest
 
-from mobile_manip_sim.timeline import (NS, CommandHistory, CommandSlot, Grid, format_ns,
-                                       sample_times, stamp_ns)
+from mobile_manip_sim.timeline import (
+    NS,
+    CommandHistory,
+    CommandSlot,
+    Grid,
+    format_ns,
+    sample_times,
+    stamp_ns,
+)
 
 
 def test_stamps_are_exact_and_never_drift():

@@ -2,12 +2,11 @@
 builds a multibody whose projected mass matrix ``M = Sᵀ M_full S`` equals the Gibbs–Appell core's
 (scenes built through `parse_scene`, so payload and wheel-inertia effects take the real path);
 joint names and types match /joint_states; ``describe`` behaves as a command-line tool."""
-import copy
 import os
-import zlib
 import subprocess
 import sys
 import xml.etree.ElementTree as ET
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -16,10 +15,12 @@ import pytest
 import yaml
 
 from hostile_yaml import ALIAS_BOMB
+from mobile_manip_sim.coordinates import JOINTS, OMEGA, YAW, V, X, Y
 from mobile_manip_sim.dynamics import Dynamics
 from mobile_manip_sim.effects import settings as effect_settings
 from mobile_manip_sim.scene import load_scene, parse_scene
 from mobile_manip_sim.urdf import robot_description
+from robots import random_configuration, random_robot_document
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER = ROOT / "config" / "paper_two_link.yaml"
@@ -38,25 +39,11 @@ def payload_scene():
 
 
 def random_scene(seed):
-    """A random robot (0–5 links, random rpy, full cross-section inertias) as a scene document."""
+    """A random robot (`robots.random_robot_document`, 0–5 links) with effects that vary with the
+    seed: payload, wheel inertia, damping, effort limits."""
     rng = np.random.default_rng(seed)
     n = seed % 6
-    doc = copy.deepcopy(paper_document())
-    doc["robot"]["base"] = dict(
-        mass=float(rng.uniform(1.0, 20.0)), yaw_inertia=float(rng.uniform(0.01, 1.0)),
-        com_offset=float(rng.uniform(-0.3, 0.3)), wheel_radius=float(rng.uniform(0.03, 0.2)),
-        half_track=float(rng.uniform(0.1, 0.4)), wheel_inertia=float(rng.uniform(1e-4, 1e-2)))
-    links = []
-    for _ in range(n):
-        L = float(rng.uniform(0.2, 2.0))
-        A = rng.normal(size=(3, 3)) * 0.03
-        J = A @ A.T + 1e-4 * np.eye(3)
-        lo = float(rng.uniform(0.0, 0.5)) * L
-        links.append(dict(length=L, mass_per_length=float(rng.uniform(0.2, 5.0)),
-                          inertia_per_length=J.tolist(),
-                          joint_rpy=rng.uniform(-np.pi, np.pi, 3).tolist(), stroke=[lo, L]))
-    doc["robot"]["arm"] = {"mount": rng.uniform(-0.3, 0.3, 3).tolist(), "links": links}
-    doc["initial"] = {"joints": [v for link in links for v in (0.0, link["stroke"][0])]}
+    doc = random_robot_document(rng, n)
     doc["efforts"] = {}
     effects = {"gravity": 9.81, "wheel_inertia": bool(seed % 3 != 2)}
     if n and seed % 2:
@@ -108,8 +95,8 @@ class UrdfModel:
     def full_configuration(self, q) -> np.ndarray:
         q_full = np.empty(self.model.nq)
         i = self.root.idx_q
-        q_full[i:i + 4] = q[0], q[1], np.cos(q[2]), np.sin(q[2])
-        for joint, value in zip(self.joints, q[3:]):
+        q_full[i:i + 4] = q[X], q[Y], np.cos(q[YAW]), np.sin(q[YAW])
+        for joint, value in zip(self.joints, q[JOINTS], strict=True):
             if joint.nq == 2:    # continuous joints: (cos θ, sin θ)
                 q_full[joint.idx_q:joint.idx_q + 2] = np.cos(value), np.sin(value)
             else:
@@ -120,16 +107,6 @@ class UrdfModel:
         M = pin.crba(self.model, self.data, self.full_configuration(q)).copy()
         M = np.triu(M) + np.triu(M, 1).T
         return self.S.T @ M @ self.S
-
-
-def random_configuration(rng, robot) -> np.ndarray:
-    q = np.empty(robot.n_q)
-    q[:2] = rng.uniform(-5.0, 5.0, 2)
-    q[2:5] = rng.uniform(-np.pi, np.pi, 3)
-    for k in range(robot.n_links):
-        q[5 + 2 * k] = rng.uniform(-np.pi, np.pi)
-        q[6 + 2 * k] = rng.uniform(*robot.stroke[k])
-    return q
 
 
 def core_dynamics(scene) -> Dynamics:
@@ -165,10 +142,10 @@ def test_urdf_frames_are_the_core_frames(name):
         origins = [origin + lift for origin in dyn.joint_origins(q)]
         rotations = dyn.link_rotations(q)
         base = data.oMi[1]
-        assert np.allclose(base.translation, [q[0], q[1], 0.0], atol=1e-12)
+        assert np.allclose(base.translation, [q[X], q[Y], 0.0], atol=1e-12)
         assert np.allclose(base.rotation, rotations[0], atol=1e-12)
-        assert np.allclose(data.v[1].linear, [u[0], 0.0, 0.0], atol=1e-12)
-        assert np.allclose(data.v[1].angular, [0.0, 0.0, u[1]], atol=1e-12)
+        assert np.allclose(data.v[1].linear, [u[V], 0.0, 0.0], atol=1e-12)
+        assert np.allclose(data.v[1].angular, [0.0, 0.0, u[OMEGA]], atol=1e-12)
         for k in range(scene.robot.n_links):
             frame = data.oMi[model.getJointId(f"arm_revolute_{k + 1}")]
             assert np.allclose(frame.translation, origins[k + 1], atol=1e-12)
@@ -190,8 +167,8 @@ def test_urdf_stands_on_the_floor_with_the_axle_at_the_wheel_radius(name):
     pin.forwardKinematics(model, data, urdf.full_configuration(q))
     pin.updateFramePlacements(model, data)
     footprint = data.oMf[model.getFrameId("base_footprint")]
-    assert np.allclose(footprint.translation, [q[0], q[1], 0.0], atol=1e-12)
-    assert np.allclose(data.oMf[model.getFrameId("base_link")].translation, [q[0], q[1], r],
+    assert np.allclose(footprint.translation, [q[X], q[Y], 0.0], atol=1e-12)
+    assert np.allclose(data.oMf[model.getFrameId("base_link")].translation, [q[X], q[Y], r],
                        atol=1e-12)
     for side, sign in (("right", -1.0), ("left", 1.0)):
         axle = footprint.actInv(data.oMi[model.getJointId(f"{side}_wheel_joint")]).translation
@@ -250,8 +227,9 @@ def test_describe_without_scene_prints_the_default_scene():
     assert result.stdout == robot_description(load_scene())
 
 
-@pytest.mark.parametrize("kind, problem", [("missing", "cannot read"), ("fifo", "not a regular file"),
-                                           ("alias bomb", "expands to more than")])
+@pytest.mark.parametrize("kind, problem",
+                         [("missing", "cannot read"), ("fifo", "not a regular file"),
+                          ("alias bomb", "expands to more than")])
 def test_describe_of_a_bad_scene_file_is_a_one_line_user_error(tmp_path, kind, problem):
     scene = tmp_path / "no_such_scene.yaml"
     if kind == "fifo":

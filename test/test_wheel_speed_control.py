@@ -5,6 +5,7 @@ import copy
 import numpy as np
 import pytest
 
+from mobile_manip_sim.coordinates import OMEGA, V
 from mobile_manip_sim.engine.simulation import Simulation
 from mobile_manip_sim.errors import UserError
 from mobile_manip_sim.scene import load_scene, parse_scene
@@ -31,8 +32,8 @@ def test_the_base_reaches_the_commanded_velocity(method):
     sim = paper(method)
     sim.set_base_velocity(0.3, 0.5)
     run(sim, 3.0)
-    assert sim.u[0] == pytest.approx(0.3, abs=1e-3)
-    assert sim.u[1] == pytest.approx(0.5, abs=1e-3)
+    assert sim.u[V] == pytest.approx(0.3, abs=1e-3)
+    assert sim.u[OMEGA] == pytest.approx(0.5, abs=1e-3)
 
 
 def test_wheel_torques_stay_within_the_limit_and_the_work_is_counted():

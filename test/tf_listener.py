@@ -2,9 +2,10 @@
 import sys
 
 import rclpy
-from ros_harness import spin_until
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from tf2_msgs.msg import TFMessage
+
+from ros_harness import spin_until
 
 
 def main() -> int:

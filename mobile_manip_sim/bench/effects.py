@@ -46,7 +46,8 @@ def measure(document: dict, progress, quick: bool = False) -> list:
     for label, scene in variants(document):
         fixed = simulate(scene, make_integrator(scene.integrator, "rk4", dt=1e-3), repeats=repeats,
                          record=False)
-        adaptive = simulate(scene, make_integrator(scene.integrator, "dop853", rtol=1e-10, atol=1e-12),
+        adaptive = simulate(scene,
+                            make_integrator(scene.integrator, "dop853", rtol=1e-10, atol=1e-12),
                             repeats=repeats, record=False)
         rows.append((label, scene.effects.names_on(), fixed, adaptive))
         progress(f"effect {label}: rk4 1 kHz {fixed.cpu_per_second * 1e3:.2f} ms/s, "

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..coordinates import OMEGA, SLIDES_Q, q_slide, u_turn
 from ..dynamics import Dynamics
 from ..engine.simulation import Simulation
 from ..methods import ADAPTIVE_NAMES, METHODS
@@ -47,7 +48,8 @@ class CaseResult:
         self.checks[f"{label}: finite (0 = yes)"] = (0.0 if run.ok else 1.0, 0.0)
         if run.ok:
             self.checks[f"{label}: outside stroke, m"] = (run.stroke_violation, STROKE_TOLERANCE)
-            self.checks[f"{label}: energy error, J"] = (run.energy_error, energy_promise(run, value))
+            self.checks[f"{label}: energy error, J"] = (run.energy_error,
+                                                        energy_promise(run, value))
             self.checks[f"{label}: steps"] = (run.steps, step_bound)
 
     @property
@@ -100,7 +102,8 @@ def elastic_drift(method: str, duration: float = 60.0, dt: float = 1e-3) -> Case
     target = ELASTIC_DRIFT_TARGET[method]
     stated = "none (reported)" if target is None else f"≤ {target:g} of the energy that flows"
     case = CaseResult(f"elastic drift, {duration:g} s at 1 kHz, {method}",
-                      f"the zero-effort scene (e = 1 stops, gravity) at dt = {dt:g}; target: {stated}")
+                      f"the zero-effort scene (e = 1 stops, gravity) at dt = {dt:g}; "
+                      f"target: {stated}")
     case.add_run(method, run, dt, _step_bound(method, dt, duration, run))
     relative = run.energy_error / max(run.energy_scale, 1e-12)
     case.figures.update({"impacts": run.impacts, "largest energy error, J": run.energy_error,
@@ -124,11 +127,11 @@ def pressed_rod(method: str = "dop853", value: float = 1e-10) -> CaseResult:
     for k in range(1, 101):
         sim.advance_to(0.01 * k)
     resting_after_press = int(sim.resting[1])
-    l_pressed = float(sim.q[8])
+    l_pressed = float(sim.q[q_slide(2)])
     impacts_pressing = len(sim.impacts)
     sim.set_efforts(joints=[0.0, 0.0, 0.0, -20.0])
     sim.advance_to(1.0 + 0.05)
-    left_after = float(sim.q[8])
+    left_after = float(sim.q[q_slide(2)])
     for k in range(1, 46):
         sim.advance_to(1.05 + 0.01 * k)
     cpu, _ = clock.read()
@@ -144,9 +147,11 @@ def pressed_rod(method: str = "dop853", value: float = 1e-10) -> CaseResult:
     # bounces kick the other off its stop (its stop cannot pull), so they settle together:
     # a finite exchange, bounded here at twice the Zeno guard of one rod.
     case.checks["impacts while pressed (no Zeno)"] = (impacts_pressing, 128)
-    case.checks["not resting at the upper stop after 1 s (0 = resting)"] = (1 - resting_after_press, 0)
+    case.checks["not resting at the upper stop after 1 s (0 = resting)"] = (
+        1 - resting_after_press, 0)
     case.checks["l2 not at the stop after 1 s, m"] = (abs(l_pressed - 1.0), 0.0)
-    case.checks["rod 2 still at the stop 0.05 s after the pull, (0 = left)"] = (float(left_after > 1.0 - 1e-4), 0.0)
+    case.checks["rod 2 still at the stop 0.05 s after the pull, (0 = left)"] = (
+        float(left_after > 1.0 - 1e-4), 0.0)
     return case
 
 
@@ -198,14 +203,16 @@ def spinning_base(method: str = "dop853", value: float = 1e-10) -> CaseResult:
     doc = paper_document()
     scene = variant(doc, name="spinning_base", duration=1.0,
                     efforts={"wheels": [0.0, 0.0], "joints": [0.0, 0.0, 0.0, 0.0]},
-                    initial={"joints": [0.0, 1.0, 0.0, 1.0], "velocity": [0.0, 50.0, 0.0, 0.0, 0.0, 0.0]})
+                    initial={"joints": [0.0, 1.0, 0.0, 1.0],
+                             "velocity": [0.0, 50.0, 0.0, 0.0, 0.0, 0.0]})
     run = simulate(scene, integrator(scene, method, value))
     case = CaseResult(f"base spinning at 50 rad/s, {method}",
                       "ω = 50 rad/s, arm horizontal and fully extended, gravity, no efforts")
     case.add_run(method, run, value, _step_bound(method, value, 1.0, run))
     sim = run.simulation
     case.figures.update({"impacts": run.impacts,
-                         "ω after 1 s, rad/s": float(sim.u[1]) if sim is not None else math.nan})
+                         "ω after 1 s, rad/s": (float(sim.u[OMEGA]) if sim is not None
+                                                else math.nan)})
     return case
 
 
@@ -242,7 +249,8 @@ def effort_steps(method: str, value: float = 1e-8) -> CaseResult:
     scene = variant(paper_document(), name="effort_steps", duration=0.5)
     sim = Simulation(scene, integrator(scene, method, value))
     clock = Clock()
-    schedule = [(0.1, [1e3, 0.0, 0.0, 0.0]), (0.2, [-1e3, 0.0, 0.0, 0.0]), (0.3, [0.0, 0.0, 0.0, 0.0]),
+    schedule = [(0.1, [1e3, 0.0, 0.0, 0.0]), (0.2, [-1e3, 0.0, 0.0, 0.0]),
+                (0.3, [0.0, 0.0, 0.0, 0.0]),
                 (0.4, [1e3, 0.0, 0.0, 0.0]), (0.5, None)]
     t = 0.0
     worst_energy, scale, outside = 0.0, 0.0, 0.0
@@ -254,16 +262,19 @@ def effort_steps(method: str, value: float = 1e-8) -> CaseResult:
             worst_energy = max(worst_energy, abs(sim.energy_error()))
             T, V = sim.dynamics.energy(sim.q, sim.u)
             scale = max(scale, T + abs(V - V0) + abs(sim.work))
-            l = sim.q[6::2]
+            l = sim.q[SLIDES_Q]
             outside = max(outside, float(np.max(np.maximum(-l, l - 1.0))))
         if joints is not None:
             sim.set_efforts(joints=joints)
     cpu, _ = clock.read()
     run = _run_of(sim, scene, method, value, cpu)
-    run.energy_error, run.energy_scale, run.stroke_violation = worst_energy, scale, max(outside, 0.0)
-    case = CaseResult(f"effort steps of 1e3 N·m, {method}", "τ1 = +1e3, −1e3, 0, +1e3 N·m, 0.1 s each")
+    run.energy_error, run.energy_scale = worst_energy, scale
+    run.stroke_violation = max(outside, 0.0)
+    case = CaseResult(f"effort steps of 1e3 N·m, {method}",
+                      "τ1 = +1e3, −1e3, 0, +1e3 N·m, 0.1 s each")
     case.add_run(method, run, value, _step_bound(method, value, 0.5, run))
-    case.figures.update({"impacts": len(sim.impacts), "final |q̇1|, rad/s": float(abs(sim.u[2]))})
+    case.figures.update({"impacts": len(sim.impacts),
+                         "final |q̇1|, rad/s": float(abs(sim.u[u_turn(1)]))})
     return case
 
 
@@ -275,7 +286,8 @@ def long_run(minutes: float = 10.0, method: str = "rk4", dt: float = 1e-3) -> Ca
     case = CaseResult(f"{minutes:g} min at 1 kHz, {method}", "paper scene, 1 kHz, sampled at 1 Hz")
     case.add_run(method, run, dt, int(round(scene.duration / dt)) + 10)
     if sim is not None:
-        case.figures.update({"final t, s": sim.t, "steps": sim.steps, "steps × dt, s": sim.steps * dt,
+        case.figures.update({"final t, s": sim.t, "steps": sim.steps,
+                             "steps × dt, s": sim.steps * dt,
                              "real-time factor": scene.duration / run.cpu})
         case.checks["|t − steps·dt|, s"] = (abs(sim.t - sim.steps * dt), 0.0)
         case.checks["|t − duration|, s"] = (abs(sim.t - scene.duration), 0.0)
@@ -285,9 +297,12 @@ def long_run(minutes: float = 10.0, method: str = "rk4", dt: float = 1e-3) -> Ca
 def all_cases(quick: bool = False) -> list:
     """Every case as (name, zero-argument function), in the report's order."""
     seconds = 6.0 if quick else 60.0
-    cases = [(f"zero efforts {m}", lambda m=m: zero_efforts(m, seconds)) for m in ZERO_EFFORT_SETTINGS]
-    cases += [(f"elastic drift {m}", lambda m=m: elastic_drift(m, seconds)) for m in ELASTIC_DRIFT_TARGET]
-    cases += [("pressed rod dop853", pressed_rod), ("pressed rod rk4", lambda: pressed_rod("rk4", 1e-3)),
+    cases = [(f"zero efforts {m}", lambda m=m: zero_efforts(m, seconds))
+             for m in ZERO_EFFORT_SETTINGS]
+    cases += [(f"elastic drift {m}", lambda m=m: elastic_drift(m, seconds))
+              for m in ELASTIC_DRIFT_TARGET]
+    cases += [("pressed rod dop853", pressed_rod),
+              ("pressed rod rk4", lambda: pressed_rod("rk4", 1e-3)),
               ("elastic impacts", elastic_impacts), ("ill-conditioned", ill_conditioned),
               ("spinning base", spinning_base),
               ("retracted", lambda: rod_at_stroke_end("retracted")),
@@ -313,12 +328,15 @@ def _run_of(sim: Simulation, scene, method: str, value: float, cpu: float) -> Ru
     """A `Run` for a simulation driven by hand (command changes between samples)."""
     from .runs import settings_label
     run = Run(scene.name, method, settings_label(sim.settings), sim.t, cpu=cpu, wall=math.nan)
-    run.rhs_evaluations, run.steps, run.impacts = sim.rhs_evaluations, sim.steps, len(sim.impacts)
+    run.rhs_evaluations, run.steps = sim.rhs_evaluations, sim.steps
+    run.impacts = len(sim.impacts)
     run.energy_error = abs(sim.energy_error())
     T, V = sim.dynamics.energy(sim.q, sim.u)
-    run.energy_scale = T + abs(sim.work) + abs(V - sim.dynamics.energy(scene.initial_q, scene.initial_u)[1])
-    l = sim.q[6::2]
+    _, V0 = sim.dynamics.energy(scene.initial_q, scene.initial_u)
+    run.energy_scale = T + abs(sim.work) + abs(V - V0)
+    l = sim.q[SLIDES_Q]
     stroke = np.array(scene.robot.stroke)
-    run.stroke_violation = max(0.0, float(np.max(np.maximum(stroke[:, 0] - l, l - stroke[:, 1])))) if len(l) else 0.0
+    run.stroke_violation = (max(0.0, float(np.max(np.maximum(stroke[:, 0] - l, l - stroke[:, 1]))))
+                            if len(l) else 0.0)
     run.simulation = sim
     return run

@@ -14,26 +14,31 @@ from pathlib import Path
 
 from .. import cli
 from ..errors import UserError
+from ..progress import Progress as Ticker
 
 
 class Progress:
-    """Numbered section headers and one line per measurement, on stderr, with elapsed time."""
+    """Numbered section headers and one line per measurement, on stderr, with elapsed time; on
+    a terminal, a line of sections done, rate and time to go whenever a measurement has been
+    silent for a while (`progress.Progress`)."""
 
     def __init__(self, sections: int, stream=sys.stderr):
-        self.sections, self.stream = sections, stream
+        self.sections = sections
         self.start = time.perf_counter()
         self.index = 0
+        self.ticker = Ticker("bench", sections, "sections", rate_unit="sections/min", per=60.0,
+                             lines=True, stream=stream)
 
     def section(self, title: str) -> None:
         self.index += 1
+        self.ticker.update(self.index - 1)
         self._write(f"[{self.index}/{self.sections}] {title}")
 
     def __call__(self, line: str) -> None:
         self._write(f"      {line}")
 
     def _write(self, text: str) -> None:
-        self.stream.write(f"{time.perf_counter() - self.start:7.1f} s  {text}\n")
-        self.stream.flush()
+        self.ticker.note(f"{time.perf_counter() - self.start:7.1f} s  {text}")
 
 
 def _main(argv) -> int:
@@ -124,6 +129,7 @@ def _write(report, results, out, progress) -> int:
     results["finished"] = time.time()
     path = report.write(results, out)
     progress(f"wrote {path}")
+    progress.ticker.close()
     print(path)
     return 0
 

@@ -26,6 +26,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..coordinates import ARM_Q, ARM_U, BASE_POSE, YAW
+
 try:
     import mujoco
 except ImportError:  # the bench reports the MuJoCo section as skipped
@@ -74,7 +76,8 @@ def rod_inertial(length: float, mass_per_length: float, J, tip_mass: float = 0.0
     """(mass, centre, inertia about the centre) of rod k in its body frame (distal end at 0)."""
     mass = mass_per_length * length
     bending = mass * length ** 2 / 12.0
-    parts = [(mass, (-0.5 * length, 0.0, 0.0), np.diag([0.0, bending, bending]) + np.asarray(J) * length)]
+    parts = [(mass, (-0.5 * length, 0.0, 0.0),
+              np.diag([0.0, bending, bending]) + np.asarray(J) * length)]
     if tip_mass > 0.0:
         parts.append((tip_mass, (0.0, 0.0, 0.0), np.zeros((3, 3))))
     return _combined(parts)
@@ -96,7 +99,8 @@ def mjcf(robot_model, gravity: float = 0.0, tip_mass: float = 0.0, wheel_inertia
         raise ValueError("the base's yaw inertia is too small for MuJoCo's wheel bodies")
     lines = ['<mujoco model="mobile_manipulator_unconstrained">',
              '  <compiler angle="radian" inertiafromgeom="false" autolimits="false"/>',
-             f'  <option timestep="{_num(dt)}" integrator="{integrator}" gravity="0 0 {_num(-gravity)}">',
+             f'  <option timestep="{_num(dt)}" integrator="{integrator}" '
+             f'gravity="0 0 {_num(-gravity)}">',
              '    <flag contact="disable" constraint="disable" limit="disable" equality="disable"'
              ' frictionloss="disable" warmstart="disable"'
              f' energy="{"enable" if energy else "disable"}"/>',
@@ -114,7 +118,8 @@ def mjcf(robot_model, gravity: float = 0.0, tip_mass: float = 0.0, wheel_inertia
         for name, side in (("right_wheel", -1.0), ("left_wheel", 1.0)):
             lines += [f'      <body name="{name}" pos="0 {_num(side * base.half_track)} 0">',
                       f'        <joint name="{name}_joint" type="hinge" axis="0 1 0"/>',
-                      '        ' + _inertial(m_w, (0.0, 0.0, 0.0), np.diag([I_w / 2, I_w, I_w / 2])),
+                      '        ' + _inertial(m_w, (0.0, 0.0, 0.0),
+                                             np.diag([I_w / 2, I_w, I_w / 2])),
                       '      </body>']
     indent = "      "
     for k in range(n):
@@ -127,7 +132,7 @@ def mjcf(robot_model, gravity: float = 0.0, tip_mass: float = 0.0, wheel_inertia
                   f'{indent}  <joint name="arm_prismatic_{k + 1}" type="slide" axis="1 0 0"/>',
                   f'{indent}  ' + _inertial(*inertial)]
         indent += "  "
-    for k in range(n, 0, -1):
+    for _ in range(n):   # close the bodies, innermost first
         indent = indent[:-2]
         lines.append(f'{indent}</body>')
     lines += ['    </body>', '  </worldbody>', '  <actuator>']
@@ -142,8 +147,8 @@ class MujocoPeer:
     """The compiled MuJoCo model of a robot plus the map S(yaw) from our u to MuJoCo's qvel.
 
     qpos = (x, y, yaw, θ_R, θ_L, q_1, l_1, …) is our q (without the wheel angles when the wheels
-    are left out, only the arm's with a fixed base); qvel = S(yaw) u with ẋ = v cos yaw, ẏ = v sin yaw, yaw rate ω, wheel rates
-    (v ± bω)/r, then the joint rates.
+    are left out, only the arm's with a fixed base); qvel = S(yaw) u with ẋ = v cos yaw,
+    ẏ = v sin yaw, yaw rate ω, wheel rates (v ± bω)/r, then the joint rates.
     """
 
     def __init__(self, robot_model, gravity: float = 0.0, tip_mass: float = 0.0,
@@ -152,7 +157,8 @@ class MujocoPeer:
         self.robot_model = robot_model
         self.fixed_base = base_pose is not None
         self.wheels = wheel_inertia and robot_model.base.wheel_inertia > 0.0 and not self.fixed_base
-        self.xml = mjcf(robot_model, gravity, tip_mass, wheel_inertia, integrator, dt, energy, base_pose)
+        self.xml = mjcf(robot_model, gravity, tip_mass, wheel_inertia, integrator, dt, energy,
+                        base_pose)
         self.model = mujoco.MjModel.from_xml_string(self.xml)
         self.data = mujoco.MjData(self.model)
         n = robot_model.n_links
@@ -161,18 +167,19 @@ class MujocoPeer:
 
     def qpos(self, q) -> np.ndarray:
         q = np.asarray(q, dtype=float)
-        return q[5:] if self.fixed_base else q if self.wheels else np.concatenate([q[:3], q[5:]])
+        return (q[ARM_Q] if self.fixed_base else q if self.wheels
+                else np.concatenate([q[BASE_POSE], q[ARM_Q]]))
 
     def S(self, q) -> np.ndarray:
         base, n = self.robot_model.base, self.robot_model.n_links
-        r, b, yaw = base.wheel_radius, base.half_track, float(q[2])
-        S = np.zeros((self.model.nv, 2 + 2 * n))
+        r, b, yaw = base.wheel_radius, base.half_track, float(q[YAW])
+        S = np.zeros((self.model.nv, self.robot_model.n_u))
         if not self.fixed_base:
             S[0, 0], S[1, 0], S[2, 1] = np.cos(yaw), np.sin(yaw), 1.0
         if self.wheels:
             S[3, 0], S[3, 1] = 1.0 / r, b / r
             S[4, 0], S[4, 1] = 1.0 / r, -b / r
-        S[self.arm:, 2:] = np.eye(2 * n)
+        S[self.arm:, ARM_U] = np.eye(2 * n)
         return S
 
     def set_state(self, q, u) -> None:
@@ -181,7 +188,7 @@ class MujocoPeer:
         mujoco.mj_forward(self.model, self.data)
 
     def full_mass_matrix(self, q) -> np.ndarray:
-        self.set_state(q, np.zeros(2 + 2 * self.robot_model.n_links))
+        self.set_state(q, np.zeros(self.robot_model.n_u))
         M = np.zeros((self.model.nv, self.model.nv))
         mujoco.mj_fullM(self.model, self.data, M)
         return M
@@ -207,4 +214,5 @@ def for_scene(scene, integrator: str = "RK4", dt: float = 1e-3) -> MujocoPeer:
     """The peer of a scene's robot with its gravity, payload and wheel-inertia flags."""
     effects = scene.effects
     return MujocoPeer(scene.robot, effects.gravity, effects.payload or 0.0, effects.wheel_inertia,
-                      integrator, dt, base_pose=scene.initial_q[:3] if effects.fixed_base else None)
+                      integrator, dt,
+                      base_pose=scene.initial_q[BASE_POSE] if effects.fixed_base else None)

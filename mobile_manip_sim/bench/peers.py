@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..coordinates import ARM_Q, ARM_U, JOINTS, OMEGA, SLIDES_Q, WHEELS, YAW, V, X, Y
+
 try:
     import pinocchio as pin
 except ImportError:  # the bench reports the peer sections as skipped
@@ -22,7 +24,8 @@ def available() -> bool:
 
 
 class ProjectedPinocchio:
-    def __init__(self, robot_model, gravity: float, tip_mass: float = 0.0, wheel_inertia: bool = True):
+    def __init__(self, robot_model, gravity: float, tip_mass: float = 0.0,
+                 wheel_inertia: bool = True):
         base, n = robot_model.base, robot_model.n_links
         model = pin.Model()
         model.gravity = pin.Motion(np.array([0.0, 0.0, -float(gravity)]), np.zeros(3))
@@ -32,7 +35,8 @@ class ProjectedPinocchio:
         I_w = base.wheel_inertia if wheel_inertia else 0.0
         for name, side in (("right_wheel", -1.0), ("left_wheel", 1.0)):
             wheel = model.addJoint(root, pin.JointModelRY(),
-                                   pin.SE3(np.eye(3), np.array([0.0, side * base.half_track, 0.0])), name)
+                                   pin.SE3(np.eye(3),
+                                           np.array([0.0, side * base.half_track, 0.0])), name)
             model.appendBodyToJoint(wheel, pin.Inertia(0.0, np.zeros(3), np.diag([0.0, I_w, 0.0])),
                                     pin.SE3.Identity())
         parent = root
@@ -40,9 +44,11 @@ class ProjectedPinocchio:
             placement = pin.SE3(np.array(robot_model.joint_rotation[k], dtype=float),
                                 np.array(robot_model.mount, dtype=float) if k == 0 else np.zeros(3))
             revolute = model.addJoint(parent, pin.JointModelRZ(), placement, f"revolute_{k + 1}")
-            prismatic = model.addJoint(revolute, pin.JointModelPX(), pin.SE3.Identity(), f"prismatic_{k + 1}")
+            prismatic = model.addJoint(revolute, pin.JointModelPX(), pin.SE3.Identity(),
+                                       f"prismatic_{k + 1}")
             L, mu = float(robot_model.length[k]), float(robot_model.mass_per_length[k])
-            about_com = np.diag([0.0, 1.0, 1.0]) * mu * L ** 3 / 12.0 + np.array(robot_model.inertia_per_length[k]) * L
+            about_com = (np.diag([0.0, 1.0, 1.0]) * mu * L ** 3 / 12.0
+                         + np.array(robot_model.inertia_per_length[k]) * L)
             inertia = pin.Inertia(mu * L, np.array([-0.5 * L, 0.0, 0.0]), about_com)
             if k == n - 1 and tip_mass > 0.0:
                 inertia = inertia + pin.Inertia(float(tip_mass), np.zeros(3), np.zeros((3, 3)))
@@ -54,7 +60,7 @@ class ProjectedPinocchio:
         S[0, 0], S[2, 1] = 1.0, 1.0
         S[3, 0], S[3, 1] = 1.0 / r, b / r
         S[4, 0], S[4, 1] = 1.0 / r, -b / r
-        S[5:, 2:] = np.eye(2 * n)
+        S[ARM_Q.start:, ARM_U] = np.eye(2 * n)   # the arm: the same coordinates in both
         self.S, self.St = S, S.T.copy()
         self.nq, self.nu, self.r, self.b = robot_model.n_q, robot_model.n_u, r, b
         self._zero = np.zeros(model.nv)
@@ -62,8 +68,8 @@ class ProjectedPinocchio:
 
     def full_configuration(self, q) -> np.ndarray:
         qf = self._q_full
-        qf[0], qf[1], qf[2], qf[3] = q[0], q[1], np.cos(q[2]), np.sin(q[2])
-        qf[4:] = q[3:]
+        qf[0], qf[1], qf[2], qf[3] = q[X], q[Y], np.cos(q[YAW]), np.sin(q[YAW])
+        qf[4:] = q[JOINTS]
         return qf
 
     def mass_matrix_and_bias(self, q, u):
@@ -92,9 +98,10 @@ class ProjectedPinocchio:
         def f(_t, y):
             q, u = y[:nq], y[nq:]
             qd = np.empty(nq)
-            qd[0], qd[1], qd[2] = u[0] * np.cos(q[2]), u[0] * np.sin(q[2]), u[1]
-            qd[3], qd[4] = (u[0] + b * u[1]) / r, (u[0] - b * u[1]) / r
-            qd[5:] = u[2:]
+            v, om = u[V], u[OMEGA]
+            qd[X], qd[Y], qd[YAW] = v * np.cos(q[YAW]), v * np.sin(q[YAW]), om
+            qd[WHEELS] = (v + b * om) / r, (v - b * om) / r
+            qd[ARM_Q] = u[ARM_U]
             return np.concatenate([qd, self.forward_dynamics(q, u, Q)])
         return f
 
@@ -105,7 +112,7 @@ def agreement(dynamics, peer: ProjectedPinocchio, rng, trials: int = 20) -> floa
     n = dynamics.model.n_links
     for _ in range(trials):
         q = rng.normal(size=dynamics.model.n_q)
-        q[6::2] = rng.uniform(0.0, 1.0, n) * np.array(dynamics.model.length)
+        q[SLIDES_Q] = rng.uniform(0.0, 1.0, n) * np.array(dynamics.model.length)
         u = rng.normal(size=dynamics.model.n_u)
         M, h = peer.mass_matrix_and_bias(q, u)
         worst = max(worst, np.abs(dynamics.mass_matrix(q) - M).max() / np.abs(M).max(),

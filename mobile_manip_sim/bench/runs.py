@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..coordinates import SLIDES_Q
 from ..dynamics import constraint_residuals
 from ..engine.simulation import Simulation, SimulationError
 from ..methods import METHODS
@@ -107,17 +108,20 @@ def simulate(scene: Scene, settings: IntegratorSettings, duration: float | None 
                     energy = max(energy, abs(sim.energy_error()))
                     T, V = sim.dynamics.energy(sim.q, sim.u)
                     scale = max(scale, T + abs(V - V0) + abs(sim.work))
-                    residual = max(residual, *map(abs, constraint_residuals(sim.model, sim.q, sim.qdot())))
+                    residual = max(residual,
+                                   *map(abs, constraint_residuals(sim.model, sim.q, sim.qdot())))
                     if n and scene.effects.stroke_limits is not None:
-                        l = sim.q[6::2]
-                        outside = max(outside, float(np.max(np.maximum(stroke[:, 0] - l, l - stroke[:, 1]))))
+                        l = sim.q[SLIDES_Q]
+                        outside = max(outside,
+                                      float(np.max(np.maximum(stroke[:, 0] - l, l - stroke[:, 1]))))
         except SimulationError as error:
             run.failure = str(error)
             run.simulation = sim
             return run
         best_cpu, best_wall = min(best_cpu, cpu), min(best_wall, wall)
         if repeat == 0:
-            run.rhs_evaluations, run.steps, run.impacts = sim.rhs_evaluations, sim.steps, len(sim.impacts)
+            run.rhs_evaluations, run.steps = sim.rhs_evaluations, sim.steps
+            run.impacts = len(sim.impacts)
             run.energy_error, run.constraint_residual = energy, residual
             run.stroke_violation = max(outside, 0.0)
             run.energy_scale = scale

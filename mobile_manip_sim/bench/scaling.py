@@ -40,7 +40,8 @@ def measure(progress, quick: bool = False) -> dict:
         times["ID recursive"].append(loops.per_call(
             loops.inverse_dynamics_recursive, model, q, u, ud, g, ws, out, target=target))
         times["ID by columns"].append(loops.per_call(
-            loops.inverse_dynamics_by_columns, model, q, u, ud, g, ws, out, M, z, e, col, target=target))
+            loops.inverse_dynamics_by_columns, model, q, u, ud, g, ws, out, M, z, e, col,
+            target=target))
         times["FD articulated"].append(loops.per_call(
             loops.forward_dynamics_articulated, model, q, u, Q, g, free, ws, out, target=target))
         times["FD composite + Cholesky"].append(loops.per_call(
@@ -49,7 +50,8 @@ def measure(progress, quick: bool = False) -> dict:
         times["FD by columns + Cholesky"].append(loops.per_call(
             loops.forward_dynamics_cholesky, model, q, u, Q, g, free, ws, out, h, rhs, M, L, z, e,
             col, True, target=target))
-        progress(f"scaling n = {n}: " + ", ".join(f"{name} {times[name][-1] * 1e6:.2f} µs" for name in SERIES))
+        progress(f"scaling n = {n}: "
+                 + ", ".join(f"{name} {times[name][-1] * 1e6:.2f} µs" for name in SERIES))
     return times
 
 

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..coordinates import u_size
 from ..scene import Scene, load_scene, parse_scene
 
 CONFIG = Path(__file__).resolve().parents[1] / "config"
@@ -45,7 +46,8 @@ def without_stroke_limits(scene: Scene) -> Scene:
     return parse_scene(doc, doc["name"])
 
 
-def random_robot_document(n_links: int, seed: int, gravity: float = 10.0, physical: bool = False) -> dict:
+def random_robot_document(n_links: int, seed: int, gravity: float = 10.0,
+                          physical: bool = False) -> dict:
     """A random robot of n links: joint rotations, lengths, masses, inertias, base; a random
     initial state inside the strokes; no efforts.
 
@@ -66,13 +68,15 @@ def random_robot_document(n_links: int, seed: int, gravity: float = 10.0, physic
                       "stroke": [0.0, length]})
     return {
         "name": f"random_{n_links}_links",
-        "robot": {"base": {"mass": float(rng.uniform(4, 10)), "yaw_inertia": float(rng.uniform(0.05, 0.5)),
+        "robot": {"base": {"mass": float(rng.uniform(4, 10)),
+                           "yaw_inertia": float(rng.uniform(0.05, 0.5)),
                            "com_offset": float(rng.uniform(-0.2, 0.2)), "wheel_radius": 0.08,
                            "half_track": 0.145, "wheel_inertia": 0.001},
                   "arm": {"mount": [0.0, 0.0, 0.2], "links": links}},
         "initial": {"joints": [float(v) for link in links
-                               for v in (rng.uniform(-1, 1), rng.uniform(0.2, 0.8) * link["length"])],
-                    "velocity": (0.3 * rng.normal(size=2 + 2 * n_links)).tolist()},
+                               for v in (rng.uniform(-1, 1),
+                                         rng.uniform(0.2, 0.8) * link["length"])],
+                    "velocity": (0.3 * rng.normal(size=u_size(n_links))).tolist()},
         "effects": {"gravity": gravity, "wheel_inertia": True},
     }
 

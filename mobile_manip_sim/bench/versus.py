@@ -29,7 +29,8 @@ SEED_SECONDS = 34.32   # the seed paper: MATLAB ode45, Core 2 Duo E7500, 1.5 s o
 def per_evaluation(progress, quick: bool = False) -> dict:
     """Seconds per forward-dynamics evaluation of the paper robot, each way of calling it."""
     scene = load_scene()
-    dyn = Dynamics(scene.robot, gravity=scene.effects.gravity, wheel_inertia=scene.effects.wheel_inertia)
+    dyn = Dynamics(scene.robot, gravity=scene.effects.gravity,
+                   wheel_inertia=scene.effects.wheel_inertia)
     peer = peers.ProjectedPinocchio(scene.robot, scene.effects.gravity,
                                     wheel_inertia=scene.effects.wheel_inertia)
     rng = np.random.default_rng(6)
@@ -49,8 +50,8 @@ def per_evaluation(progress, quick: bool = False) -> dict:
         "ours: Dynamics.forward_dynamics (frames + articulated), from Python":
             loops.per_python_call(dyn.forward_dynamics, q, u, Q, target=target),
         "ours: frames + articulated forward dynamics, compiled loop":
-            loops.per_call(loops.forward_dynamics_articulated, dyn.model_record, q, u, Q, dyn.gravity,
-                           np.arange(nu), dyn.ws, np.zeros(nu), target=target),
+            loops.per_call(loops.forward_dynamics_articulated, dyn.model_record, q, u, Q,
+                           dyn.gravity, np.arange(nu), dyn.ws, np.zeros(nu), target=target),
         "ours: engine right-hand side (System.derivative), from Python":
             loops.per_python_call(sim.system.derivative, s, target=target),
         "ours: engine right-hand side, compiled loop":
@@ -102,20 +103,22 @@ def whole_run(progress, quick: bool = False) -> dict:
     rtols = PEER_RTOLS[::2] if quick else PEER_RTOLS
     for rtol in rtols:
         cpu, solution = _timed_solve_ivp(f_peer, y0, duration, times, rtol, repeats)
-        rows["Pinocchio + SciPy DOP853"].append((f"rtol={rtol:.0e}", cpu, error(solution, nq + scene.robot.n_u),
+        rows["Pinocchio + SciPy DOP853"].append((f"rtol={rtol:.0e}", cpu,
+                                                 error(solution, nq + scene.robot.n_u),
                                                  solution.nfev))
         cpu, solution = _timed_solve_ivp(f_ours, s0, duration, times, rtol, repeats)
-        rows["ours + SciPy DOP853"].append((f"rtol={rtol:.0e}", cpu, error(solution, nq + scene.robot.n_u),
-                                            solution.nfev))
-        progress(f"whole run rtol {rtol:.0e}: peer {rows['Pinocchio + SciPy DOP853'][-1][1] * 1e3:.1f} ms, "
+        rows["ours + SciPy DOP853"].append((f"rtol={rtol:.0e}", cpu,
+                                            error(solution, nq + scene.robot.n_u), solution.nfev))
+        peer_cpu = rows["Pinocchio + SciPy DOP853"][-1][1]
+        progress(f"whole run rtol {rtol:.0e}: peer {peer_cpu * 1e3:.1f} ms, "
                  f"ours {rows['ours + SciPy DOP853'][-1][1] * 1e3:.1f} ms")
     for method, values in (("rk4", (1e-2, 5e-3, 2e-3, 1e-3)), ("dop853", (1e-6, 1e-8, 1e-10))):
         for value in values:
             settings = (make_integrator(scene.integrator, method, dt=value) if method == "rk4" else
                         make_integrator(scene.integrator, method, rtol=value, atol=value * 1e-2))
             run = simulate(scene, settings, repeats=repeats)
-            rows["ours, Simulation"].append((f"{method} {run.setting}", run.cpu, run.error_against(reference),
-                                             run.rhs_evaluations))
+            rows["ours, Simulation"].append((f"{method} {run.setting}", run.cpu,
+                                             run.error_against(reference), run.rhs_evaluations))
             progress(f"whole run ours {method} {run.setting}: {run.cpu * 1e3:.1f} ms, "
                      f"error {rows['ours, Simulation'][-1][2]:.1e}")
     check_cpu, check = _timed_solve_ivp(f_peer, y0, duration, times, 1e-12, 1)

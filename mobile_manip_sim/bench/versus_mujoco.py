@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..coordinates import ARM_Q, ARM_U
 from ..engine.simulation import Simulation
 from ..scene import load_scene, make_integrator, parse_scene
 from ..timeline import sample_times
@@ -70,7 +71,8 @@ def _best(run, repeats: int) -> Timing:
 
 
 def _rollout_inputs(scene, integrator: str, dt: float, duration: float):
-    """(model, data, initial full-physics state, constant controls, state output) of the scene's peer."""
+    """(model, data, initial full-physics state, constant controls, state output) of the scene's
+    peer."""
     mujoco = mujoco_peer.mujoco
     peer = mujoco_peer.for_scene(scene, integrator, dt)
     model, data = peer.model, peer.data
@@ -124,14 +126,15 @@ def trajectory(scene, integrator: str, dt: float, sample_rate: float = 100.0, re
     per_sample = int(round(1.0 / (sample_rate * dt)))
     if abs(per_sample * dt * sample_rate - 1.0) > 1e-9 or nstep % per_sample:
         raise ValueError(f"dt {dt:g} does not divide the sample interval and the duration")
-    timing = _best(lambda: rollout.rollout(model, data, initial[None, :], control, state=state), repeats)
+    timing = _best(lambda: rollout.rollout(model, data, initial[None, :], control, state=state),
+                   repeats)
     sampled = np.vstack([initial[None, :], state[0, per_sample - 1::per_sample]])
     assert np.allclose(sampled[:, 0], np.arange(len(sampled)) / sample_rate)   # column 0 is time
     nq, n = scene.robot.n_q, model.nq
     samples = np.zeros((len(sampled), nq + scene.robot.n_u))
     samples[:, :nq] = scene.initial_q   # the welded base and still wheels; v = ω = 0
-    samples[:, 5:nq] = sampled[:, 1:1 + n]
-    samples[:, nq + 2:] = sampled[:, 1 + n:1 + 2 * n]
+    samples[:, :nq][:, ARM_Q] = sampled[:, 1:1 + n]
+    samples[:, nq:][:, ARM_U] = sampled[:, 1 + n:1 + 2 * n]
     return timing.cpu, samples
 
 
@@ -146,7 +149,8 @@ OURS_WP = {"rk4": WP_SWEEPS["RK4"], "semi_implicit_euler": WP_SWEEPS["Euler"],
 def work_precision(scene, progress, quick: bool = False) -> dict:
     """On a fixed-base scene, MuJoCo's RK4 and Euler and our rk4, semi_implicit_euler and dop853
     over sweeps, each against our DOP853 rtol 1e-13 reference:
-    {"scene", "mujoco": [(integrator, dt, CPU per simulated s, error)], "ours": [(method, setting, …)]}."""
+    {"scene", "mujoco": [(integrator, dt, CPU per simulated s, error)],
+    "ours": [(method, setting, …)]}."""
     reference = simulate(scene, make_integrator(scene.integrator, "dop853", rtol=1e-13, atol=1e-14))
     repeats = 1 if quick else 2
     ours = []
@@ -154,16 +158,17 @@ def work_precision(scene, progress, quick: bool = False) -> dict:
         for value in (values[::2] if quick else values):
             run = simulate(scene, integrator(scene, method, value), repeats=repeats)
             ours.append((method, run.setting, run.cpu_per_second, run.error_against(reference)))
-            progress(f"{scene.name}: ours {method} {run.setting}: {run.cpu_per_second * 1e3:.2f} ms CPU "
-                     f"per simulated s, error {ours[-1][3]:.1e}")
+            progress(f"{scene.name}: ours {method} {run.setting}: "
+                     f"{run.cpu_per_second * 1e3:.2f} ms CPU per simulated s, "
+                     f"error {ours[-1][3]:.1e}")
     points = []
     for mj_method, values in WP_SWEEPS.items():
         for dt in (values[::2] if quick else values):
             cpu, samples = trajectory(scene, mj_method, dt, repeats=repeats)
             error = float(np.abs(samples - reference.samples[:len(samples)]).max())
             points.append((mj_method, dt, cpu / scene.duration, error))
-            progress(f"{scene.name}: MuJoCo {mj_method} dt={dt:.0e}: {cpu / scene.duration * 1e3:.2f} ms CPU "
-                     f"per simulated s, error {error:.1e}")
+            progress(f"{scene.name}: MuJoCo {mj_method} dt={dt:.0e}: "
+                     f"{cpu / scene.duration * 1e3:.2f} ms CPU per simulated s, error {error:.1e}")
     return {"scene": scene.name, "mujoco": points, "ours": ours}
 
 
@@ -182,9 +187,11 @@ def _ours(scene, method: str, dt: float, duration: float, repeats: int) -> tuple
     return _best(batch, repeats), Timing(run.cpu, run.wall)
 
 
-def pair(scene, method: str, mj_method: str, duration: float, repeats: int, dt: float = 1e-3) -> Pair:
+def pair(scene, method: str, mj_method: str, duration: float, repeats: int,
+         dt: float = 1e-3) -> Pair:
     rollout, loop = mujoco_timings(scene, mj_method, dt, duration, repeats)
-    return Pair(scene.name, method, duration, *_ours(scene, method, dt, duration, repeats), rollout, loop)
+    return Pair(scene.name, method, duration, *_ours(scene, method, dt, duration, repeats),
+                rollout, loop)
 
 
 def random_arm(n_links: int):
@@ -202,12 +209,14 @@ def measure(progress, quick: bool = False) -> dict:
     for method, mj_method in METHODS:
         p = pair(scene, method, mj_method, scene.duration, repeats)
         paper.append(p)
-        progress(f"paper 1 kHz {method}: ours {p.ours.cpu * 1e3:.1f} ms ({p.factor(p.ours):.0f}× real time), "
+        progress(f"paper 1 kHz {method}: ours {p.ours.cpu * 1e3:.1f} ms "
+                 f"({p.factor(p.ours):.0f}× real time), "
                  f"MuJoCo {mj_method} rollout {p.rollout.cpu * 1e3:.1f} ms, mj_step loop "
                  f"{p.python_loop.cpu * 1e3:.1f} ms: ours / rollout {p.ratio:.2f}")
     long = pair(scene, "rk4", "RK4", LONG_RUN, 1 if quick else 3)
-    progress(f"paper {LONG_RUN:g} s 1 kHz rk4: ours {long.ours.cpu * 1e3:.1f} ms ({long.factor(long.ours):.0f}× "
-             f"real time), MuJoCo rollout {long.rollout.cpu * 1e3:.1f} ms: ours / rollout {long.ratio:.2f}")
+    progress(f"paper {LONG_RUN:g} s 1 kHz rk4: ours {long.ours.cpu * 1e3:.1f} ms "
+             f"({long.factor(long.ours):.0f}× real time), MuJoCo rollout "
+             f"{long.rollout.cpu * 1e3:.1f} ms: ours / rollout {long.ratio:.2f}")
     arms = []
     for n in ARM_LINKS:
         p = pair(random_arm(n), "rk4", "RK4", 1.0, 1 if quick and n == 64 else repeats)
@@ -217,8 +226,10 @@ def measure(progress, quick: bool = False) -> dict:
                  f"ours / rollout {p.ratio:.2f}")
     order = {"ours": growth_order([p.ours.cpu for p in arms], ARM_LINKS, smallest=8),
              "MuJoCo rollout": growth_order([p.rollout.cpu for p in arms], ARM_LINKS, smallest=8),
-             "MuJoCo mj_step loop": growth_order([p.python_loop.cpu for p in arms], ARM_LINKS, smallest=8)}
-    progress("whole-run cost order 8 … 64 links: " + ", ".join(f"{k} {v:.2f}" for k, v in order.items()))
+             "MuJoCo mj_step loop": growth_order([p.python_loop.cpu for p in arms], ARM_LINKS,
+                                                 smallest=8)}
+    progress("whole-run cost order 8 … 64 links: "
+             + ", ".join(f"{k} {v:.2f}" for k, v in order.items()))
     wp = work_precision(random_arm_scene(), progress, quick=quick)
     return {"paper": paper, "long": long, "arms": arms, "order": order, "wp": wp}
 
@@ -240,16 +251,17 @@ def section(result, number: int = 7) -> str:
     parts = [f"## {number}. Against MuJoCo: fixed-step stepping", "",
              "MuJoCo " + (mujoco_peer.mujoco.__version__ if mujoco_peer.available() else "") +
              " stepping the equivalent unconstrained model (`bench/mujoco_peer.py`: planar base as "
-             "slide x – slide y – hinge z, wheel hinges, each R-P pair a hinge then a slide, the same "
-             "inertias; contacts, constraints and limits off; efforts through gear-1 motors). "
+             "slide x – slide y – hinge z, wheel hinges, each R-P pair a hinge then a slide, the "
+             "same inertias; contacts, constraints and limits off; efforts through gear-1 motors). "
              "`test/test_mujoco_peer.py` checks that its mass matrix projected on our "
-             "pseudo-velocities is ours to 1e-12. It knows neither the rolling constraint nor the end "
-             "stops, so it does less physics than our paper run: the rows compare cost, not accuracy. "
-             "Targets compare one compiled call with one compiled call: MuJoCo `rollout` (batch "
-             "stepping, one thread, state written every step) beside our `Simulation.sample` (state "
-             "and energy written at every 100 Hz sample). From Python, one call per 100 Hz sample, "
-             "as the node steps: a loop of `mj_step` reading the state beside our "
-             "`Simulation.advance_to` (last table). CPU time of this thread, best of the repeats.", ""]
+             "pseudo-velocities is ours to 1e-12. It knows neither the rolling constraint nor the "
+             "end stops, so it does less physics than our paper run: the rows compare cost, not "
+             "accuracy. Targets compare one compiled call with one compiled call: MuJoCo `rollout` "
+             "(batch stepping, one thread, state written every step) beside our "
+             "`Simulation.sample` (state and energy written at every 100 Hz sample). From Python, "
+             "one call per 100 Hz sample, as the node steps: a loop of `mj_step` reading the state "
+             "beside our `Simulation.advance_to` (last table). CPU time of this thread, best of "
+             "the repeats.", ""]
 
     def speedup(p):
         return p.rollout.cpu / p.ours.cpu
@@ -258,15 +270,19 @@ def section(result, number: int = 7) -> str:
               _target_table([
                   (f"≥ 400× real time and ≥ 3× MuJoCo RK4, first {p.duration:g} s" if p is rk4 else
                    f"the same over {p.duration:g} s (rods resting at their stops)",
-                   f"ours {seconds(p.ours.cpu)}: {p.factor(p.ours):.0f}× real time; MuJoCo RK4 rollout "
-                   f"{seconds(p.rollout.cpu)} ({p.factor(p.rollout):.0f}×): ours is {speedup(p):.2f}× MuJoCo",
-                   _verdict([("real-time factor", 400 / p.factor(p.ours)), ("speed-up", 3 / speedup(p))]))
+                   f"ours {seconds(p.ours.cpu)}: {p.factor(p.ours):.0f}× real time; MuJoCo RK4 "
+                   f"rollout {seconds(p.rollout.cpu)} ({p.factor(p.rollout):.0f}×): ours is "
+                   f"{speedup(p):.2f}× MuJoCo",
+                   _verdict([("real-time factor", 400 / p.factor(p.ours)),
+                             ("speed-up", 3 / speedup(p))]))
                   for p in (rk4, long)]), ""]
     parts += [f"### {number}.2 1 kHz semi_implicit_euler, paper scene", "",
               _target_table([("≥ 1000× real time and ≥ 2.5× MuJoCo Euler",
-                              f"ours {seconds(euler.ours.cpu)}: {euler.factor(euler.ours):.0f}× real time; "
+                              f"ours {seconds(euler.ours.cpu)}: "
+                              f"{euler.factor(euler.ours):.0f}× real time; "
                               f"MuJoCo Euler rollout {seconds(euler.rollout.cpu)} "
-                              f"({euler.factor(euler.rollout):.0f}×): ours is {speedup(euler):.2f}× MuJoCo",
+                              f"({euler.factor(euler.rollout):.0f}×): ours is "
+                              f"{speedup(euler):.2f}× MuJoCo",
                               _verdict([("real-time factor", 1000 / euler.factor(euler.ours)),
                                         ("speed-up", 2.5 / speedup(euler))]))]), ""]
     big = arms[-1]
@@ -284,11 +300,12 @@ def section(result, number: int = 7) -> str:
              f"{p.factor(p.rollout):.0f}×", f"{p.ratio:.2f}", seconds(p.per_sample.cpu),
              seconds(p.python_loop.cpu), f"{p.per_sample.cpu / p.python_loop.cpu:.2f}")
             for p in (rk4, euler, long, *arms)]
-    parts += ["Every timing (one compiled call: ours `sample`, MuJoCo `rollout`; one call per sample "
-              "from Python: ours `advance_to`, MuJoCo `mj_step`):", "",
-              table(("scene", "method", "simulated", "ours CPU", "ours wall", "ours RTF", "MuJoCo rollout CPU",
-                     "rollout wall", "rollout RTF", "ours / rollout", "ours per-sample CPU",
-                     "MuJoCo mj_step loop CPU", "per-sample ours / MuJoCo"), rows), "",
+    parts += ["Every timing (one compiled call: ours `sample`, MuJoCo `rollout`; one call per "
+              "sample from Python: ours `advance_to`, MuJoCo `mj_step`):", "",
+              table(("scene", "method", "simulated", "ours CPU", "ours wall", "ours RTF",
+                     "MuJoCo rollout CPU", "rollout wall", "rollout RTF", "ours / rollout",
+                     "ours per-sample CPU", "MuJoCo mj_step loop CPU", "per-sample ours / MuJoCo"),
+                    rows), "",
               "Fitted whole-run cost order over " + ", ".join(map(str, ARM_LINKS)) + " links: " +
               ", ".join(f"{k} {v:.2f}" for k, v in order.items()) + ". A miss is measured as the "
               "factor by which the figure falls short of its target.", ""]
@@ -299,23 +316,30 @@ def section(result, number: int = 7) -> str:
 def _work_precision_section(wp, number: int) -> list:
     from .work_precision import TARGETS
     parts = [f"### {number}.4 Work–precision beside MuJoCo: {wp['scene']} (base fixed)", "",
-             "With the base welded in place nothing is constrained, so MuJoCo steps exactly our system "
-             "(20 random links, gravity, no stops, 0.5 s). Error: largest |state − reference| over the "
-             "100 Hz samples, reference ours DOP853 rtol 1e-13. CPU per simulated second.", ""]
+             "With the base welded in place nothing is constrained, so MuJoCo steps exactly our "
+             "system (20 random links, gravity, no stops, 0.5 s). Error: largest "
+             "|state − reference| over the 100 Hz samples, reference ours DOP853 rtol 1e-13. CPU "
+             "per simulated second.", ""]
     rows = []
     for target in TARGETS:
         cells = [f"≤ {target:g}"]
         for entries, label in ((wp["ours"], "ours"), (wp["mujoco"], "MuJoCo")):
             good = [e for e in entries if e[3] <= target]
             best = min(good, key=lambda e: e[2]) if good else None
-            setting = (f"{best[0]} {best[1]}" if label == "ours" else f"{best[0]} dt={best[1]:.0e}") if best else "—"
+            setting = "—"
+            if best:
+                setting = (f"{best[0]} {best[1]}" if label == "ours"
+                           else f"{best[0]} dt={best[1]:.0e}")
             cells += [setting, seconds(best[2]) if best else "not reached"]
         rows.append(cells)
     parts += ["Cheapest run within each accuracy:", "",
-              table(("accuracy", "ours: setting", "ours: CPU / sim s", "MuJoCo: setting", "MuJoCo: CPU / sim s"), rows), "",
+              table(("accuracy", "ours: setting", "ours: CPU / sim s", "MuJoCo: setting",
+                     "MuJoCo: CPU / sim s"), rows), "",
               "<details><summary>every run</summary>", "",
               table(("who", "setting", "CPU / sim s", "largest state error"),
-                    [("ours", f"{m} {setting}", seconds(cpu), sci(err)) for m, setting, cpu, err in wp["ours"]] +
-                    [("MuJoCo", f"{m} dt={dt:.0e}", seconds(cpu), sci(err)) for m, dt, cpu, err in wp["mujoco"]]),
+                    [("ours", f"{m} {setting}", seconds(cpu), sci(err))
+                     for m, setting, cpu, err in wp["ours"]] +
+                    [("MuJoCo", f"{m} dt={dt:.0e}", seconds(cpu), sci(err))
+                     for m, dt, cpu, err in wp["mujoco"]]),
               "", "</details>", ""]
     return parts

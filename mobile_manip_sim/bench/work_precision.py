@@ -58,8 +58,8 @@ def sweep(scene, progress, quick: bool = False, repeats: int = 2) -> WorkPrecisi
             point = Point(method, value, run, run.error_against(reference))
             result.points.append(point)
             progress(f"{scene.name}: {method} {run.setting}: "
-                     + (f"{run.cpu_per_second * 1e3:.2f} ms CPU per simulated s, error {point.error:.1e}"
-                        if run.ok else f"failed ({run.failure})"))
+                     + (f"{run.cpu_per_second * 1e3:.2f} ms CPU per simulated s, "
+                        f"error {point.error:.1e}" if run.ok else f"failed ({run.failure})"))
     return result
 
 
@@ -69,7 +69,7 @@ def plot(result: WorkPrecision, path) -> None:
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(9.0, 5.0))
-    markers = dict(zip(METHODS, "v^soDPX"))   # one per method, in the registry's order
+    markers = dict(zip(METHODS, "v^soDPX", strict=True))   # one per method, in the registry's order
     for method, points in result.by_method().items():
         good = [p for p in points if p.run.ok and math.isfinite(p.error)]
         if not good:

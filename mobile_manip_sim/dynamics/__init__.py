@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..coordinates import WHEEL_L, WHEEL_R, YAW, X, Y
 from ..model import RobotModel
 from . import articulated, kernels
 from .records import make_model, make_workspace
@@ -103,7 +104,8 @@ class Dynamics:
     def configuration_rate(self, q, u) -> np.ndarray:
         """q̇ from u (the nonholonomic constraints are built in)."""
         qdot = np.empty(self.model.n_q)
-        kernels.configuration_rate(self.model_record, np.asarray(q, float), np.asarray(u, float), qdot)
+        kernels.configuration_rate(self.model_record, np.asarray(q, float), np.asarray(u, float),
+                                   qdot)
         return qdot
 
     def wheel_forces(self, tau_R: float, tau_L: float) -> tuple[float, float]:
@@ -113,8 +115,9 @@ class Dynamics:
 
 
 def constraint_residuals(model: RobotModel, q, qdot) -> tuple[float, float]:
-    """docs/model.md's checks: no skid ẋ sin yaw − ẏ cos yaw, no slip ẋ cos yaw + ẏ sin yaw − r(θ̇_R + θ̇_L)/2."""
-    s, c = np.sin(q[2]), np.cos(q[2])
+    """docs/model.md's checks: no skid ẋ sin yaw − ẏ cos yaw, no slip
+    ẋ cos yaw + ẏ sin yaw − r(θ̇_R + θ̇_L)/2."""
+    s, c = np.sin(q[YAW]), np.cos(q[YAW])
     r = model.base.wheel_radius
-    return (qdot[0] * s - qdot[1] * c,
-            qdot[0] * c + qdot[1] * s - r * (qdot[3] + qdot[4]) / 2.0)
+    return (qdot[X] * s - qdot[Y] * c,
+            qdot[X] * c + qdot[Y] * s - r * (qdot[WHEEL_R] + qdot[WHEEL_L]) / 2.0)

@@ -33,6 +33,8 @@ component ``s_lᵀ f_k`` (``ws.slide_force[k]``, N), the generalized force M u̇
 pseudo-velocity. The stop holding a resting rod pushes with it minus the applied force
 (`engine.system.slide_holding_forces`): no second, inverse-dynamics pass.
 """
+from ..coordinates import OMEGA, V
+from .indices import u_slide, u_turn
 from .jit import jit, jit_inline
 from .kernels import frames, motion_subspaces, payload_inertia, rod_inertia
 from .spatial import force_cross, inertia_times, motion_cross
@@ -103,11 +105,11 @@ def articulated_forward_dynamics(model, q, u, Q, g, free, ws, ud):
 
     # 1. outward: twists and velocity-product accelerations (all with the true velocities)
     x0 = row(ws.x, 0)
-    w, v = (0.0, 0.0, u[1]), scale(u[0], x0)
+    w, v = (0.0, 0.0, u[OMEGA]), scale(u[V], x0)
     for i in range(3):
         Vk[0, i], Vk[0, 3 + i] = w[i], v[i]
     for k in range(1, n + 1):
-        qd, ld = u[2 * k], u[2 * k + 1]
+        qd, ld = u[u_turn(k)], u[u_slide(k)]
         sq_w = (Sk[k, 0, 0] * qd, Sk[k, 1, 0] * qd, Sk[k, 2, 0] * qd)
         sq_v = (Sk[k, 3, 0] * qd, Sk[k, 4, 0] * qd, Sk[k, 5, 0] * qd)
         c_w, c_v = motion_cross(w, v, sq_w, sq_v)
@@ -120,7 +122,7 @@ def articulated_forward_dynamics(model, q, u, Q, g, free, ws, ud):
             Ck[k, i], Ck[k, 3 + i] = c_w[i], c_v[i]
     for k in range(n + 1):  # locked columns out of the subspaces
         for c in range(2):
-            if moving[2 * k + c] == 0.0:
+            if moving[u_turn(k) + c] == 0.0:
                 for i in range(6):
                     Sk[k, i, c] = 0.0
 
@@ -144,9 +146,9 @@ def articulated_forward_dynamics(model, q, u, Q, g, free, ws, ud):
                 s += IA[i, j] * Sk[k, j, 0]
             Uk[k, i, 0] = s
             slide[k, i] = IA[i, 3] * x_k[0] + IA[i, 4] * x_k[1] + IA[i, 5] * x_k[2]
-            Uk[k, i, 1] = slide[k, i] if moving[2 * k + 1] != 0.0 else 0.0
+            Uk[k, i, 1] = slide[k, i] if moving[u_slide(k)] != 0.0 else 0.0
         slide[k, 6] = pA[3] * x_k[0] + pA[4] * x_k[1] + pA[5] * x_k[2]
-        D00, D11, D01, u0, u1 = 0.0, 0.0, 0.0, Q[2 * k], Q[2 * k + 1]
+        D00, D11, D01, u0, u1 = 0.0, 0.0, 0.0, Q[u_turn(k)], Q[u_slide(k)]
         for i in range(6):
             D00 += Sk[k, i, 0] * Uk[k, i, 0]
             D01 += Sk[k, i, 0] * Uk[k, i, 1]
@@ -154,9 +156,9 @@ def articulated_forward_dynamics(model, q, u, Q, g, free, ws, ud):
         for i in range(3, 6):
             D11 += Sk[k, i, 1] * Uk[k, i, 1]
             u1 -= Sk[k, i, 1] * pA[i]
-        if moving[2 * k] == 0.0:
+        if moving[u_turn(k)] == 0.0:
             D00, u0 = 1.0, 0.0
-        if moving[2 * k + 1] == 0.0:
+        if moving[u_slide(k)] == 0.0:
             D11, u1 = 1.0, 0.0
         det = D00 * D11 - D01 * D01
         d00, d11, d01 = D11 / det, D00 / det, -D01 / det
@@ -180,29 +182,29 @@ def articulated_forward_dynamics(model, q, u, Q, g, free, ws, ud):
     M_pw, I_pw, d = base.mass, base.yaw_inertia, base.com_offset
     r, half_track, I_w = base.wheel_radius, base.half_track, base.wheel_inertia
     wheels = 2.0 * I_w / (r * r)
-    vv, om = u[0], u[1]
+    vv, om = u[V], u[OMEGA]
     # S_0ᵀ I^A S_0 with s_v = (0, x_0), s_ω = (z, 0); a_g = (0, g z)
     K00 = M_pw + wheels
     K11 = I_pw + M_pw * d * d + wheels * half_track ** 2 + IA[2, 2]
     K01 = 0.0
-    r0 = Q[0] + M_pw * d * om * om
-    r1 = Q[1] - M_pw * d * vv * om - pA[2] - IA[2, 5] * g
+    r0 = Q[V] + M_pw * d * om * om
+    r1 = Q[OMEGA] - M_pw * d * vv * om - pA[2] - IA[2, 5] * g
     for i in range(3):
         K01 += x0[i] * IA[3 + i, 2]
         r0 -= x0[i] * (pA[3 + i] + IA[3 + i, 5] * g)
         for j in range(3):
             K00 += x0[i] * IA[3 + i, 3 + j] * x0[j]
-    if moving[0] == 0.0:
+    if moving[V] == 0.0:
         K00, K01, r0 = 1.0, 0.0, 0.0
-    if moving[1] == 0.0:
+    if moving[OMEGA] == 0.0:
         K11, K01, r1 = 1.0, 0.0, 0.0
     det = K00 * K11 - K01 * K01
-    ud[0] = (K11 * r0 - K01 * r1) / det
-    ud[1] = (K00 * r1 - K01 * r0) / det
+    ud[V] = (K11 * r0 - K01 * r1) / det
+    ud[OMEGA] = (K00 * r1 - K01 * r0) / det
 
     # outward: joint accelerations
-    a_w = (0.0, 0.0, ud[1])
-    a_v = axpy(ud[0], x0, (0.0, 0.0, g))
+    a_w = (0.0, 0.0, ud[OMEGA])
+    a_v = axpy(ud[V], x0, (0.0, 0.0, g))
     for k in range(1, n + 1):
         a_w = add(a_w, (Ck[k, 0], Ck[k, 1], Ck[k, 2]))
         a_v = add(a_v, (Ck[k, 3], Ck[k, 4], Ck[k, 5]))
@@ -212,11 +214,11 @@ def articulated_forward_dynamics(model, q, u, Q, g, free, ws, ud):
             b1 -= Uk[k, i, 1] * a_w[i] + Uk[k, 3 + i, 1] * a_v[i]
         qdd = Dinv[k, 0] * b0 + Dinv[k, 2] * b1
         ldd = Dinv[k, 2] * b0 + Dinv[k, 1] * b1
-        ud[2 * k], ud[2 * k + 1] = qdd, ldd
+        ud[u_turn(k)], ud[u_slide(k)] = qdd, ldd
         a_w = add(a_w, scale(qdd, (Sk[k, 0, 0], Sk[k, 1, 0], Sk[k, 2, 0])))
         a_v = add(a_v, add(scale(qdd, (Sk[k, 3, 0], Sk[k, 4, 0], Sk[k, 5, 0])),
                            scale(ldd, (Sk[k, 3, 1], Sk[k, 4, 1], Sk[k, 5, 1]))))
-        if moving[2 * k + 1] == 0.0:
+        if moving[u_slide(k)] == 0.0:
             f = slide[k, 6]
             for i in range(3):
                 f += slide[k, i] * a_w[i] + slide[k, 3 + i] * a_v[i]

@@ -99,15 +99,18 @@ class Bound:
 
 
 # Where compiled code may come from: the dynamics and the engine (below the adapters, they
-# import nothing above them), and any other module that defines a kernel (`bench/loops.py`).
-KERNEL_PACKAGES = ("dynamics", "engine")
+# import nothing above them), the modules below them whose functions they compile
+# (`coordinates.py`), and any other module that defines a kernel (`bench/loops.py`).
+KERNEL_PACKAGES = ("dynamics", "engine", "coordinates.py")
+PACKAGE = Path(__file__).resolve().parents[1]
 
 
-def _drop_stale_caches(package: Path = Path(__file__).resolve().parents[1]) -> None:
+def _drop_stale_caches(package: Path = PACKAGE) -> None:
     """Delete the package's numba cache files (``__pycache__/*.nbi, *.nbc``) when a source that
     compiled code may depend on changed: any module of dynamics/ or engine/ (kernels freeze the
-    module constants they read, such as the method tables of runge_kutta.py, into their code) or
-    one that defines a kernel. An edit of an adapter (node, CLI, plots) keeps the caches."""
+    module constants they read, such as the method tables of runge_kutta.py, into their code),
+    coordinates.py (its index functions are compiled into them) or one that defines a kernel. An
+    edit of an adapter (node, CLI, plots) keeps the caches."""
     digest = hashlib.sha1(numba.__version__.encode())
     try:
         for path in sorted(package.rglob("*.py")):
@@ -135,10 +138,11 @@ def _load_implementations_without_blas() -> None:
     implementations of Python and NumPy (`refresh` of the CPU target), and among them
     `numba.np.arraymath` imports scipy.linalg only to note whether np.dot has BLAS behind it:
     some 0.25 s of CPU, more than half of what loading the implementations costs, and 15 MB
-    resident, in every run. No kernel here calls BLAS or LAPACK, so `scipy.linalg.cython_blas` is hidden while they
-    load. In this process a numba function compiled later that calls np.dot or np.linalg still
-    imports scipy.linalg itself, when it is compiled (`numba.np.linalg.ensure_blas`); only
-    np.correlate and np.convolve take numba's own loop instead of BLAS."""
+    resident, in every run. No kernel here calls BLAS or LAPACK, so `scipy.linalg.cython_blas` is
+    hidden while they load. In this process a numba function compiled later that calls np.dot or
+    np.linalg still imports scipy.linalg itself, when it is compiled
+    (`numba.np.linalg.ensure_blas`); only np.correlate and np.convolve take numba's own loop
+    instead of BLAS."""
     from numba.core.compiler_lock import global_compiler_lock
     from numba.core.registry import cpu_target
     name = "scipy.linalg.cython_blas"

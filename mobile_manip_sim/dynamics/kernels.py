@@ -18,6 +18,8 @@ The forward dynamics in O(n) is in `articulated.py`.
 """
 import math
 
+from ..coordinates import OMEGA, WHEEL_L, WHEEL_R, YAW, V, X, Y
+from .indices import q_joint, q_slide, q_turn, u_slide, u_turn
 from .jit import jit, jit_inline
 from .spatial import inertia_times, sym_add
 from .vec3 import add, axpy, cross, dot, matvec, put, row, scale, sub, tmatvec
@@ -25,31 +27,35 @@ from .vec3 import add, axpy, cross, dot, matvec, put, row, scale, sub, tmatvec
 
 @jit_inline
 def frames(model, q, ws):
-    """Position pass: R_k = R_{k−1} · R0_k · Rz(q_k), O_{k+1} = O_k + l_k x_k (docs/model.md frames)."""
+    """Position pass: R_k = R_{k−1} · R0_k · Rz(q_k), O_{k+1} = O_k + l_k x_k (docs/model.md
+    frames)."""
     mount, R0 = model.mount, model.R0
     R, O, x, z = ws.R, ws.O, ws.x, ws.z
     n = R0.shape[0]
-    c, s = math.cos(q[2]), math.sin(q[2])
+    c, s = math.cos(q[YAW]), math.sin(q[YAW])
     R[0, 0, 0], R[0, 0, 1], R[0, 0, 2] = c, -s, 0.0
     R[0, 1, 0], R[0, 1, 1], R[0, 1, 2] = s, c, 0.0
     R[0, 2, 0], R[0, 2, 1], R[0, 2, 2] = 0.0, 0.0, 1.0
     put(x, 0, (c, s, 0.0))
     put(z, 0, (0.0, 0.0, 1.0))
-    put(O, 0, (q[0], q[1], 0.0))
+    put(O, 0, (q[X], q[Y], 0.0))
     put(O, 1, add(row(O, 0), matvec(R[0], (mount[0], mount[1], mount[2]))))
     for k in range(1, n + 1):
-        cq, sq = math.cos(q[3 + 2 * k]), math.sin(q[3 + 2 * k])
+        cq, sq = math.cos(q[q_turn(k)]), math.sin(q[q_turn(k)])
         for i in range(3):
             # (R_{k−1} · R0_k) row i, then · Rz(q_k)
-            a0 = R[k - 1, i, 0] * R0[k - 1, 0, 0] + R[k - 1, i, 1] * R0[k - 1, 1, 0] + R[k - 1, i, 2] * R0[k - 1, 2, 0]
-            a1 = R[k - 1, i, 0] * R0[k - 1, 0, 1] + R[k - 1, i, 1] * R0[k - 1, 1, 1] + R[k - 1, i, 2] * R0[k - 1, 2, 1]
-            a2 = R[k - 1, i, 0] * R0[k - 1, 0, 2] + R[k - 1, i, 1] * R0[k - 1, 1, 2] + R[k - 1, i, 2] * R0[k - 1, 2, 2]
+            a0 = (R[k - 1, i, 0] * R0[k - 1, 0, 0] + R[k - 1, i, 1] * R0[k - 1, 1, 0]
+                  + R[k - 1, i, 2] * R0[k - 1, 2, 0])
+            a1 = (R[k - 1, i, 0] * R0[k - 1, 0, 1] + R[k - 1, i, 1] * R0[k - 1, 1, 1]
+                  + R[k - 1, i, 2] * R0[k - 1, 2, 1])
+            a2 = (R[k - 1, i, 0] * R0[k - 1, 0, 2] + R[k - 1, i, 1] * R0[k - 1, 1, 2]
+                  + R[k - 1, i, 2] * R0[k - 1, 2, 2])
             R[k, i, 0] = a0 * cq + a1 * sq
             R[k, i, 1] = -a0 * sq + a1 * cq
             R[k, i, 2] = a2
         put(x, k, (R[k, 0, 0], R[k, 1, 0], R[k, 2, 0]))
         put(z, k, (R[k, 0, 2], R[k, 1, 2], R[k, 2, 2]))
-        put(O, k + 1, axpy(q[4 + 2 * k], row(x, k), row(O, k)))
+        put(O, k + 1, axpy(q[q_slide(k)], row(x, k), row(O, k)))
 
 
 @jit_inline
@@ -78,7 +84,7 @@ def gibbs_appell(model, q, u, ud, g, ws, Q):
     base, L, mu, J, tip_mass = model.base, model.L, model.mu, model.J, model.tip_mass
     R, O, x, z, F, N = ws.R, ws.O, ws.x, ws.z, ws.F, ws.N
     n = L.shape[0]
-    v, om, vd, omd = u[0], u[1], ud[0], ud[1]
+    v, om, vd, omd = u[V], u[OMEGA], ud[V], ud[OMEGA]
     x0 = row(x, 0)
     y0 = (-x0[1], x0[0], 0.0)
     omega = (0.0, 0.0, om)
@@ -89,9 +95,9 @@ def gibbs_appell(model, q, u, ud, g, ws, Q):
     m_w = sub(row(O, 1), row(O, 0))
     a_O = add(a_A, add(cross(alpha, m_w), cross(omega, cross(omega, m_w))))
     for k in range(1, n + 1):
-        j = 2 * k
-        qd, ld, qdd, ldd = u[j], u[j + 1], ud[j], ud[j + 1]
-        l, Lk, muk = q[4 + 2 * k], L[k - 1], mu[k - 1]
+        j, i = u_turn(k), u_slide(k)
+        qd, ld, qdd, ldd = u[j], u[i], ud[j], ud[i]
+        l, Lk, muk = q[q_slide(k)], L[k - 1], mu[k - 1]
         xk, zk = row(x, k), row(z, k)
         alpha = add(alpha, axpy(qdd, zk, cross(omega, scale(qd, zk))))
         omega = axpy(qd, zk, omega)
@@ -109,16 +115,16 @@ def gibbs_appell(model, q, u, ud, g, ws, Q):
     m = (0.0, 0.0, 0.0)  # moment about O_{k+1}
     for k in range(n, 0, -1):
         xk = row(x, k)
-        m = add(add(row(N, k), m), cross(scale(q[4 + 2 * k], xk), f))
+        m = add(add(row(N, k), m), cross(scale(q[q_slide(k)], xk), f))
         f = add(row(F, k), f)
-        Q[2 * k] = dot(row(z, k), m)
-        Q[2 * k + 1] = dot(xk, f)
+        Q[u_turn(k)] = dot(row(z, k), m)
+        Q[u_slide(k)] = dot(xk, f)
     m_A = add(m, cross(m_w, f))
     M_pw, I_pw, d = base.mass, base.yaw_inertia, base.com_offset
     r, half_track, I_w = base.wheel_radius, base.half_track, base.wheel_inertia
     wheels = 2.0 * I_w / (r * r)
-    Q[0] = dot(x0, f) + M_pw * (vd - d * om * om) + wheels * vd
-    Q[1] = m_A[2] + M_pw * d * (v * om + d * omd) + I_pw * omd + wheels * half_track ** 2 * omd
+    Q[V] = dot(x0, f) + M_pw * (vd - d * om * om) + wheels * vd
+    Q[OMEGA] = m_A[2] + M_pw * d * (v * om + d * omd) + I_pw * omd + wheels * half_track ** 2 * omd
 
 
 @jit_inline
@@ -128,7 +134,7 @@ def rod_inertia(model, q, ws, k):
     L, mu, J = model.L, model.mu, model.J
     R, O, x = ws.R, ws.O, ws.x
     Lk, muk = L[k - 1], mu[k - 1]
-    s1, s2 = rod_moments(q[4 + 2 * k], Lk)
+    s1, s2 = rod_moments(q[q_slide(k)], Lk)
     A = row(O, 0)
     r = sub(row(O, k), A)
     xk = row(x, k)
@@ -215,23 +221,23 @@ def mass_matrix(model, q, ws, zeros, unit, column, M):
         m, h, I = rod_inertia(model, q, ws, k)
         m_c, h_c, I_c = m_c + m, add(h_c, h), sym_add(I_c, I)
         for c in range(2):
-            # f = I^c_k s, then M[j, 2k + c] = s_jᵀ f for every column s_j at or before it
+            # f = I^c_k s, then M[j, u_turn(k) + c] = s_jᵀ f for every column s_j at or before it
             w, v = (S[k, 0, c], S[k, 1, c], S[k, 2, c]), (S[k, 3, c], S[k, 4, c], S[k, 5, c])
             f_n, f_f = inertia_times(m_c, h_c, I_c, w, v)
-            col = 2 * k + c
+            col = u_turn(k) + c
             for j in range(k + 1):
                 for d in range(2 if j < k else c + 1):
                     value = (S[j, 0, d] * f_n[0] + S[j, 1, d] * f_n[1] + S[j, 2, d] * f_n[2]
                              + S[j, 3, d] * f_f[0] + S[j, 4, d] * f_f[1] + S[j, 5, d] * f_f[2])
-                    M[2 * j + d, col] = value
-                    M[col, 2 * j + d] = value
+                    M[u_turn(j) + d, col] = value
+                    M[col, u_turn(j) + d] = value
     M_pw, I_pw, d = base.mass, base.yaw_inertia, base.com_offset
     r, half_track, I_w = base.wheel_radius, base.half_track, base.wheel_inertia
     wheels = 2.0 * I_w / (r * r)
     x0 = row(ws.x, 0)
-    M[0, 0] = m_c + M_pw + wheels
-    M[0, 1] = M[1, 0] = dot(x0, cross((0.0, 0.0, 1.0), h_c))
-    M[1, 1] = I_c[2] + I_pw + M_pw * d * d + wheels * half_track ** 2
+    M[V, V] = m_c + M_pw + wheels
+    M[V, OMEGA] = M[OMEGA, V] = dot(x0, cross((0.0, 0.0, 1.0), h_c))
+    M[OMEGA, OMEGA] = I_c[2] + I_pw + M_pw * d * d + wheels * half_track ** 2
 
 
 @jit
@@ -255,17 +261,17 @@ def kinetic_energy(model, q, u, ws):
     n = L.shape[0]
     M_pw, I_pw, d = base.mass, base.yaw_inertia, base.com_offset
     r, half_track, I_w = base.wheel_radius, base.half_track, base.wheel_inertia
-    v, om = u[0], u[1]
+    v, om = u[V], u[OMEGA]
     T = 0.5 * M_pw * (v * v + d * d * om * om) + 0.5 * I_pw * om * om
     T += 0.5 * I_w * ((v + half_track * om) ** 2 + (v - half_track * om) ** 2) / (r * r)
     omega = (0.0, 0.0, om)
     v_O = add(scale(v, row(x, 0)), cross(omega, sub(row(O, 1), row(O, 0))))
     for k in range(1, n + 1):
         xk = row(x, k)
-        omega = axpy(u[2 * k], (R[k, 0, 2], R[k, 1, 2], R[k, 2, 2]), omega)
-        l, Lk = q[4 + 2 * k], L[k - 1]
+        omega = axpy(u[u_turn(k)], (R[k, 0, 2], R[k, 1, 2], R[k, 2, 2]), omega)
+        l, Lk = q[q_slide(k)], L[k - 1]
         s1, s2 = rod_moments(l, Lk)
-        b = axpy(u[2 * k + 1], xk, v_O)     # v(η) = b + η c
+        b = axpy(u[u_slide(k)], xk, v_O)     # v(η) = b + η c
         c = cross(omega, xk)
         T += 0.5 * mu[k - 1] * (Lk * dot(b, b) + 2.0 * s1 * dot(b, c) + s2 * dot(c, c))
         wb = tmatvec(R[k], omega)
@@ -282,7 +288,7 @@ def potential_energy(model, q, g, ws):
     n = L.shape[0]
     V = 0.0
     for k in range(1, n + 1):
-        s1, _ = rod_moments(q[4 + 2 * k], L[k - 1])
+        s1, _ = rod_moments(q[q_slide(k)], L[k - 1])
         V += mu[k - 1] * (L[k - 1] * O[k, 2] + s1 * x[k, 2])
     return g * (V + tip_mass * O[n + 1, 2])
 
@@ -291,14 +297,14 @@ def potential_energy(model, q, g, ws):
 def configuration_rate(model, q, u, qdot):
     """q̇ from u with the nonholonomic constraints built in: ẋ = v cos yaw, θ̇_R = (v + bω)/r, …"""
     r, half_track = model.base.wheel_radius, model.base.half_track
-    v, om = u[0], u[1]
-    qdot[0] = v * math.cos(q[2])
-    qdot[1] = v * math.sin(q[2])
-    qdot[2] = om
-    qdot[3] = (v + half_track * om) / r
-    qdot[4] = (v - half_track * om) / r
-    for j in range(2, u.shape[0]):
-        qdot[j + 3] = u[j]
+    v, om = u[V], u[OMEGA]
+    qdot[X] = v * math.cos(q[YAW])
+    qdot[Y] = v * math.sin(q[YAW])
+    qdot[YAW] = om
+    qdot[WHEEL_R] = (v + half_track * om) / r
+    qdot[WHEEL_L] = (v - half_track * om) / r
+    for j in range(u_turn(1), u.shape[0]):   # the arm
+        qdot[q_joint(j)] = u[j]
 
 
 @jit

@@ -12,6 +12,8 @@ from collections import namedtuple
 
 import numpy as np
 
+from ..coordinates import u_size
+
 BaseParameters = namedtuple("BaseParameters", [
     "mass",           # M_pw, kg: base + wheels
     "yaw_inertia",    # I_pw, kg·m²: about the vertical through G
@@ -70,5 +72,5 @@ def make_workspace(n_links: int) -> Workspace:
         z=np.zeros((n + 1, 3)), F=np.zeros((n + 2, 3)), N=np.zeros((n + 2, 3)),
         S=np.zeros((n + 1, 6, 2)), V=np.zeros((n + 1, 6)), C=np.zeros((n + 1, 6)),
         U=np.zeros((n + 1, 6, 2)), D_inv=np.zeros((n + 1, 3)), u_art=np.zeros((n + 1, 2)),
-        I_art=np.zeros((6, 6)), p_art=np.zeros(6), moving=np.zeros(2 * n + 2),
+        I_art=np.zeros((6, 6)), p_art=np.zeros(6), moving=np.zeros(u_size(n)),
         slide=np.zeros((n + 1, 7)), slide_force=np.zeros(n + 1))

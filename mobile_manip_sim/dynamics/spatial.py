@@ -8,7 +8,8 @@ kernels use A, the base's axle midpoint, at the current instant, so no transform
 - a force vector is ``(n, f)``: moment about the reference point, then force;
 - a rigid-body inertia is ``(m, h, I)``: mass (kg), first moment h = ∫(p − A) dm (kg·m) and
   the rotational inertia about A, I = ∫(|p − A|² 1 − (p − A)(p − A)ᵀ) dm (kg·m²), stored as the
-  symmetric 6-tuple ``(xx, yy, zz, xy, xz, yz)``. As a 6×6 matrix it is ``[[I, [h×]], [[h×]ᵀ, m 1]]``.
+  symmetric 6-tuple ``(xx, yy, zz, xy, xz, yz)``. As a 6×6 matrix it is
+  ``[[I, [h×]], [[h×]ᵀ, m 1]]``.
 """
 from .jit import jit_inline
 from .vec3 import add, cross, sub

@@ -118,7 +118,8 @@ def locate_event(method, system, stops, scr, solve):
                                         scr.stages, scr.forces, dense)
         if k != 0:
             interpolate(dense, start, h_hit, solve.event)
-            solve.event[layout.l(k)] = stops.stroke[k - 1, 0] if side < 0 else stops.stroke[k - 1, 1]
+            solve.event[layout.q_slide(k)] = (stops.stroke[k - 1, 0] if side < 0
+                                              else stops.stroke[k - 1, 1])
             status[EVENT], status[EVENT_H] = IMPACT, h_hit
             status[EVENT_K], status[EVENT_SIDE] = k, side
     if pulled:

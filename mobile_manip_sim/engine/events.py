@@ -86,14 +86,14 @@ def simultaneous_hits(system, stops, s, k, side, hits):
             hits[r - 1] = side
         elif stops.watched[r - 1]:
             lo, hi = stops.stroke[r - 1, 0], stops.stroke[r - 1, 1]
-            l_r, v = s[layout.l(r)], s[layout.ld(nq, r)]
+            l_r, v = s[layout.q_slide(r)], s[layout.ld(nq, r)]
             reach = abs(v) * SIMULTANEOUS
             if l_r < lo or v < 0.0 and l_r - lo <= reach:
                 hits[r - 1] = -1
-                s[layout.l(r)] = lo
+                s[layout.q_slide(r)] = lo
             elif l_r > hi or v > 0.0 and hi - l_r <= reach:
                 hits[r - 1] = 1
-                s[layout.l(r)] = hi
+                s[layout.q_slide(r)] = hi
         if hits[r - 1] != 0:
             count += 1
     return count
@@ -144,7 +144,7 @@ def crossing_in_step(s0, s1, h, system, watched, stroke):
         if not watched[k - 1]:
             continue
         lo, hi = stroke[k - 1, 0], stroke[k - 1, 1]
-        i_l, i_ld = layout.l(k), layout.ld(nq, k)
+        i_l, i_ld = layout.q_slide(k), layout.ld(nq, k)
         if s1[i_l] < lo or s1[i_l] > hi:
             return True
         low, high = hermite_extrema(s0[i_l], s0[i_ld], s1[i_l], s1[i_ld], h)
@@ -168,7 +168,7 @@ def holding_margin_after(system, resting, forces):
     for k in range(1, resting.shape[0] + 1):
         if resting[k - 1] != 0:
             # The stop pushes outward only: +l at the lower stop (side −1), −l at the upper (+1).
-            margin = min(margin, -resting[k - 1] * forces[layout.u_l(k)])
+            margin = min(margin, -resting[k - 1] * forces[layout.u_slide(k)])
     return margin
 
 
@@ -263,7 +263,7 @@ def first_crossing(method, system, s0, h, watched, resting, stroke, samples, cro
     step_state(method, system, s0, h, trial, stages, dense)
     for k in range(1, n + 1):
         if watched[k - 1]:
-            i_l, i_ld = layout.l(k), layout.ld(nq, k)
+            i_l, i_ld = layout.q_slide(k), layout.ld(nq, k)
             turns, _, _ = hermite_turns(s0[i_l], s0[i_ld], trial[i_l], trial[i_ld], h)
             for tau in turns:
                 if 0.0 < tau < h:
@@ -277,7 +277,7 @@ def first_crossing(method, system, s0, h, watched, resting, stroke, samples, cro
         for k in range(1, n + 1):
             crossed[k - 1] = 0
             if watched[k - 1]:
-                l_k = trial[layout.l(k)]
+                l_k = trial[layout.q_slide(k)]
                 if l_k < stroke[k - 1, 0]:
                     crossed[k - 1] = -1
                 elif l_k > stroke[k - 1, 1]:
@@ -295,7 +295,7 @@ def first_crossing(method, system, s0, h, watched, resting, stroke, samples, cro
         if side == 0:
             continue
         stop = stroke[k - 1, 0] if side < 0 else stroke[k - 1, 1]
-        h_hit = locate(CROSSING, method, system, s0, a, samples[end], layout.l(k), side, stop,
+        h_hit = locate(CROSSING, method, system, s0, a, samples[end], layout.q_slide(k), side, stop,
                        resting, trial, stages, forces, dense)
         if best_k == 0 or h_hit < best_h:
             best_h, best_k, best_side = h_hit, k, side

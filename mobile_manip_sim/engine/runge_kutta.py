@@ -340,7 +340,7 @@ def accepted_step(method_id, system, s, t, h_abs, t_bound, rtol, atol, work):
     min_step = 10.0 * abs(np.nextafter(t, np.inf) - t)
     retried = False
     while True:
-        if h_abs < min_step:
+        if not h_abs >= min_step:   # also a NaN step (from a NaN error norm): fails, never loops
             return -1.0, h_abs
         t_new = min(t + h_abs, t_bound)
         h = t_new - t
@@ -352,7 +352,7 @@ def accepted_step(method_id, system, s, t, h_abs, t_bound, rtol, atol, work):
         _error_estimates(method_id, h, K, err)
         norm = error_norm(method_id, err, s, y1, rtol, atol)
         h_next = next_step(method_id, norm, abs(h), retried)
-        if norm < 1.0:
+        if norm < 1.0:   # a NaN norm (an overflow in a stage) rejects the step
             if not end_first:
                 _end_derivative(method_id, system, y1, f1, K)
             return h, h_next

@@ -222,11 +222,15 @@ class Simulation(ArmCommands):
 
         Q = self.system.Q_cmd
         before = Q.copy(), self.velocity_mode
+        wheel_efforts, joint_efforts = self.wheel_efforts, self.joint_efforts
         if wheels is not None:
-            self.wheel_efforts = self.effects.saturate(_command(wheels, 2, "wheels"))
-            self.system.control[VELOCITY_MODE] = 0.0
+            wheel_efforts = self.effects.saturate(_command(wheels, 2, "wheels"))
+            _finite_forces(lambda: self.dynamics.wheel_forces(*wheel_efforts), "wheels", wheels)
         if joints is not None:
-            self.joint_efforts = self.effects.saturate(_command(joints, self.nu - 2, "joints"), 2)
+            joint_efforts = self.effects.saturate(_command(joints, self.nu - 2, "joints"), 2)
+        self.wheel_efforts, self.joint_efforts = wheel_efforts, joint_efforts
+        if wheels is not None:
+            self.system.control[VELOCITY_MODE] = 0.0
         Q[0], Q[1] = self.dynamics.wheel_forces(*self.wheel_efforts)
         Q[2:] = self.joint_efforts
         if not np.array_equal(before[0], Q) or before[1] != self.velocity_mode:
@@ -240,9 +244,14 @@ class Simulation(ArmCommands):
         target = _command([v, omega], 2, "cmd_vel")
         r, b = self.model.base.wheel_radius, self.model.base.half_track
         control = self.system.control
+        v, omega = float(target[0]), float(target[1])
+        wheel_speeds = _finite_forces(lambda: ((v + b * omega) / r, (v - b * omega) / r),
+                                      "cmd_vel", target)
+        # the PI loop's forces at rest, kp times the wheel speeds: finite, or refused
+        _finite_forces(lambda: self.dynamics.wheel_forces(*(control[KP] * w for w in wheel_speeds)),
+                       "cmd_vel", target)
         before = control.copy()
-        control[TARGET_R] = (target[0] + b * target[1]) / r
-        control[TARGET_L] = (target[0] - b * target[1]) / r
+        control[TARGET_R], control[TARGET_L] = wheel_speeds
         if not control[VELOCITY_MODE]:
             e = layout.controller(self.nq, self.nu)
             self.s[e:e + 2] = 0.0   # a fresh loop: no integral carried over from an earlier one
@@ -335,10 +344,11 @@ class Simulation(ArmCommands):
             t_before, h = (self._solve.status[adaptive_stepping.STEP_T0],
                            self._solve.status[adaptive_stepping.STEP_H])
             self._cannot_follow(t_before, step_watch.describe(self._solve.watch, t_before, h))
-        if status == adaptive_stepping.STALLED:
+        if status == adaptive_stepping.STALLED:   # as SciPy's "step below the spacing of t"
             h = self._solve.status[adaptive_stepping.H_NEXT]
-            raise SimulationError(f"t = {self.t:.9g} s: {self.settings.method} failed: the step "
-                                  f"fell below 10 ulps of t (h = {h:.3g} s)")
+            self._cannot_follow(self.t, "a stage overflowed (its error estimate is NaN)"
+                                if math.isnan(h) else
+                                f"the step fell below 10 spacings of t (h = {h:.3g} s)")
         if status == stepping.CHATTER:
             raise SimulationError(f"t = {self.t:.9g} s: end stops chatter beyond what one step can "
                                   f"resolve (rods released and hitting again without end); "
@@ -369,17 +379,13 @@ class Simulation(ArmCommands):
         """One step of the SciPy solver into the adaptive core's step in hand (`Solve`)."""
         solve = self._solve
         status, work = solve.status, solve.work
-        if status[adaptive_stepping.STEP_H] == 0.0:   # a new solve at (t, s)
-            derivative = self.system.derivative
-            settings = self.settings
-            self._solver = scipy_solver(settings.method)(
-                lambda _t, y: derivative(y), self.t, self.s.copy(), math.inf,
-                rtol=max(settings.rtol, SCIPY_MIN_RTOL), atol=settings.atol,
-                first_step=status[adaptive_stepping.H_NEXT] or None)
-        solver = self._solver
-        t_before = status[adaptive_stepping.STEP_T0] = solver.t
-        solve.start[:] = solver.y
-        message = solver.step()
+        t_before = self.t if status[adaptive_stepping.STEP_H] == 0.0 else self._solver.t
+        try:   # overflows are ours to report in one line, not numpy's warnings on stderr
+            with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+                solver, message = self._scipy_step(t_before)
+        except (ValueError, np.linalg.LinAlgError) as error:   # lu_factor of infinities
+            status[adaptive_stepping.STEP_H] = 0.0
+            self._cannot_follow(t_before, f"its linear algebra failed ({error})")
         self._check_scipy_step(solver, t_before, message)
         self._clock[stepping.STEPS] += 1
         if not np.all(np.isfinite(solver.y)):
@@ -396,6 +402,21 @@ class Simulation(ArmCommands):
         if self.resting.any():   # the release check needs f(y₁) just evaluated
             work[rk.WORK_F1] = self.system.derivative(y1)
         self._locate_event(*self._core_args)
+
+    def _scipy_step(self, t_before: float):
+        """The SciPy solver's next step (a new solver for a new solve): (solver, its message)."""
+        status = self._solve.status
+        if status[adaptive_stepping.STEP_H] == 0.0:   # a new solve at (t, s)
+            derivative = self.system.derivative
+            settings = self.settings
+            self._solver = scipy_solver(settings.method)(
+                lambda _t, y: derivative(y), self.t, self.s.copy(), math.inf,
+                rtol=max(settings.rtol, SCIPY_MIN_RTOL), atol=settings.atol,
+                first_step=status[adaptive_stepping.H_NEXT] or None)
+        solver = self._solver
+        status[adaptive_stepping.STEP_T0] = t_before
+        self._solve.start[:] = solver.y
+        return solver, solver.step()
 
     def _check_scipy_step(self, solver, t_before: float, message) -> None:
         """radau/bdf: a failed step (below ten spacings of t) or a crawl (`step_watch`) is one
@@ -421,6 +442,18 @@ class Simulation(ArmCommands):
     def stats(self) -> dict:
         return {"t": self.t, "steps": self.steps, "rhs_evaluations": self.rhs_evaluations,
                 "impacts": len(self.impacts), "energy_error": self.energy_error()}
+
+
+def _finite_forces(compute, group, values) -> tuple:
+    """compute() of what a command gives (its generalized forces, its wheel speeds), checked:
+    a command whose results overflow (|τ_R + τ_L|/r beyond 1.8e308) is refused, or the
+    integrators would meet infinities at their first stage."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        results = tuple(float(x) for x in compute())
+    if not all(math.isfinite(x) for x in results):
+        raise UserError(f"efforts.{group}", f"{np.asarray(values, dtype=float).tolist()} "
+                        f"overflows: its generalized forces would not be finite")
+    return results
 
 
 def _command(values, size, group) -> np.ndarray:

@@ -109,7 +109,7 @@ def step_with_events(method, system, stops, scr, s, h, t, clock):
                 return CHATTER
             step_state(method, system, s, h_hit, scr.trial, scr.stages)
             copy_into(scr.trial, s)
-            s[layout.l(k)] = stops.stroke[k - 1, 0] if side < 0 else stops.stroke[k - 1, 1]
+            s[layout.q_slide(k)] = stops.stroke[k - 1, 0] if side < 0 else stops.stroke[k - 1, 1]
             h -= h_hit
             t += h_hit
             clock[LOST] += impact(system, stops, s, k, side, t, scr.impact, scr.stages[3],

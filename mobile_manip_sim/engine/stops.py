@@ -133,7 +133,7 @@ def release(system, stops, s, scratch, ds, forces, at_root):
     m = 0
     for k in range(1, stops.resting.shape[0] + 1):
         if stops.resting[k - 1] != 0:
-            pull = stops.resting[k - 1] * forces[layout.u_l(k)]
+            pull = stops.resting[k - 1] * forces[layout.u_slide(k)]
             pulled = pulled or pull > 0.0 or at_root and pull >= 0.0
             rods[m], sigma[m], sides[m] = k, -float(stops.resting[k - 1]), stops.resting[k - 1]
             m += 1
@@ -146,7 +146,7 @@ def release(system, stops, s, scratch, ds, forces, at_root):
         derivative(system, s, ds)
         a0, P, w = scratch.contact[2], scratch.contact[4], scratch.contact[5]
         for c in range(m):
-            a0[c] = sigma[c] * ds[nq + layout.u_l(rods[c])]
+            a0[c] = sigma[c] * ds[nq + layout.u_slide(rods[c])]
         contact_matrix(system, stops, s, m, scratch)
         bilateral, active = scratch.flags[0, :m], scratch.flags[1, :m]
         for c in range(m):
@@ -277,12 +277,12 @@ def contact_matrix(system, stops, s, m, scratch):
     for c in range(m):
         for i in range(nu):
             unit[i] = 0.0
-        unit[layout.u_l(rods[c])] = sigma[c]
+        unit[layout.u_slide(rods[c])] = sigma[c]
         kernels.cholesky_solve(scratch.M, unit, free, n_free, scratch.L, MinvE[c])
     W = scratch.W
     for a in range(m):
         # W_ab = E_aᵀ M⁻¹ E_b: row a of E picks DOF j_a, which sits at position pos in free
-        j = layout.u_l(rods[a])
+        j = layout.u_slide(rods[a])
         pos = 0
         while free[pos] != j:
             pos += 1
@@ -307,7 +307,7 @@ def contact_impulses(system, stops, s, m, scratch):
     free, MinvE = scratch.free, scratch.MinvE
     bilateral, active = scratch.flags[0, :m], scratch.flags[1, :m]
     for a in range(m):
-        c_minus[a] = sigma[a] * s[nq + layout.u_l(rods[a])]
+        c_minus[a] = sigma[a] * s[nq + layout.u_slide(rods[a])]
         qv[a] = (1.0 + e[a]) * c_minus[a]
     solve_contacts(scratch.W[:m, :m], qv[:m], bilateral, active, P[:m], w[:m],
                    scratch.cholesky[:m, :m + 1], scratch.index[:m])
@@ -316,7 +316,7 @@ def contact_impulses(system, stops, s, m, scratch):
             for a in range(n_free):
                 s[nq + free[a]] += P[c] * MinvE[c, a]
     for c in range(m):
-        j = nq + layout.u_l(rods[c])
+        j = nq + layout.u_slide(rods[c])
         if active[c]:
             s[j] = -e[c] * c_minus[c] * sigma[c]   # exact: c⁺ = −e c⁻ on an active contact
         elif stops.resting[rods[c] - 1] != 0:
@@ -356,7 +356,7 @@ def impact(system, stops, s, k, side, t, scratch, ds, forces):
                     stops.log_free[row, system.free[a]] = True
             log = stops.log[row]
             log[LOG_TIME], log[LOG_LINK], log[LOG_SIDE] = t, r, hits[r - 1]
-            log[LOG_LD_BEFORE] = s[nq + layout.u_l(r)]
+            log[LOG_LD_BEFORE] = s[nq + layout.u_slide(r)]
             # A crossing located with the rod at the stop but not moving into it is found at
             # the very instant the rod left: its rebound is too small to resolve in time, i.e.
             # the rod is pressed against the stop. Hold it there; ignoring the crossing would
@@ -372,7 +372,7 @@ def impact(system, stops, s, k, side, t, scratch, ds, forces):
         held = stops.log[i, LOG_HELD] != 0.0
         e_r = 0.0 if held or abs(restitution * u_before) < rest_speed else restitution
         if law == REFLECT:
-            s[nq + layout.u_l(r)] = -e_r * u_before
+            s[nq + layout.u_slide(r)] = -e_r * u_before
         rods[m], sigma[m], e[m], bilateral[m] = r, -float(stops.log[i, LOG_SIDE]), e_r, held
         m += 1
     if law == IMPULSE:
@@ -383,13 +383,13 @@ def impact(system, stops, s, k, side, t, scratch, ds, forces):
         contact_impulses(system, stops, s, m, scratch)
     for i in range(first, row):
         r = int(stops.log[i, LOG_LINK])
-        if s[nq + layout.u_l(r)] == 0.0:   # stopped dead (e = 0, active): held at its stop
-            s[nq + layout.u_l(r)] = 0.0     # (not −0.0)
+        if s[nq + layout.u_slide(r)] == 0.0:   # stopped dead (e = 0, active): held at its stop
+            s[nq + layout.u_slide(r)] = 0.0     # (not −0.0)
             stops.resting[r - 1] = hits[r - 1]
             stops.watched[r - 1] = False
     for i in range(first, row):
         r = int(stops.log[i, LOG_LINK])
-        stops.log[i, LOG_LD_AFTER] = s[nq + layout.u_l(r)]
+        stops.log[i, LOG_LD_AFTER] = s[nq + layout.u_slide(r)]
         stops.log[i, LOG_LOST] = 0.0
         stops.log[i, LOG_RESTING] = 1.0 if stops.resting[r - 1] != 0 else 0.0
         for j in range(nu):

@@ -144,11 +144,11 @@ def holding_forces(system, s, ds, out):
 @jit_inline
 def slide_holding_forces(system, resting, out):
     """The force (N) the stop of each resting rod k must push with along the rod to hold it,
-    M u̇ + h − Q of its l̇_k, into out[u_l(k)], right after a `derivative` with the rod locked:
+    M u̇ + h − Q of its l̇_k, into out[u_slide(k)], right after a `derivative` with the rod locked:
     read off the articulated-body pass (`dynamics/articulated.py`), no inverse dynamics."""
     for k in range(1, resting.shape[0] + 1):
         if resting[k - 1] != 0:
-            j = layout.u_l(k)
+            j = layout.u_slide(k)
             out[j] = system.ws.slide_force[k] - system.Q[j]
 
 

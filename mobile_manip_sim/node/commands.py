@@ -23,10 +23,13 @@ from std_msgs.msg import Float64MultiArray
 
 from ..messages import command_values
 from ..timeline import NS, CommandSlot
-from ..topics import ARM_TOPIC, CMD_VEL_TOPIC, COMMAND_QOS_DEPTH, WHEEL_TOPIC, command_qos, relative
+from ..topics import (ARM_POSITION_TOPIC, ARM_TOPIC, ARM_VELOCITY_TOPIC, CMD_VEL_TOPIC,
+                      COMMAND_QOS_DEPTH, WHEEL_TOPIC, command_qos, relative)
 from .throttle import Throttle
 
 MAX_TAKEN = 4 * COMMAND_QOS_DEPTH   # messages one drain takes from a command topic, at most
+# The symbols of an arm topic's values, per joint pair (revolute, prismatic), for messages.
+ARM_LABELS = {ARM_POSITION_TOPIC: ("q", "l"), ARM_VELOCITY_TOPIC: ("qdot", "ldot")}
 
 
 def command_problem(values, expected: int, labels: str) -> tuple[str, str] | None:
@@ -60,8 +63,10 @@ class _TakenByTheSteppingThread(CallbackGroup):
 class CommandInput:
     """One command topic: its subscription and its slot (`timeline.CommandSlot`)."""
 
-    def __init__(self, node, topic: str, kind, size: int, labels: str, what: str, group):
+    def __init__(self, node, topic: str, kind, size: int, labels: str, what: str, group,
+                 times_out: bool = True):
         self.topic, self.labels, self.what = topic, labels, what
+        self.times_out = times_out   # falls to zero after the command timeout
         self.slot = CommandSlot(size)
         self.subscription = node.create_subscription(kind, relative(topic), lambda _: None,
                                                      command_qos(), callback_group=group)
@@ -87,11 +92,14 @@ class CommandInput:
 
 
 class CommandIntake:
-    """The base input (wheel torques, or cmd_vel in velocity mode) and the arm input of a node.
-    ``warn`` throttles the warnings about bad messages; ``log_warning`` says the timeouts."""
+    """The base input (wheel torques, or cmd_vel in velocity mode) and the arm input of a node
+    (``arm_topic``: the effort topic, an arm controller's array topic, or None when the arm
+    takes trajectories only). ``warn`` throttles the warnings about bad messages;
+    ``log_warning`` says the timeouts (an arm controller's set-points do not time out)."""
 
     def __init__(self, node, velocity_mode: bool, stamped: bool, arm_size: int,
-                 timeout: float, throttle: Throttle, log_warning: Callable[[str], None]):
+                 timeout: float, throttle: Throttle, log_warning: Callable[[str], None],
+                 arm_topic: str | None = ARM_TOPIC):
         taken = _TakenByTheSteppingThread()
         if velocity_mode:
             from geometry_msgs.msg import Twist, TwistStamped
@@ -100,9 +108,13 @@ class CommandIntake:
         else:
             base = CommandInput(node, WHEEL_TOPIC, Float64MultiArray, 2, "tau_R, tau_L",
                                 "wheel", taken)
-        arm_labels = ", ".join(f"tau_{i}, F_{i}" for i in range(1, arm_size // 2 + 1)) or "none"
-        arm = CommandInput(node, ARM_TOPIC, Float64MultiArray, arm_size, arm_labels, "arm", taken)
-        self.inputs = (base, arm)
+        symbols = ARM_LABELS.get(arm_topic, ("tau", "F"))
+        arm_labels = ", ".join(f"{symbols[0]}_{i}, {symbols[1]}_{i}"
+                               for i in range(1, arm_size // 2 + 1)) or "none"
+        self.inputs = (base,)
+        if arm_topic is not None:
+            self.inputs += (CommandInput(node, arm_topic, Float64MultiArray, arm_size, arm_labels,
+                                         "arm", taken, times_out=arm_topic == ARM_TOPIC),)
         self._stamped = stamped
         self.timeout_ns = round(timeout * NS)
         self._throttle, self._log_warning = throttle, log_warning
@@ -137,13 +149,15 @@ class CommandIntake:
                     command.slot.receive(latest, now_ns)
 
     def held(self, segment_start_ns: int) -> tuple[np.ndarray, np.ndarray]:
-        """The base command (wheel torques, or [v, ω]) and the arm efforts to hold from
-        ``segment_start_ns`` on, after the timeout (a stale cmd_vel is zero speed)."""
+        """The base command (wheel torques, or [v, ω]) and the arm's (efforts, or an arm
+        controller's set-points; None without an arm input) to hold from ``segment_start_ns``
+        on, after the timeout (a stale cmd_vel is zero speed)."""
         self.drain(segment_start_ns)
         held = []
         with self._lock:
             for command in self.inputs:
-                values, timed_out = command.slot.held(segment_start_ns, self.timeout_ns)
+                timeout_ns = self.timeout_ns if command.times_out else 0
+                values, timed_out = command.slot.held(segment_start_ns, timeout_ns)
                 held.append(values)
                 if timed_out:
                     self._log_warning(
@@ -151,7 +165,12 @@ class CommandIntake:
                         f"simulated time (command_timeout); {command.what} "
                         f"{'command' if command.topic == CMD_VEL_TOPIC else 'efforts'} set to "
                         f"zero until commands resume")
-        return held[0], held[1]
+        return held[0], held[1] if len(held) > 1 else None
+
+    def arm_received(self) -> int:
+        """Valid arm commands taken so far (an arm controller applies each new one once)."""
+        with self._lock:
+            return self.inputs[1].slot.seq if len(self.inputs) > 1 else 0
 
     def forget(self, now_wall_ns: int) -> None:
         """~/reset asked for (executor thread): the held commands go, and those still waiting

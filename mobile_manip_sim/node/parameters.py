@@ -7,12 +7,14 @@ import math
 from dataclasses import dataclass
 from typing import Mapping, NamedTuple
 
+from ..engine.arm_control import ArmControl
 from ..engine.simulation import DEFAULT_WHEEL_SPEED_GAINS
 from ..errors import UserError
 from ..scene import METHODS
+from ..scene_controller import ARM_MODES, FEEDFORWARDS
+from ..topics import BASE_COMMANDS
 
 NODE_NAME = "mobile_manip_sim"
-BASE_COMMANDS = ("effort", "velocity")
 # The slowest pacing the node takes: at 100 Hz a publication every 10 s of wall time. Slower
 # ones (1e-12 once stopped the node for good) are refused; 0 means as fast as possible.
 MIN_REAL_TIME_FACTOR = 1e-3
@@ -71,9 +73,43 @@ PARAMETERS = {
 }
 
 
+# --- the arm controller (start-up only): an engine `ArmControl` ------------------------------
+# The gains take one number (every joint) or a list (one per arm joint); "" = the documented
+# defaults for the scene's robot (`ArmControl.default`). Declared with dynamic typing.
+ARM_GAIN_PARAMETERS = ("arm_gains.kp", "arm_gains.ki", "arm_gains.kd")
+PARAMETERS.update({
+    "arm_controller": Parameter("effort", f"How the arm is driven ({', '.join(ARM_MODES)}): "
+                                          "effort takes arm_effort_controller/commands; the "
+                                          "others run a PID per joint inside the simulated "
+                                          "system on arm_position_controller/commands, "
+                                          "arm_velocity_controller/commands, or "
+                                          "joint_trajectory_controller's topic and action."),
+    "arm_feedforward": Parameter("gravity", f"An arm controller's model-based feed-forward "
+                                            f"({', '.join(FEEDFORWARDS)}), from the project's "
+                                            f"inverse dynamics."),
+    **{name: Parameter("", f"An arm controller's {name[-2:]} per joint: one number for all, a "
+                           f"list (arm_revolute_1, arm_prismatic_1, …), or \"\" for the "
+                           f"defaults (README).") for name in ARM_GAIN_PARAMETERS},
+})
+
+
+def arm_gains(name: str, value) -> tuple:
+    """The gains of parameter ``name``: () for "" (the defaults), else a tuple of numbers
+    (ArmControl checks their range and count); UserError naming it otherwise."""
+    if isinstance(value, str) and value == "":
+        return ()
+    scalar = isinstance(value, (bool, int, float, str))
+    values = [value] if scalar else list(value)   # a list: rclpy gives an array.array
+    if not values or any(isinstance(v, bool) or not isinstance(v, (int, float)) for v in values):
+        raise UserError(name, f"expected a number or a list of numbers, got {value!r}")
+    return tuple(float(v) for v in values)
+
+
 def expected_kind(name: str) -> str:
     """What a value of parameter ``name`` must be written as, for error messages."""
     default = PARAMETERS[name].default
+    if name in ARM_GAIN_PARAMETERS:
+        return "a number or a list of numbers"
     if isinstance(default, bool):
         return "true or false"
     if isinstance(default, float):
@@ -101,6 +137,8 @@ class NodeParameters:
     dt: float | None
     rtol: float | None
     atol: float | None
+
+    arm_control: ArmControl = ArmControl()   # not yet resolved for the robot (`for_robot`)
 
     @property
     def velocity_mode(self) -> bool:
@@ -142,4 +180,7 @@ def read(values: Mapping[str, object]) -> NodeParameters:
         cmd_vel_stamped=values["cmd_vel_stamped"],
         wheel_speed_gains=(values["wheel_speed.kp"], values["wheel_speed.ki"]),
         method=values["integrator.method"] or None, dt=values["integrator.dt"] or None,
-        rtol=values["integrator.rtol"] or None, atol=values["integrator.atol"] or None)
+        rtol=values["integrator.rtol"] or None, atol=values["integrator.atol"] or None,
+        arm_control=ArmControl(values["arm_controller"],
+                               *(arm_gains(name, values[name]) for name in ARM_GAIN_PARAMETERS),
+                               values["arm_feedforward"]))

@@ -7,6 +7,7 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Callable
 
 from ..errors import UserError
+from ..recording.bag_format import arm_control_metadata
 from ..recording.rotation import RotatingRecorder
 
 if TYPE_CHECKING:   # imported when a bag is opened: mcap and the CDR tables only when recording
@@ -37,12 +38,17 @@ class NodeRecording:
         if p.velocity_mode:
             metadata.update(wheel_speed_kp=repr(float(p.wheel_speed_gains[0])),
                             wheel_speed_ki=repr(float(p.wheel_speed_gains[1])))
+        metadata.update(arm_control_metadata(self.sim.arm_control))
         return RunRecorder(path, self.sim.scene, self._settings, metadata,
                            flush_interval=BAG_FLUSH_INTERVAL)
 
     def commands(self, start_ns: int, base, joints) -> None:
         """The commands held from the segment start ``start_ns`` on, as applied."""
         self._bags.commands(start_ns, base, joints)
+
+    def arm_command(self, start_ns: int, message) -> None:
+        """An arm controller's command applied from the segment start ``start_ns`` on."""
+        self._bags.arm_command(start_ns, message)
 
     def published(self, stamp: int, messages: dict) -> None:
         """Under the loop's lock: state messages that went out, recorded by `record`."""

@@ -40,10 +40,11 @@ from ..topics import (
 )
 from ..urdf import robot_description
 from . import arguments, parameters
+from .arm import ArmDriver, arm_array_topic
 from .commands import CommandIntake
 from .lockstep import Lockstep
 from .loop import SteppingLoop
-from .parameters import NODE_NAME, PARAMETERS
+from .parameters import ARM_GAIN_PARAMETERS, NODE_NAME, PARAMETERS
 from .recording import NodeRecording
 from .throttle import Throttle
 
@@ -63,7 +64,8 @@ class SimulatorNode(Node):
         self.scene = load_scene(p.scene or None)
         self._settings = make_integrator(self.scene.integrator, p.method, p.dt, p.rtol, p.atol,
                                          prefix="integrator")
-        self.sim = Simulation(self.scene, self._settings)
+        self.arm_control = p.arm_control.for_robot(self.scene.robot)   # UserError: arm_gains.*
+        self.sim = Simulation(self.scene, self._settings, arm_control=self.arm_control)
         self.sim.set_wheel_speed_gains(*p.wheel_speed_gains)
         self.joint_names = self.scene.robot.joint_names()
         self.grid = Grid(p.publish_rate)   # publication k at t_k, segment k → k + 1
@@ -81,7 +83,10 @@ class SimulatorNode(Node):
         self._description = robot_description(self.scene, root=p.base_frame)
         self.commands = CommandIntake(self, p.velocity_mode, p.cmd_vel_stamped,
                                       len(self.joint_names) - 2, p.command_timeout, throttle,
-                                      log.warning)
+                                      log.warning, arm_topic=arm_array_topic(self.arm_control))
+        # An arm controller's commands (arm.py); None in effort mode.
+        self.arm = ArmDriver(self, self.arm_control.mode, self.joint_names[2:], throttle.warn,
+                             log.warning) if self.arm_control.active else None
         lockstep = None
         if p.synchronous:
             lockstep = Lockstep(self.commands, self._listening, p.sync_timeout, throttle)
@@ -109,9 +114,11 @@ class SimulatorNode(Node):
                  f"({'dt ' + str(s.dt) if s.fixed_step else f'rtol {s.rtol}'}), publishing at "
                  f"{self.grid.hz:g} Hz of simulated time, real-time factor "
                  f"{p.real_time_factor:g}{' (free-running)' if not p.real_time_factor else ''}")
+        if self.arm is not None and self.arm.trajectories is not None:
+            self.arm.trajectories.start()   # says so if the action is off
         if p.publish_tf and self._tf_pub is None:
             log.warning("publish_tf: tf2_msgs does not import (source a ROS install, or build "
-                        "it with tools/build_tf2_msgs.sh); no /tf")
+                        "it with tools/build_interfaces.sh); no /tf")
 
     def _tf_publisher(self):
         try:
@@ -125,7 +132,8 @@ class SimulatorNode(Node):
         """Declare PARAMETERS; their values (rclpy checks types and ranges: UserError)."""
         for name, spec in PARAMETERS.items():
             descriptor = ParameterDescriptor(description=spec.description,
-                                             read_only=not spec.dynamic)
+                                             read_only=not spec.dynamic,
+                                             dynamic_typing=name in ARM_GAIN_PARAMETERS)
             if spec.range:
                 descriptor.floating_point_range = [FloatingPointRange(
                     from_value=spec.range[0], to_value=spec.range[1], step=0.0)]
@@ -187,13 +195,20 @@ class SimulatorNode(Node):
         """t = 0: the scene's initial state, zero efforts."""
         start_node_time_line(self.sim)
         self.commands.restart()
+        if self.arm is not None:
+            self.arm.restart(self.commands.arm_received())
         return self._messages(0)
 
     def _compute(self, k: int, start_ns: int) -> dict:
         base, joints = self.commands.held(start_ns)
-        applied = apply_commands(self.sim, base, joints, self.params.velocity_mode)
+        efforts = None if self.arm is not None else joints   # the arm's, in effort mode
+        applied = apply_commands(self.sim, base, efforts, self.params.velocity_mode)
+        arm = None if self.arm is None else self.arm.segment_start(
+            self.sim, start_ns, joints, self.commands.arm_received())
         if self._recording is not None:
-            self._recording.commands(start_ns, *applied)
+            self._recording.commands(start_ns, applied[0], None if efforts is None else applied[1])
+            if arm is not None:
+                self._recording.arm_command(start_ns, arm)
         self.sim.advance_to(self.grid.time(k + 1))
         self._compiler_pages.release_if_used()
         return self._messages(k + 1)
@@ -222,7 +237,7 @@ class SimulatorNode(Node):
 
     def _replace_engine(self) -> None:
         """The watchdog gave up on a stuck segment: a new engine (the old one is left to it)."""
-        self.sim = Simulation(self.scene, self._settings)
+        self.sim = Simulation(self.scene, self._settings, arm_control=self.arm_control)
         self.sim.set_wheel_speed_gains(*self.params.wheel_speed_gains)
         if self._recording is not None:
             self._recording.sim = self.sim
@@ -283,7 +298,10 @@ def _main(argv) -> int:
     node = None
     try:
         node = SimulatorNode()
-        executor = MultiThreadedExecutor(num_threads=2)
+        # 4: a FollowJointTrajectory goal's execute callback waits in a thread for its outcome;
+        # at most two do (the active goal and the one that will preempt it, e.g. while paused),
+        # and two threads stay for the services.
+        executor = MultiThreadedExecutor(num_threads=4)
         executor.add_node(node)
         node.start()
         # spin_once with a timeout rather than spin(): a signal that shuts the context down

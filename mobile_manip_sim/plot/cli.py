@@ -18,7 +18,8 @@ def _main(argv) -> int:
     parser = cli.ArgumentParser(prog="plot", description=__doc__.split("\n\n")[0])
     parser.add_argument("run", type=cli.path, metavar="RUN",
                         help="a CSV from simulate, a bag directory or an .mcap file")
-    parser.add_argument("--out", type=cli.path, required=True, metavar="DIR", help="directory for the figures")
+    parser.add_argument("--out", type=cli.path, required=True, metavar="DIR",
+                        help="directory for the figures")
     parser.add_argument("--scene", metavar="FILE",
                         help="the run's scene (default: a bag's own, or the embedded paper scene)")
     args = parser.parse_args(argv)

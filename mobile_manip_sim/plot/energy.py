@@ -14,13 +14,14 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..coordinates import ARM_U, WHEELS
 from ..effects import settings as effect_settings
 from .run import Run
 
 
 def joint_rates(run: Run) -> np.ndarray:
     """(N, 2 + 2n) rates conjugate to the efforts: θ̇_R, θ̇_L, q̇_1, l̇_1, …"""
-    return np.column_stack([run.qdot[:, 3:5], run.u[:, 2:]])
+    return np.column_stack([run.qdot[:, WHEELS], run.u[:, ARM_U]])
 
 
 def work(run: Run) -> np.ndarray:
@@ -70,7 +71,7 @@ def work(run: Run) -> np.ndarray:
 def damping_coefficients(run: Run) -> np.ndarray:
     """(2 + 2n,) viscous coefficients on (θ̇_R, θ̇_L, q̇_1, l̇_1, …): torque or force −c·rate."""
     c = effect_settings(run.scene).rate_damping
-    return np.zeros(2 + 2 * run.n_links) if c is None else c
+    return np.zeros(run.scene.robot.n_u) if c is None else c
 
 
 def impact_losses(run: Run) -> np.ndarray:

@@ -6,12 +6,14 @@ inspect their lines.
 from __future__ import annotations
 
 import html
+import textwrap
 from pathlib import Path
 from typing import Callable
 
 import numpy as np
 from matplotlib.figure import Figure
 
+from ..coordinates import YAW, X, Y, q_slide, q_turn, u_slide, u_turn
 from ..dynamics import constraint_residuals
 from ..effects import settings as effect_settings
 from ..errors import UserError
@@ -29,7 +31,7 @@ DPI = 120
 def residuals(run: Run) -> np.ndarray:
     """(N, 2) docs/model.md's constraint residuals (no skid, no slip) at each sample, m/s."""
     return np.array([constraint_residuals(run.scene.robot, q_k, qdot_k)
-                     for q_k, qdot_k in zip(run.q, run.qdot)])
+                     for q_k, qdot_k in zip(run.q, run.qdot, strict=True)])
 
 
 def tip_path(run: Run) -> np.ndarray:
@@ -56,13 +58,14 @@ def _color(i: int) -> str:
 
 
 def _arm_series(run: Run, what: str, column: Callable[[int], np.ndarray], symbol: str,
-                joint: Callable[[int], str], unit: str, quantity: str) -> tuple[Figure, object]:
-    """One curve per link of ``column(i)`` (i = 0 … n−1) against time."""
+                joint: Callable[[int], int], unit: str, quantity: str) -> tuple[Figure, object]:
+    """One curve per link of ``column(k)`` (rods k = 1 … n) against time; ``joint(k)`` is the
+    index of its joint in `RobotModel.joint_names`."""
     figure, axes = _figure(run, what)
     names = run.joint_names()
-    for i in range(run.n_links):
-        axes.plot(run.t, column(i), color=_color(i),
-                  label=f"${symbol}_{{{i + 1}}}$  ({names[joint(i)]})")
+    for k in range(1, run.n_links + 1):
+        axes.plot(run.t, column(k), color=_color(k - 1),
+                  label=f"${symbol}_{{{k}}}$  ({names[joint(k)]})")
     axes.set_xlabel("t (s)")
     axes.set_ylabel(f"{quantity} ({unit})")
     if run.n_links:
@@ -75,21 +78,21 @@ def _arm_series(run: Run, what: str, column: Callable[[int], np.ndarray], symbol
 
 def figure_joint_angles(run: Run) -> Figure:
     """q_i(t): one curve per link."""
-    return _arm_series(run, "joint angles", lambda i: run.q[:, 5 + 2 * i], "q",
-                       lambda i: 2 + 2 * i, "rad", "joint angle")[0]
+    return _arm_series(run, "joint angles", lambda k: run.q[:, q_turn(k)], "q",
+                       u_turn, "rad", "joint angle")[0]
 
 
 def figure_joint_rates(run: Run) -> Figure:
     """q̇_i(t): one curve per link."""
-    return _arm_series(run, "joint rates", lambda i: run.u[:, 2 + 2 * i], r"\dot q",
-                       lambda i: 2 + 2 * i, "rad/s", "joint rate")[0]
+    return _arm_series(run, "joint rates", lambda k: run.u[:, u_turn(k)], r"\dot q",
+                       u_turn, "rad/s", "joint rate")[0]
 
 
 def figure_extensions(run: Run) -> Figure:
     """l_i(t): one curve per link, its two stroke ends dashed, each impacted link's impacts
     marked at their stop (one marker series per link with impacts)."""
-    figure, axes = _arm_series(run, "rod extensions", lambda i: run.q[:, 6 + 2 * i], "l",
-                               lambda i: 3 + 2 * i, "m", "rod extension")
+    figure, axes = _arm_series(run, "rod extensions", lambda k: run.q[:, q_slide(k)], "l",
+                               u_slide, "m", "rod extension")
     for i, (low, high) in enumerate(run.scene.robot.stroke):
         for end, value in (("min", low), ("max", high)):
             axes.axhline(value, color=_color(i), linestyle="--", linewidth=0.9,
@@ -107,8 +110,8 @@ def figure_extensions(run: Run) -> Figure:
 
 def figure_extension_rates(run: Run) -> Figure:
     """l̇_i(t): one curve per link, and per impacted link its approach speeds l̇⁻ at the impacts."""
-    figure, axes = _arm_series(run, "extension rates", lambda i: run.u[:, 3 + 2 * i], r"\dot l",
-                               lambda i: 3 + 2 * i, "m/s", "extension rate")
+    figure, axes = _arm_series(run, "extension rates", lambda k: run.u[:, u_slide(k)],
+                               r"\dot l", u_slide, "m/s", "extension rate")
     for link, impacts in _impacts_by_link(run).items():
         axes.plot([impact["time"] for impact in impacts],
                   [impact["ld_before"] for impact in impacts], linestyle="none", marker="o",
@@ -130,7 +133,7 @@ def figure_base_path(run: Run) -> Figure:
     """The base's path (point A) in the x–y plane with heading arrows, the ground projection
     of the last rod's tip (when there is an arm), and where each starts. Equal aspect."""
     figure, axes = _figure(run, "path in the plane")
-    x, y, yaw = run.q[:, 0], run.q[:, 1], run.q[:, 2]
+    x, y, yaw = run.q[:, X], run.q[:, Y], run.q[:, YAW]
     axes.plot(x, y, color="C0", label="base (axle midpoint A)")
     paths = [np.column_stack([x, y])]
     if run.n_links:
@@ -202,8 +205,9 @@ def figure_energy(run: Run) -> Figure:
     top.set_ylabel("energy (J)")
     top.legend(loc="best", fontsize="small")
     top.grid(True, alpha=0.3)
-    top.set_title(f"efforts: {run.effort_source}; W by the trapezoid rule at the sample "
-                  "rate, split at impacts", fontsize="small")
+    # two lines, each wrapped: one line ran past the figure's edges for a bag's longer source
+    top.set_title("\n".join(textwrap.wrap(f"efforts: {run.effort_source}", 90) + [
+        "W by the trapezoid rule at the sample rate, split at impacts"]), fontsize="small")
     bottom.plot(run.t, change - W + L, color="C3", label=r"$T + V - E_0 - W + L$")
     bottom.set_xlabel("t (s)")
     bottom.set_ylabel("balance (J)")

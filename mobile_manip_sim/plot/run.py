@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..coordinates import ARM_U
 from ..dynamics import Dynamics
 from ..effects import settings as effect_settings
 from ..errors import UserError
@@ -33,8 +34,8 @@ class Run:
     (from a CSV: computed from ``u`` through the constraints; from a bag: as recorded — odometry
     twist and wheel velocities); ``energy`` T + V (J); ``efforts`` (N, 2 + 2n) the efforts in
     /joint_states order (τ_R, τ_L, τ_1, F_1, …; N·m or N) acting from each sample to the next
-    (row k: over (t_k, t_{k+1})), or None when unknown; ``impacts`` the end-stop impacts as dicts (time, link, stop,
-    ld_before, ld_after, energy_lost, resting).
+    (row k: over (t_k, t_{k+1})), or None when unknown; ``impacts`` the end-stop impacts as dicts
+    (time, link, stop, ld_before, ld_after, energy_lost, resting).
     """
 
     source: Path
@@ -64,7 +65,8 @@ def dynamics_of(scene: Scene) -> Dynamics:
 
 def scene_efforts(scene: Scene) -> np.ndarray:
     """The scene's constant efforts (τ_R, τ_L, τ_1, F_1, …), saturated as the simulator does."""
-    return effect_settings(scene).saturate(np.concatenate([scene.wheel_efforts, scene.joint_efforts]))
+    return effect_settings(scene).saturate(np.concatenate([scene.wheel_efforts,
+                                                           scene.joint_efforts]))
 
 
 def load_run(path, scene_path=None) -> Run:
@@ -104,11 +106,12 @@ def load_csv(path, scene_path=None) -> Run:
     q = np.column_stack([columns[name] for name in expected[1:1 + n_q]])
     u = np.column_stack([columns[name] for name in expected[1 + n_q:1 + n_q + n_u]])
     dynamics = dynamics_of(scene)
-    qdot = np.array([dynamics.configuration_rate(q_k, u_k) for q_k, u_k in zip(q, u)])
+    qdot = np.array([dynamics.configuration_rate(q_k, u_k) for q_k, u_k in zip(q, u, strict=True)])
     efforts = np.tile(scene_efforts(scene), (len(q), 1))
     return Run(source=path, kind="csv", scene=scene, t=columns["t"], q=q, u=u, qdot=qdot,
                energy=columns["energy"], efforts=efforts,
-               effort_source="the scene's constant efforts", impacts=_read_impacts_csv(path, scene.robot.n_links))
+               effort_source="the scene's constant efforts",
+               impacts=_read_impacts_csv(path, scene.robot.n_links))
 
 
 def _read_csv(path: Path) -> tuple[list[str], list[list[str]]]:
@@ -160,7 +163,7 @@ def _read_impacts_csv(run_path: Path, n_links: int) -> list[dict]:
 def load_bag(path, scene_path=None) -> Run:
     """A recorded bag: /joint_states and /odom sampled at the /joint_states stamps; the scene
     from ``--scene`` or the ``scene.yaml`` attachment; impacts from ``impacts.json``."""
-    from ..recording.bag_reader import open_bag   # mcap: only bags need it
+    from ..recording.bag_reader import open_bag  # mcap: only bags need it
 
     path = Path(path)
     bag = open_bag(path)
@@ -195,7 +198,7 @@ def load_bag(path, scene_path=None) -> Run:
     x, y, yaw, v, v_lateral, omega = (np.interp(t, odom_t, odom[:, k]) for k in range(6))
 
     q = np.column_stack([x, y, yaw, joints_q])
-    u = np.column_stack([v, omega, joints_u[:, 2:]])
+    u = np.column_stack([v, omega, joints_u[:, ARM_U]])   # the arm's joints are indexed as u
     # Rates as recorded: the base's world velocity from its body twist, the wheels' own speeds.
     cos, sin = np.cos(yaw), np.sin(yaw)
     qdot = np.column_stack([v * cos - v_lateral * sin, v * sin + v_lateral * cos, omega,
@@ -203,7 +206,7 @@ def load_bag(path, scene_path=None) -> Run:
 
     effort_values, effort_source = _bag_efforts(bag, efforts, sample_ns, scene, topics)
     dynamics = dynamics_of(scene)
-    energy = np.array([sum(dynamics.energy(q_k, u_k)) for q_k, u_k in zip(q, u)])
+    energy = np.array([sum(dynamics.energy(q_k, u_k)) for q_k, u_k in zip(q, u, strict=True)])
     impacts = bag_format.read_impacts(bag, scene.robot.n_links)
     return Run(source=path, kind="bag", scene=scene, t=t, q=q, u=u, qdot=qdot, energy=energy,
                efforts=effort_values, effort_source=effort_source, impacts=impacts)

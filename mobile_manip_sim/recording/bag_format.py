@@ -25,9 +25,17 @@ import importlib
 from mobile_manip_sim import __version__, limits, schema
 from mobile_manip_sim.errors import UserError
 from mobile_manip_sim.methods import METHODS
+from mobile_manip_sim.scene_controller import ARM_MODES
 from mobile_manip_sim.timeline import NS, CommandHistory, Grid, start_node_time_line
-from mobile_manip_sim.topics import (ARM_TOPIC, BAG_TOPIC_TYPES, BASE_COMMAND_TOPICS,
-                                     BASE_COMMANDS, JOINT_STATES_TOPIC, ODOM_TOPIC)
+from mobile_manip_sim.topics import (
+    ARM_COMMAND_TOPICS,
+    ARM_TOPIC,
+    BAG_TOPIC_TYPES,
+    BASE_COMMAND_TOPICS,
+    BASE_COMMANDS,
+    JOINT_STATES_TOPIC,
+    ODOM_TOPIC,
+)
 
 METADATA_NAME = "mobile_manip_sim"
 SCENE_ATTACHMENT = "scene.yaml"
@@ -37,6 +45,10 @@ SOURCE_RATE = {"simulate": "sample_rate", "node": "publish_rate"}   # source →
 RUN_METADATA_KEYS = ("version", "integrator_method", "dt", "rtol", "atol", "scene_name", "source",
                      "sample_rate", "publish_rate", "duration", "base_command", "wheel_speed_kp",
                      "wheel_speed_ki")
+# An arm controller's settings (a run not in effort mode): its mode, feedforward and gains per
+# arm joint (space-separated reprs, exact). An effort-mode bag has none of them.
+ARM_METADATA_KEYS = ("arm_controller", "arm_feedforward", "arm_kp", "arm_ki", "arm_kd")
+RUN_METADATA_KEYS += ARM_METADATA_KEYS
 RUN_METADATA_NUMBERS = {"dt": limits.DT, "rtol": limits.RTOL, "atol": limits.ATOL,
                         "sample_rate": limits.SAMPLE_RATE, "publish_rate": limits.SAMPLE_RATE,
                         "duration": limits.RECORDED_DURATION,
@@ -63,9 +75,10 @@ def checked_run_metadata(value, path: str = METADATA_NAME) -> dict:
     its numbers parsed (repr-exact floats), for a replay or re-run to trust: the source's rate
     is required (and a `simulate` run's duration, which fixes its sample times)."""
     value = schema.string_map(value, path, max_entries=len(RUN_METADATA_KEYS), max_length=200)
-    schema.keys(value, path, required=("version", "integrator_method", "dt", "rtol", "atol", "source"),
+    schema.keys(value, path,
+                required=("version", "integrator_method", "dt", "rtol", "atol", "source"),
                 optional=("scene_name", "sample_rate", "publish_rate", "duration", "base_command",
-                          "wheel_speed_kp", "wheel_speed_ki"))
+                          "wheel_speed_kp", "wheel_speed_ki", *ARM_METADATA_KEYS))
     if value["integrator_method"] not in METHODS:
         raise UserError(f"{path}.integrator_method", f"unknown method "
                                                      f"{schema.short(value['integrator_method'])}")
@@ -75,21 +88,62 @@ def checked_run_metadata(value, path: str = METADATA_NAME) -> dict:
             try:
                 number_value = float(value[key])
             except ValueError:
-                raise UserError(f"{path}.{key}", f"expected a number, got {schema.short(value[key])}") from None
+                raise UserError(f"{path}.{key}",
+                                f"expected a number, got {schema.short(value[key])}") from None
             parsed[key] = schema.number(number_value, f"{path}.{key}", lo=lo, hi=hi)
     if value["source"] not in SOURCE_RATE:
-        raise UserError(f"{path}.source", f"expected node or simulate, got {schema.short(value['source'])}")
+        raise UserError(f"{path}.source",
+                        f"expected node or simulate, got {schema.short(value['source'])}")
     if value.setdefault("base_command", "effort") not in BASE_COMMANDS:
         raise UserError(f"{path}.base_command", f"expected effort or velocity, got "
                                                 f"{schema.short(value['base_command'])}")
     parsed["base_command"] = value["base_command"]
-    needed = [SOURCE_RATE[value["source"]]] + (["duration"] if value["source"] == "simulate" else [])
+    needed = ([SOURCE_RATE[value["source"]]]
+              + (["duration"] if value["source"] == "simulate" else []))
     if value["base_command"] == "velocity":   # the wheel-speed loop's gains shape the run
         needed += ["wheel_speed_kp", "wheel_speed_ki"]
     for key in needed:
         if key not in value:
             raise UserError(f"{path}.{key}", f"missing (a {value['source']} run records it)")
+    parsed["arm_control"] = _arm_control(value, path)
     return parsed
+
+
+def arm_control_metadata(control) -> dict:
+    """The metadata entries of an engine `ArmControl` resolved for its robot: none in effort
+    mode (such a bag is what it was before arm controllers existed)."""
+    if not control.active:
+        return {}
+    return {"arm_controller": control.mode, "arm_feedforward": control.feedforward,
+            **{f"arm_{name}": " ".join(repr(float(v)) for v in getattr(control, name))
+               for name in ("kp", "ki", "kd")}}
+
+
+def _arm_control(value: dict, path: str):
+    """The `ArmControl` a bag's metadata records (effort mode without arm_controller)."""
+    from mobile_manip_sim.engine.arm_control import ArmControl
+
+    mode = value.get("arm_controller", "effort")
+    if mode not in ARM_MODES:
+        raise UserError(f"{path}.arm_controller", f"unknown mode {schema.short(mode)} (choose "
+                                                  f"one of: {', '.join(ARM_MODES)})")
+    if mode == "effort":
+        return ArmControl()
+    gains = []
+    for name in ("kp", "ki", "kd"):
+        key = f"arm_{name}"
+        if key not in value:
+            raise UserError(f"{path}.{key}", f"missing (arm_controller {mode} records its "
+                                             f"gains)")
+        try:
+            gains.append(tuple(float(v) for v in value[key].split()))
+        except ValueError:
+            raise UserError(f"{path}.{key}", f"expected numbers, got "
+                                             f"{schema.short(value[key])}") from None
+    try:
+        return ArmControl(mode, *gains, value.get("arm_feedforward", "gravity"))
+    except UserError as error:
+        raise UserError(f"{path}.{error.key}", error.problem) from None
 
 
 # --- messages ---------------------------------------------------------------------------------
@@ -192,7 +246,8 @@ def impact_record(record, where: str, line, n_links: int) -> dict:
               "ld_after": number("ld_after"), "energy_lost": number("energy_lost"),
               "resting": schema.flag(resting, f"{key}.resting")}
     if impact["stop"] not in ("lower", "upper"):
-        raise UserError(f"{key}.stop", f"expected lower or upper, got {schema.short(impact['stop'])}")
+        raise UserError(f"{key}.stop",
+                        f"expected lower or upper, got {schema.short(impact['stop'])}")
     return impact
 
 
@@ -288,6 +343,7 @@ class RecordedRun:
         self.gains = ((metadata["wheel_speed_kp"], metadata["wheel_speed_ki"]) if self.velocity
                       else None)
         self.names = self.scene.robot.joint_names()
+        self.arm_control = metadata["arm_control"].for_robot(self.scene.robot)
 
     def check_robot(self) -> None:
         """The recorded topics fit this scene's robot: types, joint names, command lengths."""
@@ -323,8 +379,8 @@ class RecordedRun:
         states are missing in between."""
         if self.source == "node":   # a node's run is as long as its bag says: bound the work
             from mobile_manip_sim.scene import check_work
-            check_work(end / NS, self.settings, f"{JOINT_STATES_TOPIC} stamp", f"{METADATA_NAME}.dt",
-                       self.rate, f"{METADATA_NAME}.publish_rate")
+            check_work(end / NS, self.settings, f"{JOINT_STATES_TOPIC} stamp",
+                       f"{METADATA_NAME}.dt", self.rate, f"{METADATA_NAME}.publish_rate")
         try:
             return self.grid.segments(start, end)
         except ValueError as error:
@@ -346,11 +402,36 @@ class RecordedRun:
                 raise UserError(message.topic, str(error)) from None
         return histories[base_topic], histories[ARM_TOPIC]
 
+    def arm_commands(self) -> dict:
+        """An arm controller's recorded commands: segment start stamp → the commands applied
+        there, in order (`timeline.apply_arm_command`'s); none in effort mode."""
+        from mobile_manip_sim.messages import arm_command_values
+
+        mode, events = self.arm_control.mode, {}
+        if not self.arm_control.active:
+            return events
+        topic = ARM_COMMAND_TOPICS[mode]
+        arm_names = self.names[2:]
+        for message in self.bag.messages([topic]) if topic in self.bag.topics() else ():
+            decoded = decode(message, BAG_TOPIC_TYPES[topic])
+            if mode == "joint_trajectory" and list(decoded.joint_names) != arm_names:
+                raise UserError(topic, f"joints {list(decoded.joint_names)} at "
+                                       f"{message.log_time_ns} ns, expected the scene's "
+                                       f"{arm_names}")
+            command = arm_command_values(mode, decoded)
+            if mode != "joint_trajectory":
+                self.check_command(ARM_TOPIC, command)
+            events.setdefault(message.log_time_ns, []).append(command)
+        return events
+
     def start(self):
         """The `Simulation` at the source's t = 0."""
         from mobile_manip_sim.engine.simulation import Simulation
 
-        sim = Simulation(self.scene, self.settings)
+        # A node's arm controller is its parameters' (in its metadata); a headless run's is
+        # its scene's `controller:` section.
+        sim = Simulation(self.scene, self.settings,
+                         arm_control=self.arm_control if self.source == "node" else None)
         if self.gains is not None:
             sim.set_wheel_speed_gains(*self.gains)
         if self.source == "node":

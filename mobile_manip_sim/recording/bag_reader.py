@@ -26,8 +26,16 @@ from mcap.data_stream import ReadDataStream
 from mcap.exceptions import InvalidMagic, McapError
 from mcap.opcode import Opcode
 from mcap.reader import SeekingReader
-from mcap.records import (Attachment, AttachmentIndex, Channel, Chunk, ChunkIndex, Metadata,
-                          MetadataIndex, Schema)
+from mcap.records import (
+    Attachment,
+    AttachmentIndex,
+    Channel,
+    Chunk,
+    ChunkIndex,
+    Metadata,
+    MetadataIndex,
+    Schema,
+)
 from mcap.stream_reader import MAGIC_SIZE, breakup_chunk
 from mcap.summary import Summary
 from mcap.writer import MCAP0_MAGIC as MCAP_MAGIC
@@ -104,6 +112,14 @@ class Bag:
         streams = [file.messages(topics) for file in self._files]
         return heapq.merge(*streams, key=lambda message: message.log_time_ns)
 
+    def time_span(self) -> tuple[int, int]:
+        """(first, last) log time of its messages (ns), from the chunk indexes; (0, 0) if none."""
+        chunks = [chunk for file in self._files for chunk in file.summary.chunk_indexes]
+        if not chunks:
+            return 0, 0
+        return (min(chunk.message_start_time for chunk in chunks),
+                max(chunk.message_end_time for chunk in chunks))
+
     def attachments(self) -> dict[str, bytes]:
         """Attachment name → content."""
         return {name: data for file in self._files for name, data in file.attachments().items()}
@@ -177,7 +193,8 @@ def _mcap_files(path: Path) -> list[Path]:
     files = [path / PurePath(name).name for name in info["relative_file_paths"]]
     for i, file in enumerate(files):
         if file in files[:i]:   # read twice, every message would be played twice
-            raise UserError(f"{metadata_path}: rosbag2_bagfile_information.relative_file_paths[{i}]",
+            raise UserError(f"{metadata_path}: "
+                            f"rosbag2_bagfile_information.relative_file_paths[{i}]",
                             f"{file.name} is listed twice")
         if not file.is_file():
             raise UserError(str(file), "listed in metadata.yaml but missing")

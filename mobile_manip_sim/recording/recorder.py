@@ -29,14 +29,26 @@ import numpy as np
 
 from mobile_manip_sim.errors import UserError
 from mobile_manip_sim.messages import command_message
-from mobile_manip_sim.topics import (ARM_TOPIC, BASE_COMMAND_TOPICS, COMMAND_QOS_DEPTH,
-                                     COMMAND_TOPICS, LATCHED_TOPICS, STATE_QOS_DEPTH,
-                                     STATE_TOPICS, TF_TOPIC, recorded_topics)
-from mobile_manip_sim.recording.bag_format import (IMPACTS_ATTACHMENT, METADATA_NAME,
-                                                   SCENE_ATTACHMENT, run_metadata)
+from mobile_manip_sim.recording.bag_format import (
+    IMPACTS_ATTACHMENT,
+    METADATA_NAME,
+    SCENE_ATTACHMENT,
+    run_metadata,
+)
 from mobile_manip_sim.recording.bag_writer import DEFAULT_CHUNK_SIZE, BagWriter, qos_yaml
 from mobile_manip_sim.recording.cdr import exact_cdr
-
+from mobile_manip_sim.topics import (
+    ARM_COMMAND_TOPICS,
+    ARM_TOPIC,
+    BASE_COMMAND_TOPICS,
+    COMMAND_QOS_DEPTH,
+    COMMAND_TOPICS,
+    LATCHED_TOPICS,
+    STATE_QOS_DEPTH,
+    STATE_TOPICS,
+    TF_TOPIC,
+    recorded_topics,
+)
 
 # The order in which one publication's messages are written (the latched ones come first).
 WRITTEN_TOPICS = (*LATCHED_TOPICS, *STATE_TOPICS, TF_TOPIC)
@@ -55,9 +67,10 @@ class RunRecorder:
 
     ``extra_metadata`` adds to the metadata map: ``source`` (node|simulate) and the rate
     (``publish_rate`` or ``sample_rate``) at least; a node run also its ``base_command``
-    (effort|velocity, default effort), which chooses the base's command topic. ``flush_interval`` (wall seconds, None = off)
-    closes the open chunk that often, bounding what a SIGKILL loses in a slow run; headless runs
-    leave it off so that their chunks, and hence their bags, do not depend on the wall clock.
+    (effort|velocity, default effort), which chooses the base's command topic.
+    ``flush_interval`` (wall seconds, None = off) closes the open chunk that often, bounding what a
+    SIGKILL loses in a slow run; headless runs leave it off so that their chunks, and hence their
+    bags, do not depend on the wall clock.
     ``view`` adds the view topics (/tf, /tf_static, /robot_description) to the bag.
     """
 
@@ -69,10 +82,12 @@ class RunRecorder:
         if base_command not in BASE_COMMAND_TOPICS:
             raise UserError("base_command", f"{base_command!r} is not effort or velocity")
         self._base_topic = BASE_COMMAND_TOPICS[base_command]
+        arm_controller = metadata.get("arm_controller", "effort")
+        self._arm_topic = ARM_COMMAND_TOPICS[arm_controller]
         self.writer = BagWriter(path, chunk_size=chunk_size)
         self.path = self.writer.path
         try:
-            for topic, type_name in recorded_topics(base_command, view).items():
+            for topic, type_name in recorded_topics(base_command, view, arm_controller).items():
                 self.writer.add_topic(topic, type_name, topic_qos(topic))
             self.writer.add_attachment(SCENE_ATTACHMENT, "application/yaml",
                                        scene.to_yaml().encode())
@@ -109,6 +124,13 @@ class RunRecorder:
             if self._last_commands.get(topic) != key:
                 self.writer.write(topic, exact_cdr(command_message(topic, values)), stamp, stamp)
                 self._last_commands[topic] = key
+        self._last_stamp = max(self._last_stamp, stamp)
+
+    def arm_command(self, stamp: int, message) -> None:
+        """An arm controller's command (its mode's topic: an array or a JointTrajectory) applied
+        from ``stamp`` ns on. Each is written: each applies anew (a velocity ramp restarts, a
+        trajectory starts)."""
+        self.writer.write(self._arm_topic, exact_cdr(message), stamp, stamp)
         self._last_stamp = max(self._last_stamp, stamp)
 
     def impacts(self, impacts) -> None:

@@ -8,8 +8,16 @@ from __future__ import annotations
 from pathlib import Path
 
 from mobile_manip_sim.errors import UserError
-from mobile_manip_sim.schema import (MAX_FILE_BYTES, integer, keys, mapping, sequence, short,
-                                     string, string_map)
+from mobile_manip_sim.schema import (
+    MAX_FILE_BYTES,
+    integer,
+    keys,
+    mapping,
+    sequence,
+    short,
+    string,
+    string_map,
+)
 
 ROSBAG2_MAX_VERSION = 9
 MAX_BAG_FILES = 10_000     # entries of relative_file_paths and files
@@ -50,7 +58,8 @@ def _record(fields: dict, required=()):
     """A check of a mapping with these keys (each checked by its function), no others."""
     def check(value, path):
         value = mapping(value, path)
-        keys(value, path, required=required, optional=[key for key in fields if key not in required])
+        keys(value, path, required=required,
+             optional=[key for key in fields if key not in required])
         for key, item in value.items():
             fields[key](item, f"{path}.{key}")
     return check

@@ -58,6 +58,10 @@ class RotatingRecorder:
         """At each segment start: the commands held from ``stamp`` ns on, as applied."""
         self._do(lambda recorder: recorder.commands(stamp, base, joints))
 
+    def arm_command(self, stamp: int, message) -> None:
+        """An arm controller's command applied at the segment start ``stamp`` ns."""
+        self._do(lambda recorder: recorder.arm_command(stamp, message))
+
     def close(self, info=None, error=None) -> None:
         """Finish the open bag (impacts, summary, metadata.yaml); idempotent. ``info`` and
         ``error`` replace the loggers (at shutdown the node's may be gone)."""

@@ -6,9 +6,11 @@ once: their last message at or before the start. A topic whose message type is n
 (tf2_msgs on a pip install) is left out with a warning. ``/clock`` comes from the bag and is
 always played, whatever the topics selected; a bag without it gets one ``rosgraph_msgs/Clock``
 per distinct log time. With ``wait_for_subscribers`` playback is held until every played topic
-but the latched ones has a subscriber (for scripts and tests). Without it, playback still waits (at most DISCOVERY_TIMEOUT s) until the
-subscribers that already run are matched: a reliable subscriber matched late would miss the
-first ~0.4 s of the bag.
+but the latched ones has a subscriber (for scripts and tests). Without it, playback still waits
+(at most DISCOVERY_TIMEOUT s) until the subscribers that already run are matched: a reliable
+subscriber matched late would miss the first ~0.4 s of the bag. The time it prints
+("played N messages … in S s") is the playing's alone, without these waits or the final wait
+for acknowledgements.
 """
 from __future__ import annotations
 
@@ -18,8 +20,13 @@ import time
 from mobile_manip_sim import schema
 from mobile_manip_sim.errors import UserError
 from mobile_manip_sim.messages import CLOCK_TOPIC, JOINT_STATES_TOPIC, NS, clock
-from mobile_manip_sim.recording.bag_format import (SCENE_ATTACHMENT, RecordedRun, decode,
-                                                   first_message, message_class)
+from mobile_manip_sim.recording.bag_format import (
+    SCENE_ATTACHMENT,
+    RecordedRun,
+    decode,
+    first_message,
+    message_class,
+)
 from mobile_manip_sim.topics import LATCHED_TOPICS, TF_TYPE
 
 ACK_TIMEOUT = 2.0          # s: how long to wait at the end for reliable subscribers to ack
@@ -39,7 +46,7 @@ def qos_profile(offered: str | None, topic: str = "topic"):
     """A subscriber-compatible QoS for a topic from its ``offered_qos_profiles`` YAML: reliable
     only if every recorded publisher was, transient local likewise, the deepest history. None
     recorded: reliable, depth 10. A damaged entry is one `UserError` naming the topic."""
-    from rclpy.qos import (DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy)
+    from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 
     where = f"{topic}: offered_qos_profiles"
     profiles = schema.load_yaml(offered, what=where) if offered else None
@@ -101,7 +108,8 @@ def play(bag, topics=None, rate: float = 1.0, loop: bool = False, start_offset: 
     try:
         metadata = bag.channel_metadata()
         publishers = {topic: node.create_publisher(
-            classes[topic], topic, qos_profile(metadata.get(topic, {}).get("offered_qos_profiles"), topic))
+            classes[topic], topic,
+            qos_profile(metadata.get(topic, {}).get("offered_qos_profiles"), topic))
             for topic in selected}
         clock_publisher = None
         if CLOCK_TOPIC not in topics:
@@ -124,9 +132,9 @@ def play(bag, topics=None, rate: float = 1.0, loop: bool = False, start_offset: 
             played += _play_once(bag, selected, start, rate, publishers, clock_publisher)
             if not loop:
                 break
+        wall = time.monotonic() - wall_start   # the playing alone: not the waits before and after
         for publisher in publishers.values():
             _wait_acked(publisher)
-        wall = time.monotonic() - wall_start
         print(f"played {played} messages on {len(selected)} topics in {wall:.3f} s "
               f"(rate {rate:g})")
     except KeyboardInterrupt:
@@ -158,7 +166,7 @@ def _await_discovery(node, publishers: dict) -> None:
         if graph != last:
             last, since = graph, now
         elif (now - since >= DISCOVERY_SETTLE and any(known)
-              and all(m >= k for m, k in zip(matched, known))):
+              and all(m >= k for m, k in zip(matched, known, strict=True))):
             return
         time.sleep(0.02)
 
@@ -174,7 +182,7 @@ def _installed(topics: dict) -> list[str]:
         except UserError:
             missing.setdefault(type_name, []).append(topic)
     for type_name, left_out in missing.items():
-        hint = " (build it with tools/build_tf2_msgs.sh, or source a ROS install)" \
+        hint = " (build it with tools/build_interfaces.sh, or source a ROS install)" \
             if type_name == TF_TYPE else ""
         print(f"replay: warning: {', '.join(left_out)} not played: {type_name} is not "
               f"installed{hint}", file=sys.stderr)

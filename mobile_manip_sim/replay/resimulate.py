@@ -1,7 +1,8 @@
 """Re-simulation: rebuild the `Simulation` from a bag alone (`bag_format.RecordedRun`: attachment
 ``scene.yaml``, metadata ``mobile_manip_sim``: integrator settings, rates, source, base command
 mode and wheel-speed gains), run the source's time line (`timeline`: its grid of segments, its
-start, the recorded commands — efforts and cmd_vel — held from their recorded simulated times),
+start, the recorded commands — efforts and cmd_vel — held from their recorded simulated times,
+and an arm controller's set-points and trajectories applied at theirs),
 and compare each recorded /joint_states and /odom with the messages the re-run gives at that
 stamp (built by the same ``messages`` functions). Prints the largest difference per quantity;
 status 1 if one exceeds the tolerance (0: bit for bit), else 0.
@@ -12,10 +13,17 @@ import math
 
 from mobile_manip_sim import __version__
 from mobile_manip_sim.errors import UserError
-from mobile_manip_sim.messages import (JOINT_STATES_TOPIC, NS, ODOM_TOPIC, joint_state, odometry,
-                                       quaternion_yaw)
+from mobile_manip_sim.messages import (
+    JOINT_STATES_TOPIC,
+    NS,
+    ODOM_TOPIC,
+    joint_state,
+    odometry,
+    quaternion_yaw,
+)
+from mobile_manip_sim.progress import Progress
 from mobile_manip_sim.recording.bag_format import RecordedRun, decode, stamp_ns
-from mobile_manip_sim.timeline import apply_commands
+from mobile_manip_sim.timeline import apply_arm_command, apply_commands
 
 
 class Differences:
@@ -53,6 +61,7 @@ def resimulate(bag, tolerance: float) -> int:
     run = RecordedRun(bag)
     run.check_robot()
     base_commands, arm_commands = run.commands()
+    arm_events = run.arm_commands()   # an arm controller's, applied at their segment starts
     if run.metadata.get("version") != __version__:
         print(f"note: recorded by mobile_manip_sim {run.metadata.get('version')}, re-simulated "
               f"by {__version__}: bit-for-bit agreement is only expected from the same build")
@@ -62,8 +71,12 @@ def resimulate(bag, tolerance: float) -> int:
     compared = {JOINT_STATES_TOPIC: 0, ODOM_TOPIC: 0}
     sim_stamp = None
     first_stamp = None
+    begin, end = bag.time_span()
+    progress = Progress("replay --resimulate", (end - begin) / NS, "s of the bag",
+                        rate_unit="bag s per wall s")
     try:
         for message in bag.messages([JOINT_STATES_TOPIC, ODOM_TOPIC]):
+            progress.update((message.log_time_ns - begin) / NS)
             recorded = decode(message)
             stamp = stamp_ns(recorded.header.stamp)
             if sim_stamp is None:
@@ -77,13 +90,19 @@ def resimulate(bag, tolerance: float) -> int:
                 for start, t_end in run.segments(sim_stamp, stamp):
                     apply_commands(sim, base_commands.at(start), arm_commands.at(start),
                                    run.velocity)
+                    for command in arm_events.get(start, ()):
+                        apply_arm_command(sim, run.arm_control.mode, command)
                     sim.advance_to(t_end)
                 sim_stamp = stamp
             _compare(run, sim, stamp, message.topic, recorded, differences)
             compared[message.topic] += 1
     except SimulationError as error:
+        if getattr(error, "key", None):   # StepLimitError: settings and efforts, status 2
+            raise
         print(f"replay: the re-simulation failed: {error}")
         return 1
+    finally:
+        progress.close()
     _report(run, bag, differences, compared, first_stamp, sim_stamp)
     return 1 if differences.failed() else 0
 
@@ -92,14 +111,14 @@ def _compare(run, sim, stamp: int, topic: str, recorded, differences: Difference
     if topic == JOINT_STATES_TOPIC:
         run.check_joint_state(recorded)
         expected = joint_state(sim, stamp, run.names)
-        for name, a, b in zip(run.names, recorded.position, expected.position):
+        for name, a, b in zip(run.names, recorded.position, expected.position, strict=True):
             differences.add(f"{name} position", stamp, a, b)
-        for name, a, b in zip(run.names, recorded.velocity, expected.velocity):
+        for name, a, b in zip(run.names, recorded.velocity, expected.velocity, strict=True):
             differences.add(f"{name} velocity", stamp, a, b)
         if len(recorded.effort) != len(expected.effort):
             raise UserError(topic, f"{len(recorded.effort)} efforts at {stamp} ns, expected "
                                    f"{len(expected.effort)}")
-        for name, a, b in zip(run.names, recorded.effort, expected.effort):
+        for name, a, b in zip(run.names, recorded.effort, expected.effort, strict=True):
             differences.add(f"{name} effort", stamp, a, b)
     else:
         expected = odometry(sim, stamp)

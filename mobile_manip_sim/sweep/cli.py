@@ -18,22 +18,26 @@ from pathlib import Path
 
 from .. import cli
 from ..errors import UserError
+from ..progress import Progress
 from .spec import Spec, load_spec
 
 
 def _main(argv) -> int:
     parser = cli.ArgumentParser(prog="sweep", description=__doc__.split("\n\n")[0])
     parser.add_argument("spec", type=cli.path, help="the sweep file (YAML)")
-    parser.add_argument("--out", type=cli.path, required=True, metavar="DIR", help="directory for runs.parquet and REPORT.md")
-    parser.add_argument("--scheduler", metavar="ADDRESS", help="a running Dask scheduler (tcp://host:port)")
-    parser.add_argument("--workers", type=int, help="LocalCluster worker processes (default: the cores)")
+    parser.add_argument("--out", type=cli.path, required=True, metavar="DIR",
+                        help="directory for runs.parquet and REPORT.md")
+    parser.add_argument("--scheduler", metavar="ADDRESS",
+                        help="a running Dask scheduler (tcp://host:port)")
+    parser.add_argument("--workers", type=int,
+                        help="LocalCluster worker processes (default: the cores)")
     parser.add_argument("--connect-timeout", type=float, default=10.0, metavar="S",
                         help="seconds to wait for the scheduler (default 10)")
     args = parser.parse_args(argv)
     if args.workers is not None and args.workers < 1:
         raise UserError("--workers", f"must be at least 1, got {args.workers}")
     spec = load_spec(args.spec)
-    from . import results, runner   # after the spec is checked: bad input is answered at once
+    from . import results, runner  # after the spec is checked: bad input is answered at once
     runs = spec.runs()
     varied = {path: [run[path] for run in runs] for path in spec.varied}
     columns = runner.state_columns(len(spec.document["robot"].get("arm", {}).get("links", [])))
@@ -45,7 +49,7 @@ def _main(argv) -> int:
     chunks = [todo[i:i + chunk] for i in range(0, len(todo), chunk)]
     print(f"sweep: {len(runs)} runs, {len(store.done)} already in {args.out}, {len(todo)} to do "
           f"in {len(chunks)} chunks of ≤ {chunk} on {_where(args, workers)}", flush=True)
-    progress = Progress(len(runs), len(store.done))
+    progress = Progress("sweep", len(runs), "runs", done=len(store.done))
     start = time.perf_counter()
     try:
         _run(client, spec, runs, chunks, store, progress, args.out)
@@ -53,7 +57,8 @@ def _main(argv) -> int:
         store.flush()
         progress.close()
         print(f"sweep: interrupted; {len(store.done)} of {len(runs)} runs are in "
-              f"{args.out}/runs.parquet (run the same command to finish)", file=sys.stderr, flush=True)
+              f"{args.out}/runs.parquet (run the same command to finish)", file=sys.stderr,
+              flush=True)
         return 130
     finally:
         _close(client, cluster)
@@ -64,13 +69,15 @@ def _main(argv) -> int:
     from . import report
     report.write(Path(args.out), table, spec)
     print(f"sweep: {table.num_rows} runs, {table.num_rows - failed} ok, {failed} failed, "
-          f"{time.perf_counter() - start:.1f} s wall → {args.out}/runs.parquet, {args.out}/REPORT.md")
+          f"{time.perf_counter() - start:.1f} s wall → {args.out}/runs.parquet, "
+          f"{args.out}/REPORT.md")
     return 0
 
 
 def fingerprint(spec: Spec) -> str:
     """What decides the runs and their numbers (not the time limit, chunking or cluster)."""
-    return json.dumps({"document": spec.document, "duration": spec.duration, "sample_rate": spec.sample_rate,
+    return json.dumps({"document": spec.document, "duration": spec.duration,
+                       "sample_rate": spec.sample_rate,
                        "grid": spec.grid, "count": spec.count, "seed": spec.seed,
                        "vary": spec.vary}, sort_keys=True, default=str)
 
@@ -108,9 +115,11 @@ def _run(client, spec: Spec, runs: list, chunks: list, store, progress, out: str
     from . import runner
     csv_dir = str(Path(out).resolve() / "runs") if spec.sample_rate else None
     futures = {}
+    failures = 0
     for ids in chunks:
         task = [(i, runs[i]) for i in ids]
-        future = client.submit(runner.run_chunk, spec.document, task, spec.duration, spec.sample_rate,
+        future = client.submit(runner.run_chunk, spec.document, task, spec.duration,
+                               spec.sample_rate,
                                spec.time_limit, csv_dir, pure=False, key=f"runs-{ids[0]}-{ids[-1]}")
         futures[future] = ids
     for future in as_completed(futures):
@@ -118,14 +127,16 @@ def _run(client, spec: Spec, runs: list, chunks: list, store, progress, out: str
         try:
             rows = future.result()
         except KilledWorker as error:
-            rows = [{"run": i, "status": "failed", "error": f"KilledWorker: every worker that ran it died ({error})"}
+            rows = [{"run": i, "status": "failed",
+                     "error": f"KilledWorker: every worker that ran it died ({error})"}
                     for i in ids]
         except Exception as error:
-            rows = [{"run": i, "status": "failed", "error": f"{type(error).__name__}: {error}".splitlines()[0]}
+            rows = [{"run": i, "status": "failed",
+                     "error": f"{type(error).__name__}: {error}".splitlines()[0]}
                     for i in ids]
         store.add(rows, runs)
-        failed = sum(row["status"] == "failed" for row in rows)
-        progress.update(len(rows), failed)
+        failures += sum(row["status"] == "failed" for row in rows)
+        progress.update(progress.done + len(rows), f", {failures} failed")
 
 
 def _close(client, cluster) -> None:
@@ -134,33 +145,6 @@ def _close(client, cluster) -> None:
     finally:
         if cluster is not None:
             cluster.close(timeout=10)
-
-
-class Progress:
-    """Runs done, failures and time to go, on one line of stderr when it is a terminal."""
-
-    def __init__(self, total: int, done: int, stream=sys.stderr):
-        self.total, self.done, self.failed, self.stream = total, done, 0, stream
-        self.active = stream.isatty()
-        self.start, self.first = time.perf_counter(), done
-
-    def update(self, runs: int, failed: int) -> None:
-        self.done += runs
-        self.failed += failed
-        if not self.active:
-            return
-        fraction = self.done / self.total if self.total else 1.0
-        elapsed = time.perf_counter() - self.start
-        rate = (self.done - self.first) / elapsed if elapsed > 0 else 0.0
-        left = (self.total - self.done) / rate if rate > 0 else math.inf
-        bar = "#" * int(30 * fraction)
-        self.stream.write(f"\r[{bar:<30}] {self.done}/{self.total} runs, {self.failed} failed, "
-                          f"{rate:.0f} runs/s, {left:.0f} s left ")
-        self.stream.flush()
-
-    def close(self) -> None:
-        if self.active:
-            self.stream.write("\n")
 
 
 def main(argv=None) -> int:

@@ -21,11 +21,13 @@ def settings(table, spec: Spec) -> list[tuple[str, str, float]]:
 
     def column(key):
         name = f"integrator.{key}"
-        return table.column(name).to_pylist() if name in table.column_names else [base[key]] * table.num_rows
+        if name in table.column_names:
+            return table.column(name).to_pylist()
+        return [base[key]] * table.num_rows
 
     methods, dts, rtols = column("method"), column("dt"), column("rtol")
     return [(str(m), "dt", _number(d)) if m in FIXED_STEP_METHODS else (str(m), "rtol", _number(r))
-            for m, d, r in zip(methods, dts, rtols)]
+            for m, d, r in zip(methods, dts, rtols, strict=True)]
 
 
 def _number(value) -> float:
@@ -44,7 +46,8 @@ def write(directory: Path, table, spec: Spec) -> Path:
     rows = settings(table, spec)
     ok = np.array([s == "ok" for s in table.column("status").to_pylist()])
     lines = ["# Sweep report", "",
-             f"{table.num_rows} runs of `{spec.document.get('name', 'scene')}` for {spec.duration:g} s: "
+             f"{table.num_rows} runs of `{spec.document.get('name', 'scene')}` "
+             f"for {spec.duration:g} s: "
              f"{int(ok.sum())} ok, {int((~ok).sum())} failed.", ""]
     if spec.varied:
         lines += ["Varied: " + ", ".join(f"`{path}`" for path in spec.varied) + ".", ""]
@@ -67,7 +70,8 @@ def _label(kind: str, value: float) -> str:
 
 def _atlas(plt, directory, rows, ok) -> list[str]:
     methods = sorted({m for m, _, _ in rows})
-    steps = sorted({(k, v) for _, k, v in rows}, key=lambda kv: (kv[0], -kv[1] if not math.isnan(kv[1]) else 0))
+    steps = sorted({(k, v) for _, k, v in rows},
+                   key=lambda kv: (kv[0], -kv[1] if not math.isnan(kv[1]) else 0))
     rate = np.full((len(methods), len(steps)), np.nan)
     for i, method in enumerate(methods):
         for j, (kind, value) in enumerate(steps):
@@ -81,7 +85,8 @@ def _atlas(plt, directory, rows, ok) -> list[str]:
         for j in range(len(steps)):
             if not np.isnan(rate[i, j]):
                 axes.text(j, i, f"{100 * rate[i, j]:.0f}%", ha="center", va="center", fontsize=8)
-    axes.set_xticks(range(len(steps)), [_label(*s) for s in steps], rotation=30, ha="right", fontsize=8)
+    axes.set_xticks(range(len(steps)), [_label(*s) for s in steps], rotation=30, ha="right",
+                    fontsize=8)
     axes.set_yticks(range(len(methods)), methods, fontsize=8)
     axes.set_title("failure rate (stability atlas)", fontsize=9)
     figure.colorbar(image, ax=axes, fraction=0.05)
@@ -91,29 +96,37 @@ def _atlas(plt, directory, rows, ok) -> list[str]:
     table = ["| method | step / tolerance | runs | failed |", "|---|---|---:|---:|"]
     for method in methods:
         for kind, value in steps:
-            chosen = [k for k, r in enumerate(rows) if r[0] == method and r[1] == kind and r[2] == value]
+            chosen = [k for k, r in enumerate(rows)
+                      if r[0] == method and r[1] == kind and r[2] == value]
             if chosen:
-                table.append(f"| {method} | {_label(kind, value)} | {len(chosen)} | {int((~ok[chosen]).sum())} |")
+                table.append(f"| {method} | {_label(kind, value)} | {len(chosen)} | "
+                             f"{int((~ok[chosen]).sum())} |")
     return ["## Stability atlas", "", "Share of failed runs per integrator and step (fixed-step "
-            "methods) or relative tolerance (adaptive ones), over everything else the sweep varies.",
+            "methods) or relative tolerance (adaptive ones), over everything else the sweep "
+            "varies.",
             "", "![stability atlas](atlas.png)", "", *table, ""]
 
 
 def _work_precision(plt, directory, table, rows, ok) -> list[str]:
     cpu = np.array(table.column("cpu_s").to_pylist(), dtype=float)
-    energy = np.abs(np.array([np.nan if v is None else v for v in table.column("energy_error").to_pylist()], dtype=float))
+    energy = np.abs(np.array([np.nan if v is None else v
+                              for v in table.column("energy_error").to_pylist()], dtype=float))
     figure, axes = plt.subplots(figsize=(5.5, 4.0))
-    text = ["| method | step / tolerance | ok runs | median CPU (ms) | median |energy error| (J) | 90th pct (J) |",
+    text = ["| method | step / tolerance | ok runs | median CPU (ms) | median |energy error| (J) "
+            "| 90th pct (J) |",
             "|---|---|---:|---:|---:|---:|"]
     for method in sorted({r[0] for r in rows}):
         points = []
-        for kind, value in sorted({(r[1], r[2]) for r in rows if r[0] == method}, key=lambda kv: -kv[1]):
+        for kind, value in sorted({(r[1], r[2]) for r in rows if r[0] == method},
+                                  key=lambda kv: -kv[1]):
             chosen = [k for k, r in enumerate(rows) if r[0] == method and r[2] == value and ok[k]]
             if not chosen:
                 continue
             e = np.maximum(energy[chosen], 1e-17)
-            points.append((np.median(e), np.percentile(e, 10), np.percentile(e, 90), np.median(cpu[chosen])))
-            text.append(f"| {method} | {_label(kind, value)} | {len(chosen)} | {1e3 * np.median(cpu[chosen]):.2f} | "
+            points.append((np.median(e), np.percentile(e, 10), np.percentile(e, 90),
+                           np.median(cpu[chosen])))
+            text.append(f"| {method} | {_label(kind, value)} | {len(chosen)} | "
+                        f"{1e3 * np.median(cpu[chosen]):.2f} | "
                         f"{np.median(e):.2e} | {np.percentile(e, 90):.2e} |")
         if points:
             p = np.array(points)
@@ -136,14 +149,15 @@ def _work_precision(plt, directory, table, rows, ok) -> list[str]:
 
 
 def _histograms(plt, directory, table, ok) -> list[str]:
-    names = [n for n in table.column_names if n in ("x", "y", "yaw") or n[:1] in "ql" and n[1:].isdigit()]
+    names = [n for n in table.column_names
+             if n in ("x", "y", "yaw") or n[:1] in "ql" and n[1:].isdigit()]
     names = names[:HISTOGRAM_COLUMNS]
     if not ok.any() or not names:
         return []
     columns = min(4, len(names))
     rows = math.ceil(len(names) / columns)
     figure, grid = plt.subplots(rows, columns, figsize=(2.6 * columns, 2.0 * rows), squeeze=False)
-    for axes, name in zip(grid.flat, names):
+    for axes, name in zip(grid.flat, names, strict=False):
         values = np.array(table.column(name).to_pylist(), dtype=float)[ok]
         axes.hist(values, bins=min(40, max(5, int(np.sqrt(len(values))))))
         axes.set_title(name, fontsize=8)

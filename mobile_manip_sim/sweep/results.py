@@ -79,17 +79,18 @@ class Store:
         stamp = self.dir / "sweep.json"
         if stamp.exists():
             if stamp.read_text() != fingerprint:
-                raise UserError(str(self.dir), "holds the runs of a different sweep "
-                                "(scene, duration, grid or random section differ); use another --out")
+                raise UserError(str(self.dir), "holds the runs of a different sweep (scene, "
+                                "duration, grid or random section differ); use another --out")
         else:
             stamp.write_text(fingerprint)
 
     def _on_disk(self) -> list[pa.Table]:
         tables = []
-        for path in ([self.path] if self.path.exists() else []) + sorted(self.parts.glob("part-*.parquet")):
+        whole = [self.path] if self.path.exists() else []
+        for path in whole + sorted(self.parts.glob("part-*.parquet")):
             try:
                 tables.append(pq.read_table(path, schema=self.schema))
-            except (pa.ArrowInvalid, OSError):  # a torn file from a killed writer: its runs are redone
+            except (pa.ArrowInvalid, OSError):  # a torn file from a killed writer: redone
                 pass
         return tables
 

@@ -70,7 +70,7 @@ def run_one(document: dict, overrides: dict, duration: float, sample_rate: float
 
 def _figures(sim, scene, samples: np.ndarray) -> dict:
     names = state_columns(scene.robot.n_links)
-    figures = dict(zip(names, map(float, headless.csv_row(sim))))
+    figures = dict(zip(names, map(float, headless.csv_row(sim)), strict=True))
     nq, nu = sim.nq, sim.nu
     residual = 0.0
     for s in samples:
@@ -81,7 +81,8 @@ def _figures(sim, scene, samples: np.ndarray) -> dict:
     if scene.robot.n_links and scene.effects.stroke_limits is not None:
         l = samples[:, 6:nq:2]
         violation = max(0.0, float(np.max(np.maximum(stroke[:, 0] - l, l - stroke[:, 1]))))
-    figures.update(energy_error=float(sim.energy_error()), impacts=len(sim.impacts), steps=int(sim.steps),
+    figures.update(energy_error=float(sim.energy_error()), impacts=len(sim.impacts),
+                   steps=int(sim.steps),
                    rhs_evaluations=int(sim.rhs_evaluations), stroke_violation=violation,
                    constraint_residual=float(residual))
     if sim.tracking is not None:   # q − q_ref at the samples, over every arm joint (rad, m)

@@ -59,7 +59,8 @@ class Spec:
 
     def runs(self) -> list[dict]:
         """Every run's overrides {path: value}, indexed by run id."""
-        points = [dict(zip(self.grid, values)) for values in itertools.product(*self.grid.values())]
+        points = [dict(zip(self.grid, values, strict=True))
+                  for values in itertools.product(*self.grid.values())]
         draws = self.draws()
         if not draws:
             return points
@@ -69,7 +70,8 @@ class Spec:
         if not self.count:
             return []
         rng = np.random.default_rng(self.seed)
-        columns = {path: _draw(rng, name, params, self.count) for path, (name, params) in self.vary.items()}
+        columns = {path: _draw(rng, name, params, self.count)
+                   for path, (name, params) in self.vary.items()}
         return [{path: column[i] for path, column in columns.items()} for i in range(self.count)]
 
 
@@ -100,7 +102,8 @@ def parse_spec(doc, base_dir: Path = Path(".")) -> Spec:
         if not isinstance(scene_path, str):
             raise UserError("scene", f"expected a file name, got {schema.short(scene_path)}")
         candidate = Path(scene_path)
-        if not candidate.is_absolute() and not candidate.exists() and (base_dir / candidate).exists():
+        if (not candidate.is_absolute() and not candidate.exists()
+                and (base_dir / candidate).exists()):
             candidate = base_dir / candidate
         scene_path = str(candidate.resolve())
     try:
@@ -112,7 +115,8 @@ def parse_spec(doc, base_dir: Path = Path(".")) -> Spec:
                              hi=DURATION[1])
     sample_rate = doc.get("sample_rate")
     if sample_rate is not None:
-        sample_rate = schema.number(sample_rate, "sample_rate", lo=SAMPLE_RATE[0], hi=SAMPLE_RATE[1])
+        sample_rate = schema.number(sample_rate, "sample_rate", lo=SAMPLE_RATE[0],
+                                    hi=SAMPLE_RATE[1])
     check_work(duration, scene.integrator, "duration", "integrator.dt",
                sample_rate or DEFAULT_SAMPLE_RATE, "sample_rate")
     grid = _grid(doc.get("grid"), document)
@@ -124,21 +128,25 @@ def parse_spec(doc, base_dir: Path = Path(".")) -> Spec:
     if runs > MAX_RUNS:
         raise UserError("grid" if grid else "random.count",
                         f"{runs:.6g} runs (grid points × draws) is more than {MAX_RUNS}")
-    return Spec(scene_path=scene_path, document=document, duration=duration, sample_rate=sample_rate,
-                time_limit=None if doc.get("time_limit") is None else _positive(doc["time_limit"], "time_limit"),
+    return Spec(scene_path=scene_path, document=document, duration=duration,
+                sample_rate=sample_rate,
+                time_limit=(None if doc.get("time_limit") is None
+                            else _positive(doc["time_limit"], "time_limit")),
                 chunk=None if doc.get("chunk") is None else _count(doc["chunk"], "chunk"),
                 grid=grid, count=count, seed=seed, vary=vary)
 
 
 def _positive(value, key) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+    if (isinstance(value, bool) or not isinstance(value, (int, float))
+            or not math.isfinite(value) or value <= 0):
         raise UserError(key, f"expected a positive number, got {schema.short(value)}")
     return float(value)
 
 
 def _count(value, key) -> int:
     if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= MAX_RUNS:
-        raise UserError(key, f"expected a whole number from 1 to {MAX_RUNS}, got {schema.short(value)}")
+        raise UserError(key,
+                        f"expected a whole number from 1 to {MAX_RUNS}, got {schema.short(value)}")
     return value
 
 
@@ -146,7 +154,8 @@ def _check_varied_once(grid: dict, vary: dict) -> None:
     """Each key path varied by one entry (``initial.velocity[2]`` and ``[02]`` are one path),
     each grid value given once: a path varied twice runs the same run again, or hides one."""
     seen = {}
-    for key, path in [(f"grid.{path}", path) for path in grid] + [(f"random.vary.{path}", path) for path in vary]:
+    for key, path in ([(f"grid.{path}", path) for path in grid]
+                      + [(f"random.vary.{path}", path) for path in vary]):
         canonical = path_label(parse_path(path))
         if canonical in seen:
             raise UserError(key, f"varies {canonical} again (already in {seen[canonical]})")
@@ -161,7 +170,8 @@ def _grid(grid, document) -> dict:
     if grid is None:
         return {}
     if not isinstance(grid, dict) or not grid:
-        raise UserError("grid", f"expected a mapping of key paths to lists of values, got {schema.short(grid)}")
+        raise UserError("grid", "expected a mapping of key paths to lists of values, "
+                                f"got {schema.short(grid)}")
     out = {}
     for path, values in grid.items():
         key = f"grid.{path}"
@@ -176,7 +186,8 @@ def _random(section, document) -> tuple[int, int, dict]:
     if section is None:
         return 0, 0, {}
     if not isinstance(section, dict):
-        raise UserError("random", f"expected a mapping with count, seed and vary, got {schema.short(section)}")
+        raise UserError("random", "expected a mapping with count, seed and vary, "
+                                  f"got {schema.short(section)}")
     for key in section:
         if key not in ("count", "seed", "vary"):
             raise UserError(f"random.{key}", "unknown key (allowed: count, seed, vary)")
@@ -188,7 +199,8 @@ def _random(section, document) -> tuple[int, int, dict]:
         raise UserError("random.seed", f"expected a whole number ≥ 0, got {schema.short(seed)}")
     vary = section.get("vary")
     if not isinstance(vary, dict) or not vary:
-        raise UserError("random.vary", f"expected a mapping of key paths to distributions, got {schema.short(vary)}")
+        raise UserError("random.vary", "expected a mapping of key paths to distributions, "
+                                       f"got {schema.short(vary)}")
     out = {}
     for path, distribution in vary.items():
         key = f"random.vary.{path}"
@@ -204,23 +216,28 @@ def _distribution(value, key) -> tuple[str, list]:
         raise UserError(key, f"expected one distribution ({choices}), got {schema.short(value)}")
     (name, params), = value.items()
     if name not in DISTRIBUTIONS:
-        raise UserError(key, f"unknown distribution {schema.short(name)} (choose one of: {choices})")
+        raise UserError(key,
+                        f"unknown distribution {schema.short(name)} (choose one of: {choices})")
     if not isinstance(params, list) or not params:
-        raise UserError(f"{key}.{name}", f"expected {DISTRIBUTIONS[name]}, got {schema.short(params)}")
+        raise UserError(f"{key}.{name}",
+                        f"expected {DISTRIBUTIONS[name]}, got {schema.short(params)}")
     if name == "choice":
         return name, params
     numbers = len(params) == 2 and all(isinstance(p, (int, float)) and not isinstance(p, bool)
                                        and math.isfinite(p) for p in params)
     if not numbers:
-        raise UserError(f"{key}.{name}", f"expected {DISTRIBUTIONS[name]}, got {schema.short(params)}")
+        raise UserError(f"{key}.{name}",
+                        f"expected {DISTRIBUTIONS[name]}, got {schema.short(params)}")
     low, high = params
     if name == "uniform" and not math.isfinite(high - low):
         raise UserError(f"{key}.{name}", f"the range {schema.short(params)} is wider than the "
                                          f"largest float")
     if name == "normal" and high < 0 or name != "normal" and low > high:
-        raise UserError(f"{key}.{name}", f"expected {DISTRIBUTIONS[name]}, got {schema.short(params)}")
+        raise UserError(f"{key}.{name}",
+                        f"expected {DISTRIBUTIONS[name]}, got {schema.short(params)}")
     if name == "loguniform" and low <= 0:
-        raise UserError(f"{key}.{name}", f"expected {DISTRIBUTIONS[name]}, got {schema.short(params)}")
+        raise UserError(f"{key}.{name}",
+                        f"expected {DISTRIBUTIONS[name]}, got {schema.short(params)}")
     return name, [float(low), float(high)]
 
 

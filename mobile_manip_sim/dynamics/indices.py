@@ -1,0 +1,10 @@
+"""The index functions of `coordinates.py` (their one owner), compiled to inline into the kernels
+and the engine's compiled cores; Python code calls the plain ones there."""
+from .. import coordinates
+from .jit import jit_inline
+
+q_turn = jit_inline(coordinates.q_turn)
+q_slide = jit_inline(coordinates.q_slide)
+u_turn = jit_inline(coordinates.u_turn)
+u_slide = jit_inline(coordinates.u_slide)
+q_joint = jit_inline(coordinates.q_joint)

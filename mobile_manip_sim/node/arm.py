@@ -1,0 +1,60 @@
+"""The arm's controller side of the node (parameter arm_controller): in position and velocity
+mode each new array from the command intake is applied once, at the segment start where it is
+taken; in joint_trajectory mode the trajectories and goals of `trajectory_action`. Every
+command enters the engine through `timeline.apply_arm_command` (as re-simulation feeds it) and
+is returned as applied, for the bag. Effort mode has nothing here (the effort topic is the
+command intake's, applied by `timeline.apply_commands`)."""
+from __future__ import annotations
+
+from ..errors import UserError
+from ..messages import arm_command_message
+from ..timeline import apply_arm_command
+from ..topics import ARM_COMMAND_TOPICS, relative
+
+
+def arm_array_topic(control) -> str | None:
+    """The command intake's arm topic for an engine `ArmControl`: the effort topic, an arm
+    controller's array topic, or None (trajectories only)."""
+    return None if control.mode == "joint_trajectory" else ARM_COMMAND_TOPICS[control.mode]
+
+
+class ArmDriver:
+    """``mode`` one of the engine's ARM_MODES; ``names`` the arm's joints (node order)."""
+
+    def __init__(self, node, mode: str, names, warn, info):
+        self.mode, self.names, self._warn = mode, list(names), warn
+        self.trajectories = None
+        if mode == "joint_trajectory":
+            from .trajectory_action import TrajectoryInterface
+            self.trajectories = TrajectoryInterface(node, self.names, warn, info)
+        self._taken = 0   # the command intake's arm count when its last array was applied
+
+    def restart(self, received: int) -> None:
+        """The node's t = 0: the engine holds the initial pose; goals end; arrays taken before
+        (``received`` so far) are not applied again."""
+        self._taken = received
+        if self.trajectories is not None:
+            self.trajectories.goals.forget("the simulation was reset")
+
+    def segment_start(self, sim, start_ns: int, values, received: int):
+        """Apply what is new at the segment start ``start_ns``: the intake's array ``values``
+        (``received`` counts them), or the trajectory goals' step. Returns the message to record
+        (as applied), or None."""
+        if self.mode in ("position", "velocity"):
+            if received == self._taken:
+                return None
+            self._taken = received
+            try:   # the intake checked length and finiteness; the engine the limits
+                apply_arm_command(sim, self.mode, values)
+            except UserError as error:
+                topic = relative(ARM_COMMAND_TOPICS[self.mode])
+                self._warn(("arm", "refused"), f"{topic}: {error}; keeping the last set-point")
+                return None
+            return arm_command_message(self.mode, values, self.names, start_ns)
+        if self.trajectories is None:
+            return None
+        step = self.trajectories.segment_start(
+            sim, start_ns, lambda trajectory: apply_arm_command(sim, self.mode, trajectory))
+        if step.command is None:
+            return None
+        return arm_command_message(self.mode, step.command, self.names, start_ns)

@@ -1,0 +1,184 @@
+"""joint_trajectory_controller's interface for arm_controller joint_trajectory: the
+`joint_trajectory` topic (trajectory_msgs/JointTrajectory), the `follow_joint_trajectory` action
+(control_msgs/action/FollowJointTrajectory) and `controller_state`
+(control_msgs/msg/JointTrajectoryControllerState). The goals' logic is ROS-free
+(trajectory_goals.py); here only messages in and out.
+
+Without control_msgs (PyPI has no wheel: tools/build_interfaces.sh builds it) the topic still
+works, the action and the state are off, and the node says so in one line.
+
+Threads: a goal's execute callback (an executor thread) submits it and waits for its outcome;
+the stepping thread applies goals at segment starts (`segment_start`), publishes the feedback
+and the state, and ends goals; a cancel marks the goal for the next segment start.
+"""
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+from rclpy.callback_groups import ReentrantCallbackGroup
+from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+
+from ..messages import time_msg
+from ..timeline import NS
+from ..topics import (CONTROLLER_STATE_TOPIC, TRAJECTORY_ACTION, TRAJECTORY_TOPIC, command_qos,
+                      relative, state_qos)
+from ..trajectory_goals import Codes, Goal, JointTolerance, Point, TrajectoryGoals
+
+WAIT_POLL = 0.5   # s: an execute callback checks this often that the node still runs
+
+
+def goal_of(trajectory: JointTrajectory, tolerances=None) -> Goal:
+    """The plain `Goal` of a JointTrajectory (and of a FollowJointTrajectory goal's
+    tolerances)."""
+    points = []
+    for point in trajectory.points:
+        duration = point.time_from_start
+        points.append(Point(duration.sec * NS + duration.nanosec, tuple(point.positions),
+                            tuple(point.velocities), tuple(point.accelerations),
+                            tuple(point.effort)))
+    stamp = trajectory.header.stamp
+    goal = Goal(tuple(trajectory.joint_names), tuple(points), stamp.sec * NS + stamp.nanosec)
+    if tolerances is None:
+        return goal
+
+    def plain(given):
+        return tuple(JointTolerance(t.name, t.position, t.velocity, t.acceleration)
+                     for t in given)
+    limit = tolerances.goal_time_tolerance
+    return goal._replace(path_tolerance=plain(tolerances.path_tolerance),
+                         goal_tolerance=plain(tolerances.goal_tolerance),
+                         goal_time=limit.sec + limit.nanosec / NS)
+
+
+def trajectory_point(positions, velocities=None, accelerations=None, efforts=None):
+    point = JointTrajectoryPoint(positions=[float(v) for v in positions])
+    for field, values in (("velocities", velocities), ("accelerations", accelerations),
+                          ("effort", efforts)):
+        if values is not None:
+            setattr(point, field, [float(v) for v in values])
+    return point
+
+
+class TrajectoryInterface:
+    """The topic, the action server and the state publisher of a node whose arm joints are
+    ``names``; ``warn(key, text)`` a throttled warning, ``info`` a log line."""
+
+    def __init__(self, node, names, warn, info):
+        self.node, self.names, self._warn, self._info = node, list(names), warn, info
+        try:
+            from control_msgs.action import FollowJointTrajectory
+            from control_msgs.msg import JointTrajectoryControllerState
+        except ImportError:
+            FollowJointTrajectory = JointTrajectoryControllerState = None
+        self.available = FollowJointTrajectory is not None
+        # Without control_msgs nothing can carry a result: the codes are their names.
+        codes = Codes.of(FollowJointTrajectory.Result) if self.available else \
+            Codes._make(name.upper() for name in Codes._fields)
+        self.goals = TrajectoryGoals(self.names, codes)
+        self._topic_requests = []   # the topic's trajectories not yet ended (for their log)
+        self._lock = threading.Lock()
+        node.create_subscription(JointTrajectory, relative(TRAJECTORY_TOPIC), self._on_topic,
+                                 command_qos())
+        self._action = self._state_pub = None
+        if self.available:
+            from rclpy.action import ActionServer, CancelResponse, GoalResponse
+            self._type, self._state_type = FollowJointTrajectory, JointTrajectoryControllerState
+            self._cancel_response = CancelResponse.ACCEPT
+            self._action = ActionServer(
+                node, FollowJointTrajectory, relative(TRAJECTORY_ACTION),
+                execute_callback=self._execute, goal_callback=lambda _: GoalResponse.ACCEPT,
+                cancel_callback=self._on_cancel, callback_group=ReentrantCallbackGroup())
+            self._state_pub = node.create_publisher(JointTrajectoryControllerState,
+                                                    relative(CONTROLLER_STATE_TOPIC), state_qos())
+        self._requests = {}   # goal id → Request (cancel looks it up)
+
+    # --- executor threads ------------------------------------------------------------------
+    def _on_topic(self, message) -> None:
+        request = self.goals.submit(goal_of(message))
+        with self._lock:
+            self._topic_requests.append(request)
+        self._report_topic()
+
+    def _execute(self, goal_handle):
+        key = bytes(goal_handle.goal_id.uuid)
+        goal = goal_handle.request
+        request = self.goals.submit(goal_of(goal.trajectory, goal), goal_handle)
+        self._requests[key] = request
+        if goal_handle.is_cancel_requested:
+            self.goals.cancel(request)
+        if request.note:
+            self._warn(("tolerances",), f"follow_joint_trajectory: {request.note}")
+        while not request.finished.wait(WAIT_POLL):
+            if not self.node.context.ok():
+                break
+        self._requests.pop(key, None)
+        result = self._type.Result()
+        outcome = request.outcome
+        if outcome is None:
+            result.error_code = self.goals.codes.invalid_goal
+            result.error_string = "the node is shutting down"
+            goal_handle.abort()
+        elif outcome.code is None:
+            result.error_string = outcome.text
+            goal_handle.canceled()
+        else:
+            result.error_code, result.error_string = outcome.code, outcome.text
+            if outcome.code == self.goals.codes.successful:
+                goal_handle.succeed()
+            else:
+                goal_handle.abort()
+        return result
+
+    def _on_cancel(self, goal_handle):
+        request = self._requests.get(bytes(goal_handle.goal_id.uuid))
+        if request is not None:
+            self.goals.cancel(request)
+        return self._cancel_response
+
+    # --- the stepping thread ---------------------------------------------------------------
+    def segment_start(self, sim, now_ns: int, apply):
+        """At a segment start: the goals' step (trajectory_goals.Step), feedback and state
+        published; ``apply(trajectory)`` puts a trajectory into the engine."""
+        q, u = sim.q[-len(self.names):], sim.u[-len(self.names):]
+        desired = sim.arm_reference()
+        step = self.goals.segment_start(now_ns, desired, (q.copy(), u.copy()), apply)
+        if step.feedback is not None and step.feedback[0].handle is not None and self.available:
+            request, desired_now, actual, error = step.feedback
+            feedback = self._type.Feedback(joint_names=self.names)
+            feedback.header.stamp = time_msg(now_ns)
+            feedback.desired = trajectory_point(*desired_now)
+            feedback.actual = trajectory_point(*actual)
+            feedback.error = trajectory_point(*error)
+            request.handle.publish_feedback(feedback)
+        if self._state_pub is not None:
+            error = (desired[0] - q, desired[1] - u)
+            state = self._state_type(joint_names=self.names)
+            state.header.stamp = time_msg(now_ns)
+            state.reference = trajectory_point(*desired)
+            state.feedback = trajectory_point(q, u)
+            state.error = trajectory_point(*error)
+            state.output = trajectory_point([], efforts=np.asarray(sim.joint_efforts_applied()))
+            self._state_pub.publish(state)
+        if step.finished:
+            self._report_topic()
+        return step
+
+    def _report_topic(self) -> None:
+        """Say why a topic trajectory ended other than by reaching its goal (throttled)."""
+        with self._lock:
+            ended = [r for r in self._topic_requests if r.finished.is_set()]
+            self._topic_requests = [r for r in self._topic_requests if not r.finished.is_set()]
+        for request in ended:
+            outcome = request.outcome
+            if outcome.code != self.goals.codes.successful:
+                self._warn(("trajectory", outcome.code),
+                           f"{relative(TRAJECTORY_TOPIC)}: {outcome.text}")
+
+    def start(self) -> None:
+        """After __init__'s log lines: say once when the action is off."""
+        if not self.available:
+            self._info("arm_controller joint_trajectory: control_msgs does not import (source a "
+                       "ROS install, or build it with tools/build_interfaces.sh); no "
+                       "follow_joint_trajectory action or controller_state, the "
+                       "joint_trajectory topic works")

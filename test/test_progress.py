@@ -1,0 +1,209 @@
+"""Long work talks (issue 22): `progress.Progress` on a terminal — a pseudo-terminal here, as a
+user's — and nothing on a pipe; the tools that use it, run with stderr on a pty; each stops on
+the first SIGINT. Every wait is on the text it means (a safety timeout only), never on time."""
+import io
+import os
+import pty
+import re
+import select
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from mobile_manip_sim import progress as progress_module
+from mobile_manip_sim.progress import Progress, duration_text
+
+from bag_rewrite import rewrite_bag
+from executables import executable
+
+SAFETY = 120.0   # s: a safety net against a hang, not a measure
+
+
+class Terminal:
+    """A pseudo-terminal: `stream` writes to it (isatty() is True), `text()` is what came out."""
+
+    def __init__(self):
+        self.master, self.slave = pty.openpty()
+        self.stream = open(self.slave, "w", closefd=False)
+        self._seen = bytearray()
+        self._lock = threading.Lock()
+        self._reader = threading.Thread(target=self._read, daemon=True)
+        self._reader.start()
+
+    def _read(self):
+        while True:
+            ready, _, _ = select.select([self.master], [], [], 0.1)
+            if ready:
+                try:
+                    chunk = os.read(self.master, 4096)
+                except OSError:   # the slave side closed
+                    return
+                if not chunk:
+                    return
+                with self._lock:
+                    self._seen += chunk
+
+    def text(self) -> str:
+        with self._lock:
+            return self._seen.decode(errors="replace")
+
+    def wait_for(self, pattern: str, what: str, process=None) -> re.Match:
+        deadline = time.monotonic() + SAFETY
+        while time.monotonic() < deadline:
+            found = re.search(pattern, self.text())
+            if found:
+                return found
+            if process is not None and process.poll() is not None:
+                time.sleep(0.2)   # let the reader drain what the process wrote last
+                found = re.search(pattern, self.text())
+                assert found, f"{what}: the process ended ({process.returncode}):\n{self.text()}"
+                return found
+            time.sleep(0.05)
+        raise AssertionError(f"no {what} in:\n{self.text()}")
+
+    def close(self):
+        self.stream.close()
+        os.close(self.slave)
+        os.close(self.master)
+
+
+@pytest.fixture
+def terminal():
+    tty = Terminal()
+    yield tty
+    tty.close()
+
+
+def test_nothing_is_written_to_a_pipe():
+    stream = io.StringIO()
+    progress = Progress("work", 10, "s", stream=stream)
+    progress.follow(lambda: 5.0)
+    progress.update(3.0)
+    progress.close()
+    assert not progress.active and stream.getvalue() == ""
+
+
+def test_on_a_terminal_the_line_follows_work_inside_one_long_call(terminal):
+    """No `update` at all: the ticker reads `follow()` and writes done, share, rate, time to go."""
+    progress = Progress("work", 10, "s", rate_unit="s per wall s", stream=terminal.stream)
+    progress.follow(lambda: 3.0)
+    found = terminal.wait_for(r"work: 3 of 10 s \(30 %\), (\S+) s per wall s, (.+?) to go",
+                              "a status line")
+    assert float(found[1]) > 0 and found[2] != "?"
+    progress.update(10.0)
+    progress.close()
+    terminal.wait_for(r"work: 10 of 10 s \(100 %\), \S+ s per wall s, 0 s to go\r?\n",
+                      "the final status line")
+    assert "\r\x1b[K" in terminal.text()   # rewritten in place
+
+
+def test_whole_lines_go_anywhere_when_asked_after_a_silence(monkeypatch):
+    """The warm-up's form: a line after TICK s of silence, to a log as well as to a terminal."""
+    monkeypatch.setattr(progress_module, "TICK", 0.2)
+    stream = io.StringIO()
+    progress = Progress("warmup", 4, "kernels", lines=True, always=True, stream=stream)
+    progress.note("warmup: [1/4] euler")
+    progress.update(1)
+    deadline = time.monotonic() + SAFETY
+    while "warmup: 1 of 4 kernels (25 %)" not in stream.getvalue() and time.monotonic() < deadline:
+        time.sleep(0.02)
+    progress.close()
+    lines = stream.getvalue().splitlines()
+    assert lines[0] == "warmup: [1/4] euler"
+    assert re.fullmatch(r"warmup: 1 of 4 kernels \(25 %\), \S+ kernels/s, .+ to go", lines[1])
+    assert "\r" not in stream.getvalue()
+
+
+@pytest.mark.parametrize("seconds, text", [(0.4, "0 s"), (42, "42 s"), (200, "3 min 20 s"),
+                                           (24_000, "6 h 40 min"), (float("inf"), "?")])
+def test_durations_read_as_people_read_them(seconds, text):
+    assert duration_text(seconds) == text
+
+
+# --- the tools, with stderr on a pseudo-terminal -----------------------------------------------
+
+def started(terminal, *command, cwd=None):
+    return subprocess.Popen(list(command), stdin=subprocess.DEVNULL, stdout=subprocess.PIPE,
+                            stderr=terminal.slave, cwd=cwd)
+
+
+def stopped_by_one_sigint(process, terminal) -> str:
+    """Send one SIGINT; the process must end with status 130 and no traceback."""
+    assert process.poll() is None, terminal.text()
+    process.send_signal(signal.SIGINT)
+    process.communicate(timeout=SAFETY)
+    assert process.returncode == 130, terminal.text()
+    assert "Traceback" not in terminal.text()
+    return terminal.text()
+
+
+def test_simulate_shows_its_progress_on_a_terminal_and_stops_on_sigint(terminal, tmp_path):
+    process = started(terminal, executable("simulate"), "--method", "dop853", "--duration", "1e5",
+                      "--sample-rate", "1", "--out", str(tmp_path / "run.csv"))
+    terminal.wait_for(r"simulate: \S+ of 100000 s \(\d+ %\), \S+ s per wall s, .+ to go",
+                      "simulate's status line", process)
+    stopped_by_one_sigint(process, terminal)
+
+
+def test_a_finished_simulate_ends_its_status_line_at_100_percent(terminal, tmp_path):
+    process = started(terminal, executable("simulate"), "--duration", "0.5",
+                      "--out", str(tmp_path / "run.csv"))
+    stdout, _ = process.communicate(timeout=SAFETY)
+    assert process.returncode == 0, terminal.text()
+    terminal.wait_for(r"simulate: 0\.5 of 0\.5 s \(100 %\), .+ to go\r?\n", "the last status line")
+    assert stdout.decode().startswith("simulated 0.5 s")   # stdout holds the summary alone
+
+
+def test_replay_resimulate_shows_its_progress_and_stops_on_sigint(terminal, tmp_path):
+    """A bag whose re-run is slow (its method rewritten to radau at rtol 1e-14)."""
+    recorded, slow = tmp_path / "bag", tmp_path / "slow"
+    result = subprocess.run([executable("simulate"), "--method", "dop853", "--duration", "5",
+                             "--sample-rate", "100", "--out", str(tmp_path / "run.csv"),
+                             "--record", str(recorded)], capture_output=True, timeout=SAFETY)
+    assert result.returncode == 0, result.stderr
+    from mobile_manip_sim.recording.bag_reader import open_bag
+    metadata = dict(open_bag(recorded).metadata()["mobile_manip_sim"])
+    metadata.update(integrator_method="radau", rtol="1e-14", atol="1e-20")
+    rewrite_bag(recorded, slow, metadata={"mobile_manip_sim": metadata})
+    process = started(terminal, executable("replay"), str(slow), "--resimulate")
+    terminal.wait_for(r"replay --resimulate: \S+ of 5(\.0+)? s of the bag \(\d+ %\), "
+                      r"\S+ bag s per wall s, .+ to go", "the re-simulation's status line", process)
+    stopped_by_one_sigint(process, terminal)
+
+
+def test_bench_talks_on_a_terminal_and_stops_on_sigint(terminal, tmp_path):
+    process = started(terminal, executable("bench"), "--out", str(tmp_path), "--quick")
+    terminal.wait_for(r"\[1/9\] warming up the compiled kernels", "bench's first section", process)
+    stopped_by_one_sigint(process, terminal)
+
+
+def test_the_warm_up_says_how_long_it_takes_and_names_each_kernel_first():
+    result = subprocess.run([sys.executable, "-m", "mobile_manip_sim.warmup"],
+                            capture_output=True, text=True, timeout=900)
+    assert result.returncode == 0, result.stderr
+    lines = result.stderr.splitlines()
+    assert re.match(r"warmup: compiling 22 kernels \(7 methods on 4 scenes\), once: .*minutes",
+                    lines[0]), lines[0]
+    named = [line for line in lines if re.match(r"warmup: \[\d+/22\] ", line)]
+    assert [line.split("]")[0] for line in named] == [f"warmup: [{k}/22" for k in range(1, 23)]
+    assert "Warning" not in result.stderr
+    assert result.stdout.startswith("warmup: every kernel compiled and cached in ")
+
+
+def test_bootstrap_says_still_while_a_silent_command_runs():
+    """tools/bootstrap.sh's `talking` (the script itself is not run here: it would reinstall the
+    venv): a line every 10 s while the command is silent, and the command's status kept."""
+    script = Path(__file__).resolve().parents[1] / "tools" / "bootstrap.sh"
+    text = script.read_text()
+    function = text[text.index("talking() {"):text.index("\n}\n", text.index("talking() {")) + 3]
+    command = f'{function}\ntalking "waiting" bash -c "sleep 11; exit 3"'
+    result = subprocess.run(["bash", "-c", command], capture_output=True, text=True,
+                            timeout=SAFETY)
+    assert result.returncode == 3 and result.stdout == "bootstrap: still waiting (10 s)\n"
+    for phase in ("upgrading pip", "installing the package", "compiling the numba kernels"):
+        assert f'echo "bootstrap: {phase}' in text   # a line before each phase
