@@ -30,7 +30,8 @@ SAMPLE_RATE = (1e-6, 1e6)          # Hz: simulate's --sample-rate, a bag's recor
 MAX_SAMPLES = 1_000_000            # duration × sample rate (a CSV of ~200 MB for two links)
 RECORDED_DURATION = (1e-9, DURATION[1])   # s, a headless bag's duration (a run that ran)
 WHEEL_SPEED_GAIN = (0.0, 1e6)      # kp N·m·s/rad, ki N·m/rad: the wheel-speed loop's gains
-ARM_GAIN = (0.0, 1e9)              # the arm PID's kp, ki, kd (N·m/rad, N·m/(rad·s), N·m·s/rad; N/m …)
+ARM_GAIN = (0.0, 1e9)              # the arm PID's kp, ki, kd (N·m/rad, N·m/(rad·s), N·m·s/rad;
+                                   # N/m, N/(m·s), N·s/m)
 TRAJECTORY_POINTS = 100_000        # points of one arm trajectory
 
 # --- the node's parameters (besides the gains and the integrator overrides, 0 = the scene's)

@@ -8,10 +8,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from executables import executable
-from pinocchio_reference import build_projected_model
-from pure_python import without_jit
 
+from executables import executable
 from mobile_manip_sim.dynamics import Dynamics
 from mobile_manip_sim.engine import layout
 from mobile_manip_sim.engine.arm_control import ArmControl, gravity_efforts
@@ -21,6 +19,8 @@ from mobile_manip_sim.errors import UserError
 from mobile_manip_sim.methods import NAMES as METHOD_NAMES
 from mobile_manip_sim.model import RobotModel
 from mobile_manip_sim.scene import load_scene, make_integrator, parse_scene
+from pinocchio_reference import build_projected_model
+from pure_python import without_jit
 
 DATA = Path(__file__).resolve().parent / "data"
 SETTLING_TIME = 0.5   # s: README, "The arm controller" (0.43 s measured with rk4 at 1 kHz)

@@ -6,7 +6,6 @@ import copy
 
 import numpy as np
 import pytest
-from pure_python import without_jit
 from scipy import integrate
 
 from mobile_manip_sim.dynamics import jit
@@ -16,6 +15,7 @@ from mobile_manip_sim.engine.simulation import Simulation
 from mobile_manip_sim.engine.system import RHS_EVALS
 from mobile_manip_sim.methods import IDS
 from mobile_manip_sim.scene import load_scene, make_integrator, parse_scene
+from pure_python import without_jit
 
 SCIPY = {"rk45": integrate.RK45, "dop853": integrate.DOP853}
 DURATION = 1.5

@@ -32,9 +32,20 @@ from . import layout
 from . import runge_kutta as rk
 from .dense import Interpolant, interpolate
 from .events import RELEASE, crossing_in_step, first_crossing, holding_margin_after, locate
-from .stepping import (BUDGET, DONE, LOG_FULL, LOST, NOT_FINITE, STEPS, T0, any_watched, copy_into,
-                       finite, total_energy)
 from .step_watch import make_watch, watch_step
+from .stepping import (
+    BUDGET,
+    DONE,
+    LOG_FULL,
+    LOST,
+    NOT_FINITE,
+    STEPS,
+    T0,
+    any_watched,
+    copy_into,
+    finite,
+    total_energy,
+)
 from .stops import any_resting, impact, release
 from .system import derivative
 

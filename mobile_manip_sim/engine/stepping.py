@@ -18,8 +18,15 @@ import numpy as np
 from ..dynamics import kernels
 from ..dynamics.jit import jit, jit_inline
 from . import layout
-from .events import (N_SAMPLES, RELEASE, crossing_in_step, first_crossing, holding_margin, locate,
-                     step_state)
+from .events import (
+    N_SAMPLES,
+    RELEASE,
+    crossing_in_step,
+    first_crossing,
+    holding_margin,
+    locate,
+    step_state,
+)
 from .fixed_step import step
 from .stops import any_resting, impact, release
 
