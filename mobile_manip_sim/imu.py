@@ -21,14 +21,18 @@ from typing import NamedTuple
 
 import numpy as np
 
-from . import schema
+from . import limits, schema
 from .coordinates import OMEGA, YAW, V
 from .errors import UserError
 
 AXES = 3
 FIELDS = ("angular_velocity", "linear_acceleration")
-SEED_RANGE = (0, 2 ** 63 - 1)
 MAX_NOISE = 1e6     # rad/s, m/s²: a bound on σ and |b| that no real sensor reaches
+NOISE_KEYS = tuple(f"{field}_{kind}" for field in FIELDS for kind in ("stddev", "bias"))
+# A bag's metadata keys of the settings (few and short: a metadata error lists every key in one
+# line): per field its σ and bias, x y z each; the seed.
+METADATA_KEYS = {"angular_velocity": "imu_gyro", "linear_acceleration": "imu_accel"}
+METADATA_SEED = "imu_seed"
 
 
 class ImuReading(NamedTuple):
@@ -55,13 +59,13 @@ class ImuNoise:
         """From a mapping of the field names above (each vector 3 numbers, σ ≥ 0); a bad value
         is a `UserError` naming ``path.key``."""
         schema.mapping(settings, path)
-        known = [f"{field}_{kind}" for field in FIELDS for kind in ("stddev", "bias")] + ["seed"]
-        schema.keys(settings, path, optional=known)
+        schema.keys(settings, path, optional=(*NOISE_KEYS, "seed"))
         values = {}
         for key, value in settings.items():
             where = f"{path}.{key}"
             if key == "seed":
-                values[key] = schema.integer(value, where, lo=SEED_RANGE[0], hi=SEED_RANGE[1])
+                values[key] = schema.integer(value, where, lo=limits.IMU_SEED[0],
+                                             hi=limits.IMU_SEED[1])
                 continue
             vector = schema.sequence(value, where, max_length=AXES)
             if len(vector) != AXES:
@@ -70,6 +74,44 @@ class ImuNoise:
                                               nonnegative=key.endswith("stddev"))
                                 for i, v in enumerate(vector))
         return ImuNoise(**values)
+
+    def as_metadata(self) -> dict:
+        """The settings as a bag's metadata strings (METADATA_KEYS: per field "σx σy σz bx by
+        bz", floats repr-exact; the seed), which `from_metadata` reads back equal."""
+        values = {name: " ".join(repr(float(v)) for kind in ("stddev", "bias")
+                                 for v in getattr(self, f"{field}_{kind}"))
+                  for field, name in METADATA_KEYS.items()}
+        values[METADATA_SEED] = str(self.seed)
+        return values
+
+    @staticmethod
+    def from_metadata(metadata: dict, path: str) -> "ImuNoise":
+        """The settings a bag's metadata map records (a bag without them: a perfect sensor);
+        a bad value is a `UserError` naming ``path.key``."""
+        settings = {}
+        try:
+            if METADATA_SEED in metadata:
+                where = f"{path}.{METADATA_SEED}"
+                settings["seed"] = int(metadata[METADATA_SEED])
+            for field, name in METADATA_KEYS.items():
+                if name in metadata:
+                    where = f"{path}.{name}"
+                    values = [float(v) for v in metadata[name].split()]
+                    if len(values) != 2 * AXES:
+                        raise UserError(where, f"expected {2 * AXES} numbers (σ x y z, bias x "
+                                               f"y z), got {len(values)}")
+                    settings[f"{field}_stddev"] = values[:AXES]
+                    settings[f"{field}_bias"] = values[AXES:]
+        except ValueError:
+            raise UserError(where, f"not numbers: {schema.short(metadata[where.split('.')[-1]])}"
+                            ) from None
+        try:
+            return ImuNoise.from_settings(settings, path)
+        except UserError as error:   # name the metadata key
+            key = error.key[len(path) + 1:]
+            field = next((f for f in METADATA_KEYS if key.startswith(f)), None)
+            name = METADATA_SEED if field is None else METADATA_KEYS[field]
+            raise UserError(f"{path}.{name}", f"{key}: {error.problem}") from None
 
     @property
     def perfect(self) -> bool:

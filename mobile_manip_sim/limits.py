@@ -30,8 +30,8 @@ SAMPLE_RATE = (1e-6, 1e6)          # Hz: simulate's --sample-rate, a bag's recor
 MAX_SAMPLES = 1_000_000            # duration × sample rate (a CSV of ~200 MB for two links)
 RECORDED_DURATION = (1e-9, DURATION[1])   # s, a headless bag's duration (a run that ran)
 WHEEL_SPEED_GAIN = (0.0, 1e6)      # kp N·m·s/rad, ki N·m/rad: the wheel-speed loop's gains
-ARM_GAIN = (0.0, 1e9)              # the arm PID's kp, ki, kd (N·m/rad, N·m/(rad·s), N·m·s/rad;
-                                   # N/m, N/(m·s), N·s/m)
+# the arm PID's kp, ki, kd (N·m/rad, N·m/(rad·s), N·m·s/rad; N/m … for a slide)
+ARM_GAIN = (0.0, 1e9)
 TRAJECTORY_POINTS = 100_000        # points of one arm trajectory
 
 # --- the node's parameters (besides the gains and the integrator overrides, 0 = the scene's)
@@ -40,3 +40,5 @@ REAL_TIME_FACTOR = (0.0, 10000.0)  # simulated s per wall s; 0 = as fast as poss
 COMMAND_TIMEOUT = (0.0, 1.0e6)     # s of simulated time; 0 disables
 SYNC_TIMEOUT = (0.001, 3600.0)     # wall s
 INTEGRATOR_OVERRIDE = (0.0, 1.0)   # integrator.dt, .rtol, .atol
+PORT = (0, 65535)                  # the live view's TCP port (node: 0 = off; simulate: 0 = any)
+IMU_SEED = (0, 2 ** 63 - 1)        # the IMU noise's seed (a ROS integer parameter is int64)

@@ -1,8 +1,9 @@
 """The live view: a Foxglove WebSocket server (PyPI ``foxglove-sdk``) carrying the simulator's
 topics as foxglove_bridge advertises ROS 2 topics — each channel with its ROS 2 schema (schema
-encoding ``ros2msg``: the full message definition, as bags store it) and ``cdr`` payloads (the
-same bytes a bag holds) — so Foxglove's 3D, plot and raw-message panels work unchanged, with no
-ROS install and no bridge.
+encoding ``ros2msg``: the full message definition, as bags store it) and ``cdr`` payloads (as
+rclpy serialises them for DDS, or /tf's exact bytes) — so Foxglove's 3D, plot and raw-message
+panels work unchanged, with no ROS install and no bridge. A channel nobody subscribed to costs
+no serialisation.
 
 Channels (topics.LIVE_TOPIC_TYPES): /tf, /tf_static, /robot_description, /joint_states, /odom,
 /imu, /energy. /tf_static and /robot_description are latched: the view keeps their last message
@@ -21,12 +22,14 @@ from __future__ import annotations
 import threading
 import time
 
+from rclpy.serialization import serialize_message  # rclpy's C serialiser, as DDS's
+
+from . import limits
 from .errors import UserError
 from .frames import FrameTree
 from .imu import Imu
 from .messages import description, energy, imu, state_messages, tf_cdr, tf_static_cdr
 from .pacing import Pacer
-from .recording.cdr import exact_cdr
 from .recording.message_definitions import definition_text
 from .timeline import Grid
 from .topics import (
@@ -46,18 +49,23 @@ SERVER_NAME = "mobile_manip_sim"
 
 
 class LiveView:
-    """A Foxglove WebSocket server on ``host:port`` with one channel per live topic."""
+    """A Foxglove WebSocket server on ``host:port`` with one channel per live topic. With
+    ``batch`` (s of wall time) publications are queued and sent by a thread of the view at most
+    that often: what the server costs most is waking its sending per burst, not per message
+    (bench/NODE.md), and each message keeps its own stamp."""
 
     def __init__(self, port: int = DEFAULT_PORT, host: str = "127.0.0.1",
-                 name: str = SERVER_NAME):
+                 name: str = SERVER_NAME, batch: float = 0.0):
         try:
             import foxglove
             from foxglove.websocket import Capability
         except ImportError:
             raise UserError("live view", "the Python package foxglove-sdk is not installed "
                                          "(pip install foxglove-sdk)") from None
-        if isinstance(port, bool) or not isinstance(port, int) or not 0 <= port <= 65535:
-            raise UserError("port", f"{port!r} is not a port number (0 to 65535; 0: any free one)")
+        low, high = limits.PORT
+        if isinstance(port, bool) or not isinstance(port, int) or not low <= port <= high:
+            raise UserError("port", f"{port!r} is not a port number ({low} to {high}; 0: any "
+                                    f"free one)")
         self._lock = threading.Lock()
         self._latched: dict[str, tuple[int, bytes]] = {}
         self._context = foxglove.Context()
@@ -77,6 +85,13 @@ class LiveView:
             raise UserError(f"port {port}", f"cannot start the Foxglove server on {host} "
                                             f"({error})") from None
         self.port = self.server.port
+        self._batch, self._pending = batch, []   # (stamp, messages) not sent yet
+        self._stopping = threading.Event()
+        self._sender = None
+        if batch > 0:
+            self._sender = threading.Thread(target=self._send_batches, name="live view",
+                                            daemon=True)
+            self._sender.start()
 
     @property
     def url(self) -> str:
@@ -85,16 +100,40 @@ class LiveView:
     def publish(self, stamp: int, messages: dict) -> None:
         """Send the messages of one publication (topic → rclpy message, or its CDR bytes),
         stamped ``stamp`` ns of simulated time; topics without a channel are left out."""
+        if self._sender is None:
+            self._send(stamp, messages)
+            return
+        with self._lock:
+            self._pending.append((stamp, messages))
+
+    def _send_batches(self) -> None:
+        while not self._stopping.wait(self._batch):
+            self._flush()
+
+    def _flush(self) -> None:
+        with self._lock:
+            pending, self._pending = self._pending, []
+        for stamp, messages in pending:
+            self._send(stamp, messages)
+
+    def _send(self, stamp: int, messages: dict) -> None:
         self.server.broadcast_time(stamp)
         for topic, message in messages.items():
             channel = self.channels.get(topic)
-            if channel is None:
-                continue
-            data = message if isinstance(message, bytes) else exact_cdr(message)
-            if topic in LATCHED_TOPICS:
+            latched = topic in LATCHED_TOPICS
+            if channel is None or not (latched or channel.has_sinks()):
+                continue   # nobody subscribed: not even serialised
+            data = message if isinstance(message, bytes) else serialize_message(message)
+            if latched:
                 with self._lock:
                     self._latched[topic] = (stamp, data)
             channel.log(data, log_time=stamp)
+
+    def wants(self, topic: str) -> bool:
+        """A client is subscribed to ``topic`` (a message only it would get can be left
+        uncomputed)."""
+        channel = self.channels.get(topic)
+        return channel is not None and channel.has_sinks()
 
     def _on_subscribe(self, channel) -> None:
         """A new subscriber of a latched topic gets its last message at once (on the
@@ -106,6 +145,10 @@ class LiveView:
             self.channels[topic].log(latched[1], log_time=latched[0])
 
     def close(self) -> None:
+        if self._sender is not None:
+            self._stopping.set()
+            self._sender.join()
+            self._flush()
         self.server.stop()
 
 

@@ -125,22 +125,6 @@ def command_values(topic: str, message) -> list[float]:
     return list(message.data)
 
 
-def transform(odom: Odometry):
-    """The /tf message (tf2_msgs/TFMessage) of ``odom``'s pose: odom_frame → base_frame at the
-    same stamp. Imports tf2_msgs, which only a ROS install (or tools/build_interfaces.sh) has."""
-    from geometry_msgs.msg import TransformStamped
-    from tf2_msgs.msg import TFMessage
-    pose = odom.pose.pose
-    message = TransformStamped()
-    message.header = odom.header
-    message.child_frame_id = odom.child_frame_id
-    message.transform.translation.x = pose.position.x
-    message.transform.translation.y = pose.position.y
-    message.transform.translation.z = pose.position.z
-    message.transform.rotation = pose.orientation
-    return TFMessage(transforms=[message])
-
-
 def state_messages(state, stamp: int, names, odom_frame: str = "odom",
                    base_frame: str = "base_footprint") -> dict:
     """Topic → message for /joint_states, /odom and /clock, all stamped ``stamp``."""

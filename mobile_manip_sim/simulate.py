@@ -27,7 +27,7 @@ import stat
 import time
 from pathlib import Path
 
-from . import cli, schema
+from . import cli, limits, schema
 from .errors import UserError
 from .headless import csv_columns, csv_row, run, summary_line
 from .limits import DURATION, SAMPLE_RATE
@@ -77,7 +77,7 @@ def _main(argv) -> int:
     view = None
     if args.view is not None:
         from .live_view import PacedView
-        schema.integer(args.view, "--view", lo=0, hi=65535)
+        schema.integer(args.view, "--view", lo=limits.PORT[0], hi=limits.PORT[1])
         view = PacedView(args.view, scene, rate, duration)
         print(f"live view: {view.url} (Foxglove: open connection, Foxglove WebSocket)",
               flush=True)

@@ -2,7 +2,9 @@
 
 In a bag a topic carries its canonical name (``/odom``): a bag holds one robot's run. The node
 creates every topic under its RELATIVE name (``odom``), so ``__ns:=/robot1`` puts it at
-``/robot1/odom`` and a remap (``-r odom:=ground_truth``) works as in any ROS node.
+``/robot1/odom`` and a remap (``-r odom:=ground_truth``) works as in any ROS node — except
+/clock, /tf and /tf_static, which stay absolute whatever the namespace, as Gazebo's /clock and
+tf2_ros's topics do (use_sim_time clients and tf listeners read them there).
 
   joint_states                      sensor_msgs/msg/JointState      state, reliable, depth 100
   odom                              nav_msgs/msg/Odometry           state
@@ -25,7 +27,8 @@ creates every topic under its RELATIVE name (``odom``), so ``__ns:=/robot1`` put
 
 A bag holds the state topics, the view topics (what a viewer needs to draw the robot: /tf,
 /tf_static, /robot_description; the latched ones with their transient-local QoS) and the command
-topics of its run's mode (`recorded_topics`). A bag recorded before the view topics existed has
+topics of its run's mode (`recorded_topics`); a node's bag /imu too (re-simulated with its
+noise). A bag recorded before the view topics existed has
 none of them; replay and plot do not need them.
 """
 from __future__ import annotations
@@ -72,8 +75,9 @@ LIVE_TOPIC_TYPES = {topic: TOPIC_TYPES[topic] for topic in (*VIEW_TOPICS, JOINT_
                                                             ODOM_TOPIC)}
 LIVE_TOPIC_TYPES.update({IMU_TOPIC: "sensor_msgs/msg/Imu",
                          ENERGY_TOPIC: "std_msgs/msg/Float64MultiArray"})
-# Every topic one of our bags may hold.
-BAG_TOPIC_TYPES = {**TOPIC_TYPES, CMD_VEL_TOPIC: CMD_VEL_TYPE}
+# Every topic one of our bags may hold (/imu: a node's bags).
+BAG_TOPIC_TYPES = {**TOPIC_TYPES, CMD_VEL_TOPIC: CMD_VEL_TYPE,
+                   IMU_TOPIC: LIVE_TOPIC_TYPES[IMU_TOPIC]}
 
 # --- the arm's controllers (node parameter arm_controller; a bag's arm_controller metadata) ---
 # One command topic per mode, as ros2_controllers names them; joint_trajectory mode also has
@@ -95,17 +99,16 @@ BAG_TOPIC_TYPES.update({ARM_POSITION_TOPIC: "std_msgs/msg/Float64MultiArray",
                         TRAJECTORY_TOPIC: TRAJECTORY_TYPE})
 COMMAND_TOPICS = (*COMMAND_TOPICS, ARM_POSITION_TOPIC, ARM_VELOCITY_TOPIC, TRAJECTORY_TOPIC)
 
-
-def recorded_topics(base_command: str = "effort", view: bool = True,
+def recorded_topics(base_command: str = "effort", view: bool = True, imu: bool = False,
                     arm_controller: str = "effort") -> dict:
     """Topic → type of the bag of a run whose base takes ``base_command`` (effort|velocity)
     and whose arm is driven by ``arm_controller`` (ARM_COMMAND_TOPICS' modes), with the view
-    topics unless ``view`` is false."""
+    topics unless ``view`` is false, and /imu if ``imu``."""
     base, arm = BASE_COMMAND_TOPICS[base_command], ARM_COMMAND_TOPICS[arm_controller]
     return {topic: kind for topic, kind in BAG_TOPIC_TYPES.items()
             if (topic not in BASE_COMMAND_TOPICS.values() or topic == base)
             and (topic not in ARM_COMMAND_TOPICS.values() or topic == arm)
-            and (view or topic not in VIEW_TOPICS)}
+            and (view or topic not in VIEW_TOPICS) and (imu or topic != IMU_TOPIC)}
 STATE_QOS_DEPTH = 100      # the node's state publishers: room for slow subscribers
 COMMAND_QOS_DEPTH = 10     # rclpy's default publisher depth, what command senders use
 

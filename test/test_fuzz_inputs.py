@@ -13,12 +13,11 @@ import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from mobile_manip_sim import schema
-from mobile_manip_sim.recording import bag_format, rosbag2_metadata
-from mobile_manip_sim.errors import UserError
-from mobile_manip_sim.scene import parse_scene, scene_from_text
-
 from engine_cases import paper_doc
+from mobile_manip_sim import schema
+from mobile_manip_sim.errors import UserError
+from mobile_manip_sim.recording import bag_format, rosbag2_metadata
+from mobile_manip_sim.scene import parse_scene, scene_from_text
 
 PAPER = paper_doc()
 PAPER_TEXT = yaml.safe_dump(PAPER, sort_keys=False)

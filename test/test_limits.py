@@ -11,7 +11,8 @@ NODE_RANGES = {"publish_rate": limits.PUBLISH_RATE, "real_time_factor": limits.R
                "wheel_speed.kp": limits.WHEEL_SPEED_GAIN, "wheel_speed.ki": limits.WHEEL_SPEED_GAIN,
                "integrator.dt": limits.INTEGRATOR_OVERRIDE,
                "integrator.rtol": limits.INTEGRATOR_OVERRIDE,
-               "integrator.atol": limits.INTEGRATOR_OVERRIDE}
+               "integrator.atol": limits.INTEGRATOR_OVERRIDE, "foxglove_port": limits.PORT,
+               "imu.noise.seed": limits.IMU_SEED}
 
 
 def test_the_node_declares_the_ranges_of_the_limits_module():

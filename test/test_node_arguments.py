@@ -34,7 +34,7 @@ def test_other_rules_are_left_to_rcl():
 
 
 @pytest.mark.parametrize("content, problem", [
-    ("/**:\n  ros__parameters:\n    publish_tf: yes\n", "publish_tf: expected true or false"),
+    ("/**:\n  ros__parameters:\n    publish_clock: yes\n", "publish_clock: expected true or false"),
     ("/mobile_manip_sim:\n  ros__parameters:\n    synchronous: 'true'\n",
      "synchronous: expected true or false"),
     ("/**:\n  ros__parameters:\n    integrator:\n      dt:\n", "integrator.dt: no value"),

@@ -15,11 +15,10 @@ from pathlib import Path
 
 import pytest
 
-from mobile_manip_sim import progress as progress_module
-from mobile_manip_sim.progress import Progress, duration_text
-
 from bag_rewrite import rewrite_bag
 from executables import executable
+from mobile_manip_sim import progress as progress_module
+from mobile_manip_sim.progress import Progress, duration_text
 
 SAFETY = 120.0   # s: a safety net against a hang, not a measure
 

@@ -30,19 +30,20 @@ from std_srvs.srv import Trigger
 
 from bag_rewrite import rewrite_bag
 from executables import executable
-from ros_harness import NodeProcess, private_domain, spinning
-from ros_harness import child_env as ros_child_env
-from ros_harness import wait_for as harness_wait_for
 from mobile_manip_sim import __version__
 from mobile_manip_sim.engine.simulation import Simulation
+from mobile_manip_sim.headless import run as simulate_run
+from mobile_manip_sim.imu import ImuNoise
 from mobile_manip_sim.messages import float64_array
-from mobile_manip_sim.topics import recorded_topics
 from mobile_manip_sim.recording.bag_reader import open_bag
 from mobile_manip_sim.recording.bag_writer import DEFAULT_CHUNK_SIZE
 from mobile_manip_sim.recording.cdr import exact_cdr
 from mobile_manip_sim.recording.headless import HeadlessRecorder
 from mobile_manip_sim.scene import load_scene, make_integrator
-from mobile_manip_sim.headless import run as simulate_run
+from mobile_manip_sim.topics import recorded_topics
+from ros_harness import NodeProcess, private_domain, spinning
+from ros_harness import child_env as ros_child_env
+from ros_harness import wait_for as harness_wait_for
 
 DOMAIN_ID = private_domain(1, 99)   # test_node.py uses 100-199
 EXECUTABLES = {name: executable(name) for name in ("simulator", "simulate", "replay")}
@@ -51,8 +52,8 @@ PERIOD_NS = 10 ** 7                    # the node's default 100 Hz
 TIMEOUT = 20.0
 STARTUP_TIMEOUT = 60.0
 WHEELS, ARM = "/wheel_effort_controller/commands", "/arm_effort_controller/commands"
-# The topics of a node's bag (effort mode): the node does not record the view topics yet.
-TOPIC_TYPES = recorded_topics("effort", view=False)
+# The topics of a node's bag (effort mode): the states, the view topics and /imu.
+TOPIC_TYPES = recorded_topics("effort", view=True, imu=True)
 STATE_TOPICS = ("/joint_states", "/odom", "/clock")
 # The headless run used for replay and determinism: 20 Hz samples and a last one off the grid.
 HEADLESS = ["--duration", "2.005", "--sample-rate", "20", "--method", "rk4", "--dt", "0.001"]
@@ -252,6 +253,16 @@ def test_a_node_bag_reads_back_with_rosbags(node_run):
         assert list(recorded_joints[stamp].effort) == list(message.effort)
     assert {ns(m.header.stamp) for m in received["/odom"]} <= {t for t, _ in states["/odom"]}
     assert {ns(m.clock) for m in received["/clock"]} <= {t for t, _ in states["/clock"]}
+    # What a viewer needs: the latched ones once at t = 0 (one /tf_static message with every
+    # fixed joint), /tf and /imu with every state.
+    for topic in ("/tf_static", "/robot_description"):
+        assert [t for c, t, _ in records if c == topic] == [0]
+    static = next(m for c, _, m in records if c == "/tf_static")
+    assert [t.child_frame_id for t in static.transforms] == ["base_link", "tip"]
+    odom = [t for t, _ in states["/odom"]]
+    for topic in ("/tf", "/imu"):   # the last may have been cut by the shutdown
+        stamps = [t for c, t, _ in records if c == topic]
+        assert stamps == odom[:len(stamps)] and len(stamps) >= len(odom) - 1
     # The subscriber may miss the first messages (discovery); from then on it got them all.
     got = [ns(m.header.stamp) for m in received["/joint_states"]]
     assert len(got) >= 50 and got == list(range(got[0], got[-1] + 1, PERIOD_NS))
@@ -317,13 +328,15 @@ def test_a_node_bag_reads_back_with_mcap_and_is_complete(node_run):
                    "rtol": repr(load_scene(None).integrator.rtol),
                    "atol": repr(load_scene(None).integrator.atol),
                    "scene_name": "paper_two_link", "source": "node", "publish_rate": "100.0",
-                   "base_command": "effort"}
+                   "base_command": "effort", **ImuNoise().as_metadata()}   # a perfect IMU
     assert "rosbag2" in metadata
     for channel in summary.channels.values():
         qos = yaml.safe_load(channel.metadata["offered_qos_profiles"])
+        latched = channel.topic in ("/tf_static", "/robot_description")
         assert (qos[0]["reliability"], qos[0]["durability"], qos[0]["history"]) == \
-            ("reliable", "volatile", "keep_last")
-        assert qos[0]["depth"] == (10 if channel.topic in (WHEELS, ARM) else 100)
+            ("reliable", "transient_local" if latched else "volatile", "keep_last")
+        assert qos[0]["depth"] == (10 if channel.topic in (WHEELS, ARM) else 1 if latched
+                                   else 100)
 
 
 def test_resimulate_reproduces_the_node_run_bit_for_bit(node_run):
@@ -654,7 +667,10 @@ def rclpy_type_hashes() -> dict:
         hashes = {}
         for index, type_name in enumerate(sorted(set(TOPIC_TYPES.values()))):
             package, _, name = type_name.partition("/msg/")
-            kind = getattr(importlib.import_module(f"{package}.msg"), name)
+            try:
+                kind = getattr(importlib.import_module(f"{package}.msg"), name)
+            except ImportError:   # tf2_msgs: no PyPI wheel (test_tf_messages builds it)
+                continue
             node.create_publisher(kind, f"/type_hash_{index}", 1)
             info = node.get_publishers_info_by_topic(f"/type_hash_{index}")
             hashes[type_name] = str(info[0].topic_type_hash)
@@ -672,6 +688,8 @@ def test_a_node_bag_carries_rclpys_type_hashes(node_run):
     typestore = get_typestore(Stores.ROS2_JAZZY)
     assert all(re.fullmatch(r"RIHS01_[0-9a-f]{64}", h) for h in expected.values()), expected
     assert all(typestore.hash_rihs01(name) == h for name, h in expected.items())
+    assert set(TOPIC_TYPES.values()) - set(expected) == {"tf2_msgs/msg/TFMessage"}
+    expected["tf2_msgs/msg/TFMessage"] = typestore.hash_rihs01("tf2_msgs/msg/TFMessage")
     info = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
     topics = [entry["topic_metadata"] for entry in info["topics_with_message_count"]]
     assert {t["name"] for t in topics} == set(TOPIC_TYPES)

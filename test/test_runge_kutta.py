@@ -175,9 +175,21 @@ def test_dense_output_from_stages_meets_the_order_conditions():
                 # to round-off of weights up to ~5e3 (a wrong digit in one would show)
                 assert abs(b @ phi(tree) - theta ** order / gamma(tree)) < 1e-11
     np.testing.assert_allclose(beta.sum(axis=0), tab.A[12, :13], atol=1e-11)
+    # The derivation picks the free directions by least squares over a numerically determined
+    # null space, so LAPACK builds differ in the last digits of the largest weights (~5e3) and
+    # the fifth-order extension behind the check is not unique at all: what is checked is that
+    # the derived sixth-order weights agree to 1e-5 of the largest, and that both check vectors
+    # are what a check must be — the difference of two extensions of order ≥ 5 at θ = ½: zero
+    # on every tree up to order 5, nonzero on some tree of order 6 or 7 (it estimates something).
     F, check = continuous_extension.free_dense_weights(A)
-    np.testing.assert_allclose(F, tab.F, rtol=1e-6, atol=1e-6 * np.abs(tab.F).max())
-    np.testing.assert_allclose(check, tab.F_check, rtol=1e-6, atol=1e-6 * np.abs(check).max())
+    np.testing.assert_allclose(F, tab.F, rtol=0, atol=1e-5 * np.abs(tab.F).max())
+    for weights in (check, tab.F_check):
+        scale = np.abs(weights).max()
+        for order in range(1, 6):
+            for tree in trees[order]:
+                assert abs(weights @ phi(tree)) < 1e-11 * scale
+        higher = continuous_extension.rooted_trees(7)
+        assert max(abs(weights @ phi(tree)) for tree in higher[6] + higher[7]) > 1e-6
 
 
 def test_dense_output_from_stages_only_within_the_tolerance():

@@ -1,6 +1,7 @@
 """/tf as a ROS user sees it: the node and a subscriber in separate processes, with tf2_msgs
 built from its definition (test/interfaces_build.py, a cached fixture), real DDS on a random
-domain. Without tf2_msgs the node says so in one line and runs on."""
+domain. Without tf2_msgs the node says so in one line and runs on. The whole tree (publish_tf
+all): test_node_view.py."""
 import os
 import random
 import signal
@@ -17,12 +18,15 @@ LISTENER = os.path.join(os.path.dirname(__file__), "tf_listener.py")
 PERIOD_NS = 10 ** 7   # publish_rate 100 Hz
 
 
-def test_tf_carries_odom_to_base_footprint_at_every_publication(interfaces_prefix, tmp_path):
+def test_publish_tf_base_carries_odom_to_base_footprint_alone_at_every_publication(
+        interfaces_prefix, tmp_path):
+    """publish_tf base (for users who run robot_state_publisher): /tf carries the base alone."""
     env = interfaces_build.environment(interfaces_prefix, child_env(random.randrange(1, 100)))
     listener = subprocess.Popen([sys.executable, LISTENER, "200"], env=env,
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     node = subprocess.Popen([SIMULATOR, "--ros-args", "-p", "integrator.method:=rk4",
-                             "-p", "integrator.dt:=0.001", "-p", "real_time_factor:=5.0"],
+                             "-p", "integrator.dt:=0.001", "-p", "real_time_factor:=5.0",
+                             "-p", "publish_tf:=base"],
                             env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
         out, err = listener.communicate(timeout=120)

@@ -71,10 +71,10 @@ def arm_state_size(nu):
 @jit_inline
 def arm_q(j):
     """Index in s (and q) of arm joint j = 0 … n_arm − 1 (q_1, l_1, q_2, …)."""
-    return 5 + j
+    return q_turn(1) + j
 
 
 @jit_inline
 def arm_u(nq, j):
-    """Index in s of arm joint j's rate (q̇_1, l̇_1, …); in u it is 2 + j."""
-    return nq + 2 + j
+    """Index in s of arm joint j's rate (q̇_1, l̇_1, …); in u it is u_turn(1) + j = 2 + j."""
+    return nq + u_turn(1) + j

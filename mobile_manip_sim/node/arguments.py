@@ -6,6 +6,7 @@ from __future__ import annotations
 import sys
 
 from ..errors import UserError
+from . import parameters
 from .parameters import NODE_NAME, PARAMETERS
 
 MAX_PARAMS_FILE = 1 << 20  # bytes: a parameters file larger than this is refused
@@ -36,7 +37,7 @@ def help_text() -> str:
     for name, spec in PARAMETERS.items():
         default = spec.default
         shown = ("true" if default else "false") if isinstance(default, bool) else repr(default)
-        bounds = f" in [{spec.range[0]:g}, {spec.range[1]:g}]" if spec.range else ""
+        bounds = f" in {parameters.bounds(name)}" if spec.range else ""
         lines.append(f"  {name}{' *' if spec.dynamic else ''} = {shown}{bounds}")
         lines.append(f"      {spec.description}")
     return "\n".join(lines)

@@ -23,8 +23,16 @@ from std_msgs.msg import Float64MultiArray
 
 from ..messages import command_values
 from ..timeline import NS, CommandSlot
-from ..topics import (ARM_POSITION_TOPIC, ARM_TOPIC, ARM_VELOCITY_TOPIC, CMD_VEL_TOPIC,
-                      COMMAND_QOS_DEPTH, WHEEL_TOPIC, command_qos, relative)
+from ..topics import (
+    ARM_POSITION_TOPIC,
+    ARM_TOPIC,
+    ARM_VELOCITY_TOPIC,
+    CMD_VEL_TOPIC,
+    COMMAND_QOS_DEPTH,
+    WHEEL_TOPIC,
+    command_qos,
+    relative,
+)
 from .throttle import Throttle
 
 MAX_TAKEN = 4 * COMMAND_QOS_DEPTH   # messages one drain takes from a command topic, at most

@@ -7,14 +7,18 @@ import math
 from dataclasses import dataclass
 from typing import Mapping, NamedTuple
 
+from .. import limits
 from ..engine.arm_control import ArmControl
 from ..engine.simulation import DEFAULT_WHEEL_SPEED_GAINS
 from ..errors import UserError
+from ..imu import ImuNoise
 from ..scene import METHODS
 from ..scene_controller import ARM_MODES, FEEDFORWARDS
 from ..topics import BASE_COMMANDS
 
 NODE_NAME = "mobile_manip_sim"
+PUBLISH_TF = ("all", "base", "none")
+IMU_NOISE = "imu.noise."
 # The slowest pacing the node takes: at 100 Hz a publication every 10 s of wall time. Slower
 # ones (1e-12 once stopped the node for good) are refused; 0 means as fast as possible.
 MIN_REAL_TIME_FACTOR = 1e-3
@@ -42,8 +46,32 @@ PARAMETERS = {
                                               "root: the frame on the ground under the axle "
                                               "midpoint (base_link is fixed at wheel-radius "
                                               "height above it)."),
-    "publish_tf": Parameter(True, "Publish odom_frame → base_frame on tf at the publication "
-                                  "rate (needs tf2_msgs)."),
+    # --- what viewers and estimators see (node/view.py) ---
+    "publish_tf": Parameter("all", "all: tf carries odom_frame → base_frame and every moving "
+                                   "joint at the publication rate, tf_static every fixed joint; "
+                                   "base: only odom_frame → base_frame (for robot_state_publisher "
+                                   "users); none: nothing (tf needs tf2_msgs)."),
+    "frame_prefix": Parameter("", "Prefix of every frame the node names (tf, tf_static, /odom, "
+                                  "/imu, the URDF's links), e.g. robot1/: two robots then make "
+                                  "one tree without a shared frame. Joint names stay bare."),
+    "publish_clock": Parameter(True, "Publish simulated time on the absolute /clock (namespaces "
+                                     "do not move it); false leaves it to another simulator."),
+    "foxglove_port": Parameter(0, "Port of a Foxglove WebSocket server inside the node (the "
+                                  "channels of simulate --view); 0 = off.", limits.PORT),
+    "imu.noise.angular_velocity_stddev": Parameter(
+        [0.0, 0.0, 0.0], "IMU: white-noise standard deviation of the rate gyro per axis "
+                         "(x, y, z, rad/s); its variance is the message's covariance."),
+    "imu.noise.angular_velocity_bias": Parameter(
+        [0.0, 0.0, 0.0], "IMU: constant bias of the rate gyro per axis (rad/s)."),
+    "imu.noise.linear_acceleration_stddev": Parameter(
+        [0.0, 0.0, 0.0], "IMU: white-noise standard deviation of the accelerometer per axis "
+                         "(m/s²); its variance is the message's covariance."),
+    "imu.noise.linear_acceleration_bias": Parameter(
+        [0.0, 0.0, 0.0], "IMU: constant bias of the accelerometer per axis (m/s²)."),
+    "imu.noise.seed": Parameter(0, "IMU: seed of the noise (sample k's noise depends only on "
+                                   "the seed and k: runs and re-simulations read the same).",
+                                limits.IMU_SEED),
+    # --- end of node/view.py's parameters ---
     "record": Parameter("", "Record a rosbag2 (MCAP) bag to this new directory; empty = off."),
     "synchronous": Parameter(False, "Lockstep: after publishing state k, compute segment k only "
                                     "once a new command has arrived (or sync_timeout has "
@@ -105,6 +133,12 @@ def arm_gains(name: str, value) -> tuple:
     return tuple(float(v) for v in values)
 
 
+def bounds(name: str) -> str:
+    """The declared range of parameter ``name`` as a message shows it: ``[0.001, 100000]``."""
+    return "[{}, {}]".format(*(v if isinstance(v, int) else f"{v:g}"
+                               for v in PARAMETERS[name].range))
+
+
 def expected_kind(name: str) -> str:
     """What a value of parameter ``name`` must be written as, for error messages."""
     default = PARAMETERS[name].default
@@ -114,6 +148,10 @@ def expected_kind(name: str) -> str:
         return "true or false"
     if isinstance(default, float):
         return "a floating-point number (write 1.0, not 1)"
+    if isinstance(default, int):
+        return "an integer"
+    if isinstance(default, list):
+        return f"a list of {len(default)} floating-point numbers (write [0.1, 0.0, 0.0])"
     return "a string"
 
 
@@ -126,7 +164,11 @@ class NodeParameters:
     command_timeout: float         # s of simulated time, 0 = off
     odom_frame: str
     base_frame: str
-    publish_tf: bool
+    publish_tf: str                # one of PUBLISH_TF
+    frame_prefix: str
+    publish_clock: bool
+    foxglove_port: int             # 0 = off
+    imu_noise: ImuNoise
     record: str                    # "" = off
     synchronous: bool
     sync_timeout: float            # wall s
@@ -171,10 +213,11 @@ def read(values: Mapping[str, object]) -> NodeParameters:
                                   f"and not base_link (the URDF's body frame)")
     if values["base_command"] not in BASE_COMMANDS:
         raise UserError("base_command", f"{values['base_command']!r} is not effort or velocity")
+    view = _view_parameters(values)
     return NodeParameters(
         scene=values["scene"], publish_rate=values["publish_rate"],
         real_time_factor=values["real_time_factor"], command_timeout=values["command_timeout"],
-        odom_frame=odom, base_frame=base, publish_tf=values["publish_tf"],
+        odom_frame=odom, base_frame=base, **view,
         record=values["record"], synchronous=values["synchronous"],
         sync_timeout=values["sync_timeout"], base_command=values["base_command"],
         cmd_vel_stamped=values["cmd_vel_stamped"],
@@ -184,3 +227,19 @@ def read(values: Mapping[str, object]) -> NodeParameters:
         arm_control=ArmControl(values["arm_controller"],
                                *(arm_gains(name, values[name]) for name in ARM_GAIN_PARAMETERS),
                                values["arm_feedforward"]))
+
+
+def _view_parameters(values: Mapping[str, object]) -> dict:
+    """The NodeParameters fields of node/view.py's parameters, validated."""
+    if values["publish_tf"] not in PUBLISH_TF:
+        raise UserError("publish_tf", f"{values['publish_tf']!r} is not one of "
+                                      f"{', '.join(PUBLISH_TF)}")
+    prefix = values["frame_prefix"]
+    if prefix.startswith("/") or any(c.isspace() for c in prefix):
+        raise UserError("frame_prefix", f"{prefix!r}: tf frame names start with no '/' and "
+                                        f"hold no white space")
+    settings = {name[len(IMU_NOISE):]: value if isinstance(value, (str, int, float)) else
+                list(value) for name, value in values.items() if name.startswith(IMU_NOISE)}
+    return dict(publish_tf=values["publish_tf"], frame_prefix=prefix,
+                publish_clock=values["publish_clock"], foxglove_port=values["foxglove_port"],
+                imu_noise=ImuNoise.from_settings(settings, IMU_NOISE.rstrip(".")))

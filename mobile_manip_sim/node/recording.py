@@ -39,8 +39,9 @@ class NodeRecording:
             metadata.update(wheel_speed_kp=repr(float(p.wheel_speed_gains[0])),
                             wheel_speed_ki=repr(float(p.wheel_speed_gains[1])))
         metadata.update(arm_control_metadata(self.sim.arm_control))
+        metadata.update(p.imu_noise.as_metadata())
         return RunRecorder(path, self.sim.scene, self._settings, metadata,
-                           flush_interval=BAG_FLUSH_INTERVAL)
+                           flush_interval=BAG_FLUSH_INTERVAL, view=True, imu=True)
 
     def commands(self, start_ns: int, base, joints) -> None:
         """The commands held from the segment start ``start_ns`` on, as applied."""

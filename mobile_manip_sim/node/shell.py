@@ -10,36 +10,30 @@ import time
 import rclpy
 import rclpy.logging
 from nav_msgs.msg import Odometry
-from rcl_interfaces.msg import FloatingPointRange, ParameterDescriptor, SetParametersResult
+from rcl_interfaces.msg import (
+    FloatingPointRange,
+    IntegerRange,
+    ParameterDescriptor,
+    SetParametersResult,
+)
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
 from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
-from std_msgs.msg import String
 from std_srvs.srv import SetBool, Trigger
 
 from .. import cli
 from ..engine.simulation import Simulation
 from ..errors import UserError
 from ..memory import CompilerPages, release_compiler_pages
-from ..messages import state_messages, transform
+from ..messages import state_messages
 from ..pacing import Pacer
 from ..scene import load_scene, make_integrator
 from ..timeline import Grid, apply_commands, start_node_time_line
-from ..topics import (
-    CLOCK_TOPIC,
-    DESCRIPTION_TOPIC,
-    JOINT_STATES_TOPIC,
-    ODOM_TOPIC,
-    TF_TOPIC,
-    latched_qos,
-    relative,
-    state_qos,
-)
-from ..urdf import robot_description
-from . import arguments, parameters
+from ..topics import CLOCK_TOPIC, JOINT_STATES_TOPIC, ODOM_TOPIC, state_qos
+from . import arguments, parameters, qos
 from .arm import ArmDriver, arm_array_topic
 from .commands import CommandIntake
 from .lockstep import Lockstep
@@ -47,6 +41,7 @@ from .loop import SteppingLoop
 from .parameters import ARM_GAIN_PARAMETERS, NODE_NAME, PARAMETERS
 from .recording import NodeRecording
 from .throttle import Throttle
+from .view import NodeView
 
 SHUTDOWN_POLL = 0.2        # s: how often the executor checks for an external shutdown
 STEP_TIMEOUT = 30.0        # s of wall time a ~/step call waits for its state
@@ -74,13 +69,14 @@ class SimulatorNode(Node):
         log = self.get_logger()
         throttle = Throttle(log.warning)
 
-        # Relative names: a namespace (__ns:=/robot1) or a remap moves every topic.
-        self._state_pubs = {topic: self.create_publisher(kind, relative(topic), state_qos())
-                            for topic, kind in STATE_TYPES.items()}
-        self._tf_pub = self._tf_publisher() if p.publish_tf else None
-        self._description_pub = self.create_publisher(String, relative(DESCRIPTION_TOPIC),
-                                                      latched_qos())
-        self._description = robot_description(self.scene, root=p.base_frame)
+        # Relative names: a namespace (__ns:=/robot1) or a remap moves every topic but /clock,
+        # which use_sim_time clients read at /clock whatever their namespace (publish_clock).
+        self._state_pubs = {topic: qos.publisher(self, kind, topic, state_qos(),
+                                                 absolute=topic == CLOCK_TOPIC)
+                            for topic, kind in STATE_TYPES.items()
+                            if p.publish_clock or topic != CLOCK_TOPIC}
+        self.view = NodeView(self, self.scene, p)
+        qos.check_unknown(self)
         self.commands = CommandIntake(self, p.velocity_mode, p.cmd_vel_stamped,
                                       len(self.joint_names) - 2, p.command_timeout, throttle,
                                       log.warning, arm_topic=arm_array_topic(self.arm_control))
@@ -116,16 +112,11 @@ class SimulatorNode(Node):
                  f"{p.real_time_factor:g}{' (free-running)' if not p.real_time_factor else ''}")
         if self.arm is not None and self.arm.trajectories is not None:
             self.arm.trajectories.start()   # says so if the action is off
-        if p.publish_tf and self._tf_pub is None:
-            log.warning("publish_tf: tf2_msgs does not import (source a ROS install, or build "
-                        "it with tools/build_interfaces.sh); no /tf")
-
-    def _tf_publisher(self):
-        try:
-            from tf2_msgs.msg import TFMessage
-        except ImportError:
-            return None   # said once the node has started (__init__'s last line)
-        return self.create_publisher(TFMessage, relative(TF_TOPIC), state_qos())
+        for warning in self.view.warnings:
+            log.warning(warning)
+        if self.view.live is not None:
+            log.info(f"live view: {self.view.live.url} (Foxglove: open connection, Foxglove "
+                     f"WebSocket)")
 
     # --- parameters ------------------------------------------------------------------------
     def _declared_parameters(self) -> dict:
@@ -134,7 +125,10 @@ class SimulatorNode(Node):
             descriptor = ParameterDescriptor(description=spec.description,
                                              read_only=not spec.dynamic,
                                              dynamic_typing=name in ARM_GAIN_PARAMETERS)
-            if spec.range:
+            if spec.range and isinstance(spec.default, int):
+                descriptor.integer_range = [IntegerRange(
+                    from_value=spec.range[0], to_value=spec.range[1], step=1)]
+            elif spec.range:
                 descriptor.floating_point_range = [FloatingPointRange(
                     from_value=spec.range[0], to_value=spec.range[1], step=0.0)]
             try:
@@ -144,11 +138,12 @@ class SimulatorNode(Node):
             except InvalidParameterValueException:
                 override = self._parameter_overrides.get(name)
                 value = override.value if override is not None else spec.default
-                raise UserError(name, f"{value} is outside [{spec.range[0]:g}, "
-                                      f"{spec.range[1]:g}]") from None
+                raise UserError(name, f"{value} is outside {parameters.bounds(name)}"
+                                ) from None
         # A parameter given for this node that it does not declare is a mistake (a typo such
-        # as real_time_facter would otherwise be silently ignored).
-        unknown = sorted(set(self._parameter_overrides) - set(self._parameters))
+        # as real_time_facter would otherwise be silently ignored). QoS overrides: qos.py's.
+        unknown = sorted(name for name in set(self._parameter_overrides) - set(self._parameters)
+                         if not name.startswith(qos.QOS_OVERRIDES))
         if unknown:
             raise UserError(unknown[0], f"unknown parameter of {NODE_NAME} (known: "
                                         f"{', '.join(PARAMETERS)})")
@@ -187,9 +182,13 @@ class SimulatorNode(Node):
 
     # --- the loop's callables (stepping thread) ---------------------------------------------
     def _messages(self, k: int) -> dict:
-        """/joint_states, /odom and /clock for the engine's current state, stamped t_k."""
-        return state_messages(self.sim, self.grid.stamp(k), self.joint_names,
-                              self.params.odom_frame, self.params.base_frame)
+        """/joint_states, /odom, /clock and the view's (view.py) for the engine's current
+        state, stamped t_k."""
+        stamp = self.grid.stamp(k)
+        messages = state_messages(self.sim, stamp, self.joint_names, self.view.odom_frame,
+                                  self.view.base_frame)
+        messages.update(self.view.messages(self.sim, k, stamp))
+        return messages
 
     def _restart(self) -> dict:
         """t = 0: the scene's initial state, zero efforts."""
@@ -214,15 +213,14 @@ class SimulatorNode(Node):
         return self._messages(k + 1)
 
     def _publish(self, k: int, messages: dict) -> None:
-        if k == 0:   # a time line starts: the robot description goes out first
-            self._description_pub.publish(String(data=self._description))
         published = {}
-        try:
-            for topic, publisher in self._state_pubs.items():
-                publisher.publish(messages[topic])
+        try:   # at k = 0 the latched ones (robot description) lead
+            self.view.publish_latched(messages, published)
+            for topic in STATE_TYPES:   # recorded whether published (publish_clock) or not
+                if topic in self._state_pubs:
+                    self._state_pubs[topic].publish(self.view.wire(topic, messages[topic]))
                 published[topic] = messages[topic]
-            if self._tf_pub is not None:
-                self._tf_pub.publish(transform(messages[ODOM_TOPIC]))
+            self.view.publish(self.grid.stamp(k), messages, published)
         finally:
             # What went out is recorded, even when a shutdown fails the rest of the group.
             if published and self._recording is not None:
@@ -270,6 +268,7 @@ class SimulatorNode(Node):
 
     def close(self) -> None:
         """After `stop`, before the node is destroyed (SIGINT, SIGTERM, normal exit)."""
+        self.view.close()
         if self._recording is not None:
             # While the context is up the node's logger; after SIGINT/SIGTERM shut it down, one
             # without /rosout (the node's would fail to publish and say so).

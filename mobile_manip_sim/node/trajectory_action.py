@@ -21,8 +21,14 @@ from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from ..messages import time_msg
 from ..timeline import NS
-from ..topics import (CONTROLLER_STATE_TOPIC, TRAJECTORY_ACTION, TRAJECTORY_TOPIC, command_qos,
-                      relative, state_qos)
+from ..topics import (
+    CONTROLLER_STATE_TOPIC,
+    TRAJECTORY_ACTION,
+    TRAJECTORY_TOPIC,
+    command_qos,
+    relative,
+    state_qos,
+)
 from ..trajectory_goals import Codes, Goal, JointTolerance, Point, TrajectoryGoals
 
 WAIT_POLL = 0.5   # s: an execute callback checks this often that the node still runs

@@ -7,7 +7,8 @@ Beside the recorded topics (``topics.recorded_topics``) a bag of ours holds:
 - MCAP metadata ``mobile_manip_sim`` (METADATA_NAME): a map of strings — the package version,
   the integrator settings, the scene name, the source (``simulate`` or ``node``, SOURCES), the
   source's rate, a `simulate` run's duration, the base command mode and, in velocity mode, the
-  wheel-speed gains; floats as ``repr`` (exact). `run_metadata` writes it,
+  wheel-speed gains, a node's IMU noise settings (`imu.ImuNoise.as_metadata`); floats as
+  ``repr`` (exact). `run_metadata` writes it,
   `checked_run_metadata` checks it on the way back in;
 - attachment ``impacts.json`` (IMPACTS_ATTACHMENT): the end-stop impacts, one record of
   IMPACT_FIELDS each (`read_impacts`).
@@ -24,6 +25,7 @@ import importlib
 
 from mobile_manip_sim import __version__, limits, schema
 from mobile_manip_sim.errors import UserError
+from mobile_manip_sim.imu import METADATA_KEYS, METADATA_SEED, ImuNoise
 from mobile_manip_sim.methods import METHODS
 from mobile_manip_sim.scene_controller import ARM_MODES
 from mobile_manip_sim.timeline import NS, CommandHistory, Grid, start_node_time_line
@@ -44,7 +46,7 @@ SOURCES = ("node", "simulate")
 SOURCE_RATE = {"simulate": "sample_rate", "node": "publish_rate"}   # source → its rate's key
 RUN_METADATA_KEYS = ("version", "integrator_method", "dt", "rtol", "atol", "scene_name", "source",
                      "sample_rate", "publish_rate", "duration", "base_command", "wheel_speed_kp",
-                     "wheel_speed_ki")
+                     "wheel_speed_ki", *METADATA_KEYS.values(), METADATA_SEED)
 # An arm controller's settings (a run not in effort mode): its mode, feedforward and gains per
 # arm joint (space-separated reprs, exact). An effort-mode bag has none of them.
 ARM_METADATA_KEYS = ("arm_controller", "arm_feedforward", "arm_kp", "arm_ki", "arm_kd")
@@ -75,10 +77,9 @@ def checked_run_metadata(value, path: str = METADATA_NAME) -> dict:
     its numbers parsed (repr-exact floats), for a replay or re-run to trust: the source's rate
     is required (and a `simulate` run's duration, which fixes its sample times)."""
     value = schema.string_map(value, path, max_entries=len(RUN_METADATA_KEYS), max_length=200)
-    schema.keys(value, path,
-                required=("version", "integrator_method", "dt", "rtol", "atol", "source"),
-                optional=("scene_name", "sample_rate", "publish_rate", "duration", "base_command",
-                          "wheel_speed_kp", "wheel_speed_ki", *ARM_METADATA_KEYS))
+    required = ("version", "integrator_method", "dt", "rtol", "atol", "source")
+    schema.keys(value, path, required=required,
+                optional=[key for key in RUN_METADATA_KEYS if key not in required])
     if value["integrator_method"] not in METHODS:
         raise UserError(f"{path}.integrator_method", f"unknown method "
                                                      f"{schema.short(value['integrator_method'])}")
@@ -344,6 +345,7 @@ class RecordedRun:
                       else None)
         self.names = self.scene.robot.joint_names()
         self.arm_control = metadata["arm_control"].for_robot(self.scene.robot)
+        self.imu_noise = ImuNoise.from_metadata(metadata, METADATA_NAME)   # a node's /imu
 
     def check_robot(self) -> None:
         """The recorded topics fit this scene's robot: types, joint names, command lengths."""

@@ -43,6 +43,7 @@ from mobile_manip_sim.topics import (
     BASE_COMMAND_TOPICS,
     COMMAND_QOS_DEPTH,
     COMMAND_TOPICS,
+    IMU_TOPIC,
     LATCHED_TOPICS,
     STATE_QOS_DEPTH,
     STATE_TOPICS,
@@ -51,7 +52,7 @@ from mobile_manip_sim.topics import (
 )
 
 # The order in which one publication's messages are written (the latched ones come first).
-WRITTEN_TOPICS = (*LATCHED_TOPICS, *STATE_TOPICS, TF_TOPIC)
+WRITTEN_TOPICS = (*LATCHED_TOPICS, *STATE_TOPICS, TF_TOPIC, IMU_TOPIC)
 
 
 def topic_qos(topic: str) -> str:
@@ -71,12 +72,13 @@ class RunRecorder:
     ``flush_interval`` (wall seconds, None = off) closes the open chunk that often, bounding what a
     SIGKILL loses in a slow run; headless runs leave it off so that their chunks, and hence their
     bags, do not depend on the wall clock.
-    ``view`` adds the view topics (/tf, /tf_static, /robot_description) to the bag.
+    ``view`` adds the view topics (/tf, /tf_static, /robot_description) to the bag, ``imu``
+    /imu (its noise settings: in ``extra_metadata``, `imu.ImuNoise.as_metadata`).
     """
 
     def __init__(self, path, scene, settings, extra_metadata: dict, *,
                  chunk_size: int = DEFAULT_CHUNK_SIZE, flush_interval: float | None = None,
-                 view: bool = False):
+                 view: bool = False, imu: bool = False):
         metadata = run_metadata(scene, settings, extra_metadata)
         base_command = metadata.get("base_command", "effort")
         if base_command not in BASE_COMMAND_TOPICS:
@@ -87,7 +89,8 @@ class RunRecorder:
         self.writer = BagWriter(path, chunk_size=chunk_size)
         self.path = self.writer.path
         try:
-            for topic, type_name in recorded_topics(base_command, view, arm_controller).items():
+            for topic, type_name in recorded_topics(base_command, view, imu,
+                                                    arm_controller).items():
                 self.writer.add_topic(topic, type_name, topic_qos(topic))
             self.writer.add_attachment(SCENE_ATTACHMENT, "application/yaml",
                                        scene.to_yaml().encode())

@@ -2,10 +2,11 @@
 ``scene.yaml``, metadata ``mobile_manip_sim``: integrator settings, rates, source, base command
 mode and wheel-speed gains), run the source's time line (`timeline`: its grid of segments, its
 start, the recorded commands — efforts and cmd_vel — held from their recorded simulated times,
-and an arm controller's set-points and trajectories applied at theirs),
-and compare each recorded /joint_states and /odom with the messages the re-run gives at that
-stamp (built by the same ``messages`` functions). Prints the largest difference per quantity;
-status 1 if one exceeds the tolerance (0: bit for bit), else 0.
+and an arm controller's set-points and trajectories applied at theirs), and compare each recorded
+/joint_states, /odom and (a node's bag) /imu with the messages the re-run gives at that stamp
+(built by the same ``messages`` functions; the IMU with the bag's noise settings, whose sample k
+noise depends on the seed and k only). Prints the largest difference per quantity; status 1 if
+one exceeds the tolerance (0: bit for bit), else 0.
 """
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ import math
 
 from mobile_manip_sim import __version__
 from mobile_manip_sim.errors import UserError
+from mobile_manip_sim.imu import FIELDS, Imu
 from mobile_manip_sim.messages import (
     JOINT_STATES_TOPIC,
     NS,
@@ -24,6 +26,7 @@ from mobile_manip_sim.messages import (
 from mobile_manip_sim.progress import Progress
 from mobile_manip_sim.recording.bag_format import RecordedRun, decode, stamp_ns
 from mobile_manip_sim.timeline import apply_arm_command, apply_commands
+from mobile_manip_sim.topics import IMU_TOPIC
 
 
 class Differences:
@@ -69,13 +72,16 @@ def resimulate(bag, tolerance: float) -> int:
     sim = run.start()
     differences = Differences(tolerance)
     compared = {JOINT_STATES_TOPIC: 0, ODOM_TOPIC: 0}
+    if IMU_TOPIC in bag.topics():
+        compared[IMU_TOPIC] = 0
+    imu = Imu(run.imu_noise)
     sim_stamp = None
     first_stamp = None
     begin, end = bag.time_span()
     progress = Progress("replay --resimulate", (end - begin) / NS, "s of the bag",
                         rate_unit="bag s per wall s")
     try:
-        for message in bag.messages([JOINT_STATES_TOPIC, ODOM_TOPIC]):
+        for message in bag.messages(list(compared)):
             progress.update((message.log_time_ns - begin) / NS)
             recorded = decode(message)
             stamp = stamp_ns(recorded.header.stamp)
@@ -94,7 +100,10 @@ def resimulate(bag, tolerance: float) -> int:
                         apply_arm_command(sim, run.arm_control.mode, command)
                     sim.advance_to(t_end)
                 sim_stamp = stamp
-            _compare(run, sim, stamp, message.topic, recorded, differences)
+            if message.topic == IMU_TOPIC:
+                _compare_imu(imu, run, sim, stamp, recorded, differences)
+            else:
+                _compare(run, sim, stamp, message.topic, recorded, differences)
             compared[message.topic] += 1
     except SimulationError as error:
         if getattr(error, "key", None):   # StepLimitError: settings and efforts, status 2
@@ -131,17 +140,34 @@ def _compare(run, sim, stamp: int, topic: str, recorded, differences: Difference
         differences.add("omega", stamp, twist.angular.z, expected.twist.twist.angular.z)
 
 
+def _compare_imu(imu: Imu, run, sim, stamp: int, recorded, differences: Differences) -> None:
+    k = run.grid.index(stamp)
+    if k is None:
+        raise UserError(IMU_TOPIC, f"{stamp} ns is not a publication time of the bag's rate")
+    expected = imu.read(sim, k)
+    for field in FIELDS:
+        vector = getattr(recorded, field)
+        for axis, value in zip("xyz", getattr(expected, field), strict=True):
+            differences.add(f"imu {field}.{axis}", stamp, getattr(vector, axis), value)
+    differences.add("imu yaw", stamp, quaternion_yaw(recorded.orientation),
+                    2.0 * math.atan2(expected.orientation[2], expected.orientation[3]),
+                    angle=True)
+
+
 def _report(run, bag, differences: Differences, compared: dict, first: int, last: int) -> None:
     settings = run.settings
     detail = f"dt {settings.dt:g}" if settings.fixed_step else \
         f"rtol {settings.rtol:g}, atol {settings.atol:g}"
     print(f"re-simulated {bag.path} ({run.source} run of scene '{run.scene.name}', "
           f"{settings.method}, {detail}): {compared[JOINT_STATES_TOPIC]} /joint_states and "
-          f"{compared[ODOM_TOPIC]} /odom messages from t = {first / NS:.9f} to "
+          f"{compared[ODOM_TOPIC]} /odom messages"
+          f"{f' and {compared[IMU_TOPIC]} /imu' if IMU_TOPIC in compared else ''} from t = "
+          f"{first / NS:.9f} to "
           f"{last / NS:.9f} s")
     order = ["x", "y", "yaw", *(f"{name} position" for name in run.names),
              *(f"{name} velocity" for name in run.names), "v", "omega",
-             *(f"{name} effort" for name in run.names)]
+             *(f"{name} effort" for name in run.names),
+             *(f"imu {field}.{axis}" for field in FIELDS for axis in "xyz"), "imu yaw"]
     rows = [(name, differences.largest[name]) for name in order if name in differences.largest]
     width = max(len(name) for name, _ in rows) + 2
     print(f"{'quantity':<{width}}largest |recorded - resimulated|   at t (s)")
