@@ -207,3 +207,13 @@ def test_bootstrap_says_still_while_a_silent_command_runs():
     assert result.returncode == 3 and result.stdout == "bootstrap: still waiting (10 s)\n"
     for phase in ("upgrading pip", "installing the package", "compiling the numba kernels"):
         assert f'echo "bootstrap: {phase}' in text   # a line before each phase
+
+
+def test_sweep_shows_runs_done_failed_and_time_to_go_on_a_terminal(terminal, tmp_path):
+    spec = Path(__file__).resolve().parents[1] / "config" / "sweeps" / "paper_mass_and_method.yaml"
+    process = started(terminal, executable("sweep"), str(spec), "--out", str(tmp_path / "out"),
+                      "--workers", "1")
+    process.communicate(timeout=600)
+    assert process.returncode == 0, terminal.text()
+    terminal.wait_for(r"sweep: 16 of 16 runs \(100 %\), \S+ runs/s, .+ to go, 0 failed\r?\n",
+                      "sweep's last status line")
