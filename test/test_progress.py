@@ -32,11 +32,12 @@ class Terminal:
         self.stream = open(self.slave, "w", closefd=False)
         self._seen = bytearray()
         self._lock = threading.Lock()
+        self._closing = threading.Event()
         self._reader = threading.Thread(target=self._read, daemon=True)
         self._reader.start()
 
     def _read(self):
-        while True:
+        while not self._closing.is_set():
             ready, _, _ = select.select([self.master], [], [], 0.1)
             if ready:
                 try:
@@ -67,6 +68,10 @@ class Terminal:
         raise AssertionError(f"no {what} in:\n{self.text()}")
 
     def close(self):
+        # The reader stops before its descriptor is closed: the next terminal's pty may get the
+        # same number, and a reader left running would take what was written there.
+        self._closing.set()
+        self._reader.join()
         self.stream.close()
         os.close(self.slave)
         os.close(self.master)
