@@ -173,7 +173,10 @@ def _core_scalar(loader, node, kind: str) -> str:
 
 
 def _int(loader, node):
-    text = _core_scalar(loader, node, "int")
+    return _int_value(_core_scalar(loader, node, "int"))
+
+
+def _int_value(text: str):
     sign, digits = (text[0], text[1:]) if text[:1] in "+-" else ("", text)
     if len(digits) > MAX_INT_DIGITS:
         return HugeNumber(text)
@@ -188,7 +191,11 @@ def _float(loader, node):
         return -math.inf if text.startswith("-") else math.inf
     if text == ".nan":
         return math.nan
-    return float(text)
+    try:
+        return float(text)
+    except ValueError:   # an integer form tagged !!float: 0x1f, 0o17 (a ValueError escaped)
+        value = _int_value(text)
+        return value if isinstance(value, HugeNumber) else float(value)
 
 
 def _bool(loader, node):
