@@ -35,12 +35,16 @@ class EffectSettings:
     """The settings of one scene's effects (fields absent when their effects are off)."""
 
     gravity: float = 0.0                     # g, m/s² along −z (dynamics option)
-    tip_mass: float = 0.0                    # kg, point payload at the tip of rod n (dynamics option)
+    tip_mass: float = 0.0                    # kg, point payload at the tip of rod n (dynamics
+                                             # option)
     wheel_inertia: bool = False              # the wheels' spin inertia I_w counts (dynamics option)
     rate_damping: np.ndarray | None = None   # (2 + 2n,) viscous coefficients c on the joint rates
-                                             # (θ̇_R, θ̇_L, q̇_1, l̇_1, …): effort −c·rate, N·m·s/rad or N·s/m
-    locked: tuple = ()                       # indices into u held at zero (locked joints, fixed base)
-    effort_limits: np.ndarray | None = None  # (2 + 2n,) bounds on |(τ_R, τ_L, τ_1, F_1, …)|, N·m or N;
+                                             # (θ̇_R, θ̇_L, q̇_1, l̇_1, …): effort −c·rate,
+                                             # N·m·s/rad or N·s/m
+    locked: tuple = ()                       # indices into u held at zero (locked joints,
+                                             # fixed base)
+    effort_limits: np.ndarray | None = None  # (2 + 2n,) bounds on |(τ_R, τ_L, τ_1, F_1, …)|,
+                                             # N·m or N;
                                              # inf where the scene sets none
     stop_law: StrokeLimits | None = None     # the end stops' law; None: stops not watched
 

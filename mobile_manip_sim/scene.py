@@ -137,12 +137,14 @@ def _base(doc) -> Base:
               "half_track": LENGTH, "wheel_inertia": INERTIA}
     values = {k: _number(doc[k], f"{path}.{k}", lo=bounds[k][0], hi=bounds[k][1])
               for k in bounds}
-    values["com_offset"] = _number(doc["com_offset"], f"{path}.com_offset", lo=-LENGTH[1], hi=LENGTH[1])
+    values["com_offset"] = _number(doc["com_offset"], f"{path}.com_offset", lo=-LENGTH[1],
+                                   hi=LENGTH[1])
     return Base(**values)
 
 
 def _inertia(value, path) -> np.ndarray:
-    if isinstance(value, (list, tuple)) and len(value) == 3 and all(isinstance(r, (list, tuple)) for r in value):
+    if (isinstance(value, (list, tuple)) and len(value) == 3
+            and all(isinstance(r, (list, tuple)) for r in value)):
         J = np.array([_vector(r, 3, f"{path}[{i}]", lo=-INERTIA[1], hi=INERTIA[1])
                       for i, r in enumerate(value)])
         if not np.allclose(J, J.T, rtol=0, atol=1e-12 * max(1.0, np.abs(J).max())):
@@ -183,7 +185,8 @@ def _robot(doc) -> RobotModel:
     links = schema.sequence(arm.get("links", []), "robot.arm.links", max_length=MAX_LINKS)
     return RobotModel.build(
         _base(doc["base"]),
-        _vector(arm.get("mount", [0.0, 0.0, 0.0]), 3, "robot.arm.mount", lo=-LENGTH[1], hi=LENGTH[1]),
+        _vector(arm.get("mount", [0.0, 0.0, 0.0]), 3, "robot.arm.mount", lo=-LENGTH[1],
+                hi=LENGTH[1]),
         [_link(link, f"robot.arm.links[{i}]") for i, link in enumerate(links)])
 
 
@@ -193,7 +196,8 @@ def _effects(doc, robot: RobotModel) -> Effects:
     n_arm = 2 * robot.n_links
     effects = {}
     if "gravity" in doc:
-        effects["gravity"] = _number(doc["gravity"], "effects.gravity", lo=GRAVITY[0], hi=GRAVITY[1])
+        effects["gravity"] = _number(doc["gravity"], "effects.gravity", lo=GRAVITY[0],
+                                     hi=GRAVITY[1])
     if "stroke_limits" in doc:
         value = doc["stroke_limits"]
         if value is True or value == {}:
@@ -206,12 +210,15 @@ def _effects(doc, robot: RobotModel) -> Effects:
             law = value.get("law", "impulse")
             if law not in IMPACT_LAWS:
                 raise UserError("effects.stroke_limits.law",
-                                f"unknown law {schema.short(law)} (choose one of: {', '.join(IMPACT_LAWS)})")
+                                f"unknown law {schema.short(law)} (choose one of: "
+                                f"{', '.join(IMPACT_LAWS)})")
             effects["stroke_limits"] = StrokeLimits(
-                restitution=_number(value.get("restitution", 0.0), "effects.stroke_limits.restitution",
+                restitution=_number(value.get("restitution", 0.0),
+                                    "effects.stroke_limits.restitution",
                                     lo=0.0, hi=1.0),
                 law=law,
-                rest_speed=_number(value.get("rest_speed", 1e-3), "effects.stroke_limits.rest_speed",
+                rest_speed=_number(value.get("rest_speed", 1e-3),
+                                   "effects.stroke_limits.rest_speed",
                                    lo=0.0, hi=SPEED))
     if "wheel_inertia" in doc:
         effects["wheel_inertia"] = _flag(doc["wheel_inertia"], "effects.wheel_inertia")
@@ -232,12 +239,14 @@ def _effects(doc, robot: RobotModel) -> Effects:
     if "locked_joints" in doc:
         names = doc["locked_joints"]
         if not isinstance(names, list):
-            raise UserError("effects.locked_joints", f"expected a list of joint names, got {schema.short(names)}")
+            raise UserError("effects.locked_joints",
+                            f"expected a list of joint names, got {schema.short(names)}")
         arm_names = robot.joint_names()[2:]
         for i, name in enumerate(names):
             if name not in arm_names:
                 raise UserError(f"effects.locked_joints[{i}]",
-                                f"no arm joint named {schema.short(name)} (joints: {', '.join(arm_names) or 'none'})")
+                                f"no arm joint named {schema.short(name)} "
+                                f"(joints: {', '.join(arm_names) or 'none'})")
             if name in names[:i]:
                 raise UserError(f"effects.locked_joints[{i}]", f"{name} is listed twice")
         effects["locked_joints"] = tuple(names)
@@ -271,7 +280,8 @@ def make_integrator(settings: IntegratorSettings, method=None, dt=None, rtol=Non
 
     method = settings.method if method is None else method
     if not isinstance(method, str) or method not in METHODS:
-        raise UserError(key("method"), f"unknown method {schema.short(method)} (choose one of: {', '.join(METHODS)})")
+        raise UserError(key("method"), f"unknown method {schema.short(method)} "
+                                       f"(choose one of: {', '.join(METHODS)})")
     return IntegratorSettings(
         method=method,
         dt=settings.dt if dt is None else _number(dt, key("dt"), lo=DT[0], hi=DT[1]),
@@ -286,7 +296,8 @@ def check_work(duration: float, settings: IntegratorSettings, duration_key: str,
     interval (the samples would not be at the step's resolution)."""
     if settings.fixed_step and duration / settings.dt > MAX_STEPS:
         key = dt_key if settings.dt < 1e-6 else duration_key
-        raise UserError(key, f"{duration:.6g} s / dt {settings.dt:.6g} s is more than {MAX_STEPS} steps")
+        raise UserError(key, f"{duration:.6g} s / dt {settings.dt:.6g} s is more than "
+                             f"{MAX_STEPS} steps")
     if sample_rate is None:
         return
     if duration * sample_rate > MAX_SAMPLES:
@@ -311,8 +322,10 @@ def parse_scene(doc, name="scene") -> Scene:
     pose = _vector(initial.get("pose", [0.0, 0.0, 0.0]), 3, "initial.pose", lo=-ANGLE, hi=ANGLE)
     wheels = _vector(initial.get("wheels", [0.0, 0.0]), 2, "initial.wheels", lo=-ANGLE, hi=ANGLE)
     if n == 0 and initial.get("joints"):
-        raise UserError("robot.arm", "missing: initial.joints gives arm joints but the robot has no arm")
-    joints = _vector(initial.get("joints", default_joints), 2 * n, "initial.joints", lo=-ANGLE, hi=ANGLE)
+        raise UserError("robot.arm",
+                        "missing: initial.joints gives arm joints but the robot has no arm")
+    joints = _vector(initial.get("joints", default_joints), 2 * n, "initial.joints", lo=-ANGLE,
+                     hi=ANGLE)
     for i in range(n):
         lo, hi = robot.stroke[i]
         if not lo <= joints[2 * i + 1] <= hi:
@@ -323,7 +336,8 @@ def parse_scene(doc, name="scene") -> Scene:
     efforts = _mapping(doc.get("efforts", {}), "efforts")
     _keys(efforts, "efforts", optional=("wheels", "joints"))
     if n == 0 and efforts.get("joints"):
-        raise UserError("robot.arm", "missing: efforts.joints gives arm efforts but the robot has no arm")
+        raise UserError("robot.arm",
+                        "missing: efforts.joints gives arm efforts but the robot has no arm")
     effects = _effects(doc.get("effects", {}), robot)
     controller = parse_controller(doc.get("controller"), robot, effects.stroke_limits is not None)
     integrator = _integrator(doc.get("integrator", {}))
@@ -351,9 +365,11 @@ def _document(doc: dict, scene: Scene) -> dict:
     full = copy.deepcopy(doc)
     full["name"] = scene.name
     full["duration"] = scene.duration
-    full["initial"] = {"pose": scene.initial_q[:3].tolist(), "wheels": scene.initial_q[3:5].tolist(),
+    full["initial"] = {"pose": scene.initial_q[:3].tolist(),
+                       "wheels": scene.initial_q[3:5].tolist(),
                        "joints": scene.initial_q[5:].tolist(), "velocity": scene.initial_u.tolist()}
-    full["efforts"] = {"wheels": scene.wheel_efforts.tolist(), "joints": scene.joint_efforts.tolist()}
+    full["efforts"] = {"wheels": scene.wheel_efforts.tolist(),
+                       "joints": scene.joint_efforts.tolist()}
     s = scene.integrator
     full["integrator"] = {"method": s.method, "dt": s.dt, "rtol": s.rtol, "atol": s.atol}
     return full

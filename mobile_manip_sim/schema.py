@@ -1,5 +1,6 @@
 """One safe YAML loader and the small validators every input uses (scene files, sweep specs, the
-node's parameters file, bag metadata: ``recording/bag_format.py``, ``recording/rosbag2_metadata.py``). Every mistake is a `UserError` naming its key path, in one
+node's parameters file, bag metadata: ``recording/bag_format.py``,
+``recording/rosbag2_metadata.py``). Every mistake is a `UserError` naming its key path, in one
 line, with the offending value shortened.
 
 `load_yaml(source, what=...)` reads a `Path` (a regular file of at most MAX_FILE_BYTES; FIFOs,
@@ -59,7 +60,8 @@ def clip(text: str, limit: int = 160) -> str:
 def label(key, limit: int = 40) -> str:
     """A key (or a file name) as it can stand in a one-line message: itself when it is a short,
     printable string, else its shortened repr."""
-    if isinstance(key, str) and not isinstance(key, HugeNumber) and key.strip() and key.isprintable():
+    if (isinstance(key, str) and not isinstance(key, HugeNumber) and key.strip()
+            and key.isprintable()):
         return clip(key, limit)
     return short(key)
 
@@ -84,7 +86,8 @@ class _Loader(yaml.SafeLoader):
         self._depth += 1
         if self._depth > MAX_DEPTH:
             mark = self.peek_event().start_mark
-            raise UserError(self.what, f"nested deeper than {MAX_DEPTH} levels (line {mark.line + 1})")
+            raise UserError(self.what,
+                            f"nested deeper than {MAX_DEPTH} levels (line {mark.line + 1})")
         try:
             return super().compose_node(parent, index)
         finally:
@@ -117,7 +120,8 @@ class _Loader(yaml.SafeLoader):
                     raise UserError(self.what, f"a mapping key must be a scalar, got {short(key)} "
                                                f"(line {key_node.start_mark.line + 1})") from None
                 if duplicate:
-                    raise UserError(label(key), f"duplicate key (line {key_node.start_mark.line + 1})")
+                    raise UserError(label(key),
+                                    f"duplicate key (line {key_node.start_mark.line + 1})")
         return super().construct_mapping(node, deep=deep)
 
 
@@ -163,12 +167,16 @@ def _core_scalar(loader, node, kind: str) -> str:
     text = loader.construct_scalar(node)
     if not isinstance(node, yaml.ScalarNode) or not _CORE_PATTERNS[kind].match(text):
         raise yaml.constructor.ConstructorError(
-            None, None, f"!!{kind} {clip(repr(text), 40)} is not a YAML 1.2 {kind}", node.start_mark)
+            None, None, f"!!{kind} {clip(repr(text), 40)} is not a YAML 1.2 {kind}",
+            node.start_mark)
     return text
 
 
 def _int(loader, node):
-    text = _core_scalar(loader, node, "int")
+    return _int_value(_core_scalar(loader, node, "int"))
+
+
+def _int_value(text: str):
     sign, digits = (text[0], text[1:]) if text[:1] in "+-" else ("", text)
     if len(digits) > MAX_INT_DIGITS:
         return HugeNumber(text)
@@ -183,7 +191,11 @@ def _float(loader, node):
         return -math.inf if text.startswith("-") else math.inf
     if text == ".nan":
         return math.nan
-    return float(text)
+    try:
+        return float(text)
+    except ValueError:   # an integer form tagged !!float: 0x1f, 0o17 (a ValueError escaped)
+        value = _int_value(text)
+        return value if isinstance(value, HugeNumber) else float(value)
 
 
 def _bool(loader, node):
@@ -333,13 +345,15 @@ def string(value, path, *, max_length=200) -> str:
 
 def flag(value, path) -> bool:
     if not isinstance(value, bool):
-        raise UserError(path, f"expected true or false, got {'null' if value is None else short(value)}")
+        raise UserError(path, "expected true or false, got "
+                              f"{'null' if value is None else short(value)}")
     return value
 
 
 def mapping(value, path) -> dict:
     if not isinstance(value, dict):
-        raise UserError(path, f"expected a mapping, got {'null' if value is None else short(value)}")
+        raise UserError(path,
+                        f"expected a mapping, got {'null' if value is None else short(value)}")
     return value
 
 

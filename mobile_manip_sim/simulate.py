@@ -5,11 +5,11 @@
              [--view [PORT]]
 
 Columns: t, x, y, yaw, theta_R, theta_L, q1, l1, …, qn, ln, v, omega, qd1, ld1, …, qdn, ldn,
-energy (T + V, J) (`headless.csv_columns`); LF line ends. Without --scene the embedded paper scene runs. End-stop impacts,
-if any, go to FILE.impacts.csv beside the output, only when FILE is a regular file (``--out
-/dev/null`` writes nothing else). The last line printed is the run's summary; its real-time
-factor counts the simulation only (from the first sample that advanced time on: start-up and
-compiling are left out).
+energy (T + V, J) (`headless.csv_columns`); LF line ends. Without --scene the embedded paper
+scene runs. End-stop impacts, if any, go to FILE.impacts.csv beside the output, only when FILE
+is a regular file (``--out /dev/null`` writes nothing else). The last line printed is the run's
+summary; its real-time factor counts the simulation only (from the first sample that advanced
+time on: start-up and compiling are left out).
 
 Faults: a write error (disk full, ``/dev/full``) is one line, status 2, and the partial CSV is
 removed; SIGINT (status 130) and SIGTERM (status 143) stop the run, keep the rows written so far
@@ -40,15 +40,18 @@ DEFAULT_VIEW_PORT = 8765           # --view without a port: Foxglove's default
 
 def _main(argv) -> int:
     parser = cli.ArgumentParser(prog="simulate", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--scene", type=cli.path, help="scene YAML (default: the embedded paper scene)")
+    parser.add_argument("--scene", type=cli.path,
+                        help="scene YAML (default: the embedded paper scene)")
     parser.add_argument("--duration", type=float, help="simulated seconds (default: the scene's)")
     parser.add_argument("--sample-rate", type=float, default=100.0, help="CSV rows per second")
-    parser.add_argument("--out", type=cli.path, default="run.csv", help="CSV file to write (default run.csv)")
+    parser.add_argument("--out", type=cli.path, default="run.csv",
+                        help="CSV file to write (default run.csv)")
     parser.add_argument("--method", help="integrator (overrides the scene)")
     parser.add_argument("--dt", type=float, help="fixed step (s)")
     parser.add_argument("--rtol", type=float, help="relative tolerance of adaptive methods")
     parser.add_argument("--atol", type=float, help="absolute tolerance of adaptive methods")
-    parser.add_argument("--record", type=cli.path, metavar="DIR", help="also record a rosbag2 (MCAP) bag to DIR")
+    parser.add_argument("--record", type=cli.path, metavar="DIR",
+                        help="also record a rosbag2 (MCAP) bag to DIR")
     parser.add_argument("--view", type=int, nargs="?", const=DEFAULT_VIEW_PORT, metavar="PORT",
                         help="show the run live in Foxglove: a WebSocket server on PORT "
                              f"(default {DEFAULT_VIEW_PORT}; 0: any free port), the run paced "
@@ -130,7 +133,8 @@ class CsvOutput:
         self.writer = csv.writer(self.handle, lineterminator="\n")
 
     def _error(self, error: OSError, path: Path | None = None) -> UserError:
-        return UserError(schema.label(str(path or self.path), 160), f"cannot write ({error.strerror or error})")
+        return UserError(schema.label(str(path or self.path), 160),
+                         f"cannot write ({error.strerror or error})")
 
     def writerow(self, row) -> None:
         try:

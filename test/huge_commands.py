@@ -16,6 +16,7 @@ import warnings
 import numpy as np
 
 from engine_cases import paper_doc, simulation
+from mobile_manip_sim.engine.step_watch import BUDGET_STEPS
 from mobile_manip_sim.errors import UserError
 from mobile_manip_sim.methods import IDS, METHODS
 
@@ -60,6 +61,23 @@ def run(sim, group, values) -> dict:
     sim.advance_to(0.01)
     return {"command": group, "values": values, "error": error, "message": message, "steps": steps,
             "recovered": sim.t == 0.01 and bool(np.all(np.isfinite(sim.s)))}
+
+
+def check_huge_command(case):
+    """One line of the right kind; no more steps than the step watch allows; a reset recovers."""
+    method, error, message = case["method"], case["error"], case["message"]
+    assert error in ("UserError", "SimulationError", "StepLimitError"), case
+    assert "\n" not in message and len(message) < 300, message
+    if error == "UserError":   # its forces overflow: refused, naming the command
+        assert message.startswith(f"efforts.{case['command'].replace('all', 'wheels')}: "), message
+        assert case["steps"] == 0
+    elif METHODS[method].fixed_step:   # the numbers go bad within the first steps
+        assert error == "SimulationError" and "non-finite" in message, message
+    else:   # every adaptive method: the step watch's one line, naming the setting
+        assert error == "StepLimitError" and message.startswith("integrator.rtol: t = "), message
+        assert f"{method} cannot follow" in message, message
+    assert case["steps"] <= BUDGET_STEPS
+    assert case["recovered"], case
 
 
 def main() -> int:

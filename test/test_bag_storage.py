@@ -489,3 +489,32 @@ def test_open_chunk_stays_bounded_over_a_long_run(tmp_path):
         summary = make_reader(stream).get_summary()
     assert summary.statistics.message_count == 200_000
     assert summary.statistics.chunk_count >= 200_000 * len(data) // chunk_size
+
+
+@pytest.mark.parametrize("log_times", [[], [0, 0, 10_000_000, 470_000_000], [5, 3, 9]])
+def test_the_statistics_agree_with_the_messages_and_metadata_yaml(tmp_path, log_times):
+    """Statistics' message_start/end_time are the least and greatest log times — 0 included, a
+    node's bags start at t = 0 — and 0, 0 with no message; metadata.yaml says the same. (The Go
+    writer of `mcap recover` takes a start time of 0 for 'unset' and writes a later one, which
+    `mcap doctor` flags; this writer's own summary is consistent.)"""
+    path = tmp_path / "bag"
+    with BagWriter(path) as writer:
+        writer.add_topic("/clock", "rosgraph_msgs/msg/Clock")
+        for t in log_times:
+            writer.write("/clock", serialize_message(Clock()), t)
+    with open(path / "bag_0.mcap", "rb") as stream:
+        summary = make_reader(stream).get_summary()
+    statistics = summary.statistics
+    assert statistics.message_count == len(log_times)
+    assert (statistics.message_start_time, statistics.message_end_time) == (
+        (min(log_times), max(log_times)) if log_times else (0, 0))
+    chunks = summary.chunk_indexes
+    assert len(chunks) == (1 if log_times else 0)   # no empty chunk, with its times of 0
+    if log_times:
+        assert (chunks[0].message_start_time, chunks[0].message_end_time) == (
+            min(log_times), max(log_times))
+    information = yaml.safe_load((path / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    assert information["starting_time"]["nanoseconds_since_epoch"] == statistics.message_start_time
+    assert information["duration"]["nanoseconds"] == (
+        statistics.message_end_time - statistics.message_start_time)
+    assert information["message_count"] == statistics.message_count

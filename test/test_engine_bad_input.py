@@ -18,7 +18,7 @@ import pytest
 import yaml
 
 from engine_cases import paper_doc, simulation
-from huge_commands import COMMANDS
+from huge_commands import COMMANDS, check_huge_command
 from huge_commands import apply as apply_command
 from mobile_manip_sim import simulate
 from mobile_manip_sim.errors import UserError
@@ -357,25 +357,6 @@ def huge_commands():
                             timeout=600, cwd=Path(__file__).parent)
     assert result.returncode == 0, result.stderr
     return [json.loads(line) for line in result.stdout.splitlines()]
-
-
-def check_huge_command(case):
-    """One line of the right kind; no more steps than the step watch allows; a reset recovers."""
-    from mobile_manip_sim.engine.step_watch import BUDGET_STEPS
-
-    method, error, message = case["method"], case["error"], case["message"]
-    assert error in ("UserError", "SimulationError", "StepLimitError"), case
-    assert "\n" not in message and len(message) < 300, message
-    if error == "UserError":   # its forces overflow: refused, naming the command
-        assert message.startswith(f"efforts.{case['command'].replace('all', 'wheels')}: "), message
-        assert case["steps"] == 0
-    elif METHODS[method].fixed_step:   # the numbers go bad within the first steps
-        assert error == "SimulationError" and "non-finite" in message, message
-    else:   # every adaptive method: the step watch's one line, naming the setting
-        assert error == "StepLimitError" and message.startswith("integrator.rtol: t = "), message
-        assert f"{method} cannot follow" in message, message
-    assert case["steps"] <= BUDGET_STEPS
-    assert case["recovered"], case
 
 
 def test_huge_commands_after_a_reset_fail_in_one_line_for_every_method(huge_commands):

@@ -1,12 +1,24 @@
 """Fuzzing the inputs with hypothesis (issue 13): scenes (as documents and as raw YAML text) and
-bag metadata. Whatever comes in, the outcome is a valid result or one `UserError` whose message
+bag metadata; and (issue 22) explicit YAML tags and blank values in every YAML reader (scene,
+sweep spec, params file, bag metadata), blank or odd ``-p`` values for every node parameter,
+mutated sweep specs, run-time node parameters at their extremes, and huge finite commands for
+every method right after a reset (in their own process: test/huge_commands.py).
+
+Whatever comes in, the outcome is a valid result or one `UserError` whose message
 is one short line naming a key — never another exception, never a long wait.
 
 The default run is derandomized (the same cases every time, as CI needs) and small; ``-m slow``
 runs many more random cases.
 """
 import copy
+import json
+import math
+import random
+import subprocess
+import sys
+import tempfile
 import time
+from pathlib import Path
 
 import pytest
 import yaml
@@ -14,10 +26,18 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from engine_cases import paper_doc
+from huge_commands import COMMANDS, check_huge_command
 from mobile_manip_sim import schema
 from mobile_manip_sim.errors import UserError
+from mobile_manip_sim.methods import METHODS
+from mobile_manip_sim.node import arguments as node_arguments
+from mobile_manip_sim.node import parameters as node_parameters
+from mobile_manip_sim.node.loop import MAX_WAIT
+from mobile_manip_sim.node.parameters import MIN_REAL_TIME_FACTOR, PARAMETERS
 from mobile_manip_sim.recording import bag_format, rosbag2_metadata
 from mobile_manip_sim.scene import parse_scene, scene_from_text
+from mobile_manip_sim.sweep.spec import parse_spec
+from test_stepping_loop import Harness
 
 PAPER = paper_doc()
 PAPER_TEXT = yaml.safe_dump(PAPER, sort_keys=False)
@@ -147,6 +167,145 @@ def check_bag_information(changes):
     outcome(lambda: rosbag2_metadata.bag_information(schema.load_yaml(yaml.safe_dump(doc), what="metadata.yaml")))
 
 
+# --- issue 22's classes: YAML tags, blank values, sweep specs, node parameters, huge commands ---
+
+SWEEP = {"duration": 0.05, "time_limit": 60, "grid": {
+    "integrator.method": ["rk4", "dop853"], "robot.arm.links[0].mass_per_length": [0.9, 1.1]},
+    "random": {"count": 4, "seed": 7, "vary": {"initial.velocity[2]": {"normal": [0.0, 0.1]}}}}
+PARAMS_FILE = {"/**": {"ros__parameters": {
+    name: spec.default for name, spec in PARAMETERS.items() if "." not in name}}}
+PLACE = "PLACEHOLDER_OF_THE_FUZZER"
+TAGS = ["!!float", "!!int", "!!bool", "!!str", "!!null", "!!binary", "!!timestamp", "!!map",
+        "!!seq", "!!set", "!!omap", "!!pairs", "!!merge", "!!value", "!!python/object:os.system",
+        "!!python/name:os.system", "!foo", "!<tag:yaml.org,2002:float>", "!", "!!"]
+tagged_scalars = st.tuples(
+    st.sampled_from(TAGS),
+    st.one_of(st.sampled_from(["abc", "1.5", "1", "1e308", "1e400", ".nan", "-.inf", "0x1F",
+                               "0o17", "0b1", "yes", "~", "''", "[]", "{}", "2001-12-14", "1_000",
+                               "+1", "-0", ".5", "5.", "1:30", "True", "null", "\"\""]),
+              st.text(alphabet=st.sampled_from(list("0123456789.eE+-_:xnaAbl ")), max_size=12)))
+
+
+def sweep_check(doc):
+    """parse_spec, and the runs themselves when there are few (a draw may overflow)."""
+    spec = parse_spec(doc)
+    if math.prod(len(v) for v in spec.grid.values()) * max(1, spec.count) <= 1000:
+        spec.runs()
+
+
+def params_file_check(text):
+    with tempfile.TemporaryDirectory() as directory:
+        path = Path(directory) / "params.yaml"
+        path.write_text(text)
+        node_arguments.check(["--ros-args", "--params-file", str(path)])
+
+
+# what each YAML document is, and the loader that reads it (as its executable does)
+READERS = {
+    "scene": (PAPER, lambda text: scene_from_text(text, "scene.yaml")),
+    "sweep": (SWEEP, lambda text: sweep_check(schema.load_yaml(text, what="sweep.yaml"))),
+    "params": (PARAMS_FILE, params_file_check),
+    "metadata": (BAG_INFORMATION["rosbag2_bagfile_information"], lambda text: (
+        rosbag2_metadata.bag_information({"rosbag2_bagfile_information": schema.load_yaml(
+            text, what="metadata.yaml")}))),
+}
+
+
+def with_tag(doc, path, tag, text) -> str:
+    """The YAML of `doc` with the value at `path` written as ``tag text``."""
+    marked = mutate(doc, path, PLACE, False)
+    dumped = yaml.safe_dump(marked, sort_keys=False)
+    return dumped.replace(f"'{PLACE}'", PLACE).replace(PLACE, f"{tag} {text}")
+
+
+def check_tags(case):
+    reader, path_index, (tag, text) = case
+    doc, read = READERS[reader]
+    leaves = [p for p in paths(doc) if p]
+    outcome(lambda: read(with_tag(doc, leaves[path_index % len(leaves)], tag, text)))
+
+
+BLANKS = ["", " ", "\t", "  \t ", "''", '""', "~", "null"]
+
+
+def check_blank_argument(case):
+    """``-p NAME:=VALUE`` for every parameter, VALUE blank or odd: refused in one line, or
+    handed to rcl (which then parses it), never a traceback."""
+    name, value = case
+    outcome(lambda: node_arguments.check(["--ros-args", "-p", f"{name}:={value}"]))
+
+
+def check_blank_in_yaml(case):
+    reader, path_index, blank = case
+    doc, read = READERS[reader]
+    leaves = [p for p in paths(doc) if p]
+    path = leaves[path_index % len(leaves)]
+    outcome(lambda: read(with_tag(doc, path, "", blank) if blank.strip()
+                         else yaml.safe_dump(mutate(doc, path, None, False))))
+
+
+def check_sweep(changes):
+    outcome(lambda: sweep_check(mutated(SWEEP, changes)))
+
+
+sweep_values = st.one_of(values, st.sampled_from([1e9, 1e10, 10**12, -1, 0, 1e-300, 1e300]),
+                         st.lists(st.floats(allow_nan=True, allow_infinity=True), max_size=12),
+                         st.fixed_dictionaries({"uniform": st.lists(
+                             st.floats(allow_nan=False, allow_infinity=True), min_size=2,
+                             max_size=2)}))
+sweep_changes = st.lists(st.tuples(st.sampled_from([p for p in paths(SWEEP) if p]
+                                                   + [("sample_rate",), ("chunk",), ("scene",)]),
+                                   sweep_values, st.booleans()), min_size=1, max_size=4)
+
+DYNAMIC = [name for name, spec in PARAMETERS.items() if spec.dynamic]
+extremes = st.one_of(
+    st.sampled_from([0.0, -0.0, 5e-324, 1e-300, 1e-12, MIN_REAL_TIME_FACTOR,
+                     math.nextafter(MIN_REAL_TIME_FACTOR, 0.0), 1.0, 1e4, 1e6, 1e308,
+                     math.inf, -math.inf, math.nan]),
+    st.floats(allow_nan=True, allow_infinity=True))
+
+
+def check_run_time_parameter(case):
+    """A change while the node runs, as the shell validates it (the declared range, then
+    `value_problem`); an accepted one is honoured: the loop keeps publishing in waits of
+    bounded length (`test_stepping_loop.Harness`, on a fake clock)."""
+    name, value = case
+    low, high = PARAMETERS[name].range
+    problem = None if low <= value <= high else "out of range"
+    problem = problem or node_parameters.value_problem(name, value)
+    if problem is not None:
+        assert "\n" not in problem and len(problem) < 200
+        return
+    assert math.isfinite(value)
+    harness = Harness()
+    harness.loop.begin()
+    harness.run_until(2)
+    if name == "real_time_factor":
+        assert value == 0.0 or value >= MIN_REAL_TIME_FACTOR
+        harness.loop.set_real_time_factor(value)
+        for _ in range(5):
+            harness.loop.turn()
+        assert all(wait is None or 0.0 <= wait <= MAX_WAIT for wait in harness.waits)
+        harness.loop.set_real_time_factor(1.0)
+        harness.run_until(max(harness.ks()) + 2)
+    else:   # command_timeout: whole nanoseconds of simulated time, an int64 like every stamp
+        assert 0 <= round(value * 1e9) < 2 ** 63
+
+
+def check_huge_commands(seed_and_count, fuzz_settings):
+    """test/huge_commands.py in its own process (a loop would hang it, not the run)."""
+    seed, count = seed_and_count
+    result = subprocess.run([sys.executable, "huge_commands.py", str(seed), str(count)],
+                            capture_output=True, text=True, timeout=1800,
+                            cwd=Path(__file__).parent)
+    assert result.returncode == 0, result.stderr
+    cases = [json.loads(line) for line in result.stdout.splitlines()]
+    assert len(cases) == len(METHODS) * (len(COMMANDS) + count)
+    for case in cases:
+        check_huge_command(case)
+    return len(cases)
+
+
 def fuzz(settings, check, strategy) -> int:
     """Run `check` on hypothesis examples of `strategy` (each check asserts through `outcome`);
     returns how many examples it saw."""
@@ -163,6 +322,13 @@ CHECKS = [
     (check_mutated_scene, mutations_of(PAPER)), (check_scene_text, st.text(max_size=200)),
     (check_yaml_of_values, values), (check_spliced_text, splices), (check_metadata, metadata),
     (check_metadata_yaml, st.text(max_size=200)), (check_bag_information, mutations_of(BAG_INFORMATION)),
+    (check_tags, st.tuples(st.sampled_from(list(READERS)), st.integers(0, 10**6), tagged_scalars)),
+    (check_blank_argument, st.tuples(st.sampled_from(list(PARAMETERS)), st.one_of(
+        st.sampled_from(BLANKS), st.text(max_size=12)))),
+    (check_blank_in_yaml, st.tuples(st.sampled_from(list(READERS)), st.integers(0, 10**6),
+                                    st.sampled_from(BLANKS))),
+    (check_sweep, sweep_changes),
+    (check_run_time_parameter, st.tuples(st.sampled_from(DYNAMIC), extremes)),
 ]
 
 
@@ -177,6 +343,19 @@ def test_fuzz_long(check, strategy):
     assert fuzz(LONG, check, strategy) >= 1000
 
 
+def test_huge_commands_for_every_method_after_a_reset_fixed_seed():
+    """Issue 22: random huge finite commands (1e20 to 1.8e308, any signs, any group) right after
+    a reset, 3 per method with a fixed seed besides the fixed cases."""
+    assert check_huge_commands((22, 3), FAST) == len(METHODS) * (len(COMMANDS) + 3)
+
+
+@pytest.mark.slow
+def test_huge_commands_for_every_method_after_a_reset_long():
+    seed = random.randrange(10**6)
+    print(f"huge commands: seed {seed}")
+    assert check_huge_commands((seed, 60), LONG) == len(METHODS) * (len(COMMANDS) + 60)
+
+
 def test_the_fuzzer_can_fail():
     """The checks are not vacuous: an input known to be bad is refused, and a check that
     accepted anything other than a UserError would see it."""
@@ -184,6 +363,23 @@ def test_the_fuzzer_can_fail():
     assert outcome(lambda: rosbag2_metadata.bag_information(BAG_INFORMATION)) is None
     assert outcome(lambda: rosbag2_metadata.bag_information(mutate(
         BAG_INFORMATION, ("rosbag2_bagfile_information", "custom_data"), [1], False))) is not None
+    # issue 22's classes: a bad tag, a blank value and a huge sweep are refused, good ones not
+    scene_yaml = READERS["scene"][1]
+    assert outcome(lambda: scene_yaml(with_tag(PAPER, ("duration",), "!!float", "abc")))
+    assert outcome(lambda: scene_yaml(with_tag(PAPER, ("duration",), "!!float", "0.5"))) is None
+    assert outcome(lambda: node_arguments.check(["--ros-args", "-p", "publish_rate:="]))
+    assert outcome(lambda: sweep_check(mutate(SWEEP, ("random", "count"), 10**9, False)))
+    assert outcome(lambda: sweep_check(SWEEP)) is None
+    harness_runs = []
+    original = Harness.run_until
+    try:   # an accepted run-time value reaches the loop; a refused one does not
+        Harness.run_until = lambda self, k: harness_runs.append(k) or original(self, k)
+        check_run_time_parameter(("real_time_factor", 1e-12))
+        assert harness_runs == []
+        check_run_time_parameter(("real_time_factor", MIN_REAL_TIME_FACTOR))
+        assert harness_runs
+    finally:
+        Harness.run_until = original
     with pytest.raises(AssertionError):
         outcome(lambda: (_ for _ in ()).throw(UserError("k", "two\nlines")))
     with pytest.raises(ZeroDivisionError):

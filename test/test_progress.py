@@ -31,11 +31,12 @@ class Terminal:
         self.stream = open(self.slave, "w", closefd=False)
         self._seen = bytearray()
         self._lock = threading.Lock()
+        self._closing = threading.Event()
         self._reader = threading.Thread(target=self._read, daemon=True)
         self._reader.start()
 
     def _read(self):
-        while True:
+        while not self._closing.is_set():
             ready, _, _ = select.select([self.master], [], [], 0.1)
             if ready:
                 try:
@@ -66,6 +67,10 @@ class Terminal:
         raise AssertionError(f"no {what} in:\n{self.text()}")
 
     def close(self):
+        # The reader stops before its descriptor is closed: the next terminal's pty may get the
+        # same number, and a reader left running would take what was written there.
+        self._closing.set()
+        self._reader.join()
         self.stream.close()
         os.close(self.slave)
         os.close(self.master)
@@ -206,3 +211,13 @@ def test_bootstrap_says_still_while_a_silent_command_runs():
     assert result.returncode == 3 and result.stdout == "bootstrap: still waiting (10 s)\n"
     for phase in ("upgrading pip", "installing the package", "compiling the numba kernels"):
         assert f'echo "bootstrap: {phase}' in text   # a line before each phase
+
+
+def test_sweep_shows_runs_done_failed_and_time_to_go_on_a_terminal(terminal, tmp_path):
+    spec = Path(__file__).resolve().parents[1] / "config" / "sweeps" / "paper_mass_and_method.yaml"
+    process = started(terminal, executable("sweep"), str(spec), "--out", str(tmp_path / "out"),
+                      "--workers", "1")
+    process.communicate(timeout=600)
+    assert process.returncode == 0, terminal.text()
+    terminal.wait_for(r"sweep: 16 of 16 runs \(100 %\), \S+ runs/s, .+ to go, 0 failed\r?\n",
+                      "sweep's last status line")

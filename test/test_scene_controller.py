@@ -14,7 +14,7 @@ from mobile_manip_sim.engine.simulation import Simulation
 from mobile_manip_sim.errors import UserError
 from mobile_manip_sim.scene import load_scene, parse_scene
 from mobile_manip_sim.scene_overrides import scene_with
-from mobile_manip_sim.sweep import spec
+from mobile_manip_sim.sweep import runner, spec
 from mobile_manip_sim.timeline import sample_times
 
 CONFIG = Path(__file__).resolve().parent.parent / "config"
@@ -126,8 +126,15 @@ def test_the_recorded_document_parses_again_to_the_same_section():
                                                      scene.controller.trajectory[:3], strict=True))
 
 
-def test_the_tracking_sweep_example_is_a_valid_spec():
+def test_the_tracking_sweep_example_is_a_valid_spec_and_its_rows_carry_the_tracking_error():
     path = CONFIG / "sweeps" / "arm_tracking.yaml"
     from mobile_manip_sim import schema
     parsed = spec.parse_spec(schema.load_yaml(path, what="spec"), base_dir=path.parent)
     assert len(parsed.runs()) == 6
+    document = load_scene(EXAMPLE).document
+    rows = {ff: runner.run_one(document, {"controller.feedforward": ff}, 1.0)
+            for ff in ("none", "gravity", "computed_torque")}
+    assert all(row["status"] == "ok" for row in rows.values())
+    assert rows["computed_torque"]["arm_tracking_max"] < 1e-9
+    assert 1e-4 < rows["gravity"]["arm_tracking_rms"] < rows["none"]["arm_tracking_rms"]
+    assert "arm_tracking_rms" not in runner.run_one(load_scene().document, {}, 0.1)

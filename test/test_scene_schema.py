@@ -235,7 +235,8 @@ def test_yaml_1_2_core_scalars(text, value):
 
 
 @pytest.mark.parametrize("text, value", [("!!float 1", 1.0), ("!!float .inf", math.inf),
-                                         ("!!int 0x1f", 31), ("!!str 1.5", "1.5"),
+                                         ("!!int 0x1f", 31), ("!!float 0x1F", 31.0),
+                                         ("!!float 0o17", 15.0), ("!!str 1.5", "1.5"),
                                          ("!!bool false", False), ("!!null ~", None)])
 def test_explicit_core_tags_that_fit_their_value(text, value):
     assert schema.load_yaml(f"v: {text}\n")["v"] == value

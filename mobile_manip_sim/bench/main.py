@@ -43,8 +43,10 @@ class Progress:
 
 def _main(argv) -> int:
     parser = cli.ArgumentParser(prog="bench", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--out", type=cli.path, default="bench", help="directory for REPORT.md and the plots (default bench)")
-    parser.add_argument("--quick", action="store_true", help="a smoke run: short sweeps, one repeat")
+    parser.add_argument("--out", type=cli.path, default="bench",
+                        help="directory for REPORT.md and the plots (default bench)")
+    parser.add_argument("--quick", action="store_true",
+                        help="a smoke run: short sweeps, one repeat")
     parser.add_argument("--only", choices=("mujoco", "controllers"),
                         help="run one section alone (REPORT.md holds only it)")
     args = parser.parse_args(argv)
@@ -113,7 +115,7 @@ def _main(argv) -> int:
 
     progress.section("hard cases")
     results["hard"] = []
-    for name, case in hard_cases.all_cases(quick=args.quick):
+    for _name, case in hard_cases.all_cases(quick=args.quick):
         start = time.perf_counter()
         result = case()
         results["hard"].append(result)

@@ -15,7 +15,8 @@ import numpy as np
 
 
 def free_dense_weights(A: np.ndarray) -> tuple:
-    """(F, F_check) of `tableaus._DOP853_FREE_F` and `_DOP853_FREE_CHECK` from DOP853's A[:13, :13]."""
+    """(F, F_check) of `tableaus._DOP853_FREE_F` and `_DOP853_FREE_CHECK` from DOP853's
+    A[:13, :13]."""
     sixth = continuous_extension(A, 6, 7)
     fifth = continuous_extension(A, 5, 6)
     F = np.linalg.solve(hairer_basis().T, sixth)
@@ -83,7 +84,8 @@ def continuous_extension(A: np.ndarray, order: int, degree: int) -> np.ndarray:
         next_rows, next_rhs = [], []
         for theta in np.linspace(0.1, 0.9, 9):
             for tree in trees[order + 1]:
-                next_rows.append(np.concatenate([theta ** r * phi(tree) for r in range(1, degree + 1)]))
+                next_rows.append(np.concatenate([theta ** r * phi(tree)
+                                                 for r in range(1, degree + 1)]))
                 next_rhs.append(theta ** (order + 1) / gamma(tree))
         R = np.array(next_rows)
         beta = beta + null @ np.linalg.lstsq(R @ null, np.array(next_rhs) - R @ beta, rcond=None)[0]
@@ -100,6 +102,7 @@ def hairer_basis() -> np.ndarray:
     basis = np.zeros((7, 7))
     for j in range(7):
         poly = np.polynomial.polynomial.polypow([0.0, 1.0], (j + 2) // 2)
-        poly = np.polynomial.polynomial.polymul(poly, np.polynomial.polynomial.polypow([1.0, -1.0], (j + 1) // 2))
+        poly = np.polynomial.polynomial.polymul(
+            poly, np.polynomial.polynomial.polypow([1.0, -1.0], (j + 1) // 2))
         basis[j, :len(poly) - 1] = poly[1:]
     return basis

@@ -165,8 +165,8 @@ def next_step(method_id, err_norm, h, previous_rejected):
     """The next step size after a step of size h with error norm err_norm (same sign as h).
 
     Accepted (err_norm < 1): h·min(MAX_FACTOR, SAFETY·err_norm^(−1/(p̂+1))), capped at h when
-    this step was itself retried after a rejection (`previous_rejected`). Rejected: h·max(MIN_FACTOR,
-    SAFETY·err_norm^(−1/(p̂+1))), the step to retry with.
+    this step was itself retried after a rejection (`previous_rejected`). Rejected:
+    h·max(MIN_FACTOR, SAFETY·err_norm^(−1/(p̂+1))), the step to retry with.
     """
     exponent = -1.0 / (tableau(method_id).error_order + 1)
     if err_norm < 1.0:
@@ -271,10 +271,10 @@ def dense_from_stages(method_id, s, out, h, K, coeffs, rtol, atol):
     interpolant costs nothing anyway.
 
     The continuous extension is of order 6 (`continuous_extension.py`: one order below the
-    7th-order one, whose 3 extra stages it saves). Its error is estimated at θ = 1/2 by its difference to
-    the 5th-order extension of the same stages (tab.F_check), in `error_norm`'s scaled RMS norm,
-    which must not exceed 1: as the step's error is estimated by lower-order formulas, the
-    estimate is that of the lower-order extension, so it bounds the 6th-order one's
+    7th-order one, whose 3 extra stages it saves). Its error is estimated at θ = 1/2 by its
+    difference to the 5th-order extension of the same stages (tab.F_check), in `error_norm`'s
+    scaled RMS norm, which must not exceed 1: as the step's error is estimated by lower-order
+    formulas, the estimate is that of the lower-order extension, so it bounds the 6th-order one's
     (measured: 1.2-2× its error on the paper robot). The estimate shrinks with h like h⁶
     where the step's own error shrinks like h⁸, so loose tolerances (long steps) pass and
     tight ones fall back.

@@ -30,19 +30,10 @@ from . import adaptive_stepping, dense, layout, step_watch, stepping
 from . import runge_kutta as rk
 from .arm_commands import ArmCommands
 from .arm_control import ArmControl, arm_settings, scene_arm_control
+from .base_commands import BaseCommands, command, finite_forces
 from .events import holding_margin
 from .stops import LOG_HELD, Impact, make_impact_scratch, make_stops, release, relock
-from .system import (
-    KI,
-    KP,
-    RHS_EVALS,
-    TARGET_L,
-    TARGET_R,
-    TORQUE_LIMIT,
-    VELOCITY_MODE,
-    System,
-    wheel_speed_torques,
-)
+from .system import RHS_EVALS, VELOCITY_MODE, System
 
 
 def scipy_solver(method: str):
@@ -52,7 +43,7 @@ def scipy_solver(method: str):
 
 
 # The compiled core of each `Method.stepper` (SciPy's solvers have none: stepped from Python).
-CORES = dict(zip(COMPILED_STEPPERS, (stepping, adaptive_stepping)))
+CORES = dict(zip(COMPILED_STEPPERS, (stepping, adaptive_stepping), strict=True))
 
 # semi-implicit Euler is symplectic between impacts only (bench/REPORT.md, "elastic drift")
 ELASTIC_SEMI_IMPLICIT = ("semi_implicit_euler with end stops that rebound (restitution > 0): its "
@@ -71,8 +62,8 @@ class SimulationError(RuntimeError):
 
 
 class StepLimitError(SimulationError):
-    """An adaptive method cannot follow the solution (`step_watch`): the settings named by `key` and the
-    efforts are to blame, so adapters treat it like a user error (status 2)."""
+    """An adaptive method cannot follow the solution (`step_watch`): the settings named by `key`
+    and the efforts are to blame, so adapters treat it like a user error (status 2)."""
 
     def __init__(self, key: str, problem: str):
         super().__init__(f"{key}: {problem}")
@@ -82,7 +73,7 @@ class StepLimitError(SimulationError):
 ImpactDetail = namedtuple("ImpactDetail", "q u_before u_after free held")
 
 
-class Simulation(ArmCommands):
+class Simulation(ArmCommands, BaseCommands):
     def __init__(self, scene: Scene, integrator: IntegratorSettings | None = None,
                  arm_control: ArmControl | None = None):
         """`arm_control`: how the arm is driven; None takes the scene's ``controller:`` section
@@ -105,9 +96,11 @@ class Simulation(ArmCommands):
                 and self.stop_law.restitution > 0.0):
             warnings.warn(ELASTIC_SEMI_IMPLICIT, RuntimeWarning, stacklevel=2)
         self.stops = make_stops(model, effects.stop_law, self.system.permanently_locked)
-        self.watched, self.resting, self.stroke = self.stops.watched, self.stops.resting, self.stops.stroke
+        self.watched, self.resting = self.stops.watched, self.stops.resting
+        self.stroke = self.stops.stroke
         size = self.system.state(model.n_q * [0.0], self.nu * [0.0]).size
-        self._scratch = stepping.make_scratch(size, model.n_links, make_impact_scratch(self.nu, model.n_links))
+        self._scratch = stepping.make_scratch(size, model.n_links,
+                                              make_impact_scratch(self.nu, model.n_links))
         self._clock = np.zeros(5)
         self._clock[stepping.DT] = self.settings.dt
         # The compiled core that runs the method (stepping.py, adaptive_stepping.py; None: SciPy's
@@ -233,10 +226,10 @@ class Simulation(ArmCommands):
         before = Q.copy(), self.velocity_mode
         wheel_efforts, joint_efforts = self.wheel_efforts, self.joint_efforts
         if wheels is not None:
-            wheel_efforts = self.effects.saturate(_command(wheels, 2, "wheels"))
-            _finite_forces(lambda: self.dynamics.wheel_forces(*wheel_efforts), "wheels", wheels)
+            wheel_efforts = self.effects.saturate(command(wheels, 2, "wheels"))
+            finite_forces(lambda: self.dynamics.wheel_forces(*wheel_efforts), "wheels", wheels)
         if joints is not None:
-            joint_efforts = self.effects.saturate(_command(joints, self.nu - 2, "joints"), 2)
+            joint_efforts = self.effects.saturate(command(joints, self.nu - 2, "joints"), 2)
         self.wheel_efforts, self.joint_efforts = wheel_efforts, joint_efforts
         if wheels is not None:
             self.system.control[VELOCITY_MODE] = 0.0
@@ -244,53 +237,6 @@ class Simulation(ArmCommands):
         Q[2:] = self.joint_efforts
         if not np.array_equal(before[0], Q) or before[1] != self.velocity_mode:
             self._command_changed()
-
-    def set_base_velocity(self, v: float, omega: float) -> None:
-        """Drive the base at forward speed v (m/s) and yaw rate ω (rad/s) from now on: the wheel
-        torques come from the wheel-speed PI loop (`set_wheel_speed_gains`) inside the simulated
-        system, recomputed at every evaluation of the right-hand side and clipped to the wheel
-        effort limits. `set_efforts(wheels=...)` returns the wheels to torque commands."""
-        target = _command([v, omega], 2, "cmd_vel")
-        r, b = self.model.base.wheel_radius, self.model.base.half_track
-        control = self.system.control
-        v, omega = float(target[0]), float(target[1])
-        wheel_speeds = _finite_forces(lambda: ((v + b * omega) / r, (v - b * omega) / r),
-                                      "cmd_vel", target)
-        # the PI loop's forces at rest, kp times the wheel speeds: finite, or refused
-        _finite_forces(lambda: self.dynamics.wheel_forces(*(control[KP] * w for w in wheel_speeds)),
-                       "cmd_vel", target)
-        before = control.copy()
-        control[TARGET_R], control[TARGET_L] = wheel_speeds
-        if not control[VELOCITY_MODE]:
-            e = layout.controller(self.nq, self.nu)
-            self.s[e:e + 2] = 0.0   # a fresh loop: no integral carried over from an earlier one
-            control[VELOCITY_MODE] = 1.0
-        if not np.array_equal(before, control):
-            self._command_changed()
-
-    def set_wheel_speed_gains(self, kp: float, ki: float, torque_limit: float = math.inf) -> None:
-        """Gains of the wheel-speed PI loop: kp (N·m·s/rad) on the speed error, ki (N·m/rad) on
-        its integral; torques within ±torque_limit (N·m) and the scene's wheel effort limits."""
-        for name, value in (("kp", kp), ("ki", ki)):
-            if not (math.isfinite(value) and value >= 0.0):
-                raise UserError(f"wheel_speed.{name}", f"must be a finite number ≥ 0, got {value!r}")
-        if not torque_limit > 0.0:
-            raise UserError("wheel_speed.torque_limit", f"must be positive, got {torque_limit!r}")
-        if self.effects.effort_limits is not None:
-            torque_limit = min(torque_limit, float(np.min(self.effects.effort_limits[:2])))
-        control = self.system.control
-        control[KP], control[KI], control[TORQUE_LIMIT] = kp, ki, torque_limit
-        self._restart()
-
-    def wheel_torques(self) -> np.ndarray:
-        """(τ_R, τ_L) acting now, N·m: the commanded ones, or the PI loop's in velocity mode."""
-        if not self.velocity_mode:
-            return np.array(self.wheel_efforts, dtype=float)
-        return np.array(wheel_speed_torques(self.system.data, self.s))
-
-    @property
-    def velocity_mode(self) -> bool:
-        return bool(self.system.control[VELOCITY_MODE])
 
     def _restart(self) -> None:
         """The right-hand side changes here: adaptive solves end at the current (t, s)."""
@@ -451,28 +397,3 @@ class Simulation(ArmCommands):
     def stats(self) -> dict:
         return {"t": self.t, "steps": self.steps, "rhs_evaluations": self.rhs_evaluations,
                 "impacts": len(self.impacts), "energy_error": self.energy_error()}
-
-
-def _finite_forces(compute, group, values) -> tuple:
-    """compute() of what a command gives (its generalized forces, its wheel speeds), checked:
-    a command whose results overflow (|τ_R + τ_L|/r beyond 1.8e308) is refused, or the
-    integrators would meet infinities at their first stage."""
-    with np.errstate(over="ignore", invalid="ignore"):
-        results = tuple(float(x) for x in compute())
-    if not all(math.isfinite(x) for x in results):
-        raise UserError(f"efforts.{group}", f"{np.asarray(values, dtype=float).tolist()} "
-                        f"overflows: its generalized forces would not be finite")
-    return results
-
-
-def _command(values, size, group) -> np.ndarray:
-    try:
-        array = np.array(values, dtype=float).reshape(-1)
-    except (TypeError, ValueError):
-        raise UserError(f"efforts.{group}", f"expected {size} numbers, got {values!r}") from None
-    if array.size != size:
-        raise UserError(f"efforts.{group}", f"expected {size} values, got {array.size}")
-    if not np.all(np.isfinite(array)):
-        raise UserError(f"efforts.{group}", f"values must be finite, got {array.tolist()}")
-    return array
-

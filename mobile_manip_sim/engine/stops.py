@@ -33,7 +33,8 @@ from .system import derivative, slide_holding_forces
 IMPULSE, REFLECT = 0, 1
 LAW_IDS = {"impulse": IMPULSE, "reflect": REFLECT}
 # log[i, ...] columns
-LOG_TIME, LOG_LINK, LOG_SIDE, LOG_LD_BEFORE, LOG_LD_AFTER, LOG_LOST, LOG_RESTING, LOG_HELD = range(8)
+(LOG_TIME, LOG_LINK, LOG_SIDE, LOG_LD_BEFORE, LOG_LD_AFTER, LOG_LOST, LOG_RESTING,
+ LOG_HELD) = range(8)
 LOG_COLUMNS = 8
 LOG_ROOM = 64   # rows of the impact log per stop (see `make_stops`)
 
@@ -49,11 +50,13 @@ StopsData = namedtuple("StopsData", [
     "log_free",   # (capacity, n_u) bool: the pseudo-velocities free at each impact
     "count",      # (1,) int64: rows of the log in use
     "run",        # (n, 2, 3) the Zeno guard's record per rod and stop (0 lower, 1 upper): impacts,
-                  # time of the last (s), interval before it (s) (`events.zeno_guard`); cleared on reset
+                  # time of the last (s), interval before it (s) (`events.zeno_guard`); cleared
+                  # on reset
 ])
 
 StopLaw = namedtuple("StopLaw", [
-    "kind",         # IMPULSE (docs/model.md's unilateral law) or REFLECT (the paper's: l̇ reversed alone)
+    "kind",         # IMPULSE (docs/model.md's unilateral law) or REFLECT (the paper's: l̇
+                    # reversed alone)
     "restitution",  # e ∈ [0, 1]
     "rest_speed",   # m/s: a rod that would rebound slower than this stops dead and is held
 ])
@@ -83,23 +86,25 @@ def make_stops(model, stop_law, permanently_locked) -> StopsData:
     capacity = 4 * LOG_ROOM * (n + 2)
     permanent = np.zeros(nu, dtype=np.bool_)
     permanent[list(permanently_locked)] = True
+    law = (StopLaw(LAW_IDS[stop_law.law], float(stop_law.restitution),
+                   float(stop_law.rest_speed)) if stop_law else StopLaw(IMPULSE, 0.0, 0.0))
     return StopsData(np.zeros(n, dtype=np.bool_), np.zeros(n, dtype=np.int64),
-                     np.array(model.stroke, dtype=float), permanent,
-                     StopLaw(LAW_IDS[stop_law.law], float(stop_law.restitution),
-                             float(stop_law.rest_speed)) if stop_law else StopLaw(IMPULSE, 0.0, 0.0),
+                     np.array(model.stroke, dtype=float), permanent, law,
                      np.zeros((capacity, LOG_COLUMNS)), np.zeros((capacity, nq)),
                      np.zeros((capacity, 2, nu)), np.zeros((capacity, nu), dtype=np.bool_),
                      np.zeros(1, dtype=np.int64), np.zeros((n, 2, 3)))
 
 
 def make_impact_scratch(nu: int, n: int) -> ImpactScratch:
-    """Everything one impact needs, preallocated: the kernels allocate nothing (`dynamics/jit.py`)."""
+    """Everything one impact needs, preallocated: the kernels allocate nothing
+    (`dynamics/jit.py`)."""
     n = max(n, 1)
     return ImpactScratch(np.zeros((nu, nu)), np.zeros((nu, nu)), np.zeros((4, nu)),
                          np.zeros(nu, dtype=np.int64), np.zeros(n, dtype=np.int64),
                          np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64),
                          np.zeros((2, n), dtype=np.bool_),
-                         np.zeros((6, n)), np.zeros((n, nu)), np.zeros((n, n)), np.zeros((n, n + 1)))
+                         np.zeros((6, n)), np.zeros((n, nu)), np.zeros((n, n)),
+                         np.zeros((n, n + 1)))
 
 
 @jit

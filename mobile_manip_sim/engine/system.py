@@ -30,7 +30,8 @@ from . import layout
 from .arm_control import ARM_ON, N_ARM_SETTINGS, SEGMENT, SEGMENTS, arm_efforts
 
 # counters[...] indices
-RHS_EVALS, DAMPING_STAGE, REDUCED_SOLVE, CROSSING_CHECKS, CONTROL_STAGE, ARM_CONTROL_STAGE = range(6)
+(RHS_EVALS, DAMPING_STAGE, REDUCED_SOLVE, CROSSING_CHECKS, CONTROL_STAGE,
+ ARM_CONTROL_STAGE) = range(6)
 N_COUNTERS = 6
 
 # control[...] entries: the wheel-speed PI loop (`wheel_speed_torques`)
@@ -77,7 +78,8 @@ def applied_forces(system, s, ds):
     """Q = commanded efforts (or the PI loop's wheel torques, the arm controller's efforts) +
     damping, into ``system.Q``; also writes ė (the wheel loop's error rates), and ż, τ̇ when a
     controller drives the arm, into ds. Returns the power Q·u (W)."""
-    model, damping, Q_cmd, Q, control = system.model, system.damping, system.Q_cmd, system.Q, system.control
+    model, damping, Q_cmd, Q = system.model, system.damping, system.Q_cmd, system.Q
+    control = system.control
     nq, nu = layout.sizes(system)
     i_e = layout.controller(nq, nu)
     for k in range(nu):
@@ -212,7 +214,8 @@ class System:
     def _check(self, s: np.ndarray) -> np.ndarray:
         s = np.asarray(s, dtype=float)
         if s.shape != self._scratch.shape:   # compiled code does not check bounds
-            raise ValueError(f"state vector of length {s.size}, expected {self._scratch.size} (layout.py)")
+            raise ValueError(f"state vector of length {s.size}, expected {self._scratch.size} "
+                             f"(layout.py)")
         return s
 
     def derivative(self, s: np.ndarray) -> np.ndarray:

@@ -19,7 +19,8 @@ import pyarrow.parquet as pq
 from ..errors import UserError
 
 COUNTS = ("impacts", "steps", "rhs_evaluations")
-FIGURES = ("energy_error", "stroke_violation", "constraint_residual", "cpu_s")
+FIGURES = ("energy_error", "stroke_violation", "constraint_residual", "cpu_s",
+           "arm_tracking_rms", "arm_tracking_max")   # the last two: null without an arm controller
 
 
 def schema(varied: dict, state_columns: list[str]) -> pa.Schema:

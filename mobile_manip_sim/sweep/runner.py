@@ -85,6 +85,9 @@ def _figures(sim, scene, samples: np.ndarray) -> dict:
                    steps=int(sim.steps),
                    rhs_evaluations=int(sim.rhs_evaluations), stroke_violation=violation,
                    constraint_residual=float(residual))
+    if sim.tracking is not None:   # q − q_ref at the samples, over every arm joint (rad, m)
+        figures.update(arm_tracking_rms=float(np.sqrt(np.mean(sim.tracking.rms ** 2))),
+                       arm_tracking_max=float(sim.tracking.max.max()))
     return figures
 
 

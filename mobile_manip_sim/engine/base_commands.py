@@ -1,0 +1,91 @@
+"""The base's velocity interface of `Simulation`: cmd_vel through the wheel-speed PI loop inside
+the simulated system (`system.wheel_speed_torques`), its gains, the torques acting; and the
+checks every effort or velocity command goes through (`command`, `finite_forces`).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ..errors import UserError
+from . import layout
+from .system import KI, KP, TARGET_L, TARGET_R, TORQUE_LIMIT, VELOCITY_MODE, wheel_speed_torques
+
+
+class BaseCommands:
+    """Mixed into `Simulation` (which provides s, model, dynamics, effects, system,
+    wheel_efforts and `_command_changed`, `_restart`)."""
+
+    def set_base_velocity(self, v: float, omega: float) -> None:
+        """Drive the base at forward speed v (m/s) and yaw rate ω (rad/s) from now on: the wheel
+        torques come from the wheel-speed PI loop (`set_wheel_speed_gains`) inside the simulated
+        system, recomputed at every evaluation of the right-hand side and clipped to the wheel
+        effort limits. `set_efforts(wheels=...)` returns the wheels to torque commands."""
+        target = command([v, omega], 2, "cmd_vel")
+        r, b = self.model.base.wheel_radius, self.model.base.half_track
+        control = self.system.control
+        v, omega = float(target[0]), float(target[1])
+        wheel_speeds = finite_forces(lambda: ((v + b * omega) / r, (v - b * omega) / r),
+                                      "cmd_vel", target)
+        # the PI loop's forces at rest, kp times the wheel speeds: finite, or refused
+        finite_forces(lambda: self.dynamics.wheel_forces(*(control[KP] * w for w in wheel_speeds)),
+                       "cmd_vel", target)
+        before = control.copy()
+        control[TARGET_R], control[TARGET_L] = wheel_speeds
+        if not control[VELOCITY_MODE]:
+            e = layout.controller(self.nq, self.nu)
+            self.s[e:e + 2] = 0.0   # a fresh loop: no integral carried over from an earlier one
+            control[VELOCITY_MODE] = 1.0
+        if not np.array_equal(before, control):
+            self._command_changed()
+
+    def set_wheel_speed_gains(self, kp: float, ki: float, torque_limit: float = math.inf) -> None:
+        """Gains of the wheel-speed PI loop: kp (N·m·s/rad) on the speed error, ki (N·m/rad) on
+        its integral; torques within ±torque_limit (N·m) and the scene's wheel effort limits."""
+        for name, value in (("kp", kp), ("ki", ki)):
+            if not (math.isfinite(value) and value >= 0.0):
+                raise UserError(f"wheel_speed.{name}",
+                                f"must be a finite number ≥ 0, got {value!r}")
+        if not torque_limit > 0.0:
+            raise UserError("wheel_speed.torque_limit", f"must be positive, got {torque_limit!r}")
+        if self.effects.effort_limits is not None:
+            torque_limit = min(torque_limit, float(np.min(self.effects.effort_limits[:2])))
+        control = self.system.control
+        control[KP], control[KI], control[TORQUE_LIMIT] = kp, ki, torque_limit
+        self._restart()
+
+    def wheel_torques(self) -> np.ndarray:
+        """(τ_R, τ_L) acting now, N·m: the commanded ones, or the PI loop's in velocity mode."""
+        if not self.velocity_mode:
+            return np.array(self.wheel_efforts, dtype=float)
+        return np.array(wheel_speed_torques(self.system.data, self.s))
+
+    @property
+    def velocity_mode(self) -> bool:
+        return bool(self.system.control[VELOCITY_MODE])
+
+
+def finite_forces(compute, group, values) -> tuple:
+    """compute() of what a command gives (its generalized forces, its wheel speeds), checked:
+    a command whose results overflow (|τ_R + τ_L|/r beyond 1.8e308) is refused, or the
+    integrators would meet infinities at their first stage."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        results = tuple(float(x) for x in compute())
+    if not all(math.isfinite(x) for x in results):
+        raise UserError(f"efforts.{group}", f"{np.asarray(values, dtype=float).tolist()} "
+                        f"overflows: its generalized forces would not be finite")
+    return results
+
+
+def command(values, size, group) -> np.ndarray:
+    try:
+        array = np.array(values, dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        raise UserError(f"efforts.{group}", f"expected {size} numbers, got {values!r}") from None
+    if array.size != size:
+        raise UserError(f"efforts.{group}", f"expected {size} values, got {array.size}")
+    if not np.all(np.isfinite(array)):
+        raise UserError(f"efforts.{group}", f"values must be finite, got {array.tolist()}")
+    return array
+
