@@ -513,7 +513,8 @@ def test_the_statistics_agree_with_the_messages_and_metadata_yaml(tmp_path, log_
     if log_times:
         assert (chunks[0].message_start_time, chunks[0].message_end_time) == (
             min(log_times), max(log_times))
-    information = yaml.safe_load((path / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
+    information = yaml.safe_load(
+        (path / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
     assert information["starting_time"]["nanoseconds_since_epoch"] == statistics.message_start_time
     assert information["duration"]["nanoseconds"] == (
         statistics.message_end_time - statistics.message_start_time)

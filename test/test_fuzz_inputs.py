@@ -153,7 +153,8 @@ BAG_INFORMATION = {"rosbag2_bagfile_information": {   # a metadata.yaml as BagWr
     "starting_time": {"nanoseconds_since_epoch": 0}, "message_count": 24,
     "topics_with_message_count": [{"topic_metadata": {
         "name": "/odom", "type": "nav_msgs/msg/Odometry", "serialization_format": "cdr",
-        "offered_qos_profiles": "- history: 1\n  depth: 100\n", "type_description_hash": "RIHS01_00"},
+        "offered_qos_profiles": "- history: 1\n  depth: 100\n",
+        "type_description_hash": "RIHS01_00"},
         "message_count": 5}],
     "compression_format": "", "compression_mode": "", "relative_file_paths": ["bag_0.mcap"],
     "files": [{"path": "bag_0.mcap", "starting_time": {"nanoseconds_since_epoch": 0},
@@ -164,7 +165,8 @@ BAG_INFORMATION = {"rosbag2_bagfile_information": {   # a metadata.yaml as BagWr
 def check_bag_information(changes):
     doc = mutated(BAG_INFORMATION, changes)
     outcome(lambda: rosbag2_metadata.bag_information(doc))
-    outcome(lambda: rosbag2_metadata.bag_information(schema.load_yaml(yaml.safe_dump(doc), what="metadata.yaml")))
+    outcome(lambda: rosbag2_metadata.bag_information(
+        schema.load_yaml(yaml.safe_dump(doc), what="metadata.yaml")))
 
 
 # --- issue 22's classes: YAML tags, blank values, sweep specs, node parameters, huge commands ---
@@ -321,7 +323,8 @@ def fuzz(settings, check, strategy) -> int:
 CHECKS = [
     (check_mutated_scene, mutations_of(PAPER)), (check_scene_text, st.text(max_size=200)),
     (check_yaml_of_values, values), (check_spliced_text, splices), (check_metadata, metadata),
-    (check_metadata_yaml, st.text(max_size=200)), (check_bag_information, mutations_of(BAG_INFORMATION)),
+    (check_metadata_yaml, st.text(max_size=200)),
+    (check_bag_information, mutations_of(BAG_INFORMATION)),
     (check_tags, st.tuples(st.sampled_from(list(READERS)), st.integers(0, 10**6), tagged_scalars)),
     (check_blank_argument, st.tuples(st.sampled_from(list(PARAMETERS)), st.one_of(
         st.sampled_from(BLANKS), st.text(max_size=12)))),
