@@ -387,10 +387,21 @@ def keys(doc: dict, path: str, required=(), optional=()) -> None:
     allowed = list(required) + list(optional)
     for key in doc:
         if key not in allowed:
-            raise UserError(f"{prefix}{label(key)}", f"unknown key (allowed: {', '.join(allowed)})")
+            raise UserError(f"{prefix}{label(key)}", f"unknown key (allowed: {_listed(allowed)})")
     for key in required:
         if key not in doc:
             raise UserError(f"{prefix}{key}", "missing")
+
+
+def _listed(names: list, room: int = 200) -> str:
+    """``names`` comma-separated, cut after ``room`` characters with a count of the rest, so an
+    error line stays one short line however many keys a map allows."""
+    shown = []
+    for name in names:
+        if len(", ".join([*shown, name])) > room:
+            return f"{', '.join(shown)}, … and {len(names) - len(shown)} more"
+        shown.append(name)
+    return ", ".join(shown)
 
 
 def string_map(value, path, *, max_entries=1000, max_length=10_000) -> dict[str, str]:
