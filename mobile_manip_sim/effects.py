@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .coordinates import ARM_U
 from .model import Base
 from .scene import Scene, StrokeLimits
 
@@ -84,8 +85,8 @@ def settings(scene: Scene) -> EffectSettings:
         if effects.wheel_damping:
             rate_damping[:2] = effects.wheel_damping
         if effects.joint_damping is not None:
-            rate_damping[2:] = effects.joint_damping
-    arm_names = robot.joint_names()[2:]
+            rate_damping[ARM_U] = effects.joint_damping
+    arm_names = robot.joint_names()[ARM_U]
     locked = [2 + arm_names.index(name) for name in effects.locked_joints]
     if effects.fixed_base:
         locked += [0, 1]

@@ -15,6 +15,7 @@ import numpy as np
 import yaml
 
 from . import methods, schema
+from .coordinates import ARM_Q, ARM_U, BASE_POSE, WHEELS
 from .errors import UserError
 from .limits import (
     ANGLE,
@@ -241,7 +242,7 @@ def _effects(doc, robot: RobotModel) -> Effects:
         if not isinstance(names, list):
             raise UserError("effects.locked_joints",
                             f"expected a list of joint names, got {schema.short(names)}")
-        arm_names = robot.joint_names()[2:]
+        arm_names = robot.joint_names()[ARM_U]
         for i, name in enumerate(names):
             if name not in arm_names:
                 raise UserError(f"effects.locked_joints[{i}]",
@@ -365,9 +366,10 @@ def _document(doc: dict, scene: Scene) -> dict:
     full = copy.deepcopy(doc)
     full["name"] = scene.name
     full["duration"] = scene.duration
-    full["initial"] = {"pose": scene.initial_q[:3].tolist(),
-                       "wheels": scene.initial_q[3:5].tolist(),
-                       "joints": scene.initial_q[5:].tolist(), "velocity": scene.initial_u.tolist()}
+    full["initial"] = {"pose": scene.initial_q[BASE_POSE].tolist(),
+                       "wheels": scene.initial_q[WHEELS].tolist(),
+                       "joints": scene.initial_q[ARM_Q].tolist(),
+                       "velocity": scene.initial_u.tolist()}
     full["efforts"] = {"wheels": scene.wheel_efforts.tolist(),
                        "joints": scene.joint_efforts.tolist()}
     s = scene.integrator

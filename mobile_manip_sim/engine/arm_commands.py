@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..coordinates import ARM_U
 from ..errors import UserError
 from ..limits import DURATION, SPEED, TRAJECTORY_POINTS
 from ..scene_controller import outside_stroke
@@ -105,7 +106,7 @@ class ArmCommands:
 
     def _arm_now(self):
         q, u = self.q, self.u
-        return q[layout.arm_q(0):].copy(), u[2:].copy()
+        return q[layout.arm_q(0):].copy(), u[ARM_U].copy()
 
     def _set_reference(self, starts, coeffs) -> None:
         data = self.system.data
@@ -159,7 +160,7 @@ class ArmCommands:
     def _check_points(self, points: np.ndarray, key: str) -> None:
         """Every point within its rod's stroke (when stroke limits are on), and held against
         gravity within the effort limits (when set): else a UserError naming the joint."""
-        names = self.model.joint_names()[2:]
+        names = self.model.joint_names()[ARM_U]
         stroke = np.asarray(self.model.stroke).reshape(-1, 2)
         limits = self.effects.effort_limits
         for i, point in enumerate(points):
@@ -170,8 +171,8 @@ class ArmCommands:
             if limits is None or self.dynamics.gravity == 0.0:
                 continue
             q = np.concatenate([self.q[:5], point])
-            gravity = self.dynamics.inverse_dynamics(q, np.zeros(self.nu), np.zeros(self.nu))[2:]
-            over = np.flatnonzero(np.abs(gravity) > limits[2:])
+            gravity = self.dynamics.inverse_dynamics(q, np.zeros(self.nu), np.zeros(self.nu))[ARM_U]
+            over = np.flatnonzero(np.abs(gravity) > limits[ARM_U])
             if over.size:
                 j = int(over[0])
                 unit = "N·m" if j % 2 == 0 else "N"

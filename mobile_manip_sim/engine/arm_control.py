@@ -33,6 +33,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from ..coordinates import ARM_U, OMEGA, V
 from ..dynamics import kernels
 from ..dynamics.articulated import set_moving
 from ..dynamics.jit import jit_inline
@@ -141,7 +142,7 @@ def default_gains(robot) -> np.ndarray:
     from ..dynamics import Dynamics
     q = np.zeros(robot.n_q)
     q[6::2] = np.mean(np.asarray(robot.stroke).reshape(-1, 2), axis=1)
-    inertia = np.diag(Dynamics(robot).mass_matrix(q))[2:]
+    inertia = np.diag(Dynamics(robot).mass_matrix(q))[ARM_U]
     w = DEFAULT_BANDWIDTH
     return np.array([round_2(inertia * w ** 2), round_2(DEFAULT_INTEGRAL_RATIO * inertia * w ** 3),
                      round_2(2.0 * inertia * w)])
@@ -164,7 +165,7 @@ def arm_settings(control: ArmControl, effort_limits) -> tuple:
     settings[ARM_ON] = 1.0 if control.active else 0.0
     settings[FEEDFORWARD] = FEEDFORWARDS.index(control.feedforward)
     gains = np.array([control.kp, control.ki, control.kd], dtype=float).reshape(3, n_arm)
-    limits = np.full(n_arm, np.inf) if effort_limits is None else np.array(effort_limits[2:])
+    limits = np.full(n_arm, np.inf) if effort_limits is None else np.array(effort_limits[ARM_U])
     return settings, gains, limits
 
 
@@ -234,7 +235,7 @@ def feedforward(system, s, ff):
     for j in range(n_arm):
         ud[2 + j] = system.arm_ref[QDD_REF, j] * ws.moving[2 + j]
     kernels.gibbs_appell(model, q, u, ud, system.gravity, ws, Q_id)
-    Qb0, Qb1 = system.Q[0], system.Q[1]
+    Qb0, Qb1 = system.Q[V], system.Q[OMEGA]
     if damping.shape[0] > 0:
         Qb0 -= damping[0] * u[0]
         Qb1 -= damping[1] * u[1]

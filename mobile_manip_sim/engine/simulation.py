@@ -20,6 +20,7 @@ from collections import namedtuple
 
 import numpy as np
 
+from ..coordinates import ARM_U, OMEGA, V
 from ..dynamics import Dynamics
 from ..dynamics.jit import Bound
 from ..effects import settings as effect_settings
@@ -233,8 +234,8 @@ class Simulation(ArmCommands, BaseCommands):
         self.wheel_efforts, self.joint_efforts = wheel_efforts, joint_efforts
         if wheels is not None:
             self.system.control[VELOCITY_MODE] = 0.0
-        Q[0], Q[1] = self.dynamics.wheel_forces(*self.wheel_efforts)
-        Q[2:] = self.joint_efforts
+        Q[V], Q[OMEGA] = self.dynamics.wheel_forces(*self.wheel_efforts)
+        Q[ARM_U] = self.joint_efforts
         if not np.array_equal(before[0], Q) or before[1] != self.velocity_mode:
             self._command_changed()
 

@@ -23,6 +23,7 @@ from collections import namedtuple
 
 import numpy as np
 
+from ..coordinates import OMEGA, V
 from ..dynamics import kernels
 from ..dynamics.articulated import articulated_forward_dynamics
 from ..dynamics.jit import jit, jit_inline
@@ -65,7 +66,7 @@ def wheel_speed_torques(system, s):
     control, base = system.control, system.model.base
     r, b = base.wheel_radius, base.half_track
     nq, nu = layout.sizes(system)
-    v, om = s[nq], s[nq + 1]
+    v, om = s[nq + V], s[nq + OMEGA]
     i_e = layout.controller(nq, nu)
     kp, ki, limit = control[KP], control[KI], control[TORQUE_LIMIT]
     tau_R = kp * (control[TARGET_R] - (v + b * om) / r) + ki * s[i_e]
@@ -90,9 +91,9 @@ def applied_forces(system, s, ds):
         system.counters[CONTROL_STAGE] += 1
         tau_R, tau_L = wheel_speed_torques(system, s)
         r, b = model.base.wheel_radius, model.base.half_track
-        Q[0] = (tau_R + tau_L) / r
-        Q[1] = b * (tau_R - tau_L) / r
-        v, om = s[nq], s[nq + 1]
+        Q[V] = (tau_R + tau_L) / r
+        Q[OMEGA] = b * (tau_R - tau_L) / r
+        v, om = s[nq + V], s[nq + OMEGA]
         ds[i_e] = control[TARGET_R] - (v + b * om) / r
         ds[i_e + 1] = control[TARGET_L] - (v - b * om) / r
     if system.arm[ARM_ON] != 0.0:

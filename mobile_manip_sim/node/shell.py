@@ -25,6 +25,7 @@ from sensor_msgs.msg import JointState
 from std_srvs.srv import SetBool, Trigger
 
 from .. import cli
+from ..coordinates import ARM_U
 from ..engine.simulation import Simulation
 from ..errors import UserError
 from ..memory import CompilerPages, release_compiler_pages
@@ -81,7 +82,7 @@ class SimulatorNode(Node):
                                       len(self.joint_names) - 2, p.command_timeout, throttle,
                                       log.warning, arm_topic=arm_array_topic(self.arm_control))
         # An arm controller's commands (arm.py); None in effort mode.
-        self.arm = ArmDriver(self, self.arm_control.mode, self.joint_names[2:], throttle.warn,
+        self.arm = ArmDriver(self, self.arm_control.mode, self.joint_names[ARM_U], throttle.warn,
                              log.warning) if self.arm_control.active else None
         lockstep = None
         if p.synchronous:

@@ -24,6 +24,7 @@ import functools
 import importlib
 
 from mobile_manip_sim import __version__, limits, schema
+from mobile_manip_sim.coordinates import ARM_U
 from mobile_manip_sim.errors import UserError
 from mobile_manip_sim.imu import METADATA_KEYS, METADATA_SEED, ImuNoise
 from mobile_manip_sim.methods import METHODS
@@ -413,7 +414,7 @@ class RecordedRun:
         if not self.arm_control.active:
             return events
         topic = ARM_COMMAND_TOPICS[mode]
-        arm_names = self.names[2:]
+        arm_names = self.names[ARM_U]
         for message in self.bag.messages([topic]) if topic in self.bag.topics() else ():
             decoded = decode(message, BAG_TOPIC_TYPES[topic])
             if mode == "joint_trajectory" and list(decoded.joint_names) != arm_names:
