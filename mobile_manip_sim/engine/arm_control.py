@@ -204,7 +204,7 @@ def gravity_efforts(model, q, g, ws, out):
     f_z = model.tip_mass * g
     m_x, m_y = 0.0, 0.0
     for k in range(L.shape[0], 0, -1):
-        l = q[layout.arm_q(2 * k - 1)]   # l_k
+        l = q[layout.q_slide(k)]
         s1, _ = kernels.rod_moments(l, L[k - 1])
         lever = mu[k - 1] * s1 * g + l * f_z   # N_k + l x_k × f, per unit of x_k × ẑ
         m_x += lever * x[k, 1]
