@@ -42,8 +42,8 @@ setup(
     license="Apache-2.0",
     entry_points={
         "console_scripts": [
-            "simulate = mobile_manip_sim.simulate:main",
-            "describe = mobile_manip_sim.describe:main",
+            "simulate = mobile_manip_sim.programs.simulate:main",
+            "describe = mobile_manip_sim.programs.describe:main",
             "bench = mobile_manip_sim.bench.main:main",
             "plot = mobile_manip_sim.plot.cli:main",
             "simulator = mobile_manip_sim.node:main",

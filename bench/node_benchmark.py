@@ -41,8 +41,8 @@ from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rosgraph_msgs.msg import Clock
 from std_msgs.msg import Float64MultiArray
 
-from mobile_manip_sim.scene import load_scene
-from mobile_manip_sim.topics import LIVE_TOPIC_TYPES
+from mobile_manip_sim.ros.topics import LIVE_TOPIC_TYPES
+from mobile_manip_sim.scene.loading import load_scene
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent / "test"))   # the tests' ROS harness, shared

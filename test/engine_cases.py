@@ -13,7 +13,7 @@ import numpy as np
 import yaml
 
 from mobile_manip_sim.engine.simulation import Simulation
-from mobile_manip_sim.scene import parse_scene
+from mobile_manip_sim.scene.loading import parse_scene
 
 CONFIG = Path(__file__).resolve().parents[1] / "config"
 PAPER_SCENE = CONFIG / "paper_two_link.yaml"

@@ -17,8 +17,8 @@ import numpy as np
 
 from engine_cases import paper_doc, simulation
 from mobile_manip_sim.engine.step_watch import BUDGET_STEPS
-from mobile_manip_sim.errors import UserError
-from mobile_manip_sim.methods import IDS, METHODS
+from mobile_manip_sim.scene.errors import UserError
+from mobile_manip_sim.scene.methods import IDS, METHODS
 
 # (command, values): wheels (τ_R, τ_L) N·m, cmd_vel (v, ω), joints (4 efforts), all (all six)
 COMMANDS = [("wheels", [1e300, 1e300]), ("wheels", [1e308, 1e308]), ("wheels", [-1e308, 1e308]),

@@ -26,7 +26,7 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
-from mobile_manip_sim.coordinates import ARM_Q, ARM_U, JOINTS, YAW, X, Y
+from mobile_manip_sim.scene.coordinates import ARM_Q, ARM_U, JOINTS, YAW, X, Y
 
 
 def _rod_inertia(length: float, mass_per_length: float, J: np.ndarray) -> pin.Inertia:

@@ -15,9 +15,18 @@ from __future__ import annotations
 
 import numpy as np
 
-from mobile_manip_sim.coordinates import SLIDES_Q, TURNS_Q, WHEEL_L, WHEEL_R, YAW, X, Y, u_size
-from mobile_manip_sim.model import RobotModel
-from mobile_manip_sim.scene import parse_scene
+from mobile_manip_sim.scene.coordinates import (
+    SLIDES_Q,
+    TURNS_Q,
+    WHEEL_L,
+    WHEEL_R,
+    YAW,
+    X,
+    Y,
+    u_size,
+)
+from mobile_manip_sim.scene.loading import parse_scene
+from mobile_manip_sim.scene.model import RobotModel
 
 
 def random_inertia(rng, scale: float) -> np.ndarray:

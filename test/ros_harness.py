@@ -126,7 +126,7 @@ def warm_kernels(*integrators) -> None:
     scene, end stops included, here where it blocks nobody: numba holds the GIL while
     compiling, so a node compiling a kernel on its first impact answers no service meanwhile."""
     from mobile_manip_sim.engine.simulation import Simulation
-    from mobile_manip_sim.scene import load_scene, make_integrator
+    from mobile_manip_sim.scene.loading import load_scene, make_integrator
     scene = load_scene(None)
     for method, dt in integrators:
         sim = Simulation(scene, make_integrator(scene.integrator, method, dt))

@@ -15,10 +15,10 @@ from mobile_manip_sim.engine import layout
 from mobile_manip_sim.engine.arm_control import ArmControl, gravity_efforts
 from mobile_manip_sim.engine.simulation import Simulation
 from mobile_manip_sim.engine.system import ARM_CONTROL_STAGE, RHS_EVALS
-from mobile_manip_sim.errors import UserError
-from mobile_manip_sim.methods import NAMES as METHOD_NAMES
-from mobile_manip_sim.model import RobotModel
-from mobile_manip_sim.scene import load_scene, make_integrator, parse_scene
+from mobile_manip_sim.scene.errors import UserError
+from mobile_manip_sim.scene.loading import load_scene, make_integrator, parse_scene
+from mobile_manip_sim.scene.methods import NAMES as METHOD_NAMES
+from mobile_manip_sim.scene.model import RobotModel
 from pinocchio_reference import build_projected_model
 from pure_python import without_jit
 

@@ -9,9 +9,9 @@ from std_msgs.msg import Float64MultiArray
 from trajectory_msgs.msg import JointTrajectory
 
 from mobile_manip_sim.engine.arm_control import ArmControl
-from mobile_manip_sim.messages import arm_command_message, arm_command_values
 from mobile_manip_sim.recording.bag_format import arm_control_metadata, checked_run_metadata
-from mobile_manip_sim.trajectory_goals import HOLD, Trajectory
+from mobile_manip_sim.ros.messages import arm_command_message, arm_command_values
+from mobile_manip_sim.ros.trajectory_goals import HOLD, Trajectory
 
 NAMES = ["arm_revolute_1", "arm_prismatic_1", "arm_revolute_2", "arm_prismatic_2"]
 RUN = {"version": "0", "integrator_method": "rk4", "dt": "0.001", "rtol": "1e-06",

@@ -220,7 +220,7 @@ def test_a_headless_scene_with_a_trajectory_gives_the_samples_of_the_node_driven
     from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
     from mobile_manip_sim.engine.simulation import Simulation
-    from mobile_manip_sim.scene import load_scene
+    from mobile_manip_sim.scene.loading import load_scene
 
     text = (Path(__file__).resolve().parent.parent / "config" / "paper_two_link.yaml").read_text()
     for old, new in (("efforts: {wheels: [0.1, 0.2], joints: [4.5, 7.0, 0.0, 1.0]}",

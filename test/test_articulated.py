@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 
 import robots
-from mobile_manip_sim.coordinates import SLIDES_U, rod
 from mobile_manip_sim.dynamics import Dynamics, articulated, kernels
+from mobile_manip_sim.scene.coordinates import SLIDES_U, rod
 
 LINK_COUNTS = [0, 1, 2, 3, 4, 5, 8, 12, 16, 20, 24, 32]
 EPS = np.finfo(float).eps
@@ -106,7 +106,7 @@ def test_locked_pseudo_velocities_get_zero_acceleration_and_the_reduced_solve(n)
 
 
 def test_cholesky_and_articulated_paths_agree_on_the_paper_robot():
-    from mobile_manip_sim.scene import load_scene
+    from mobile_manip_sim.scene.loading import load_scene
     dyn = Dynamics(load_scene().robot, gravity=10.0, tip_mass=0.2)
     rng = np.random.default_rng(11)
     for _ in range(20):

@@ -15,16 +15,16 @@ import yaml
 
 from bag_rewrite import rewrite_bag
 from hostile_yaml import ALIAS_BOMB
-from mobile_manip_sim import schema
-from mobile_manip_sim.errors import EXIT_USER_ERROR, UserError
-from mobile_manip_sim.headless import run as simulate_run
 from mobile_manip_sim.plot import cli as plot
 from mobile_manip_sim.recording.bag_reader import open_bag
 from mobile_manip_sim.recording.headless import HeadlessRecorder
 from mobile_manip_sim.recording.rosbag2_metadata import bag_information
 from mobile_manip_sim.replay import cli as replay
 from mobile_manip_sim.replay.play import qos_profile
-from mobile_manip_sim.scene import load_scene, make_integrator
+from mobile_manip_sim.runtime.headless import run as simulate_run
+from mobile_manip_sim.scene import schema
+from mobile_manip_sim.scene.errors import EXIT_USER_ERROR, UserError
+from mobile_manip_sim.scene.loading import load_scene, make_integrator
 
 RATE, DURATION = 20.0, 0.2
 BOUND_S = 5.0       # wall seconds a refusal may take (the good bag re-simulates in well under 1 s)

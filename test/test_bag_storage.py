@@ -26,10 +26,10 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
-from mobile_manip_sim.errors import UserError
 from mobile_manip_sim.recording.bag_reader import open_bag
 from mobile_manip_sim.recording.bag_writer import BagWriter, qos_yaml
-from mobile_manip_sim.recording.message_definitions import DELIMITER, definition_text
+from mobile_manip_sim.ros.message_definitions import DELIMITER, definition_text
+from mobile_manip_sim.scene.errors import UserError
 
 REPO = Path(__file__).resolve().parents[1]
 T0 = 1_000_000_000  # simulated time of the first message [ns]

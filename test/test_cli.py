@@ -6,7 +6,7 @@ import time
 
 import pytest
 
-from mobile_manip_sim import cli
+from mobile_manip_sim.runtime import cli
 
 
 @pytest.mark.parametrize("signum, status",

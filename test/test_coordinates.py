@@ -4,7 +4,8 @@ it: `RobotModel.joint_names` (the /joint_states and URDF order) and the configur
 import numpy as np
 import pytest
 
-from mobile_manip_sim.coordinates import (
+from mobile_manip_sim.dynamics import Dynamics
+from mobile_manip_sim.scene.coordinates import (
     ARM_Q,
     ARM_U,
     BASE_POSE,
@@ -26,7 +27,6 @@ from mobile_manip_sim.coordinates import (
     u_slide,
     u_turn,
 )
-from mobile_manip_sim.dynamics import Dynamics
 from robots import random_robot, random_state
 
 

@@ -6,7 +6,7 @@ from scipy import integrate
 
 from mobile_manip_sim.engine import dense
 from mobile_manip_sim.engine.simulation import Simulation
-from mobile_manip_sim.scene import load_scene
+from mobile_manip_sim.scene.loading import load_scene
 
 
 @pytest.mark.parametrize("solver_class", [integrate.Radau, integrate.BDF])

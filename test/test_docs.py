@@ -28,8 +28,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from mobile_manip_sim import schema
-from mobile_manip_sim.scene import parse_scene
+from mobile_manip_sim.scene import schema
+from mobile_manip_sim.scene.loading import parse_scene
 
 ROOT = Path(__file__).resolve().parent.parent
 PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]

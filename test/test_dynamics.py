@@ -2,10 +2,10 @@
 import numpy as np
 import pytest
 
-from mobile_manip_sim.coordinates import V
 from mobile_manip_sim.dynamics import Dynamics, constraint_residuals
 from mobile_manip_sim.engine.simulation import Simulation
-from mobile_manip_sim.scene import load_scene, parse_scene
+from mobile_manip_sim.scene.coordinates import V
+from mobile_manip_sim.scene.loading import load_scene, parse_scene
 from robots import random_robot_document, random_state
 
 SEEDS = range(12)

@@ -12,7 +12,9 @@ import numpy as np
 import pytest
 
 from engine_cases import CONFIG, base_only_doc, one_link_doc, paper_doc, sampled, simulation
-from mobile_manip_sim.coordinates import (
+from mobile_manip_sim.engine.simulation import Simulation
+from mobile_manip_sim.engine.system import CROSSING_CHECKS, DAMPING_STAGE, REDUCED_SOLVE, RHS_EVALS
+from mobile_manip_sim.scene.coordinates import (
     ARM_Q,
     ARM_U,
     BASE_U,
@@ -26,10 +28,8 @@ from mobile_manip_sim.coordinates import (
     u_slide,
     u_turn,
 )
-from mobile_manip_sim.effects import SETTING_OF_EFFECT, EffectSettings, settings
-from mobile_manip_sim.engine.simulation import Simulation
-from mobile_manip_sim.engine.system import CROSSING_CHECKS, DAMPING_STAGE, REDUCED_SOLVE, RHS_EVALS
-from mobile_manip_sim.scene import EFFECT_NAMES, load_scene, make_integrator, parse_scene
+from mobile_manip_sim.scene.effects import SETTING_OF_EFFECT, EffectSettings, settings
+from mobile_manip_sim.scene.loading import EFFECT_NAMES, load_scene, make_integrator, parse_scene
 from pinocchio_reference import build_projected_model
 from robots import random_state
 
@@ -284,7 +284,7 @@ def test_a_locked_joint_stays_fixed_and_moves_the_rest_like_a_stiff_joint(name, 
 
 
 def test_locking_a_joint_with_a_typo_is_an_error_naming_it():
-    from mobile_manip_sim.errors import UserError
+    from mobile_manip_sim.scene.errors import UserError
     with pytest.raises(UserError, match=r"effects\.locked_joints\[0\]"):
         simulation(free_arm_doc(locked_joints=["arm_revolute_3"]))
 

@@ -17,7 +17,7 @@ from engine_cases import one_link_doc, paper_doc, sampled, simulation
 from mobile_manip_sim.engine import adaptive_stepping, events, layout
 from mobile_manip_sim.engine import runge_kutta as rk
 from mobile_manip_sim.engine.simulation import Simulation
-from mobile_manip_sim.scene import load_scene, make_integrator
+from mobile_manip_sim.scene.loading import load_scene, make_integrator
 
 L_1, L_2 = layout.q_slide(1), layout.q_slide(2)   # l_1, l_2 in q
 LD_1 = layout.u_slide(1)   # l̇_1 in u

@@ -1,5 +1,6 @@
-"""Bad input, as a user meets it: `python -m mobile_manip_sim.simulate` on a broken scene file or
-with a bad flag exits with status 2 and exactly one stderr line naming the key path (issues 2, 3).
+"""Bad input, as a user meets it: `python -m mobile_manip_sim.programs.simulate` on a broken scene
+file or with a bad flag exits with status 2 and exactly one stderr line
+naming the key path (issues 2, 3).
 
 Every case is one change to the valid paper scene, so the change alone is what fails. One case of
 each kind runs as a real process (a few at a time: each pays the interpreter's start-up); the
@@ -20,9 +21,9 @@ import yaml
 from engine_cases import paper_doc, simulation
 from huge_commands import COMMANDS, check_huge_command
 from huge_commands import apply as apply_command
-from mobile_manip_sim import simulate
-from mobile_manip_sim.errors import UserError
-from mobile_manip_sim.methods import METHODS
+from mobile_manip_sim.programs import simulate
+from mobile_manip_sim.scene.errors import UserError
+from mobile_manip_sim.scene.methods import METHODS
 
 
 def edit(path, value):
@@ -121,7 +122,7 @@ CASES = {
 }
 
 
-# One of each kind, run as `python -m mobile_manip_sim.simulate`.
+# One of each kind, run as `python -m mobile_manip_sim.programs.simulate`.
 AS_PROCESS = [
     "unknown method in the scene", "unknown method flag", "unknown effect", "zero dt",
     "negative dt flag", "zero rtol", "restitution above 1", "locked joint that does not exist",
@@ -164,7 +165,7 @@ def arguments(case_id, tmp_dir):
 
 
 def run_case(case_id, tmp_dir):
-    return subprocess.run([sys.executable, "-m", "mobile_manip_sim.simulate",
+    return subprocess.run([sys.executable, "-m", "mobile_manip_sim.programs.simulate",
                            *arguments(case_id, tmp_dir)],
                           capture_output=True, text=True, timeout=120)
 
@@ -247,7 +248,7 @@ def test_a_numerical_blow_up_says_when_and_exits_1(tmp_path):
     doc["integrator"] = {"method": "euler", "dt": 0.01}
     scene = tmp_path / "stiff.yaml"
     scene.write_text(yaml.safe_dump(doc))
-    result = subprocess.run([sys.executable, "-m", "mobile_manip_sim.simulate",
+    result = subprocess.run([sys.executable, "-m", "mobile_manip_sim.programs.simulate",
                              "--scene", str(scene), "--duration", "1.0",
                              "--out", str(tmp_path / "out.csv")],
                             capture_output=True, text=True, timeout=120)
@@ -302,7 +303,7 @@ def test_simulate_exits_2_with_one_line_when_bdf_cannot_follow(tmp_path):
     scene.write_text(yaml.safe_dump({**featherweight_rods_doc(), "integrator": {
         "method": "bdf", "rtol": 1e-14, "atol": 1e-20}}))
     start = time.monotonic()
-    result = subprocess.run([sys.executable, "-m", "mobile_manip_sim.simulate",
+    result = subprocess.run([sys.executable, "-m", "mobile_manip_sim.programs.simulate",
                              "--scene", str(scene), "--duration", "1.0",
                              "--out", str(tmp_path / "out.csv")],
                             capture_output=True, text=True, timeout=120)
@@ -391,9 +392,9 @@ def resimulated_with_a_huge_command(method, values, tmp_dir):
     rewritten to `values` (scene efforts are bounded by 1e6: a bag is how such a command comes)."""
     from bag_rewrite import rewrite_bag
     from executables import executable
-    from mobile_manip_sim.messages import float64_array
-    from mobile_manip_sim.recording.cdr import exact_cdr
-    from mobile_manip_sim.topics import WHEEL_TOPIC
+    from mobile_manip_sim.ros.cdr import exact_cdr
+    from mobile_manip_sim.ros.messages import float64_array
+    from mobile_manip_sim.ros.topics import WHEEL_TOPIC
 
     scene = tmp_dir / f"{method}.yaml"
     scene.write_text(yaml.safe_dump({**paper_doc(), "integrator": {"method": method}}))

@@ -6,10 +6,10 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from mobile_manip_sim.coordinates import JOINTS, YAW, X, Y
-from mobile_manip_sim.frames import FOOTPRINT, FrameTree, rpy_quaternion
-from mobile_manip_sim.model import rpy_matrix
-from mobile_manip_sim.urdf import robot_description
+from mobile_manip_sim.ros.frames import FOOTPRINT, FrameTree, rpy_quaternion
+from mobile_manip_sim.ros.urdf import robot_description
+from mobile_manip_sim.scene.coordinates import JOINTS, YAW, X, Y
+from mobile_manip_sim.scene.model import rpy_matrix
 from robots import random_configuration
 from test_urdf import SCENES, core_dynamics
 

@@ -27,15 +27,15 @@ from hypothesis import strategies as st
 
 from engine_cases import paper_doc
 from huge_commands import COMMANDS, check_huge_command
-from mobile_manip_sim import schema
-from mobile_manip_sim.errors import UserError
-from mobile_manip_sim.methods import METHODS
 from mobile_manip_sim.node import arguments as node_arguments
 from mobile_manip_sim.node import parameters as node_parameters
 from mobile_manip_sim.node.loop import MAX_WAIT
 from mobile_manip_sim.node.parameters import MIN_REAL_TIME_FACTOR, PARAMETERS
 from mobile_manip_sim.recording import bag_format, rosbag2_metadata
-from mobile_manip_sim.scene import parse_scene, scene_from_text
+from mobile_manip_sim.scene import schema
+from mobile_manip_sim.scene.errors import UserError
+from mobile_manip_sim.scene.loading import parse_scene, scene_from_text
+from mobile_manip_sim.scene.methods import METHODS
 from mobile_manip_sim.sweep.spec import parse_spec
 from test_stepping_loop import Harness
 

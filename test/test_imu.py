@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 import yaml
 
-from mobile_manip_sim.coordinates import OMEGA, YAW, X, Y
 from mobile_manip_sim.engine.simulation import Simulation
-from mobile_manip_sim.errors import UserError
-from mobile_manip_sim.imu import Imu, ImuNoise, ImuReading
-from mobile_manip_sim.scene import IntegratorSettings, load_scene, parse_scene
+from mobile_manip_sim.ros.imu import Imu, ImuNoise, ImuReading
+from mobile_manip_sim.scene.coordinates import OMEGA, YAW, X, Y
+from mobile_manip_sim.scene.errors import UserError
+from mobile_manip_sim.scene.loading import IntegratorSettings, load_scene, parse_scene
 from test_urdf import PAPER
 
 G = 10.0

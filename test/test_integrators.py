@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 
 from engine_cases import PAPER_SCENE, paper_doc, sampled, simulation
-from mobile_manip_sim import methods
-from mobile_manip_sim.errors import UserError
-from mobile_manip_sim.scene import FIXED_STEP_METHODS, METHODS
+from mobile_manip_sim.scene import methods
+from mobile_manip_sim.scene.errors import UserError
+from mobile_manip_sim.scene.loading import FIXED_STEP_METHODS, METHODS
 
 ADAPTIVE_METHODS = [m for m in METHODS if m not in FIXED_STEP_METHODS]
 T_END = 0.2
@@ -138,7 +138,8 @@ def test_repeating_the_simulate_cli_gives_identical_bytes(tmp_path):
     for name in ("a", "b"):
         out = tmp_path / f"{name}.csv"
         result = subprocess.run(
-            [sys.executable, "-m", "mobile_manip_sim.simulate", "--scene", str(PAPER_SCENE),
+            [sys.executable, "-m", "mobile_manip_sim.programs.simulate",
+             "--scene", str(PAPER_SCENE),
              "--duration", "1.0", "--sample-rate", "200", "--out", str(out)],
             capture_output=True, text=True, timeout=120)
         assert result.returncode == 0, result.stderr

@@ -6,7 +6,7 @@ import pytest
 from mobile_manip_sim.dynamics import jit
 from mobile_manip_sim.engine import stepping
 from mobile_manip_sim.engine.simulation import Simulation
-from mobile_manip_sim.scene import load_scene
+from mobile_manip_sim.scene.loading import load_scene
 
 
 @jit.jit

@@ -1,10 +1,10 @@
-"""One limits module (`mobile_manip_sim.limits`): every entry point checks against it, so a value
-one of them takes is not refused by another — what the node may record, a re-run accepts."""
+"""One limits module (`mobile_manip_sim.scene.limits`): every entry point checks against it, so a
+value one of them takes is not refused by another — what the node may record, a re-run accepts."""
 import pytest
 
-from mobile_manip_sim import limits
-from mobile_manip_sim.errors import UserError
 from mobile_manip_sim.recording.bag_format import checked_run_metadata
+from mobile_manip_sim.scene import limits
+from mobile_manip_sim.scene.errors import UserError
 
 NODE_RANGES = {"publish_rate": limits.PUBLISH_RATE, "real_time_factor": limits.REAL_TIME_FACTOR,
                "command_timeout": limits.COMMAND_TIMEOUT, "sync_timeout": limits.SYNC_TIMEOUT,

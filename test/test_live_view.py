@@ -12,10 +12,10 @@ import pytest
 
 import foxglove_js
 from executables import executable
-from mobile_manip_sim.frames import FrameTree
-from mobile_manip_sim.scene import load_scene
-from mobile_manip_sim.topics import LIVE_TOPIC_TYPES
-from mobile_manip_sim.urdf import robot_description
+from mobile_manip_sim.ros.frames import FrameTree
+from mobile_manip_sim.ros.topics import LIVE_TOPIC_TYPES
+from mobile_manip_sim.ros.urdf import robot_description
+from mobile_manip_sim.scene.loading import load_scene
 
 SIMULATE = executable("simulate")
 PERIOD_NS = 10 ** 7     # --sample-rate 100
@@ -99,7 +99,7 @@ def test_a_bad_view_port_is_a_one_line_error(port, problem):
 
 
 def test_a_view_port_in_use_is_a_one_line_error():
-    from mobile_manip_sim.live_view import LiveView
+    from mobile_manip_sim.ros.live_view import LiveView
 
     view = LiveView(0)
     try:

@@ -7,7 +7,7 @@ import sys
 
 import pytest
 
-from mobile_manip_sim.memory import release_compiler_pages
+from mobile_manip_sim.runtime.memory import release_compiler_pages
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="/proc/self/smaps")
 SIZE = 64 * mmap.PAGESIZE

@@ -5,9 +5,9 @@ import numpy as np
 import pytest
 
 from mobile_manip_sim.bench.scenes import random_robot_document
-from mobile_manip_sim.coordinates import ARM_U, BASE_POSE, OMEGA, YAW, V
 from mobile_manip_sim.dynamics import Dynamics
-from mobile_manip_sim.scene import load_scene, parse_scene
+from mobile_manip_sim.scene.coordinates import ARM_U, BASE_POSE, OMEGA, YAW, V
+from mobile_manip_sim.scene.loading import load_scene, parse_scene
 from robots import random_state
 
 mujoco_peer = pytest.importorskip("mobile_manip_sim.bench.mujoco_peer")
@@ -85,7 +85,7 @@ def test_fixed_base_trajectory_is_ours():
     follows our rk4 to round-off, and both converge to our DOP853 reference."""
     from mobile_manip_sim.bench import versus_mujoco
     from mobile_manip_sim.bench.runs import simulate
-    from mobile_manip_sim.scene import make_integrator
+    from mobile_manip_sim.scene.loading import make_integrator
     scene = versus_mujoco.random_arm_scene(n_links=3, seed=7, duration=0.3)
     _, mj = versus_mujoco.trajectory(scene, "RK4", 1e-3)
     ours = simulate(scene, make_integrator(scene.integrator, "rk4", dt=1e-3)).samples

@@ -25,8 +25,8 @@ from std_srvs.srv import SetBool, Trigger
 from executables import executable
 from hostile_yaml import ALIAS_BOMB
 from mobile_manip_sim.engine.simulation import Simulation
-from mobile_manip_sim.messages import yaw_quaternion
-from mobile_manip_sim.scene import load_scene, make_integrator
+from mobile_manip_sim.ros.messages import yaw_quaternion
+from mobile_manip_sim.scene.loading import load_scene, make_integrator
 from ros_harness import NodeProcess, on_domain, private_domain, spinning
 from ros_harness import child_env as ros_child_env
 from ros_harness import cpu_seconds as process_cpu_seconds

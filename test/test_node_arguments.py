@@ -2,9 +2,9 @@
 (node/parameters.py), without ROS; test_node.py runs a few of the same through the executable."""
 import pytest
 
-from mobile_manip_sim.errors import UserError
 from mobile_manip_sim.node import arguments, parameters
 from mobile_manip_sim.node.parameters import MIN_REAL_TIME_FACTOR, PARAMETERS
+from mobile_manip_sim.scene.errors import UserError
 
 BOOLS = [name for name, spec in PARAMETERS.items() if isinstance(spec.default, bool)]
 

@@ -34,9 +34,9 @@ import interfaces_build
 from engine_cases import base_only_doc
 from executables import executable
 from mobile_manip_sim.engine.simulation import Simulation
-from mobile_manip_sim.frames import FrameTree
-from mobile_manip_sim.scene import load_scene
-from mobile_manip_sim.topics import LIVE_TOPIC_TYPES
+from mobile_manip_sim.ros.frames import FrameTree
+from mobile_manip_sim.ros.topics import LIVE_TOPIC_TYPES
+from mobile_manip_sim.scene.loading import load_scene
 from ros_harness import NodeProcess, child_env, private_domain, spinning
 from ros_harness import wait_for as harness_wait_for
 from test_urdf import SCENES

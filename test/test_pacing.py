@@ -2,7 +2,7 @@
 real-time factor does, and how falling behind is reported and recovered from."""
 import math
 
-from mobile_manip_sim.pacing import LAG_TOLERANCE, Pacer
+from mobile_manip_sim.runtime.pacing import LAG_TOLERANCE, Pacer
 
 MS = 10 ** 6   # ns
 

@@ -17,7 +17,16 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray
 
-from mobile_manip_sim.coordinates import (
+from mobile_manip_sim.engine.simulation import DEFAULT_WHEEL_SPEED_GAINS, Simulation
+from mobile_manip_sim.plot import cli as plot_cli
+from mobile_manip_sim.plot.energy import impact_losses, work
+from mobile_manip_sim.plot.figures import HEADING_MARKS, RESIDUAL_FLOOR, plot
+from mobile_manip_sim.plot.run import load_run
+from mobile_manip_sim.recording.bag_writer import BagWriter, qos_yaml
+from mobile_manip_sim.recording.headless import HeadlessRecorder
+from mobile_manip_sim.runtime.headless import run as simulate_run
+from mobile_manip_sim.runtime.timeline import sample_times
+from mobile_manip_sim.scene.coordinates import (
     ARM_U,
     JOINTS,
     OMEGA,
@@ -30,17 +39,8 @@ from mobile_manip_sim.coordinates import (
     q_turn,
     u_turn,
 )
-from mobile_manip_sim.engine.simulation import DEFAULT_WHEEL_SPEED_GAINS, Simulation
-from mobile_manip_sim.errors import EXIT_USER_ERROR
-from mobile_manip_sim.headless import run as simulate_run
-from mobile_manip_sim.plot import cli as plot_cli
-from mobile_manip_sim.plot.energy import impact_losses, work
-from mobile_manip_sim.plot.figures import HEADING_MARKS, RESIDUAL_FLOOR, plot
-from mobile_manip_sim.plot.run import load_run
-from mobile_manip_sim.recording.bag_writer import BagWriter, qos_yaml
-from mobile_manip_sim.recording.headless import HeadlessRecorder
-from mobile_manip_sim.scene import load_scene, parse_scene
-from mobile_manip_sim.timeline import sample_times
+from mobile_manip_sim.scene.errors import EXIT_USER_ERROR
+from mobile_manip_sim.scene.loading import load_scene, parse_scene
 
 BIN = Path(sys.executable).parent
 SAMPLE_RATE = 100.0
@@ -415,9 +415,14 @@ def record_node_bag(path: Path, scene, sent: dict, timeout_ns: int, duration: fl
     zero efforts at t = 0, commands ``sent`` {stamp ns: (base, arm)} taken at that segment
     start, timing out after ``timeout_ns``; each state recorded as published. With wheel-speed
     ``gains`` (kp, ki) the base takes velocity commands (v, ω), as with base_command velocity."""
-    from mobile_manip_sim.messages import state_messages
     from mobile_manip_sim.recording.recorder import RunRecorder
-    from mobile_manip_sim.timeline import CommandSlot, Grid, apply_commands, start_node_time_line
+    from mobile_manip_sim.ros.messages import state_messages
+    from mobile_manip_sim.runtime.timeline import (
+        CommandSlot,
+        Grid,
+        apply_commands,
+        start_node_time_line,
+    )
 
     grid = Grid(SAMPLE_RATE)
     sim = Simulation(scene)

@@ -17,8 +17,8 @@ import pytest
 
 from bag_rewrite import rewrite_bag
 from executables import executable
-from mobile_manip_sim import progress as progress_module
-from mobile_manip_sim.progress import Progress, duration_text
+from mobile_manip_sim.runtime import progress as progress_module
+from mobile_manip_sim.runtime.progress import Progress, duration_text
 
 SAFETY = 120.0   # s: a safety net against a hang, not a measure
 
@@ -189,7 +189,7 @@ def test_bench_talks_on_a_terminal_and_stops_on_sigint(terminal, tmp_path):
 
 
 def test_the_warm_up_says_how_long_it_takes_and_names_each_kernel_first():
-    result = subprocess.run([sys.executable, "-m", "mobile_manip_sim.warmup"],
+    result = subprocess.run([sys.executable, "-m", "mobile_manip_sim.programs.warmup"],
                             capture_output=True, text=True, timeout=900)
     assert result.returncode == 0, result.stderr
     lines = result.stderr.splitlines()

@@ -33,15 +33,15 @@ from bag_rewrite import rewrite_bag
 from executables import executable
 from mobile_manip_sim import __version__
 from mobile_manip_sim.engine.simulation import Simulation
-from mobile_manip_sim.headless import run as simulate_run
-from mobile_manip_sim.imu import ImuNoise
-from mobile_manip_sim.messages import float64_array
 from mobile_manip_sim.recording.bag_reader import open_bag
 from mobile_manip_sim.recording.bag_writer import DEFAULT_CHUNK_SIZE
-from mobile_manip_sim.recording.cdr import exact_cdr
 from mobile_manip_sim.recording.headless import HeadlessRecorder
-from mobile_manip_sim.scene import load_scene, make_integrator
-from mobile_manip_sim.topics import recorded_topics
+from mobile_manip_sim.ros.cdr import exact_cdr
+from mobile_manip_sim.ros.imu import ImuNoise
+from mobile_manip_sim.ros.messages import float64_array
+from mobile_manip_sim.ros.topics import recorded_topics
+from mobile_manip_sim.runtime.headless import run as simulate_run
+from mobile_manip_sim.scene.loading import load_scene, make_integrator
 from ros_harness import NodeProcess, private_domain, spinning
 from ros_harness import child_env as ros_child_env
 from ros_harness import wait_for as harness_wait_for
@@ -448,10 +448,10 @@ def test_recording_memory_is_bounded_by_the_chunk_size(tmp_path):
 # --- the node's bag rotation (recording/rotation.py), without a node -------------------------
 
 def test_a_new_time_line_rotates_the_bag_and_a_failure_only_stops_recording(tmp_path):
-    from mobile_manip_sim.errors import UserError
-    from mobile_manip_sim.messages import state_messages
     from mobile_manip_sim.recording.recorder import RunRecorder
     from mobile_manip_sim.recording.rotation import RotatingRecorder
+    from mobile_manip_sim.ros.messages import state_messages
+    from mobile_manip_sim.scene.errors import UserError
 
     scene = load_scene(None)
     sim = Simulation(scene)

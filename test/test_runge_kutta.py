@@ -13,8 +13,8 @@ from mobile_manip_sim.engine import continuous_extension
 from mobile_manip_sim.engine import runge_kutta as rk
 from mobile_manip_sim.engine.simulation import Simulation
 from mobile_manip_sim.engine.system import RHS_EVALS
-from mobile_manip_sim.methods import IDS
-from mobile_manip_sim.scene import load_scene, make_integrator, parse_scene
+from mobile_manip_sim.scene.loading import load_scene, make_integrator, parse_scene
+from mobile_manip_sim.scene.methods import IDS
 from pure_python import without_jit
 
 SCIPY = {"rk45": integrate.RK45, "dop853": integrate.DOP853}

@@ -7,15 +7,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from mobile_manip_sim import headless
 from mobile_manip_sim.engine import layout
 from mobile_manip_sim.engine.arm_control import ArmControl
 from mobile_manip_sim.engine.simulation import Simulation
-from mobile_manip_sim.errors import UserError
-from mobile_manip_sim.scene import load_scene, parse_scene
-from mobile_manip_sim.scene_overrides import scene_with
+from mobile_manip_sim.runtime import headless
+from mobile_manip_sim.runtime.timeline import sample_times
+from mobile_manip_sim.scene.errors import UserError
+from mobile_manip_sim.scene.loading import load_scene, parse_scene
+from mobile_manip_sim.scene.overrides import scene_with
 from mobile_manip_sim.sweep import runner, spec
-from mobile_manip_sim.timeline import sample_times
 
 CONFIG = Path(__file__).resolve().parent.parent / "config"
 EXAMPLE = CONFIG / "arm_trajectory.yaml"
@@ -128,7 +128,7 @@ def test_the_recorded_document_parses_again_to_the_same_section():
 
 def test_the_tracking_sweep_example_is_a_valid_spec_and_its_rows_carry_the_tracking_error():
     path = CONFIG / "sweeps" / "arm_tracking.yaml"
-    from mobile_manip_sim import schema
+    from mobile_manip_sim.scene import schema
     parsed = spec.parse_spec(schema.load_yaml(path, what="spec"), base_dir=path.parent)
     assert len(parsed.runs()) == 6
     document = load_scene(EXAMPLE).document

@@ -13,10 +13,10 @@ import yaml
 
 from engine_cases import paper_doc
 from hostile_yaml import ALIAS_BOMB
-from mobile_manip_sim import schema
-from mobile_manip_sim.errors import UserError
 from mobile_manip_sim.recording.bag_format import checked_run_metadata
-from mobile_manip_sim.scene import parse_scene, scene_from_text
+from mobile_manip_sim.scene import schema
+from mobile_manip_sim.scene.errors import UserError
+from mobile_manip_sim.scene.loading import parse_scene, scene_from_text
 
 MAX_MESSAGE = 300
 
@@ -263,7 +263,7 @@ def test_shared_aliases_within_the_budget_still_load():
 def test_every_shipped_scene_still_loads(tmp_path):
     from pathlib import Path
 
-    from mobile_manip_sim.scene import load_scene
+    from mobile_manip_sim.scene.loading import load_scene
     config = Path(__file__).resolve().parents[1] / "config"
     scenes = [p for p in sorted(config.glob("*.yaml")) if not p.name.endswith(".params.yaml")]
     assert len(scenes) >= 10

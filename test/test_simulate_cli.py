@@ -172,7 +172,8 @@ def test_a_read_only_install_runs_with_a_warning_at_most(tmp_path):
     (root / "home").mkdir()
     script = (f"mount -o bind,ro {root} {root} && cd {root} && HOME={root}/home "
               f"XDG_CACHE_HOME={root}/home/.cache PYTHONDONTWRITEBYTECODE=1 PYTHONPATH={root} "
-              f"{sys.executable} -m mobile_manip_sim.simulate --out /dev/null --duration 0.1")
+              f"{sys.executable} -m mobile_manip_sim.programs.simulate "
+              "--out /dev/null --duration 0.1")
     env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
     result = subprocess.run(["unshare", "-m", "sh", "-c", script], capture_output=True, text=True,
                             timeout=600, env=env)

@@ -14,7 +14,7 @@ HEAVY = ("scipy.integrate", "scipy.linalg", "scipy.sparse", "matplotlib")
 
 SIMULATE = """
 import json, sys
-from mobile_manip_sim import simulate
+from mobile_manip_sim.programs import simulate
 simulate.main(["--method", {method!r}, "--duration", "0.3", "--out", {out!r}])
 print(json.dumps(sorted(sys.modules)))
 """
@@ -23,7 +23,7 @@ NODE = """
 import json, sys
 import mobile_manip_sim.node
 from mobile_manip_sim.engine.simulation import Simulation
-from mobile_manip_sim.scene import load_scene, make_integrator
+from mobile_manip_sim.scene.loading import load_scene, make_integrator
 scene = load_scene(None)
 Simulation(scene, make_integrator(scene.integrator, "rk4", 0.001)).advance_to(0.3)
 print(json.dumps(sorted(sys.modules)))

@@ -8,8 +8,8 @@ import pytest
 
 from mobile_manip_sim.engine.simulation import SimulationError
 from mobile_manip_sim.node.loop import MAX_WAIT, WATCHDOG_SECONDS, State, SteppingLoop
-from mobile_manip_sim.pacing import Pacer
-from mobile_manip_sim.timeline import Grid
+from mobile_manip_sim.runtime.pacing import Pacer
+from mobile_manip_sim.runtime.timeline import Grid
 from waiting import wait_for
 
 RATE = 100

@@ -15,9 +15,9 @@ import pytest
 
 from executables import executable
 from hostile_yaml import ALIAS_BOMB
-from mobile_manip_sim.errors import EXIT_USER_ERROR, UserError
-from mobile_manip_sim.scene import load_scene
-from mobile_manip_sim.scene_overrides import parse_assignments
+from mobile_manip_sim.scene.errors import EXIT_USER_ERROR, UserError
+from mobile_manip_sim.scene.loading import load_scene
+from mobile_manip_sim.scene.overrides import parse_assignments
 from mobile_manip_sim.sweep.runner import run_one
 from waiting import wait_for
 

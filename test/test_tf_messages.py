@@ -13,10 +13,10 @@ from mcap_ros2.decoder import DecoderFactory
 from rosbags.typesys import Stores, get_typestore
 
 import interfaces_build
-from mobile_manip_sim.frames import FrameTree
-from mobile_manip_sim.messages import tf_cdr, tf_static_cdr
-from mobile_manip_sim.recording.cdr import TF_MESSAGE_TYPE, tf_message_cdr
-from mobile_manip_sim.recording.message_definitions import BUNDLED, definition_text, type_hash
+from mobile_manip_sim.ros.cdr import TF_MESSAGE_TYPE, tf_message_cdr
+from mobile_manip_sim.ros.frames import FrameTree
+from mobile_manip_sim.ros.message_definitions import BUNDLED, definition_text, type_hash
+from mobile_manip_sim.ros.messages import tf_cdr, tf_static_cdr
 from robots import random_configuration
 from test_urdf import SCENES
 
@@ -42,7 +42,7 @@ RCLPY_SERIALISE = r"""
 import json, sys
 from geometry_msgs.msg import TransformStamped
 from tf2_msgs.msg import TFMessage
-from mobile_manip_sim.recording.cdr import exact_cdr
+from mobile_manip_sim.ros.cdr import exact_cdr
 out = {}
 for name, stamp, transforms in json.loads(sys.stdin.read()):
     message = TFMessage()

@@ -5,7 +5,7 @@ from fractions import Fraction
 import numpy as np
 import pytest
 
-from mobile_manip_sim.timeline import (
+from mobile_manip_sim.runtime.timeline import (
     NS,
     CommandHistory,
     CommandSlot,

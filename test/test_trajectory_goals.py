@@ -10,8 +10,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from mobile_manip_sim.errors import UserError
-from mobile_manip_sim.trajectory_goals import (
+from mobile_manip_sim.ros.trajectory_goals import (
     HOLD,
     Codes,
     Goal,
@@ -23,6 +22,7 @@ from mobile_manip_sim.trajectory_goals import (
     started,
     tolerances,
 )
+from mobile_manip_sim.scene.errors import UserError
 
 ACTION = (Path(__file__).resolve().parent.parent / "tools" / "interfaces" / "control_msgs" /
           "action" / "FollowJointTrajectory.action")

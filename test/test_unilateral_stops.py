@@ -10,7 +10,7 @@ import pytest
 from mobile_manip_sim.engine import layout
 from mobile_manip_sim.engine.simulation import Simulation
 from mobile_manip_sim.engine.stops import solve_contacts
-from mobile_manip_sim.scene import make_integrator, parse_scene, scene_from_text
+from mobile_manip_sim.scene.loading import make_integrator, parse_scene, scene_from_text
 
 L_1 = layout.q_slide(1)   # l_1 in q
 

@@ -15,11 +15,11 @@ import pytest
 import yaml
 
 from hostile_yaml import ALIAS_BOMB
-from mobile_manip_sim.coordinates import JOINTS, OMEGA, YAW, V, X, Y
 from mobile_manip_sim.dynamics import Dynamics
-from mobile_manip_sim.effects import settings as effect_settings
-from mobile_manip_sim.scene import load_scene, parse_scene
-from mobile_manip_sim.urdf import robot_description
+from mobile_manip_sim.ros.urdf import robot_description
+from mobile_manip_sim.scene.coordinates import JOINTS, OMEGA, YAW, V, X, Y
+from mobile_manip_sim.scene.effects import settings as effect_settings
+from mobile_manip_sim.scene.loading import load_scene, parse_scene
 from robots import random_configuration, random_robot_document
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -210,7 +210,7 @@ def test_urdf_joint_names_and_types_match_joint_states(name):
 
 
 def run_describe(*args):
-    return subprocess.run([sys.executable, "-m", "mobile_manip_sim.describe", *args],
+    return subprocess.run([sys.executable, "-m", "mobile_manip_sim.programs.describe", *args],
                           capture_output=True, text=True, timeout=60, cwd=ROOT)
 
 

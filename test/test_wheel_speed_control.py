@@ -5,10 +5,10 @@ import copy
 import numpy as np
 import pytest
 
-from mobile_manip_sim.coordinates import OMEGA, V
 from mobile_manip_sim.engine.simulation import Simulation
-from mobile_manip_sim.errors import UserError
-from mobile_manip_sim.scene import load_scene, parse_scene
+from mobile_manip_sim.scene.coordinates import OMEGA, V
+from mobile_manip_sim.scene.errors import UserError
+from mobile_manip_sim.scene.loading import load_scene, parse_scene
 
 ARM_JOINTS = ["arm_revolute_1", "arm_prismatic_1", "arm_revolute_2", "arm_prismatic_2"]
 

@@ -35,5 +35,5 @@ talking "installing" .venv/bin/python -m pip install --quiet -e '.[test]'
 # Compile every numba kernel now, so that no run — the node above all — compiles at run time;
 # the warm-up says how long it takes and names each kernel as it starts.
 echo "bootstrap: compiling the numba kernels"
-.venv/bin/python -m mobile_manip_sim.warmup
+.venv/bin/python -m mobile_manip_sim.programs.warmup
 echo "bootstrap: done"

@@ -21,7 +21,7 @@ from ..dynamics import Dynamics
 from ..engine import arm_reference, layout
 from ..engine.arm_control import SEGMENTS, ArmControl
 from ..engine.simulation import Simulation
-from ..scene import load_scene, parse_scene
+from ..scene.loading import load_scene, parse_scene
 from .tables import seconds, table, verdict
 
 DURATION = 2.0          # s simulated

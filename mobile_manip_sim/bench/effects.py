@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import copy
 
-from ..scene import EFFECT_NAMES, make_integrator, parse_scene
+from ..scene.loading import EFFECT_NAMES, make_integrator, parse_scene
 from .runs import simulate
 
 # The value each effect takes when it is on (the paper scene's own where it has one).

@@ -9,7 +9,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from ..scene import load_scene, make_integrator
+from ..scene.loading import load_scene, make_integrator
 from .runs import simulate
 from .scenes import without_stroke_limits
 

@@ -12,11 +12,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..coordinates import OMEGA, SLIDES_Q, q_slide, u_turn
 from ..dynamics import Dynamics
 from ..engine.simulation import Simulation
-from ..methods import ADAPTIVE_NAMES, METHODS
-from ..scene import parse_scene
+from ..scene.coordinates import OMEGA, SLIDES_Q, q_slide, u_turn
+from ..scene.loading import parse_scene
+from ..scene.methods import ADAPTIVE_NAMES, METHODS
 from .runs import Clock, Run, integrator, simulate
 from .scenes import paper_document, random_robot_document, variant
 

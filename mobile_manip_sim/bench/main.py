@@ -12,9 +12,9 @@ import sys
 import time
 from pathlib import Path
 
-from .. import cli
-from ..errors import UserError
-from ..progress import Progress as Ticker
+from ..runtime import cli
+from ..runtime.progress import Progress as Ticker
+from ..scene.errors import UserError
 
 
 class Progress:
@@ -56,7 +56,7 @@ def _main(argv) -> int:
     except OSError as error:
         raise UserError("--out", f"cannot create {out} ({error.strerror})") from None
 
-    from ..scene import load_scene
+    from ..scene.loading import load_scene
     from . import (
         controllers,
         effects,

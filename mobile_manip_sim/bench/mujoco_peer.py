@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..coordinates import ARM_Q, ARM_U, BASE_POSE, YAW
+from ..scene.coordinates import ARM_Q, ARM_U, BASE_POSE, YAW
 
 try:
     import mujoco

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..coordinates import ARM_Q, ARM_U, JOINTS, OMEGA, SLIDES_Q, WHEELS, YAW, V, X, Y
+from ..scene.coordinates import ARM_Q, ARM_U, JOINTS, OMEGA, SLIDES_Q, WHEELS, YAW, V, X, Y
 
 try:
     import pinocchio as pin

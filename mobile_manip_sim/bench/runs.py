@@ -13,12 +13,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ..coordinates import SLIDES_Q
 from ..dynamics import constraint_residuals
 from ..engine.simulation import Simulation, SimulationError
-from ..methods import METHODS
-from ..scene import IntegratorSettings, Scene, make_integrator
-from ..timeline import sample_times
+from ..runtime.timeline import sample_times
+from ..scene.coordinates import SLIDES_Q
+from ..scene.loading import IntegratorSettings, Scene, make_integrator
+from ..scene.methods import METHODS
 
 
 class Clock:

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..dynamics import Dynamics
-from ..scene import parse_scene
+from ..scene.loading import parse_scene
 from . import loops
 from .scenes import random_robot_document
 

@@ -6,8 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ..coordinates import u_size
-from ..scene import Scene, load_scene, parse_scene
+from ..scene.coordinates import u_size
+from ..scene.loading import Scene, load_scene, parse_scene
 
 CONFIG = Path(__file__).resolve().parents[1] / "config"
 

@@ -15,8 +15,8 @@ from scipy.integrate import solve_ivp
 
 from ..dynamics import Dynamics
 from ..engine.simulation import Simulation
-from ..scene import load_scene, make_integrator
-from ..timeline import sample_times
+from ..runtime.timeline import sample_times
+from ..scene.loading import load_scene, make_integrator
 from . import loops, peers
 from .runs import simulate
 from .scenes import without_stroke_limits

@@ -19,10 +19,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..coordinates import ARM_Q, ARM_U
 from ..engine.simulation import Simulation
-from ..scene import load_scene, make_integrator, parse_scene
-from ..timeline import sample_times
+from ..runtime.timeline import sample_times
+from ..scene.coordinates import ARM_Q, ARM_U
+from ..scene.loading import load_scene, make_integrator, parse_scene
 from . import mujoco_peer
 from .runs import integrator, simulate
 from .scaling import growth_order

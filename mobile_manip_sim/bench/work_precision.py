@@ -11,8 +11,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-from ..methods import METHODS
-from ..scene import make_integrator
+from ..scene.loading import make_integrator
+from ..scene.methods import METHODS
 from .runs import Run, integrator, simulate
 
 SWEEPS = {name: list(method.sweep) for name, method in METHODS.items()}

@@ -15,8 +15,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..coordinates import WHEEL_L, WHEEL_R, YAW, X, Y
-from ..model import RobotModel
+from ..scene.coordinates import WHEEL_L, WHEEL_R, YAW, X, Y
+from ..scene.model import RobotModel
 from . import articulated, kernels
 from .records import make_model, make_workspace
 

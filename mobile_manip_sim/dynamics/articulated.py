@@ -33,7 +33,7 @@ component ``s_lᵀ f_k`` (``ws.slide_force[k]``, N), the generalized force M u̇
 pseudo-velocity. The stop holding a resting rod pushes with it minus the applied force
 (`engine.system.slide_holding_forces`): no second, inverse-dynamics pass.
 """
-from ..coordinates import OMEGA, V
+from ..scene.coordinates import OMEGA, V
 from .indices import u_slide, u_turn
 from .jit import jit, jit_inline
 from .kernels import frames, motion_subspaces, payload_inertia, rod_inertia

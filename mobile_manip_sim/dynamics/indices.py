@@ -1,6 +1,6 @@
 """The index functions of `coordinates.py` (their one owner), compiled to inline into the kernels
 and the engine's compiled cores; Python code calls the plain ones there."""
-from .. import coordinates
+from ..scene import coordinates
 from .jit import jit_inline
 
 q_turn = jit_inline(coordinates.q_turn)

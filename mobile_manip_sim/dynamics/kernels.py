@@ -18,7 +18,7 @@ The forward dynamics in O(n) is in `articulated.py`.
 """
 import math
 
-from ..coordinates import OMEGA, WHEEL_L, WHEEL_R, YAW, V, X, Y
+from ..scene.coordinates import OMEGA, WHEEL_L, WHEEL_R, YAW, V, X, Y
 from .indices import q_joint, q_slide, q_turn, u_slide, u_turn
 from .jit import jit, jit_inline
 from .spatial import inertia_times, sym_add

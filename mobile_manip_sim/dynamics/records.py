@@ -12,7 +12,7 @@ from collections import namedtuple
 
 import numpy as np
 
-from ..coordinates import u_size
+from ..scene.coordinates import u_size
 
 BaseParameters = namedtuple("BaseParameters", [
     "mass",           # M_pw, kg: base + wheels

@@ -11,10 +11,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..coordinates import ARM_U
-from ..errors import UserError
-from ..limits import DURATION, SPEED, TRAJECTORY_POINTS
-from ..scene_controller import outside_stroke
+from ..scene.controller import outside_stroke
+from ..scene.coordinates import ARM_U
+from ..scene.errors import UserError
+from ..scene.limits import DURATION, SPEED, TRAJECTORY_POINTS
 from . import arm_reference, layout
 from .arm_control import SEGMENTS, TAU
 from .arm_reference import Q_REF, QD_REF, QDD_REF

@@ -33,13 +33,13 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..coordinates import ARM_U, OMEGA, V
 from ..dynamics import kernels
 from ..dynamics.articulated import set_moving
 from ..dynamics.jit import jit_inline
-from ..errors import UserError
-from ..limits import ARM_GAIN
-from ..scene_controller import ARM_MODES, FEEDFORWARDS
+from ..scene.controller import ARM_MODES, FEEDFORWARDS
+from ..scene.coordinates import ARM_U, OMEGA, V
+from ..scene.errors import UserError
+from ..scene.limits import ARM_GAIN
 from . import layout
 from .arm_reference import Q_REF, QD_REF, QDD_REF, reference
 

@@ -8,7 +8,7 @@ import math
 
 import numpy as np
 
-from ..errors import UserError
+from ..scene.errors import UserError
 from . import layout
 from .system import KI, KP, TARGET_L, TARGET_R, TORQUE_LIMIT, VELOCITY_MODE, wheel_speed_torques
 

@@ -12,7 +12,7 @@ All three advance ``s = (q, u, e, W)`` (`layout.py`) by one step of length h (s)
 """
 from ..dynamics import kernels
 from ..dynamics.jit import jit_inline
-from ..methods import IDS
+from ..scene.methods import IDS
 from . import layout
 from .system import derivative
 

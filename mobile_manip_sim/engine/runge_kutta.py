@@ -37,7 +37,7 @@ import math
 import numpy as np
 
 from ..dynamics.jit import jit
-from ..methods import IDS
+from ..scene.methods import IDS
 from .system import derivative
 from .tableaus import DOP853_TABLEAU, RK45_TABLEAU, TABLEAUS  # noqa: F401 (TABLEAUS: for Python callers)
 

@@ -20,13 +20,13 @@ from collections import namedtuple
 
 import numpy as np
 
-from ..coordinates import ARM_U, OMEGA, V
 from ..dynamics import Dynamics
 from ..dynamics.jit import Bound
-from ..effects import settings as effect_settings
-from ..errors import UserError
-from ..methods import COMPILED_STEPPERS, IDS, METHODS
-from ..scene import IntegratorSettings, Scene
+from ..scene.coordinates import ARM_U, OMEGA, V
+from ..scene.effects import settings as effect_settings
+from ..scene.errors import UserError
+from ..scene.loading import IntegratorSettings, Scene
+from ..scene.methods import COMPILED_STEPPERS, IDS, METHODS
 from . import adaptive_stepping, dense, layout, step_watch, stepping
 from . import runge_kutta as rk
 from .arm_commands import ArmCommands

@@ -23,10 +23,10 @@ from collections import namedtuple
 
 import numpy as np
 
-from ..coordinates import OMEGA, V
 from ..dynamics import kernels
 from ..dynamics.articulated import articulated_forward_dynamics
 from ..dynamics.jit import jit, jit_inline
+from ..scene.coordinates import OMEGA, V
 from . import layout
 from .arm_control import ARM_ON, N_ARM_SETTINGS, SEGMENT, SEGMENTS, arm_efforts
 

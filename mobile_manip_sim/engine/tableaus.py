@@ -8,7 +8,7 @@ from collections import namedtuple
 
 import numpy as np
 
-from ..methods import IDS
+from ..scene.methods import IDS
 
 RK45, DOP853 = IDS["rk45"], IDS["dop853"]
 

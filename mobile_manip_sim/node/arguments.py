@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import sys
 
-from ..errors import UserError
+from ..scene.errors import UserError
 from . import parameters
 from .parameters import NODE_NAME, PARAMETERS
 
@@ -73,7 +73,7 @@ def _check_params_file(path: str) -> None:
     alias-expansion and duplicate-key limits) and refused here in one line: rcl would block on
     a FIFO, expand an alias bomb without end, silently take the last of two duplicate keys, or
     take ``yes`` for true; and it fails with its own multi-line errors."""
-    from .. import schema
+    from ..scene import schema
 
     what = schema.label(path, 160)
     try:

@@ -6,10 +6,10 @@ is returned as applied, for the bag. Effort mode has nothing here (the effort to
 command intake's, applied by `timeline.apply_commands`)."""
 from __future__ import annotations
 
-from ..errors import UserError
-from ..messages import arm_command_message
-from ..timeline import apply_arm_command
-from ..topics import ARM_COMMAND_TOPICS, relative
+from ..ros.messages import arm_command_message
+from ..ros.topics import ARM_COMMAND_TOPICS, relative
+from ..runtime.timeline import apply_arm_command
+from ..scene.errors import UserError
 
 
 def arm_array_topic(control) -> str | None:

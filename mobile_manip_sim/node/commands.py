@@ -21,9 +21,8 @@ from rclpy.guard_condition import GuardCondition
 from rclpy.impl.implementation_singleton import rclpy_implementation as _rclpy
 from std_msgs.msg import Float64MultiArray
 
-from ..messages import command_values
-from ..timeline import NS, CommandSlot
-from ..topics import (
+from ..ros.messages import command_values
+from ..ros.topics import (
     ARM_POSITION_TOPIC,
     ARM_TOPIC,
     ARM_VELOCITY_TOPIC,
@@ -33,6 +32,7 @@ from ..topics import (
     command_qos,
     relative,
 )
+from ..runtime.timeline import NS, CommandSlot
 from .throttle import Throttle
 
 MAX_TAKEN = 4 * COMMAND_QOS_DEPTH   # messages one drain takes from a command topic, at most

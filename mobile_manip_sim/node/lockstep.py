@@ -11,7 +11,7 @@ from __future__ import annotations
 import time
 from typing import Callable
 
-from ..timeline import format_ns
+from ..runtime.timeline import format_ns
 from .throttle import Throttle
 
 

@@ -20,8 +20,8 @@ import enum
 import threading
 from typing import Callable
 
-from ..pacing import Pacer
-from ..timeline import Grid, format_ns
+from ..runtime.pacing import Pacer
+from ..runtime.timeline import Grid, format_ns
 
 PEER_POLL = 0.01    # s: lockstep's start-up checks for peers this often
 MAX_WAIT = 3600.0   # s: the longest single wait (then the loop looks again)

@@ -7,14 +7,14 @@ import math
 from dataclasses import dataclass
 from typing import Mapping, NamedTuple
 
-from .. import limits
 from ..engine.arm_control import ArmControl
 from ..engine.simulation import DEFAULT_WHEEL_SPEED_GAINS
-from ..errors import UserError
-from ..imu import ImuNoise
-from ..scene import METHODS
-from ..scene_controller import ARM_MODES, FEEDFORWARDS
-from ..topics import BASE_COMMANDS
+from ..ros.imu import ImuNoise
+from ..ros.topics import BASE_COMMANDS
+from ..scene import limits
+from ..scene.controller import ARM_MODES, FEEDFORWARDS
+from ..scene.errors import UserError
+from ..scene.loading import METHODS
 
 NODE_NAME = "mobile_manip_sim"
 PUBLISH_TF = ("all", "base", "none")

@@ -8,8 +8,8 @@ from __future__ import annotations
 
 from rclpy.qos_overriding_options import QoSOverridingOptions
 
-from ..errors import UserError
-from ..topics import relative
+from ..ros.topics import relative
+from ..scene.errors import UserError
 
 QOS_OVERRIDES = "qos_overrides."
 # The policies with_default_policies declares and the values rclpy takes for each.

@@ -6,9 +6,9 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Callable
 
-from ..errors import UserError
 from ..recording.bag_format import arm_control_metadata
 from ..recording.rotation import RotatingRecorder
+from ..scene.errors import UserError
 
 if TYPE_CHECKING:   # imported when a bag is opened: mcap and the CDR tables only when recording
     from ..recording.recorder import RunRecorder

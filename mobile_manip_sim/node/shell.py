@@ -24,16 +24,16 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_srvs.srv import SetBool, Trigger
 
-from .. import cli
-from ..coordinates import ARM_U
 from ..engine.simulation import Simulation
-from ..errors import UserError
-from ..memory import CompilerPages, release_compiler_pages
-from ..messages import state_messages
-from ..pacing import Pacer
-from ..scene import load_scene, make_integrator
-from ..timeline import Grid, apply_commands, start_node_time_line
-from ..topics import CLOCK_TOPIC, JOINT_STATES_TOPIC, ODOM_TOPIC, state_qos
+from ..ros.messages import state_messages
+from ..ros.topics import CLOCK_TOPIC, JOINT_STATES_TOPIC, ODOM_TOPIC, state_qos
+from ..runtime import cli
+from ..runtime.memory import CompilerPages, release_compiler_pages
+from ..runtime.pacing import Pacer
+from ..runtime.timeline import Grid, apply_commands, start_node_time_line
+from ..scene.coordinates import ARM_U
+from ..scene.errors import UserError
+from ..scene.loading import load_scene, make_integrator
 from . import arguments, parameters, qos
 from .arm import ArmDriver, arm_array_topic
 from .commands import CommandIntake

@@ -19,9 +19,8 @@ import numpy as np
 from rclpy.callback_groups import ReentrantCallbackGroup
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
-from ..messages import time_msg
-from ..timeline import NS
-from ..topics import (
+from ..ros.messages import time_msg
+from ..ros.topics import (
     CONTROLLER_STATE_TOPIC,
     TRAJECTORY_ACTION,
     TRAJECTORY_TOPIC,
@@ -29,7 +28,8 @@ from ..topics import (
     relative,
     state_qos,
 )
-from ..trajectory_goals import Codes, Goal, JointTolerance, Point, TrajectoryGoals
+from ..ros.trajectory_goals import Codes, Goal, JointTolerance, Point, TrajectoryGoals
+from ..runtime.timeline import NS
 
 WAIT_POLL = 0.5   # s: an execute callback checks this often that the node still runs
 

@@ -26,11 +26,10 @@ from rclpy.serialization import serialize_message
 from sensor_msgs.msg import Imu as ImuMessage
 from std_msgs.msg import String
 
-from ..errors import UserError
-from ..frames import BASE_LINK, FrameTree
-from ..imu import Imu
-from ..messages import description, energy, imu, tf_cdr, tf_static_cdr
-from ..topics import (
+from ..ros.frames import BASE_LINK, FrameTree
+from ..ros.imu import Imu
+from ..ros.messages import description, energy, imu, tf_cdr, tf_static_cdr
+from ..ros.topics import (
     DESCRIPTION_TOPIC,
     ENERGY_TOPIC,
     IMU_TOPIC,
@@ -39,7 +38,8 @@ from ..topics import (
     latched_qos,
     state_qos,
 )
-from ..urdf import robot_description
+from ..ros.urdf import robot_description
+from ..scene.errors import UserError
 from .qos import publisher
 
 LIVE_BATCH = 0.04   # s of wall time: the live view sends at most 25 times a second (live_view.py)
@@ -82,7 +82,7 @@ class NodeView:
         self.live = None
         self._wired: dict[str, bytes] = {}   # this publication's CDR, for the live view
         if params.foxglove_port:
-            from ..live_view import LiveView
+            from ..ros.live_view import LiveView
             try:
                 self.live = LiveView(params.foxglove_port, name=node.get_fully_qualified_name(),
                                      batch=LIVE_BATCH)

@@ -10,7 +10,7 @@ overrides it). DIR receives one PNG per figure and an ``index.html`` showing the
 """
 from __future__ import annotations
 
-from .. import cli
+from ..runtime import cli
 from .figures import plot
 
 

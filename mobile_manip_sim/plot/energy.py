@@ -14,8 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..coordinates import ARM_U, WHEELS
-from ..effects import settings as effect_settings
+from ..scene.coordinates import ARM_U, WHEELS
+from ..scene.effects import settings as effect_settings
 from .run import Run
 
 

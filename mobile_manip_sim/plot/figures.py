@@ -13,10 +13,10 @@ from typing import Callable
 import numpy as np
 from matplotlib.figure import Figure
 
-from ..coordinates import YAW, X, Y, q_slide, q_turn, u_slide, u_turn
 from ..dynamics import constraint_residuals
-from ..effects import settings as effect_settings
-from ..errors import UserError
+from ..scene.coordinates import YAW, X, Y, q_slide, q_turn, u_slide, u_turn
+from ..scene.effects import settings as effect_settings
+from ..scene.errors import UserError
 from .energy import impact_losses, work
 from .run import Run, dynamics_of, load_run
 

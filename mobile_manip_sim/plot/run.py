@@ -11,19 +11,19 @@ from pathlib import Path
 
 import numpy as np
 
-from ..coordinates import ARM_U
 from ..dynamics import Dynamics
-from ..effects import settings as effect_settings
-from ..errors import UserError
-from ..headless import csv_columns
 from ..recording import bag_format
 from ..recording.bag_format import IMPACT_FIELDS, impact_record
-from ..scene import Scene, load_scene
-from ..topics import ARM_TOPIC as ARM_COMMANDS
-from ..topics import CMD_VEL_TOPIC as CMD_VEL
-from ..topics import JOINT_STATES_TOPIC as JOINT_STATES
-from ..topics import ODOM_TOPIC as ODOM
-from ..topics import WHEEL_TOPIC as WHEEL_COMMANDS
+from ..ros.topics import ARM_TOPIC as ARM_COMMANDS
+from ..ros.topics import CMD_VEL_TOPIC as CMD_VEL
+from ..ros.topics import JOINT_STATES_TOPIC as JOINT_STATES
+from ..ros.topics import ODOM_TOPIC as ODOM
+from ..ros.topics import WHEEL_TOPIC as WHEEL_COMMANDS
+from ..runtime.headless import csv_columns
+from ..scene.coordinates import ARM_U
+from ..scene.effects import settings as effect_settings
+from ..scene.errors import UserError
+from ..scene.loading import Scene, load_scene
 
 
 @dataclass

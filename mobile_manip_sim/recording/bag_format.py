@@ -20,17 +20,10 @@ impacts are checked here too (`impact_record`) without it.
 """
 from __future__ import annotations
 
-import functools
-import importlib
-
-from mobile_manip_sim import __version__, limits, schema
-from mobile_manip_sim.coordinates import ARM_U
-from mobile_manip_sim.errors import UserError
-from mobile_manip_sim.imu import METADATA_KEYS, METADATA_SEED, ImuNoise
-from mobile_manip_sim.methods import METHODS
-from mobile_manip_sim.scene_controller import ARM_MODES
-from mobile_manip_sim.timeline import NS, CommandHistory, Grid, start_node_time_line
-from mobile_manip_sim.topics import (
+from mobile_manip_sim import __version__
+from mobile_manip_sim.ros.imu import METADATA_KEYS, METADATA_SEED, ImuNoise
+from mobile_manip_sim.ros.message_types import message_class
+from mobile_manip_sim.ros.topics import (
     ARM_COMMAND_TOPICS,
     ARM_TOPIC,
     BAG_TOPIC_TYPES,
@@ -39,6 +32,12 @@ from mobile_manip_sim.topics import (
     JOINT_STATES_TOPIC,
     ODOM_TOPIC,
 )
+from mobile_manip_sim.runtime.timeline import NS, CommandHistory, Grid, start_node_time_line
+from mobile_manip_sim.scene import limits, schema
+from mobile_manip_sim.scene.controller import ARM_MODES
+from mobile_manip_sim.scene.coordinates import ARM_U
+from mobile_manip_sim.scene.errors import UserError
+from mobile_manip_sim.scene.methods import METHODS
 
 METADATA_NAME = "mobile_manip_sim"
 SCENE_ATTACHMENT = "scene.yaml"
@@ -156,16 +155,6 @@ def stamp_ns(stamp) -> int:
     return stamp.sec * NS + stamp.nanosec
 
 
-@functools.lru_cache(maxsize=None)
-def message_class(type_name: str):
-    """The rclpy class of ``pkg/msg/Type``."""
-    package, _, name = type_name.partition("/msg/")
-    try:
-        return getattr(importlib.import_module(f"{package}.msg"), name)
-    except (ImportError, AttributeError, ValueError):
-        raise UserError(type_name, "message type not installed") from None
-
-
 def decode(message, type_name: str | None = None):
     """The rclpy message of a `BagMessage`; with ``type_name``, its topic must carry that type.
     A payload that does not decode is one `UserError` naming the topic and the log time."""
@@ -195,7 +184,7 @@ def first_message(bag, topics=None):
 def read_scene(bag):
     """The scene of the ``scene.yaml`` attachment, checked as a scene file is; None if the bag
     has none (not recorded by mobile_manip_sim)."""
-    from mobile_manip_sim.scene import scene_from_text
+    from mobile_manip_sim.scene.loading import scene_from_text
 
     data = bag.attachments().get(SCENE_ATTACHMENT)
     if data is None:
@@ -297,7 +286,7 @@ def read_odometry(bag):
 
 def read_commands(bag, topic: str, width: int) -> CommandHistory:
     """The commands recorded on ``topic`` (each ``width`` values), held from their log times."""
-    from mobile_manip_sim.messages import command_values
+    from mobile_manip_sim.ros.messages import command_values
 
     history = CommandHistory()
     for message in bag.messages([topic]):
@@ -317,7 +306,7 @@ class RecordedRun:
     """What a bag of ours says about its run: scene, integrator, source, rates."""
 
     def __init__(self, bag):
-        from mobile_manip_sim.scene import check_work, make_integrator
+        from mobile_manip_sim.scene.loading import check_work, make_integrator
 
         self.bag = bag
         metadata = bag.metadata().get(METADATA_NAME)
@@ -381,7 +370,7 @@ class RecordedRun:
         stamp, time in s the source advanced its engine to). One per recorded state, unless
         states are missing in between."""
         if self.source == "node":   # a node's run is as long as its bag says: bound the work
-            from mobile_manip_sim.scene import check_work
+            from mobile_manip_sim.scene.loading import check_work
             check_work(end / NS, self.settings, f"{JOINT_STATES_TOPIC} stamp",
                        f"{METADATA_NAME}.dt", self.rate, f"{METADATA_NAME}.publish_rate")
         try:
@@ -391,7 +380,7 @@ class RecordedRun:
 
     def commands(self) -> tuple[CommandHistory, CommandHistory]:
         """The recorded base and arm commands (the base's: wheel torques, or v and ω)."""
-        from mobile_manip_sim.messages import command_values
+        from mobile_manip_sim.ros.messages import command_values
 
         base_topic = BASE_COMMAND_TOPICS[self.base_command]
         histories = {base_topic: CommandHistory(), ARM_TOPIC: CommandHistory()}
@@ -408,7 +397,7 @@ class RecordedRun:
     def arm_commands(self) -> dict:
         """An arm controller's recorded commands: segment start stamp → the commands applied
         there, in order (`timeline.apply_arm_command`'s); none in effort mode."""
-        from mobile_manip_sim.messages import arm_command_values
+        from mobile_manip_sim.ros.messages import arm_command_values
 
         mode, events = self.arm_control.mode, {}
         if not self.arm_control.active:

@@ -40,9 +40,9 @@ from mcap.stream_reader import MAGIC_SIZE, breakup_chunk
 from mcap.summary import Summary
 from mcap.writer import MCAP0_MAGIC as MCAP_MAGIC
 
-from mobile_manip_sim import schema
-from mobile_manip_sim.errors import UserError
 from mobile_manip_sim.recording.rosbag2_metadata import bag_information
+from mobile_manip_sim.scene import schema
+from mobile_manip_sim.scene.errors import UserError
 
 # What the mcap library raises on damaged input (lz4 raises RuntimeError, CRC mismatch is a
 # ValueError, a short read an EndOfFile or struct.error, a huge garbage length OverflowError).

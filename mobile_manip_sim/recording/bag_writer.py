@@ -24,12 +24,12 @@ import yaml
 from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, IndexType, Writer
 
 from mobile_manip_sim import __version__
-from mobile_manip_sim.errors import UserError
-from mobile_manip_sim.recording.message_definitions import (
+from mobile_manip_sim.ros.message_definitions import (
     definition_text,
     split_type_name,
     type_hash,
 )
+from mobile_manip_sim.scene.errors import UserError
 
 # At ~300 messages/s of 200-500 bytes (60-150 KB/s) a 64 KiB chunk holds 0.4-1 s of data, the
 # most a SIGKILL may lose. It must stay larger than any single message: files whose messages

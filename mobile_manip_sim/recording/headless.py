@@ -8,13 +8,13 @@ commands are the scene's constant efforts (after its effort limits), recorded on
 """
 from __future__ import annotations
 
-from mobile_manip_sim.frames import FrameTree
-from mobile_manip_sim.messages import description, state_messages, tf_cdr, tf_static_cdr
 from mobile_manip_sim.recording.bag_writer import DEFAULT_CHUNK_SIZE
 from mobile_manip_sim.recording.recorder import RunRecorder
-from mobile_manip_sim.timeline import Grid
-from mobile_manip_sim.topics import DESCRIPTION_TOPIC, TF_STATIC_TOPIC, TF_TOPIC
-from mobile_manip_sim.urdf import robot_description
+from mobile_manip_sim.ros.frames import FrameTree
+from mobile_manip_sim.ros.messages import description, state_messages, tf_cdr, tf_static_cdr
+from mobile_manip_sim.ros.topics import DESCRIPTION_TOPIC, TF_STATIC_TOPIC, TF_TOPIC
+from mobile_manip_sim.ros.urdf import robot_description
+from mobile_manip_sim.runtime.timeline import Grid
 
 
 class HeadlessRecorder:

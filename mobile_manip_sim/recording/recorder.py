@@ -27,8 +27,6 @@ import time
 
 import numpy as np
 
-from mobile_manip_sim.errors import UserError
-from mobile_manip_sim.messages import command_message
 from mobile_manip_sim.recording.bag_format import (
     IMPACTS_ATTACHMENT,
     METADATA_NAME,
@@ -36,8 +34,9 @@ from mobile_manip_sim.recording.bag_format import (
     run_metadata,
 )
 from mobile_manip_sim.recording.bag_writer import DEFAULT_CHUNK_SIZE, BagWriter, qos_yaml
-from mobile_manip_sim.recording.cdr import exact_cdr
-from mobile_manip_sim.topics import (
+from mobile_manip_sim.ros.cdr import exact_cdr
+from mobile_manip_sim.ros.messages import command_message
+from mobile_manip_sim.ros.topics import (
     ARM_COMMAND_TOPICS,
     ARM_TOPIC,
     BASE_COMMAND_TOPICS,
@@ -50,6 +49,7 @@ from mobile_manip_sim.topics import (
     TF_TOPIC,
     recorded_topics,
 )
+from mobile_manip_sim.scene.errors import UserError
 
 # The order in which one publication's messages are written (the latched ones come first).
 WRITTEN_TOPICS = (*LATCHED_TOPICS, *STATE_TOPICS, TF_TOPIC, IMU_TOPIC)

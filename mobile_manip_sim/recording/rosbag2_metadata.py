@@ -7,8 +7,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from mobile_manip_sim.errors import UserError
-from mobile_manip_sim.schema import (
+from mobile_manip_sim.scene.errors import UserError
+from mobile_manip_sim.scene.schema import (
     MAX_FILE_BYTES,
     integer,
     keys,

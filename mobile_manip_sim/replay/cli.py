@@ -14,12 +14,12 @@ from __future__ import annotations
 import math
 import sys
 
-from mobile_manip_sim import cli
-from mobile_manip_sim.errors import UserError
 from mobile_manip_sim.recording.bag_format import first_message
 from mobile_manip_sim.recording.bag_reader import open_bag
 from mobile_manip_sim.replay.play import play
 from mobile_manip_sim.replay.resimulate import resimulate
+from mobile_manip_sim.runtime import cli
+from mobile_manip_sim.scene.errors import UserError
 
 
 def main(argv=None) -> int:

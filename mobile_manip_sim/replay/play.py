@@ -17,9 +17,6 @@ from __future__ import annotations
 import sys
 import time
 
-from mobile_manip_sim import schema
-from mobile_manip_sim.errors import UserError
-from mobile_manip_sim.messages import CLOCK_TOPIC, JOINT_STATES_TOPIC, NS, clock
 from mobile_manip_sim.recording.bag_format import (
     SCENE_ATTACHMENT,
     RecordedRun,
@@ -27,7 +24,10 @@ from mobile_manip_sim.recording.bag_format import (
     first_message,
     message_class,
 )
-from mobile_manip_sim.topics import LATCHED_TOPICS, TF_TYPE
+from mobile_manip_sim.ros.messages import CLOCK_TOPIC, JOINT_STATES_TOPIC, NS, clock
+from mobile_manip_sim.ros.topics import LATCHED_TOPICS, TF_TYPE
+from mobile_manip_sim.scene import schema
+from mobile_manip_sim.scene.errors import UserError
 
 ACK_TIMEOUT = 2.0          # s: how long to wait at the end for reliable subscribers to ack
 # Discovery: with subscribers on the played topics known and matched, and the graph unchanged

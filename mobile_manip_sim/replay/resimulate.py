@@ -13,9 +13,9 @@ from __future__ import annotations
 import math
 
 from mobile_manip_sim import __version__
-from mobile_manip_sim.errors import UserError
-from mobile_manip_sim.imu import FIELDS, Imu
-from mobile_manip_sim.messages import (
+from mobile_manip_sim.recording.bag_format import RecordedRun, decode, stamp_ns
+from mobile_manip_sim.ros.imu import FIELDS, Imu
+from mobile_manip_sim.ros.messages import (
     JOINT_STATES_TOPIC,
     NS,
     ODOM_TOPIC,
@@ -23,10 +23,10 @@ from mobile_manip_sim.messages import (
     odometry,
     quaternion_yaw,
 )
-from mobile_manip_sim.progress import Progress
-from mobile_manip_sim.recording.bag_format import RecordedRun, decode, stamp_ns
-from mobile_manip_sim.timeline import apply_arm_command, apply_commands
-from mobile_manip_sim.topics import IMU_TOPIC
+from mobile_manip_sim.ros.topics import IMU_TOPIC
+from mobile_manip_sim.runtime.progress import Progress
+from mobile_manip_sim.runtime.timeline import apply_arm_command, apply_commands
+from mobile_manip_sim.scene.errors import UserError
 
 
 class Differences:

@@ -16,9 +16,9 @@ import sys
 import time
 from pathlib import Path
 
-from .. import cli
-from ..errors import UserError
-from ..progress import Progress
+from ..runtime import cli
+from ..runtime.progress import Progress
+from ..scene.errors import UserError
 from .spec import Spec, load_spec
 
 

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..scene import FIXED_STEP_METHODS
+from ..scene.loading import FIXED_STEP_METHODS
 from .spec import Spec
 
 HISTOGRAM_COLUMNS = 8

@@ -16,7 +16,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
-from ..errors import UserError
+from ..scene.errors import UserError
 
 COUNTS = ("impacts", "steps", "rhs_evaluations")
 FIGURES = ("energy_error", "stroke_violation", "constraint_residual", "cpu_s",

@@ -14,12 +14,12 @@ from pathlib import Path
 import numpy as np
 from distributed import WorkerPlugin
 
-from .. import headless
 from ..dynamics import constraint_residuals
-from ..errors import UserError
-from ..methods import METHODS
-from ..scene import check_work
-from ..scene_overrides import scene_with
+from ..runtime import headless
+from ..scene.errors import UserError
+from ..scene.loading import check_work
+from ..scene.methods import METHODS
+from ..scene.overrides import scene_with
 from .spec import DEFAULT_SAMPLE_RATE
 
 
@@ -120,7 +120,7 @@ def warm_up(document: dict | None = None) -> None:
     global _warm
     if _warm:
         return
-    from ..scene import load_scene
+    from ..scene.loading import load_scene
     base = load_scene(None).document if document is None else document
     one_per_core = {m.stepper: name for name, m in METHODS.items() if m.compiled}   # rk4, dop853
     for method in one_per_core.values():

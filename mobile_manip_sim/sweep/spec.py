@@ -27,11 +27,11 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import schema
-from ..errors import UserError
-from ..limits import DURATION, SAMPLE_RATE
-from ..scene import check_work, load_scene
-from ..scene_overrides import check_known, parse_path, path_label
+from ..scene import schema
+from ..scene.errors import UserError
+from ..scene.limits import DURATION, SAMPLE_RATE
+from ..scene.loading import check_work, load_scene
+from ..scene.overrides import check_known, parse_path, path_label
 
 DISTRIBUTIONS = {"uniform": "[low, high]", "normal": "[mean, standard deviation]",
                  "loguniform": "[low, high], both positive", "choice": "[value, …]"}

@@ -15,6 +15,7 @@ import numpy as np
 import yaml
 
 from . import methods, schema
+from .controller import ControllerSection, parse_controller
 from .coordinates import ARM_Q, ARM_U, BASE_POSE, WHEELS
 from .errors import UserError
 from .limits import (
@@ -37,11 +38,10 @@ from .limits import (
     SPEED,
 )
 from .model import Base, RobotModel
-from .scene_controller import ControllerSection, parse_controller
 
 DEFAULT_SCENE = "paper_two_link.yaml"
 
-METHODS = methods.NAMES                     # the registry: mobile_manip_sim/methods.py
+METHODS = methods.NAMES                     # the registry: mobile_manip_sim/scene/methods.py
 FIXED_STEP_METHODS = methods.FIXED_STEP_NAMES
 IMPACT_LAWS = ("impulse", "reflect")
 

@@ -18,7 +18,7 @@ import struct
 from rclpy.serialization import serialize_message
 from rosidl_parser import definition
 
-from mobile_manip_sim.recording.bag_format import message_class
+from .message_types import message_class
 
 ENCAPSULATION_HEADER = 4
 _MAX_ALIGNMENT = 8  # XCDR1

@@ -1,6 +1,6 @@
 """Compile and cache every kernel path once, at set-up (`tools/bootstrap.sh`, or
-`python -m mobile_manip_sim.warmup` after a colcon build), so that no run — the node above all —
-compiles at run time. numba keeps the machine code beside the sources (`__pycache__`); a
+`python -m mobile_manip_sim.programs.warmup` after a colcon build), so that no run — the node
+above all — compiles at run time. numba keeps the machine code beside the sources (`__pycache__`); a
 read-only install that was never warmed still runs, compiling in memory on first use.
 
 It runs each integrator on scenes that take every branch of the engine: end stops hit, rods
@@ -15,11 +15,11 @@ import time
 import warnings
 from importlib import resources
 
-from .dynamics.jit import ENABLED
-from .engine.simulation import Simulation
-from .methods import METHODS
-from .progress import Progress
-from .scene import make_integrator, scene_from_text
+from ..dynamics.jit import ENABLED
+from ..engine.simulation import Simulation
+from ..runtime.progress import Progress
+from ..scene.loading import make_integrator, scene_from_text
+from ..scene.methods import METHODS
 
 SCENES = ("paper_two_link.yaml", "hard_impacts.yaml", "effect_joint_damping.yaml",
           "effect_locked_joints.yaml")

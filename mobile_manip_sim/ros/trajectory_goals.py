@@ -32,8 +32,8 @@ from typing import Callable, NamedTuple
 
 import numpy as np
 
-from .errors import UserError
-from .timeline import NS, format_ns
+from ..runtime.timeline import NS, format_ns
+from ..scene.errors import UserError
 
 ERASE = -1.0                     # a goal's tolerance value that switches the check off
 STOPPED_VELOCITY_TOLERANCE = 0.01   # jtc's default goal velocity tolerance (rad/s or m/s)

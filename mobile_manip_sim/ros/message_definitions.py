@@ -11,7 +11,7 @@ import re
 import sys
 from pathlib import Path
 
-from mobile_manip_sim.errors import UserError
+from mobile_manip_sim.scene.errors import UserError
 
 DELIMITER = "=" * 80
 

@@ -8,7 +8,7 @@ import threading
 from contextlib import contextmanager
 from typing import Callable
 
-from .errors import EXIT_USER_ERROR, UserError
+from ..scene.errors import EXIT_USER_ERROR, UserError
 
 
 class ArgumentParser(argparse.ArgumentParser):

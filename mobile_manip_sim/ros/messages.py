@@ -17,12 +17,11 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Imu, JointState
 from std_msgs.msg import Float64MultiArray, String
 
-from .coordinates import JOINTS, OMEGA, YAW, V, X, Y
-from .recording.cdr import tf_message_cdr
-
 # Stamps come from the time line (timeline.py); topic names, types and QoS live in topics.py,
 # re-exported here for the message builders' users.
-from .timeline import NS  # noqa: F401
+from ..runtime.timeline import NS  # noqa: F401
+from ..scene.coordinates import JOINTS, OMEGA, YAW, V, X, Y
+from .cdr import tf_message_cdr
 from .topics import (  # noqa: F401
     ARM_TOPIC,
     CLOCK_TOPIC,

@@ -14,8 +14,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from .coordinates import ARM_U
+from .loading import Scene, StrokeLimits
 from .model import Base
-from .scene import Scene, StrokeLimits
 
 # scene effect → the setting it sets (several effects may share one setting)
 SETTING_OF_EFFECT = {

@@ -11,7 +11,7 @@ import re
 
 from . import schema
 from .errors import UserError
-from .scene import Scene, parse_scene
+from .loading import Scene, parse_scene
 
 _SEGMENT = re.compile(r"([A-Za-z_][A-Za-z0-9_]*)((?:\[\d+\])*)$")
 

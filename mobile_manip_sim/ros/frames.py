@@ -28,8 +28,8 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
-from .coordinates import JOINTS, YAW, X, Y, u_slide, u_turn
-from .model import RobotModel
+from ..scene.coordinates import JOINTS, YAW, X, Y, u_slide, u_turn
+from ..scene.model import RobotModel
 
 FOOTPRINT = "base_footprint"
 BASE_LINK = "base_link"

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import sys
 
-from . import cli
-from .scene import load_scene
-from .urdf import robot_description
+from ..ros.urdf import robot_description
+from ..runtime import cli
+from ..scene.loading import load_scene
 
 
 def _main(argv: list[str] | None) -> int:

@@ -21,9 +21,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from . import limits, schema
-from .coordinates import OMEGA, YAW, V
-from .errors import UserError
+from ..scene import limits, schema
+from ..scene.coordinates import OMEGA, YAW, V
+from ..scene.errors import UserError
 
 AXES = 3
 FIELDS = ("angular_velocity", "linear_acceleration")

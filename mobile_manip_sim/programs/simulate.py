@@ -27,13 +27,14 @@ import stat
 import time
 from pathlib import Path
 
-from . import cli, limits, schema
-from .errors import UserError
-from .headless import csv_columns, csv_row, run, summary_line
-from .limits import DURATION, SAMPLE_RATE
-from .progress import Progress
-from .scene import check_work, load_scene, make_integrator
-from .scene_overrides import parse_assignments, scene_with
+from ..runtime import cli
+from ..runtime.headless import csv_columns, csv_row, run, summary_line
+from ..runtime.progress import Progress
+from ..scene import limits, schema
+from ..scene.errors import UserError
+from ..scene.limits import DURATION, SAMPLE_RATE
+from ..scene.loading import check_work, load_scene, make_integrator
+from ..scene.overrides import parse_assignments, scene_with
 
 DEFAULT_VIEW_PORT = 8765           # --view without a port: Foxglove's default
 
@@ -76,7 +77,7 @@ def _main(argv) -> int:
     out = Path(args.out)
     view = None
     if args.view is not None:
-        from .live_view import PacedView
+        from ..ros.live_view import PacedView
         schema.integer(args.view, "--view", lo=limits.PORT[0], hi=limits.PORT[1])
         view = PacedView(args.view, scene, rate, duration)
         print(f"live view: {view.url} (Foxglove: open connection, Foxglove WebSocket)",
@@ -84,7 +85,7 @@ def _main(argv) -> int:
     with CsvOutput(out) as output:
         recorder = None
         if args.record:
-            from .recording.headless import HeadlessRecorder
+            from ..recording.headless import HeadlessRecorder
             recorder = HeadlessRecorder(args.record, scene, settings, rate, duration)
         output.writerow(csv_columns(scene.robot.n_links))
 

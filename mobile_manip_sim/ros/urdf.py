@@ -36,10 +36,10 @@ import xml.etree.ElementTree as ET
 
 import numpy as np
 
-from .coordinates import rod
-from .effects import settings as effect_settings
+from ..scene.coordinates import rod
+from ..scene.effects import settings as effect_settings
+from ..scene.loading import Scene
 from .frames import BASE_LINK, FOOTPRINT, TIP, FrameTree
-from .scene import Scene
 
 UNLIMITED = 1.0e6          # effort (N·m or N) and velocity placeholder where the scene sets none
 DEFAULT_ROD_RADIUS = 0.02  # m, drawn radius of a rod whose cross-section inertia is zero

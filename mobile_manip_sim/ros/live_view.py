@@ -24,14 +24,14 @@ import time
 
 from rclpy.serialization import serialize_message  # rclpy's C serialiser, as DDS's
 
-from . import limits
-from .errors import UserError
+from ..runtime.pacing import Pacer
+from ..runtime.timeline import Grid
+from ..scene import limits
+from ..scene.errors import UserError
 from .frames import FrameTree
 from .imu import Imu
+from .message_definitions import definition_text
 from .messages import description, energy, imu, state_messages, tf_cdr, tf_static_cdr
-from .pacing import Pacer
-from .recording.message_definitions import definition_text
-from .timeline import Grid
 from .topics import (
     CLOCK_TOPIC,
     DESCRIPTION_TOPIC,

@@ -15,9 +15,9 @@ import time
 
 import numpy as np
 
-from .engine import layout
-from .engine.simulation import Simulation
-from .scene import Scene
+from ..engine import layout
+from ..engine.simulation import Simulation
+from ..scene.loading import Scene
 from .timeline import sample_times
 
 
