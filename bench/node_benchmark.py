@@ -14,10 +14,10 @@ command timeout off). This process subscribes to /clock and measures:
 - free-running real-time factor (real_time_factor 0): simulated seconds (from /clock stamps) per
   wall second;
 - the live view's cost: the node at real_time_factor 1 with foxglove_port on and a third-party
-  Foxglove client (test/foxglove_client.js under Node.js) subscribed to every channel, against
-  the same node without the server, in alternating phases of the same run (CPU time).
+  Foxglove client (test/helpers/foxglove_client.js under Node.js) subscribed to every channel,
+  against the same node without the server, in alternating phases of the same run (CPU time).
 The node publishes what it publishes by default: the whole tree on /tf and /tf_static (with
-tf2_msgs built by test/interfaces_build.py), /imu, /robot_description.
+tf2_msgs built by test/helpers/interfaces_build.py), /imu, /robot_description.
 Prints a markdown table and writes it to --out.
 """
 from __future__ import annotations
@@ -45,7 +45,7 @@ from mobile_manip_sim.ros.topics import LIVE_TOPIC_TYPES
 from mobile_manip_sim.scene.loading import load_scene
 
 HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE.parent / "test"))   # the tests' ROS harness, shared
+sys.path.insert(0, str(HERE.parent / "test" / "helpers"))   # the tests' ROS harness, shared
 import foxglove_js  # noqa: E402
 import interfaces_build  # noqa: E402
 import ros_harness  # noqa: E402

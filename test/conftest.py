@@ -1,6 +1,16 @@
-"""What the test modules share: the engine kernels warmed once per session (ros_harness.py holds
-the ROS harness itself; waiting.py the one `wait_for`)."""
+"""What the test modules share: the import path (test/helpers/, the helper modules in one place
+for all folders, then the test folders), and the engine kernels warmed once per session
+(ros_harness.py holds the ROS harness itself; waiting.py the one `wait_for`)."""
+import sys
+from pathlib import Path
+
 import pytest
+
+TEST = Path(__file__).resolve().parent
+# helpers first; then every folder, so a test module imports another's shared pieces by name
+# (pytest's default import mode already needs test module names unique across folders)
+sys.path[:0] = [str(TEST / "helpers")] + sorted(
+    str(p) for p in TEST.iterdir() if p.is_dir() and p.name not in ("helpers", "__pycache__"))
 
 
 @pytest.fixture(scope="session")

@@ -8,7 +8,7 @@
 # left alone; PYTHON is the interpreter the node runs on) into one prefix, OUT_DIR/install. The
 # build's output goes to stderr; stdout gets only the two exports that make the packages import:
 #     eval "$(tools/build_interfaces.sh OUT_DIR tf2_msgs control_msgs)"
-# (test/interfaces_build.py does the same for the tests). A few minutes of build on 2 cores.
+# (test/helpers/interfaces_build.py does the same for the tests). A few minutes of build on 2 cores.
 set -euo pipefail
 USAGE="usage: tools/build_interfaces.sh OUT_DIR PACKAGE...  (packages: tools/interfaces/*)"
 OUT=${1:?$USAGE}

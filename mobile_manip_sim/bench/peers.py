@@ -4,7 +4,8 @@ The robot as an ordinary multibody (planar base joint at A, two wheel spin joint
 revolute then a prismatic joint carrying the rod), with the constant map S from u to the full
 velocity: ``M = Sᵀ M_full S`` (``crba``), ``h = Sᵀ h_full(q, S u)`` (``rnea`` at zero
 acceleration), ``u̇ = M⁻¹ (Q − h)`` (numpy). It is the same construction as the test reference
-``test/pinocchio_reference.py``, kept separate so that the tests stay independent of the package;
+``test/helpers/pinocchio_reference.py``, kept separate so that the tests stay independent of the
+package;
 `agreement` checks both against our dynamics in every bench run.
 """
 from __future__ import annotations

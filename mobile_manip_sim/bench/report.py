@@ -276,7 +276,7 @@ def write(results, out: Path) -> Path:
                       ""]
 
     parts += ["## 6. Hard cases", "",
-              "Each case is also a test in `test/test_hard_cases.py` (marker `hard`), which "
+              "Each case is also a test in `test/bench/test_hard_cases.py` (marker `hard`), which "
               "asserts the bounds shown here: finite state, rods within their strokes (1e-9 m), "
               "energy error within the integrator's promise (`hard_cases.energy_promise`: "
               "C·tol^p·E·(1 + T), tol = rtol or dt, p = 1 or the method's order, E the energy "

@@ -253,7 +253,7 @@ def section(result, number: int = 7) -> str:
              " stepping the equivalent unconstrained model (`bench/mujoco_peer.py`: planar base as "
              "slide x – slide y – hinge z, wheel hinges, each R-P pair a hinge then a slide, the "
              "same inertias; contacts, constraints and limits off; efforts through gear-1 motors). "
-             "`test/test_mujoco_peer.py` checks that its mass matrix projected on our "
+             "`test/bench/test_mujoco_peer.py` checks that its mass matrix projected on our "
              "pseudo-velocities is ours to 1e-12. It knows neither the rolling constraint nor the "
              "end stops, so it does less physics than our paper run: the rows compare cost, not "
              "accuracy. Targets compare one compiled call with one compiled call: MuJoCo `rollout` "

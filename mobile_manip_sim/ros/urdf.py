@@ -2,7 +2,7 @@
 
 The URDF describes the same multibody the simulator integrates (docs/model.md), so Pinocchio's URDF
 parser with a planar root joint at ``base_link`` gives the core's mass matrix
-(``M = Sᵀ M_full S``, see test/test_urdf.py). The tree — links, joints, origins, axes, the
+(``M = Sᵀ M_full S``, see test/ros/test_urdf.py). The tree — links, joints, origins, axes, the
 frame prefix — is `frames.FrameTree`'s; this module adds the bodies, drawings and limits:
 
 - ``arm_link_k`` is joint frame k of docs/model.md (origin O_k, x along rod k, z the joint axis); it

@@ -17,7 +17,7 @@ from mobile_manip_sim.scene.loading import load_scene, parse_scene
 from mobile_manip_sim.scene.overrides import scene_with
 from mobile_manip_sim.sweep import runner, spec
 
-CONFIG = Path(__file__).resolve().parent.parent / "config"
+CONFIG = Path(__file__).resolve().parents[2] / "config"
 EXAMPLE = CONFIG / "arm_trajectory.yaml"
 
 

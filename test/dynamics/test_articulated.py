@@ -16,6 +16,7 @@ import robots
 from mobile_manip_sim.dynamics import Dynamics, articulated, kernels
 from mobile_manip_sim.scene.coordinates import SLIDES_U, rod
 
+HELPERS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "helpers")
 LINK_COUNTS = [0, 1, 2, 3, 4, 5, 8, 12, 16, 20, 24, 32]
 EPS = np.finfo(float).eps
 
@@ -123,7 +124,7 @@ def test_pure_python_and_compiled_kernels_agree():
     locked DOF, on random robots of 0, 1, 2 and 7 links."""
     script = (
         "import json, sys, numpy as np\n"
-        f"sys.path.insert(0, {os.path.dirname(__file__)!r})\n"
+        f"sys.path[:0] = {[os.path.dirname(__file__), HELPERS]!r}\n"
         "from test_articulated import random_robot\n"
         "from mobile_manip_sim.dynamics import articulated, jit, vec3\n"
         "out = {'compiled': jit.ENABLED, 'kind': type(vec3.add).__name__, 'values': []}\n"

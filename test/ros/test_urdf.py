@@ -22,7 +22,7 @@ from mobile_manip_sim.scene.effects import settings as effect_settings
 from mobile_manip_sim.scene.loading import load_scene, parse_scene
 from robots import random_configuration, random_robot_document
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 PAPER = ROOT / "config" / "paper_two_link.yaml"
 TOL = 1e-9
 SEEDS = list(range(12))

@@ -381,7 +381,7 @@ def _panels(node) -> list[str]:
 def test_foxglove_layout_plots_the_recorded_topics_by_joint_name():
     """config/foxglove_layout.json: every panel of the tree is configured, its message paths
     name topics the simulator records, and /joint_states indices match the joint names."""
-    layout = json.loads((Path(__file__).resolve().parents[1] / "config"
+    layout = json.loads((Path(__file__).resolve().parents[2] / "config"
                          / "foxglove_layout.json").read_text())
     panels = _panels(layout["layout"])
     assert sorted(panels) == sorted(layout["configById"])

@@ -204,7 +204,7 @@ def test_the_warm_up_says_how_long_it_takes_and_names_each_kernel_first():
 def test_bootstrap_says_still_while_a_silent_command_runs():
     """tools/bootstrap.sh's `talking` (the script itself is not run here: it would reinstall the
     venv): a line every 10 s while the command is silent, and the command's status kept."""
-    script = Path(__file__).resolve().parents[1] / "tools" / "bootstrap.sh"
+    script = Path(__file__).resolve().parents[2] / "tools" / "bootstrap.sh"
     text = script.read_text()
     function = text[text.index("talking() {"):text.index("\n}\n", text.index("talking() {")) + 3]
     command = f'{function}\ntalking "waiting" bash -c "sleep 11; exit 3"'
@@ -216,7 +216,7 @@ def test_bootstrap_says_still_while_a_silent_command_runs():
 
 
 def test_sweep_shows_runs_done_failed_and_time_to_go_on_a_terminal(terminal, tmp_path):
-    spec = Path(__file__).resolve().parents[1] / "config" / "sweeps" / "paper_mass_and_method.yaml"
+    spec = Path(__file__).resolve().parents[2] / "config" / "sweeps" / "paper_mass_and_method.yaml"
     process = started(terminal, executable("sweep"), str(spec), "--out", str(tmp_path / "out"),
                       "--workers", "1")
     process.communicate(timeout=600)

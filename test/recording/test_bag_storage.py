@@ -31,7 +31,7 @@ from mobile_manip_sim.recording.bag_writer import BagWriter, qos_yaml
 from mobile_manip_sim.ros.message_definitions import DELIMITER, definition_text
 from mobile_manip_sim.scene.errors import UserError
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 T0 = 1_000_000_000  # simulated time of the first message [ns]
 STEPS = 60
 TOPICS = {

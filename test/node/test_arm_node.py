@@ -17,7 +17,7 @@ from ros_harness import NodeProcess, child_env, on_domain, private_domain, spinn
 from test_node import FAST, Probe, wait_for
 
 DOMAIN_ID = private_domain(200, 232)   # test_node.py 100-199; 232 is the highest Fast DDS takes
-CLIENT = os.path.join(os.path.dirname(__file__), "trajectory_client.py")
+CLIENT = os.path.join(os.path.dirname(__file__), "..", "helpers", "trajectory_client.py")
 NAMES = ["arm_revolute_1", "arm_prismatic_1", "arm_revolute_2", "arm_prismatic_2"]
 STARTUP_TIMEOUT = 90.0
 SUCCEEDED, CANCELED, ABORTED = 4, 5, 6   # action_msgs/GoalStatus
@@ -222,7 +222,7 @@ def test_a_headless_scene_with_a_trajectory_gives_the_samples_of_the_node_driven
     from mobile_manip_sim.engine.simulation import Simulation
     from mobile_manip_sim.scene.loading import load_scene
 
-    text = (Path(__file__).resolve().parent.parent / "config" / "paper_two_link.yaml").read_text()
+    text = (Path(__file__).resolve().parents[2] / "config" / "paper_two_link.yaml").read_text()
     for old, new in (("efforts: {wheels: [0.1, 0.2], joints: [4.5, 7.0, 0.0, 1.0]}",
                       "efforts: {wheels: [0.0, 0.0], joints: [0.0, 0.0, 0.0, 0.0]}"),
                      ("integrator: {method: dop853, rtol: 1.0e-10, atol: 1.0e-12}",

@@ -9,7 +9,7 @@ import pytest
 
 from executables import executable
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 BIN = Path(sys.executable).parent
 
 

@@ -17,7 +17,7 @@ from executables import executable
 from hostile_yaml import ALIAS_BOMB
 
 SIMULATE = executable("simulate")
-CONFIG = Path(__file__).resolve().parents[1] / "config"
+CONFIG = Path(__file__).resolve().parents[2] / "config"
 LONG_RUN = ["--method", "rk4", "--dt", "1e-4", "--duration", "1000", "--sample-rate", "100"]
 
 
@@ -165,7 +165,7 @@ def test_real_time_factor_leaves_out_start_up(tmp_path):
 @pytest.mark.skipif(shutil.which("unshare") is None or os.geteuid() != 0,
                     reason="needs root and unshare for a read-only bind mount")
 def test_a_read_only_install_runs_with_a_warning_at_most(tmp_path):
-    package = Path(__file__).resolve().parents[1] / "mobile_manip_sim"
+    package = Path(__file__).resolve().parents[2] / "mobile_manip_sim"
     root = tmp_path / "ro"
     shutil.copytree(package, root / "mobile_manip_sim", symlinks=False,
                     ignore=shutil.ignore_patterns("__pycache__"))

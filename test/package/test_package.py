@@ -9,7 +9,7 @@ import yaml
 
 from mobile_manip_sim.node import PARAMETERS
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 
 # Import name → rosdep key. A new third-party import must be added here AND to package.xml.
 ROSDEP_KEYS = {

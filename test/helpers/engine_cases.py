@@ -15,7 +15,7 @@ import yaml
 from mobile_manip_sim.engine.simulation import Simulation
 from mobile_manip_sim.scene.loading import parse_scene
 
-CONFIG = Path(__file__).resolve().parents[1] / "config"
+CONFIG = Path(__file__).resolve().parents[2] / "config"
 PAPER_SCENE = CONFIG / "paper_two_link.yaml"
 _PAPER = yaml.safe_load(PAPER_SCENE.read_text())
 

@@ -264,7 +264,7 @@ def test_every_shipped_scene_still_loads(tmp_path):
     from pathlib import Path
 
     from mobile_manip_sim.scene.loading import load_scene
-    config = Path(__file__).resolve().parents[1] / "config"
+    config = Path(__file__).resolve().parents[2] / "config"
     scenes = [p for p in sorted(config.glob("*.yaml")) if not p.name.endswith(".params.yaml")]
     assert len(scenes) >= 10
     for path in scenes:

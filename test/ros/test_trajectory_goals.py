@@ -24,7 +24,7 @@ from mobile_manip_sim.ros.trajectory_goals import (
 )
 from mobile_manip_sim.scene.errors import UserError
 
-ACTION = (Path(__file__).resolve().parent.parent / "tools" / "interfaces" / "control_msgs" /
+ACTION = (Path(__file__).resolve().parents[2] / "tools" / "interfaces" / "control_msgs" /
           "action" / "FollowJointTrajectory.action")
 NAMES = ["arm_revolute_1", "arm_prismatic_1", "arm_revolute_2", "arm_prismatic_2"]
 MS = 10 ** 6

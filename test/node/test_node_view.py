@@ -42,7 +42,7 @@ from ros_harness import wait_for as harness_wait_for
 from test_urdf import SCENES
 
 DOMAIN_ID = private_domain(200, 229)
-LISTENER = os.path.join(os.path.dirname(__file__), "view_listener.py")
+LISTENER = os.path.join(os.path.dirname(__file__), "..", "helpers", "view_listener.py")
 FAST = ["-p", "integrator.method:=rk4", "-p", "integrator.dt:=0.001"]
 PERIOD_NS = 10 ** 7     # publish_rate 100 Hz
 TOL = 1e-9

@@ -31,7 +31,7 @@ import yaml
 from mobile_manip_sim.scene import schema
 from mobile_manip_sim.scene.loading import parse_scene
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 PAGES = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
 RUN = ("bash", "sh", "python", "console")
 BLOCK_TIMEOUT = 300   # s: a hung example fails instead of hanging the suite

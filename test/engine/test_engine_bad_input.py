@@ -351,11 +351,11 @@ def test_the_step_watch_tells_a_crawl_from_a_restart():
 
 @pytest.fixture(scope="module")
 def huge_commands():
-    """test/huge_commands.py's cases, run in their own process: the timeout is only a safety net
-    (a regression that loops would otherwise hang the test run); what bounds each case is the
-    step watch, asserted below as a step count."""
+    """test/helpers/huge_commands.py's cases, run in their own process: the timeout is only a
+    safety net (a regression that loops would otherwise hang the test run); what bounds each case
+    is the step watch, asserted below as a step count."""
     result = subprocess.run([sys.executable, "huge_commands.py"], capture_output=True, text=True,
-                            timeout=600, cwd=Path(__file__).parent)
+                            timeout=600, cwd=Path(__file__).parents[1] / "helpers")
     assert result.returncode == 0, result.stderr
     return [json.loads(line) for line in result.stdout.splitlines()]
 

@@ -2,7 +2,7 @@
 bag metadata; and (issue 22) explicit YAML tags and blank values in every YAML reader (scene,
 sweep spec, params file, bag metadata), blank or odd ``-p`` values for every node parameter,
 mutated sweep specs, run-time node parameters at their extremes, and huge finite commands for
-every method right after a reset (in their own process: test/huge_commands.py).
+every method right after a reset (in their own process: test/helpers/huge_commands.py).
 
 Whatever comes in, the outcome is a valid result or one `UserError` whose message
 is one short line naming a key — never another exception, never a long wait.
@@ -295,11 +295,11 @@ def check_run_time_parameter(case):
 
 
 def check_huge_commands(seed_and_count, fuzz_settings):
-    """test/huge_commands.py in its own process (a loop would hang it, not the run)."""
+    """test/helpers/huge_commands.py in its own process (a loop would hang it, not the run)."""
     seed, count = seed_and_count
     result = subprocess.run([sys.executable, "huge_commands.py", str(seed), str(count)],
                             capture_output=True, text=True, timeout=1800,
-                            cwd=Path(__file__).parent)
+                            cwd=Path(__file__).parents[1] / "helpers")
     assert result.returncode == 0, result.stderr
     cases = [json.loads(line) for line in result.stdout.splitlines()]
     assert len(cases) == len(METHODS) * (len(COMMANDS) + count)

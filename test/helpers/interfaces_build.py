@@ -8,7 +8,7 @@ import pathlib
 import subprocess
 import sys
 
-ROOT = pathlib.Path(__file__).resolve().parent.parent
+ROOT = pathlib.Path(__file__).resolve().parents[2]
 SCRIPT = ROOT / "tools" / "build_interfaces.sh"
 DEFINITIONS = ROOT / "tools" / "interfaces"
 PACKAGES = ("tf2_msgs", "control_msgs")

@@ -33,6 +33,7 @@ from ros_harness import cpu_seconds as process_cpu_seconds
 from ros_harness import wait_for as harness_wait_for
 
 DOMAIN_ID = private_domain(100, 199)
+HELPERS = os.path.join(os.path.dirname(__file__), "..", "helpers")
 SIMULATOR = executable("simulator")
 RATE = 100                       # publish_rate (Hz) of the shared node
 PERIOD_NS = 10 ** 9 // RATE
@@ -585,7 +586,7 @@ def lockstep_run(tmp_path, name: str, states: int):
     try:
         time.sleep(0.5)   # the controller starts after the node
         controller = subprocess.run(
-            [os.sys.executable, os.path.join(os.path.dirname(__file__), "pd_controller.py"),
+            [os.sys.executable, os.path.join(HELPERS, "pd_controller.py"),
              str(states)], env=env, timeout=STARTUP_TIMEOUT + 60, capture_output=True, text=True)
         assert controller.returncode == 0, controller.stderr
     finally:
@@ -679,7 +680,7 @@ def test_the_shipped_params_file_applies_under_another_node_name(tmp_path):
     """Keyed /**: a renamed node still takes it (a wrong type in it would be refused)."""
     import shutil
     params = tmp_path / "params.yaml"
-    shutil.copy(os.path.join(os.path.dirname(__file__), "..", "config", "simulator.params.yaml"),
+    shutil.copy(os.path.join(HELPERS, "..", "..", "config", "simulator.params.yaml"),
                 params)
     params.write_text(params.read_text().replace("publish_rate: 100.0", "publish_rate: 100"))
     result = subprocess.run([SIMULATOR, "--ros-args", "--params-file", str(params),
@@ -754,8 +755,7 @@ def test_a_10_khz_command_flood_neither_stalls_the_node_nor_its_services(probe, 
                            "-p", "command_timeout:=0.0", "-r", "__node:=flood_sim")
     pause = probe.node.create_client(SetBool, "/flood_sim/pause")
     seconds = 6.0
-    flood = subprocess.Popen([os.sys.executable, os.path.join(os.path.dirname(__file__),
-                                                              "command_flood.py"),
+    flood = subprocess.Popen([os.sys.executable, os.path.join(HELPERS, "command_flood.py"),
                               "10000", str(seconds)], env=child_env(), stdout=subprocess.PIPE,
                              text=True)
     try:

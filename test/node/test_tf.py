@@ -1,5 +1,5 @@
 """/tf as a ROS user sees it: the node and a subscriber in separate processes, with tf2_msgs
-built from its definition (test/interfaces_build.py, a cached fixture), real DDS on a random
+built from its definition (test/helpers/interfaces_build.py, a cached fixture), real DDS on a random
 domain. Without tf2_msgs the node says so in one line and runs on. The whole tree (publish_tf
 all): test_node_view.py."""
 import itertools
@@ -15,7 +15,7 @@ from executables import executable
 from ros_harness import child_env
 
 SIMULATOR = executable("simulator")
-LISTENER = os.path.join(os.path.dirname(__file__), "tf_listener.py")
+LISTENER = os.path.join(os.path.dirname(__file__), "..", "helpers", "tf_listener.py")
 PERIOD_NS = 10 ** 7   # publish_rate 100 Hz
 
 
