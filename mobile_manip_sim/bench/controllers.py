@@ -21,6 +21,7 @@ from ..dynamics import Dynamics
 from ..engine import arm_reference, layout
 from ..engine.arm_control import SEGMENTS, ArmControl
 from ..engine.simulation import Simulation
+from ..scene.coordinates import arm_width
 from ..scene.loading import load_scene, parse_scene
 from .tables import seconds, table, verdict
 
@@ -71,12 +72,12 @@ def prepared(base, mode: str, feedforward: str) -> Simulation:
 
 def tracking(sim: Simulation, times, rows) -> tuple[float, float]:
     """RMS and max of q − q_ref over the samples and joints (rad or m)."""
-    data, out = sim.system.data, np.zeros((3, sim.nu - 2))
+    data, out = sim.system.data, np.zeros((3, arm_width(sim.nu)))
     errors = []
     for t, row in zip(times, rows, strict=True):
         arm_reference.reference(data.ref_starts, data.ref_coeffs, int(data.arm[SEGMENTS]), t, out,
                                 0)
-        errors.append(row[layout.arm_q(0):layout.arm_q(0) + sim.nu - 2] - out[0])
+        errors.append(row[layout.arm_q(0):layout.arm_q(0) + arm_width(sim.nu)] - out[0])
     errors = np.array(errors)
     return float(np.sqrt(np.mean(errors ** 2))), float(np.abs(errors).max())
 

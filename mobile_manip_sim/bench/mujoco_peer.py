@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..scene.coordinates import ARM_Q, ARM_U, BASE_POSE, YAW
+from ..scene.coordinates import ARM_Q, ARM_U, BASE_POSE, YAW, arm_size
 
 try:
     import mujoco
@@ -163,7 +163,7 @@ class MujocoPeer:
         self.data = mujoco.MjData(self.model)
         n = robot_model.n_links
         self.arm = 0 if self.fixed_base else 5 if self.wheels else 3   # first arm index in qpos
-        assert self.model.nv == self.arm + 2 * n
+        assert self.model.nv == self.arm + arm_size(n)
 
     def qpos(self, q) -> np.ndarray:
         q = np.asarray(q, dtype=float)
@@ -179,7 +179,7 @@ class MujocoPeer:
         if self.wheels:
             S[3, 0], S[3, 1] = 1.0 / r, b / r
             S[4, 0], S[4, 1] = 1.0 / r, -b / r
-        S[self.arm:, ARM_U] = np.eye(2 * n)
+        S[self.arm:, ARM_U] = np.eye(arm_size(n))
         return S
 
     def set_state(self, q, u) -> None:

@@ -12,7 +12,19 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..scene.coordinates import ARM_Q, ARM_U, JOINTS, OMEGA, SLIDES_Q, WHEELS, YAW, V, X, Y
+from ..scene.coordinates import (
+    ARM_Q,
+    ARM_U,
+    JOINTS,
+    OMEGA,
+    SLIDES_Q,
+    WHEELS,
+    YAW,
+    V,
+    X,
+    Y,
+    arm_size,
+)
 
 try:
     import pinocchio as pin
@@ -61,7 +73,7 @@ class ProjectedPinocchio:
         S[0, 0], S[2, 1] = 1.0, 1.0
         S[3, 0], S[3, 1] = 1.0 / r, b / r
         S[4, 0], S[4, 1] = 1.0 / r, -b / r
-        S[ARM_Q.start:, ARM_U] = np.eye(2 * n)   # the arm: the same coordinates in both
+        S[ARM_Q.start:, ARM_U] = np.eye(arm_size(n))   # the arm: the same coordinates in both
         self.S, self.St = S, S.T.copy()
         self.nq, self.nu, self.r, self.b = robot_model.n_q, robot_model.n_u, r, b
         self._zero = np.zeros(model.nv)

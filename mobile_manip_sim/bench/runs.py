@@ -14,9 +14,10 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..dynamics import constraint_residuals
-from ..engine.simulation import Simulation, SimulationError
+from ..engine.simulation import Simulation
 from ..runtime.timeline import sample_times
 from ..scene.coordinates import SLIDES_Q
+from ..scene.errors import SimulationError
 from ..scene.loading import IntegratorSettings, Scene, make_integrator
 from ..scene.methods import METHODS
 

@@ -32,13 +32,10 @@ from . import layout
 from . import runge_kutta as rk
 from .dense import Interpolant, interpolate
 from .events import RELEASE, crossing_in_step, first_crossing, holding_margin_after, locate
-from .step_watch import make_watch, watch_step
+from .status import BUDGET, CRAWLING, DONE, LOG_FULL, NOT_FINITE, STALLED
+from .step_watch import clear, make_watch, watch_step
 from .stepping import (
-    BUDGET,
-    DONE,
-    LOG_FULL,
     LOST,
-    NOT_FINITE,
     STEPS,
     T0,
     any_watched,
@@ -48,10 +45,6 @@ from .stepping import (
 )
 from .stops import any_resting, impact, release
 from .system import derivative
-
-# why `advance` returned, besides stepping.py's: the step fell below 10 ulps of t; the steps
-# crawl (`step_watch`: solve.watch says which limit, solve.status[STEP_T0], [STEP_H] the step)
-STALLED, CRAWLING = 5, 6
 
 # Solve.status[...] entries
 (STEP_T0,     # start of the step in hand (s)
@@ -79,6 +72,58 @@ Solve = namedtuple("Solve", [
 def make_solve(size: int, rtol: float, atol: float) -> Solve:
     return Solve(rk.work_array(size), np.zeros(size), np.zeros(size), np.array([rtol, atol]),
                  np.zeros(N_STATUS), make_watch())
+
+
+# --- the step in hand as Python sees it: SciPy's radau and bdf hand their steps in ------------
+
+def new_solve(solve: Solve) -> None:
+    """A fresh solve (after a reset): no step in hand, `rk.initial_step` picks the first."""
+    solve.status[:] = 0.0
+    clear(solve.watch)
+
+
+def step_in_hand(solve: Solve) -> tuple[float, float]:
+    """(start, length) of the step in hand; length 0: none (the next starts a new solve)."""
+    return float(solve.status[STEP_T0]), float(solve.status[STEP_H])
+
+
+def next_step(solve: Solve) -> float:
+    """The next step to try (s); 0: none chosen yet; NaN: a stage overflowed."""
+    return float(solve.status[H_NEXT])
+
+
+def drop_step(solve: Solve) -> None:
+    """No step in hand: the next one starts a new solve."""
+    solve.status[STEP_H] = 0.0
+
+
+def begin_step(solve: Solve, t0: float, y0) -> None:
+    """An outside solver's step starts at (t0, y0)."""
+    solve.status[STEP_T0] = t0
+    solve.start[:] = y0
+
+
+def hand_in_step(solve: Solve, h: float, y1, series) -> None:
+    """An outside solver's step of length h as the step in hand: its end state y1 and its
+    interpolant as a power series (at most `rk.MAX_DENSE` rows), no event located yet."""
+    work, status = solve.work, solve.status
+    work[rk.WORK_Y1] = y1
+    coeffs = work[rk.WORK_COEFFS:rk.WORK_COEFFS + rk.MAX_DENSE]
+    coeffs[:] = 0.0
+    coeffs[:len(series)] = series
+    status[STEP_H] = h
+    status[DENSE] = FULL
+    status[EVENT] = NO_EVENT
+
+
+def step_end(solve: Solve):
+    """The step in hand's end state y₁ (a view)."""
+    return solve.work[rk.WORK_Y1]
+
+
+def set_step_end_derivative(solve: Solve, f1) -> None:
+    """f(y₁) of the step in hand (the release check reads it)."""
+    solve.work[rk.WORK_F1] = f1
 
 
 @jit

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..scene.controller import outside_stroke
-from ..scene.coordinates import ARM_U
+from ..scene.coordinates import ARM_U, arm_u, arm_width
 from ..scene.errors import UserError
 from ..scene.limits import DURATION, SPEED, TRAJECTORY_POINTS
 from . import arm_reference, layout
@@ -65,7 +65,7 @@ class ArmCommands:
     def arm_reference(self, t_ahead: float = 0.0):
         """(q_ref, q̇_ref, q̈_ref) of the reference t_ahead s from now (n_arm each)."""
         self._arm_mode_is(None, "arm.reference")
-        n_arm = self.nu - 2
+        n_arm = arm_width(self.nu)
         out = np.zeros((3, n_arm))
         data = self.system.data
         tau = self.s[layout.reference_clock(self.nq, self.nu)] + float(t_ahead)
@@ -117,7 +117,7 @@ class ArmCommands:
         self._command_changed()
 
     def _arm_vector(self, values, key, bound=None) -> np.ndarray:
-        n_arm = self.nu - 2
+        n_arm = arm_width(self.nu)
         try:
             array = np.array(values, dtype=float).reshape(-1)
         except (TypeError, ValueError):
@@ -138,7 +138,7 @@ class ArmCommands:
         if len(rows) != m:
             raise UserError(key, f"expected {m} rows (one per point), got {len(rows)}")
         return np.array([self._arm_vector(row, f"{key}[{i}]", bound)
-                         for i, row in enumerate(rows)]).reshape(m, self.nu - 2)
+                         for i, row in enumerate(rows)]).reshape(m, arm_width(self.nu))
 
     def _trajectory_times(self, times) -> np.ndarray:
         key = "arm.trajectory.times"
@@ -178,4 +178,4 @@ class ArmCommands:
                 unit = "N·m" if j % 2 == 0 else "N"
                 raise UserError(names[j], f"holding the pose of {where} against gravity takes "
                                           f"{abs(gravity[j]):.4g} {unit}, beyond its effort limit "
-                                          f"{limits[2 + j]:g} {unit}")
+                                          f"{limits[arm_u(j)]:g} {unit}")

@@ -14,12 +14,14 @@ in the direction of the error. Feedforward ff:
 
 - ``none``;
 - ``gravity``: G(q), the project's inverse dynamics `kernels.gibbs_appell` at u = 0, u̇ = 0,
-  in its reduced form (`gravity_efforts`: with ω = α = 0 every point accelerates by g ẑ);
+  in its reduced form (`dynamics.reduced.gravity_efforts`: with ω = α = 0 every point
+  accelerates by g ẑ);
 - ``computed_torque``: the inverse dynamics of the arm following q̈_ref, ``M u̇* + h(q, u) −
   Q_damp`` at the actual (q, u), with u̇* = (v̇*, ω̇*, q̈_ref) and the base's acceleration
   (v̇*, ω̇*) solved exactly rather than assumed zero: the base rows of the same equations, with
   the wheel forces and damping acting now, ``M_bb u̇_b* = Q_b − M_ba q̈_ref − h_b`` (3
-  inverse-dynamics passes: one with q̈_ref, two unit base accelerations for M_bb and M_ab).
+  inverse-dynamics passes: one with q̈_ref, two unit base accelerations for M_bb and M_ab:
+  `dynamics.reduced.base_acceleration`).
   A locked or resting arm joint is taken at u̇ = 0, a fixed base at u̇_b = 0.
 
 The controller's states z (n_arm) and τ follow W in s (`layout.arm_integrals`,
@@ -33,11 +35,12 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from ..dynamics import kernels
+from ..dynamics import indices, kernels
 from ..dynamics.articulated import set_moving
 from ..dynamics.jit import jit_inline
+from ..dynamics.reduced import base_acceleration, gravity_efforts
 from ..scene.controller import ARM_MODES, FEEDFORWARDS
-from ..scene.coordinates import ARM_U, OMEGA, V
+from ..scene.coordinates import ARM_U, OMEGA, V, arm_size
 from ..scene.errors import UserError
 from ..scene.limits import ARM_GAIN
 from . import layout
@@ -111,7 +114,7 @@ class ArmControl:
         repeated); a UserError if a list does not have one value per arm joint."""
         if not self.active:
             return replace(self, kp=(), ki=(), kd=())
-        n_arm = 2 * robot.n_links
+        n_arm = arm_size(robot.n_links)
         defaults = default_gains(robot)
         gains = {}
         for row, name in enumerate(("kp", "ki", "kd")):
@@ -170,51 +173,6 @@ def arm_settings(control: ArmControl, effort_limits) -> tuple:
 
 
 @jit_inline
-def base_acceleration(system, q, Qb0, Qb1, scratch):
-    """(v̇*, ω̇*): the base rows M_bb u̇_b = Q_b − (M_ba q̈* + h_b), with scratch[QA] holding the
-    inverse dynamics at u̇ = (0, 0, q̈*) and the unit-base-acceleration columns M e_v, M e_ω
-    written into scratch[COL_V], scratch[COL_W]; a locked base pseudo-velocity has u̇ = 0."""
-    model, ws, moving = system.model, system.ws, system.ws.moving
-    if moving[0] == 0.0 and moving[1] == 0.0:
-        return 0.0, 0.0
-    unit, zero = scratch[UD], scratch[ZERO]
-    for k in range(unit.shape[0]):
-        unit[k] = 0.0
-    unit[0] = 1.0
-    kernels.gibbs_appell(model, q, zero, unit, 0.0, ws, scratch[COL_V])
-    unit[0], unit[1] = 0.0, 1.0
-    kernels.gibbs_appell(model, q, zero, unit, 0.0, ws, scratch[COL_W])
-    K00, K01, K11 = scratch[COL_V, 0], scratch[COL_W, 0], scratch[COL_W, 1]
-    r0, r1 = Qb0 - scratch[QA, 0], Qb1 - scratch[QA, 1]
-    if moving[0] == 0.0:
-        K00, K01, r0 = 1.0, 0.0, 0.0
-    if moving[1] == 0.0:
-        K11, K01, r1 = 1.0, 0.0, 0.0
-    det = K00 * K11 - K01 * K01
-    return (K11 * r0 - K01 * r1) / det, (K00 * r1 - K01 * r0) / det
-
-
-@jit_inline
-def gravity_efforts(model, q, g, ws, out):
-    """G(q) on the arm joints into out (n_arm): `kernels.gibbs_appell` at u = u̇ = 0, where
-    ω = α = 0 and every point accelerates by g ẑ, so rod k's force is μ_k L_k g ẑ, its moment
-    about O_k μ_k s1 g x_k × ẑ (s1 = ∫η dη), the payload's force m g ẑ; the inward pass keeps
-    f vertical and m horizontal. Needs `kernels.frames`."""
-    L, mu, x, z = model.L, model.mu, ws.x, ws.z
-    f_z = model.tip_mass * g
-    m_x, m_y = 0.0, 0.0
-    for k in range(L.shape[0], 0, -1):
-        l = q[layout.q_slide(k)]
-        s1, _ = kernels.rod_moments(l, L[k - 1])
-        lever = mu[k - 1] * s1 * g + l * f_z   # N_k + l x_k × f, per unit of x_k × ẑ
-        m_x += lever * x[k, 1]
-        m_y -= lever * x[k, 0]
-        f_z += mu[k - 1] * L[k - 1] * g
-        out[2 * k - 2] = z[k, 0] * m_x + z[k, 1] * m_y
-        out[2 * k - 1] = x[k, 2] * f_z
-
-
-@jit_inline
 def feedforward(system, s, ff):
     """The feedforward efforts (module doc) into ff (n_arm). Needs `kernels.frames` of s."""
     kind = system.arm[FEEDFORWARD]
@@ -233,19 +191,21 @@ def feedforward(system, s, ff):
     set_moving(system.free, ws.moving)
     ud[0], ud[1] = 0.0, 0.0
     for j in range(n_arm):
-        ud[2 + j] = system.arm_ref[QDD_REF, j] * ws.moving[2 + j]
+        ud[indices.arm_u(j)] = system.arm_ref[QDD_REF, j] * ws.moving[indices.arm_u(j)]
     kernels.gibbs_appell(model, q, u, ud, system.gravity, ws, Q_id)
     Qb0, Qb1 = system.Q[V], system.Q[OMEGA]
     if damping.shape[0] > 0:
         Qb0 -= damping[0] * u[0]
         Qb1 -= damping[1] * u[1]
-    vd, omd = base_acceleration(system, q, Qb0, Qb1, scratch)
+    vd, omd = base_acceleration(model, ws, q, Qb0, Qb1, Q_id, scratch[UD], scratch[ZERO],
+                                scratch[COL_V], scratch[COL_W])
     for j in range(n_arm):
-        ff[j] = Q_id[2 + j]
+        ff[j] = Q_id[indices.arm_u(j)]
         if vd != 0.0 or omd != 0.0:
-            ff[j] += scratch[COL_V, 2 + j] * vd + scratch[COL_W, 2 + j] * omd
+            i = indices.arm_u(j)
+            ff[j] += scratch[COL_V, i] * vd + scratch[COL_W, i] * omd
         if damping.shape[0] > 0:
-            ff[j] += damping[2 + j] * u[2 + j]
+            ff[j] += damping[indices.arm_u(j)] * u[indices.arm_u(j)]
 
 
 @jit_inline
@@ -259,13 +219,13 @@ def arm_efforts(system, s, ds):
     arm[SEGMENT] = reference(system.ref_starts, system.ref_coeffs, int(arm[SEGMENTS]), s[i_clock],
                              ref, int(arm[SEGMENT]))
     feedforward(system, s, ref[FF])
-    for j in range(nu - 2):
+    for j in range(indices.arm_width(nu)):
         e = ref[Q_REF, j] - s[layout.arm_q(j)]
         ed = ref[QD_REF, j] - s[layout.arm_u(nq, j)]
         raw = ref[FF, j] + gains[KP, j] * e + gains[KD, j] * ed + gains[KI, j] * s[i_z + j]
         limit = limits[j]
         tau = min(max(raw, -limit), limit)
-        system.Q[2 + j] = tau
+        system.Q[indices.arm_u(j)] = tau
         ref[TAU, j] = tau
         ds[i_z + j] = 0.0 if (raw > limit and e > 0.0) or (raw < -limit and e < 0.0) else e
     ds[i_clock] = 1.0

@@ -9,6 +9,7 @@ Where each coordinate sits in q and in u is `coordinates.py`'s (the one owner); 
 functions, compiled (`dynamics/indices.py`), are re-exported here for the compiled cores, so an
 index of q is its index in s and an index j of u is ``n_q + j`` in s. This module owns the rest.
 """
+from ..dynamics import indices
 from ..dynamics.indices import q_slide as q_slide
 from ..dynamics.indices import q_turn as q_turn
 from ..dynamics.indices import u_slide as u_slide
@@ -59,13 +60,13 @@ def arm_integrals(nq, nu):
 @jit_inline
 def reference_clock(nq, nu):
     """Index of τ, the arm reference's clock, in s (the last entry)."""
-    return nq + nu + 3 + (nu - 2)
+    return arm_integrals(nq, nu) + indices.arm_width(nu)
 
 
 @jit_inline
 def arm_state_size(nu):
     """Entries the arm controller adds to s: n_arm integrals and the clock."""
-    return nu - 1
+    return indices.arm_width(nu) + 1
 
 
 @jit_inline
@@ -76,5 +77,5 @@ def arm_q(j):
 
 @jit_inline
 def arm_u(nq, j):
-    """Index in s of arm joint j's rate (q̇_1, l̇_1, …); in u it is u_turn(1) + j = 2 + j."""
-    return nq + u_turn(1) + j
+    """Index in s of arm joint j's rate (q̇_1, l̇_1, …); in u it is `arm_u(j)`."""
+    return nq + indices.arm_u(j)

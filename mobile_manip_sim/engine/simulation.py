@@ -22,13 +22,15 @@ import numpy as np
 
 from ..dynamics import Dynamics
 from ..dynamics.jit import Bound
-from ..scene.coordinates import ARM_U, OMEGA, V
+from ..scene.coordinates import ARM_U, OMEGA, V, arm_width
 from ..scene.effects import settings as effect_settings
+from ..scene.errors import SimulationError as SimulationError
+from ..scene.errors import StepLimitError as StepLimitError
 from ..scene.errors import UserError
 from ..scene.loading import IntegratorSettings, Scene
 from ..scene.methods import COMPILED_STEPPERS, IDS, METHODS
 from . import adaptive_stepping, dense, layout, step_watch, stepping
-from . import runge_kutta as rk
+from . import status as status_codes
 from .arm_commands import ArmCommands
 from .arm_control import ArmControl, arm_settings, scene_arm_control
 from .base_commands import BaseCommands, command, finite_forces
@@ -56,19 +58,6 @@ ELASTIC_SEMI_IMPLICIT = ("semi_implicit_euler with end stops that rebound (resti
 # issue 18: 8 % off at 1 s)
 DEFAULT_WHEEL_SPEED_GAINS = (2.0, 20.0)
 SCIPY_MIN_RTOL = 100 * np.finfo(float).eps   # SciPy's own floor; passed as is, it warns on stderr
-
-
-class SimulationError(RuntimeError):
-    """The numbers went bad (NaN/Inf): says when and which quantity."""
-
-
-class StepLimitError(SimulationError):
-    """An adaptive method cannot follow the solution (`step_watch`): the settings named by `key`
-    and the efforts are to blame, so adapters treat it like a user error (status 2)."""
-
-    def __init__(self, key: str, problem: str):
-        super().__init__(f"{key}: {problem}")
-        self.key, self.problem = key, problem
 
 
 ImpactDetail = namedtuple("ImpactDetail", "q u_before u_after free held")
@@ -148,8 +137,7 @@ class Simulation(ArmCommands, BaseCommands):
         self._clock[:] = 0.0
         self._clock[stepping.DT] = self.settings.dt
         if self._solve is not None:
-            self._solve.status[:] = 0.0   # a fresh solve: `rk.initial_step` picks its first step
-            step_watch.clear(self._solve.watch)
+            adaptive_stepping.new_solve(self._solve)
         self.resting[:] = 0
         self.watched[:] = self.stop_law is not None
         self.stops.count[0] = 0
@@ -160,7 +148,7 @@ class Simulation(ArmCommands, BaseCommands):
         self.system.counters[:] = 0
         self._solver = None   # radau/bdf: SciPy's solver of the solve in progress
         self.wheel_efforts = None
-        self.joint_efforts = np.zeros(self.nu - 2)
+        self.joint_efforts = np.zeros(arm_width(self.nu))
         self.set_efforts(self.scene.wheel_efforts,
                          None if self.arm_control.active else self.scene.joint_efforts)
         if self.arm_control.active:
@@ -230,7 +218,7 @@ class Simulation(ArmCommands, BaseCommands):
             wheel_efforts = self.effects.saturate(command(wheels, 2, "wheels"))
             finite_forces(lambda: self.dynamics.wheel_forces(*wheel_efforts), "wheels", wheels)
         if joints is not None:
-            joint_efforts = self.effects.saturate(command(joints, self.nu - 2, "joints"), 2)
+            joint_efforts = self.effects.saturate(command(joints, arm_width(self.nu), "joints"), 2)
         self.wheel_efforts, self.joint_efforts = wheel_efforts, joint_efforts
         if wheels is not None:
             self.system.control[VELOCITY_MODE] = 0.0
@@ -270,7 +258,7 @@ class Simulation(ArmCommands, BaseCommands):
         while True:
             status = self._advance(*self._core_args, self.s, self._clock, t_end, self._step_budget)
             self._after_compiled(status)
-            if status == stepping.DONE:
+            if status == status_codes.DONE:
                 return
 
     def sample(self, times) -> np.ndarray:
@@ -294,18 +282,17 @@ class Simulation(ArmCommands, BaseCommands):
 
     def _after_compiled(self, status: int) -> None:
         self._collect_impacts()
-        if status == stepping.NOT_FINITE:
+        if status == status_codes.NOT_FINITE:
             self._fail(self._scratch.out)
-        if status == adaptive_stepping.CRAWLING:
-            t_before, h = (self._solve.status[adaptive_stepping.STEP_T0],
-                           self._solve.status[adaptive_stepping.STEP_H])
+        if status == status_codes.CRAWLING:
+            t_before, h = adaptive_stepping.step_in_hand(self._solve)
             self._cannot_follow(t_before, step_watch.describe(self._solve.watch, t_before, h))
-        if status == adaptive_stepping.STALLED:   # as SciPy's "step below the spacing of t"
-            h = self._solve.status[adaptive_stepping.H_NEXT]
+        if status == status_codes.STALLED:   # as SciPy's "step below the spacing of t"
+            h = adaptive_stepping.next_step(self._solve)
             self._cannot_follow(self.t, "a stage overflowed (its error estimate is NaN)"
                                 if math.isnan(h) else
                                 f"the step fell below 10 spacings of t (h = {h:.3g} s)")
-        if status == stepping.CHATTER:
+        if status == status_codes.CHATTER:
             raise SimulationError(f"t = {self.t:.9g} s: end stops chatter beyond what one step can "
                                   f"resolve (rods released and hitting again without end); "
                                   f"try a smaller dt or a larger effects.stroke_limits.rest_speed")
@@ -334,44 +321,36 @@ class Simulation(ArmCommands, BaseCommands):
     def _take_scipy_step(self) -> None:
         """One step of the SciPy solver into the adaptive core's step in hand (`Solve`)."""
         solve = self._solve
-        status, work = solve.status, solve.work
-        t_before = self.t if status[adaptive_stepping.STEP_H] == 0.0 else self._solver.t
+        in_hand = adaptive_stepping.step_in_hand(solve)[1] != 0.0
+        t_before = self._solver.t if in_hand else self.t
         try:   # overflows are ours to report in one line, not numpy's warnings on stderr
             with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
                 solver, message = self._scipy_step(t_before)
         except (ValueError, np.linalg.LinAlgError) as error:   # lu_factor of infinities
-            status[adaptive_stepping.STEP_H] = 0.0
+            adaptive_stepping.drop_step(solve)
             self._cannot_follow(t_before, f"its linear algebra failed ({error})")
         self._check_scipy_step(solver, t_before, message)
         self._clock[stepping.STEPS] += 1
         if not np.all(np.isfinite(solver.y)):
             self._fail(solver.y)
-        y1 = work[rk.WORK_Y1]
-        y1[:] = solver.y
-        coeffs = work[rk.WORK_COEFFS:rk.WORK_COEFFS + rk.MAX_DENSE]
         series = dense.from_scipy(solver.dense_output()).coeffs
-        coeffs[:] = 0.0
-        coeffs[:len(series)] = series
-        status[adaptive_stepping.STEP_H] = solver.t - t_before
-        status[adaptive_stepping.DENSE] = 1.0
-        status[adaptive_stepping.EVENT] = adaptive_stepping.NO_EVENT
+        adaptive_stepping.hand_in_step(solve, solver.t - t_before, solver.y, series)
         if self.resting.any():   # the release check needs f(y₁) just evaluated
-            work[rk.WORK_F1] = self.system.derivative(y1)
+            adaptive_stepping.set_step_end_derivative(
+                solve, self.system.derivative(adaptive_stepping.step_end(solve)))
         self._locate_event(*self._core_args)
 
     def _scipy_step(self, t_before: float):
         """The SciPy solver's next step (a new solver for a new solve): (solver, its message)."""
-        status = self._solve.status
-        if status[adaptive_stepping.STEP_H] == 0.0:   # a new solve at (t, s)
+        if adaptive_stepping.step_in_hand(self._solve)[1] == 0.0:   # a new solve at (t, s)
             derivative = self.system.derivative
             settings = self.settings
             self._solver = scipy_solver(settings.method)(
                 lambda _t, y: derivative(y), self.t, self.s.copy(), math.inf,
                 rtol=max(settings.rtol, SCIPY_MIN_RTOL), atol=settings.atol,
-                first_step=status[adaptive_stepping.H_NEXT] or None)
+                first_step=adaptive_stepping.next_step(self._solve) or None)
         solver = self._solver
-        status[adaptive_stepping.STEP_T0] = t_before
-        self._solve.start[:] = solver.y
+        adaptive_stepping.begin_step(self._solve, t_before, solver.y)
         return solver, solver.step()
 
     def _check_scipy_step(self, solver, t_before: float, message) -> None:

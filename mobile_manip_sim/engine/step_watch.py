@@ -31,7 +31,7 @@ BUDGET_STEPS = 5_000
 BUDGET_SPAN = 0.01      # s of simulated time per BUDGET_STEPS steps
 
 # watch[...] entries: steps in a row below the floor; start (s) and steps of the budget's window
-SHORT, MARK, STEPS = range(3)
+WATCH_SHORT, WATCH_MARK, WATCH_STEPS = range(3)
 
 
 def make_watch() -> np.ndarray:
@@ -48,25 +48,26 @@ def clear(watch: np.ndarray) -> None:
 @jit
 def watch_step(watch, t_before, h):
     """After an accepted step h (s) from t_before (s): True when the solver is crawling."""
-    if math.isnan(watch[MARK]):
-        watch[MARK] = t_before
-    watch[STEPS] += 1.0
-    watch[SHORT] = watch[SHORT] + 1.0 if h < STEP_FLOOR * max(1.0, abs(t_before)) else 0.0
-    if watch[SHORT] >= FLOOR_STEPS:
+    if math.isnan(watch[WATCH_MARK]):
+        watch[WATCH_MARK] = t_before
+    watch[WATCH_STEPS] += 1.0
+    short = h < STEP_FLOOR * max(1.0, abs(t_before))
+    watch[WATCH_SHORT] = watch[WATCH_SHORT] + 1.0 if short else 0.0
+    if watch[WATCH_SHORT] >= FLOOR_STEPS:
         return True
-    if watch[STEPS] >= BUDGET_STEPS:
-        if t_before + h - watch[MARK] < BUDGET_SPAN:
+    if watch[WATCH_STEPS] >= BUDGET_STEPS:
+        if t_before + h - watch[WATCH_MARK] < BUDGET_SPAN:
             return True
-        watch[MARK], watch[STEPS] = t_before + h, 0.0
+        watch[WATCH_MARK], watch[WATCH_STEPS] = t_before + h, 0.0
     return False
 
 
 def describe(watch: np.ndarray, t_before: float, h: float) -> str:
     """Which limit `watch_step` found crossed at the step h (s) from t_before (s), in words."""
-    if watch[SHORT] >= FLOOR_STEPS:
+    if watch[WATCH_SHORT] >= FLOOR_STEPS:
         floor = STEP_FLOOR * max(1.0, abs(t_before))
         return (f"its step stayed below the floor of {floor:.0e} s for {FLOOR_STEPS} steps "
                 f"in a row (the last {h:.3g} s)")
-    covered = t_before + h - watch[MARK]
+    covered = t_before + h - watch[WATCH_MARK]
     return (f"{BUDGET_STEPS} steps advanced it only {covered:.3g} s, beyond the step "
             f"budget of {BUDGET_STEPS} steps per {BUDGET_SPAN:g} s")

@@ -17,6 +17,7 @@ import numpy as np
 
 from ..dynamics import kernels
 from ..dynamics.jit import jit, jit_inline
+from ..scene.coordinates import arm_size
 from . import layout
 from .events import (
     N_SAMPLES,
@@ -28,10 +29,9 @@ from .events import (
     step_state,
 )
 from .fixed_step import step
+from .status import BUDGET, CHATTER, DONE, LOG_FULL, NOT_FINITE  # why `advance` returned
 from .stops import any_resting, impact, release
 
-# why `advance` returned
-DONE, BUDGET, LOG_FULL, NOT_FINITE, CHATTER = 0, 1, 2, 3, 4
 # clock[...] entries
 T0, DT, K, STEPS, LOST = range(5)
 
@@ -48,7 +48,7 @@ StepScratch = namedtuple("StepScratch", [
 
 def make_scratch(size: int, n_links: int, impact_scratch) -> StepScratch:
     return StepScratch(np.zeros(size), np.zeros(size), np.zeros((4, size)),
-                       np.zeros(size), np.zeros(N_SAMPLES + 2 * n_links),
+                       np.zeros(size), np.zeros(N_SAMPLES + arm_size(n_links)),
                        np.zeros(max(n_links, 1), dtype=np.int64), impact_scratch)
 
 

@@ -26,7 +26,7 @@ import numpy as np
 from ..dynamics import kernels
 from ..dynamics.articulated import articulated_forward_dynamics
 from ..dynamics.jit import jit, jit_inline
-from ..scene.coordinates import OMEGA, V
+from ..scene.coordinates import OMEGA, V, arm_width
 from . import layout
 from .arm_control import ARM_ON, N_ARM_SETTINGS, SEGMENT, SEGMENTS, arm_efforts
 
@@ -163,7 +163,7 @@ class System:
         or None (effort mode: no controller states, no controller stage)."""
         self.dynamics = dynamics
         nu = dynamics.model.n_u
-        n_arm = nu - 2 if arm is not None else 0
+        n_arm = arm_width(nu) if arm is not None else 0
         self.arm_on = arm is not None
         self.Q_cmd = np.zeros(nu)
         self.damping = np.zeros(0) if damping is None else np.asarray(damping, dtype=float)

@@ -22,6 +22,7 @@ from typing import Callable
 
 from ..runtime.pacing import Pacer
 from ..runtime.timeline import Grid, format_ns
+from ..scene.errors import SimulationError, UserError
 
 PEER_POLL = 0.01    # s: lockstep's start-up checks for peers this often
 MAX_WAIT = 3600.0   # s: the longest single wait (then the loop looks again)
@@ -45,7 +46,7 @@ def describe(error: BaseException) -> str:
     """One line naming an exception: its message (our errors say what and where), or its type
     when it says nothing by itself."""
     text = " ".join(str(error).split())
-    ours = type(error).__name__ in ("SimulationError", "StepLimitError", "UserError")
+    ours = isinstance(error, (SimulationError, UserError))
     return text if ours and text else f"{type(error).__name__}: {text}".rstrip(": ")
 
 

@@ -9,6 +9,7 @@ from typing import Mapping, NamedTuple
 
 from ..engine.arm_control import ArmControl
 from ..engine.simulation import DEFAULT_WHEEL_SPEED_GAINS
+from ..ros.frames import BASE_LINK, FOOTPRINT, ODOM
 from ..ros.imu import ImuNoise
 from ..ros.topics import BASE_COMMANDS
 from ..scene import limits
@@ -34,15 +35,15 @@ class Parameter(NamedTuple):
 PARAMETERS = {
     "scene": Parameter("", "Scene YAML file; empty = the embedded paper scene."),
     "publish_rate": Parameter(100.0, "Publications per second of SIMULATED time (Hz).",
-                              (0.001, 100000.0)),
+                              limits.PUBLISH_RATE),
     "real_time_factor": Parameter(1.0, f"Simulated seconds per wall second: 0 (as fast as "
                                        f"possible) or at least {MIN_REAL_TIME_FACTOR:g}.",
-                                  (0.0, 10000.0), True),
+                                  limits.REAL_TIME_FACTOR, True),
     "command_timeout": Parameter(0.5, "Seconds of SIMULATED time after the last command of a "
                                       "group (wheels, arm) before its efforts fall to zero; 0 "
-                                      "disables.", (0.0, 1.0e6), True),
-    "odom_frame": Parameter("odom", "frame_id of /odom and parent frame of /tf."),
-    "base_frame": Parameter("base_footprint", "child_frame_id of /odom and /tf, and the URDF's "
+                                      "disables.", limits.COMMAND_TIMEOUT, True),
+    "odom_frame": Parameter(ODOM, "frame_id of /odom and parent frame of /tf."),
+    "base_frame": Parameter(FOOTPRINT, "child_frame_id of /odom and /tf, and the URDF's "
                                               "root: the frame on the ground under the axle "
                                               "midpoint (base_link is fixed at wheel-radius "
                                               "height above it)."),
@@ -85,19 +86,19 @@ PARAMETERS = {
                                         "(as Jazzy's diff_drive_controller takes it) rather "
                                         "than Twist."),
     "wheel_speed.kp": Parameter(DEFAULT_WHEEL_SPEED_GAINS[0], "Velocity mode: proportional gain "
-                                "of the wheel-speed loop (N·m·s/rad).", (0.0, 1.0e6)),
+                                "of the wheel-speed loop (N·m·s/rad).", limits.WHEEL_SPEED_GAIN),
     "wheel_speed.ki": Parameter(DEFAULT_WHEEL_SPEED_GAINS[1], "Velocity mode: integral gain of "
-                                "the wheel-speed loop (N·m/rad).", (0.0, 1.0e6)),
+                                "the wheel-speed loop (N·m/rad).", limits.WHEEL_SPEED_GAIN),
     "sync_timeout": Parameter(1.0, "Synchronous mode: wall seconds to wait for a command before "
-                                   "holding the last one (and saying so).", (0.001, 3600.0)),
+                                   "holding the last one (and saying so).", limits.SYNC_TIMEOUT),
     "integrator.method": Parameter("", f"Integrator overriding the scene's ({', '.join(METHODS)}"
                                        f"); empty = the scene's."),
     "integrator.dt": Parameter(0.0, "Fixed step (s) overriding the scene's; 0 = the scene's.",
-                               (0.0, 1.0)),
+                               limits.INTEGRATOR_OVERRIDE),
     "integrator.rtol": Parameter(0.0, "Relative tolerance overriding the scene's; 0 = the "
-                                      "scene's.", (0.0, 1.0)),
+                                      "scene's.", limits.INTEGRATOR_OVERRIDE),
     "integrator.atol": Parameter(0.0, "Absolute tolerance overriding the scene's; 0 = the "
-                                      "scene's.", (0.0, 1.0)),
+                                      "scene's.", limits.INTEGRATOR_OVERRIDE),
 }
 
 
@@ -208,7 +209,7 @@ def read(values: Mapping[str, object]) -> NodeParameters:
             raise UserError(name, problem)
     odom, base = values["odom_frame"], values["base_frame"]
     for name in ("odom_frame", "base_frame"):
-        if not values[name] or values[name] == "base_link" or odom == base:
+        if not values[name] or values[name] == BASE_LINK or odom == base:
             raise UserError(name, f"{values[name]!r}: frame names must be non-empty, distinct, "
                                   f"and not base_link (the URDF's body frame)")
     if values["base_command"] not in BASE_COMMANDS:

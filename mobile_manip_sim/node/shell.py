@@ -31,7 +31,7 @@ from ..runtime import cli
 from ..runtime.memory import CompilerPages, release_compiler_pages
 from ..runtime.pacing import Pacer
 from ..runtime.timeline import Grid, apply_commands, start_node_time_line
-from ..scene.coordinates import ARM_U
+from ..scene.coordinates import ARM_U, arm_size
 from ..scene.errors import UserError
 from ..scene.loading import load_scene, make_integrator
 from . import arguments, parameters, qos
@@ -79,8 +79,9 @@ class SimulatorNode(Node):
         self.view = NodeView(self, self.scene, p)
         qos.check_unknown(self)
         self.commands = CommandIntake(self, p.velocity_mode, p.cmd_vel_stamped,
-                                      len(self.joint_names) - 2, p.command_timeout, throttle,
-                                      log.warning, arm_topic=arm_array_topic(self.arm_control))
+                                      arm_size(self.scene.robot.n_links), p.command_timeout,
+                                      throttle, log.warning,
+                                      arm_topic=arm_array_topic(self.arm_control))
         # An arm controller's commands (arm.py); None in effort mode.
         self.arm = ArmDriver(self, self.arm_control.mode, self.joint_names[ARM_U], throttle.warn,
                              log.warning) if self.arm_control.active else None

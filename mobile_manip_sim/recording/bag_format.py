@@ -14,7 +14,8 @@ Beside the recorded topics (``topics.recorded_topics``) a bag of ours holds:
   IMPACT_FIELDS each (`read_impacts`).
 
 `RecordedRun` is what such a bag says about its run: scene, integrator, source, rates, its time
-line and the recorded commands. Messages are decoded by `decode` (the rclpy class named by the
+line and the recorded commands (starting a re-run from it is replay's:
+`replay.resimulate.start_run`). Messages are decoded by `decode` (the rclpy class named by the
 bag's type name), their stamps read by `stamp_ns`. ROS is imported only to decode: a CSV's
 impacts are checked here too (`impact_record`) without it.
 """
@@ -32,7 +33,7 @@ from mobile_manip_sim.ros.topics import (
     JOINT_STATES_TOPIC,
     ODOM_TOPIC,
 )
-from mobile_manip_sim.runtime.timeline import NS, CommandHistory, Grid, start_node_time_line
+from mobile_manip_sim.runtime.timeline import NS, CommandHistory, Grid
 from mobile_manip_sim.scene import limits, schema
 from mobile_manip_sim.scene.controller import ARM_MODES
 from mobile_manip_sim.scene.coordinates import ARM_U
@@ -359,7 +360,7 @@ class RecordedRun:
                                                 f"a bag from another robot")
 
     def check_command(self, topic: str, values) -> None:
-        expected = len(self.names) - 2 if topic == ARM_TOPIC else 2
+        expected = len(self.names[ARM_U]) if topic == ARM_TOPIC else 2
         if len(values) != expected:
             raise UserError(topic, f"{len(values)} values where the bag's scene "
                                    f"{self.scene.name!r} takes {expected}: a bag from another "
@@ -415,17 +416,3 @@ class RecordedRun:
                 self.check_command(ARM_TOPIC, command)
             events.setdefault(message.log_time_ns, []).append(command)
         return events
-
-    def start(self):
-        """The `Simulation` at the source's t = 0."""
-        from mobile_manip_sim.engine.simulation import Simulation
-
-        # A node's arm controller is its parameters' (in its metadata); a headless run's is
-        # its scene's `controller:` section.
-        sim = Simulation(self.scene, self.settings,
-                         arm_control=self.arm_control if self.source == "node" else None)
-        if self.gains is not None:
-            sim.set_wheel_speed_gains(*self.gains)
-        if self.source == "node":
-            start_node_time_line(sim)
-        return sim

@@ -25,8 +25,12 @@ from mobile_manip_sim.ros.messages import (
 )
 from mobile_manip_sim.ros.topics import IMU_TOPIC
 from mobile_manip_sim.runtime.progress import Progress
-from mobile_manip_sim.runtime.timeline import apply_arm_command, apply_commands
-from mobile_manip_sim.scene.errors import UserError
+from mobile_manip_sim.runtime.timeline import (
+    apply_arm_command,
+    apply_commands,
+    start_node_time_line,
+)
+from mobile_manip_sim.scene.errors import SimulationError, StepLimitError, UserError
 
 
 class Differences:
@@ -58,9 +62,22 @@ class Differences:
                 if difference > self.tolerance]
 
 
-def resimulate(bag, tolerance: float) -> int:
-    from mobile_manip_sim.engine.simulation import SimulationError
+def start_run(run: RecordedRun):
+    """The `Simulation` at the recorded source's t = 0."""
+    from mobile_manip_sim.engine.simulation import Simulation
 
+    # A node's arm controller is its parameters' (in its metadata); a headless run's is
+    # its scene's `controller:` section.
+    sim = Simulation(run.scene, run.settings,
+                     arm_control=run.arm_control if run.source == "node" else None)
+    if run.gains is not None:
+        sim.set_wheel_speed_gains(*run.gains)
+    if run.source == "node":
+        start_node_time_line(sim)
+    return sim
+
+
+def resimulate(bag, tolerance: float) -> int:
     run = RecordedRun(bag)
     run.check_robot()
     base_commands, arm_commands = run.commands()
@@ -69,7 +86,7 @@ def resimulate(bag, tolerance: float) -> int:
         print(f"note: recorded by mobile_manip_sim {run.metadata.get('version')}, re-simulated "
               f"by {__version__}: bit-for-bit agreement is only expected from the same build")
 
-    sim = run.start()
+    sim = start_run(run)
     differences = Differences(tolerance)
     compared = {JOINT_STATES_TOPIC: 0, ODOM_TOPIC: 0}
     if IMU_TOPIC in bag.topics():
@@ -106,7 +123,7 @@ def resimulate(bag, tolerance: float) -> int:
                 _compare(run, sim, stamp, message.topic, recorded, differences)
             compared[message.topic] += 1
     except SimulationError as error:
-        if getattr(error, "key", None):   # StepLimitError: settings and efforts, status 2
+        if isinstance(error, StepLimitError):   # settings and efforts: status 2
             raise
         print(f"replay: the re-simulation failed: {error}")
         return 1

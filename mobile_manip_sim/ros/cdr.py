@@ -18,6 +18,7 @@ import struct
 from rclpy.serialization import serialize_message
 from rosidl_parser import definition
 
+from ..scene.errors import CdrLayoutError
 from .message_types import message_class
 
 ENCAPSULATION_HEADER = 4
@@ -29,10 +30,6 @@ _PRIMITIVE_SIZES = {
     "float": 4, "uint32": 4, "int32": 4,
     "double": 8, "uint64": 8, "int64": 8,
 }
-
-
-class CdrLayoutError(RuntimeError):
-    """The buffer does not have the layout of its message type (a bug, not a user error)."""
 
 
 def exact_cdr(message) -> bytes:

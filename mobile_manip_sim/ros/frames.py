@@ -31,6 +31,7 @@ from typing import NamedTuple
 from ..scene.coordinates import JOINTS, YAW, X, Y, u_slide, u_turn
 from ..scene.model import RobotModel
 
+ODOM = "odom"                   # the odometry frame (REP-105): the default parent of the root
 FOOTPRINT = "base_footprint"
 BASE_LINK = "base_link"
 TIP = "tip"
@@ -146,7 +147,7 @@ class FrameTree:
         positions = q[JOINTS]
         return [self.transform(joint, float(positions[joint.index])) for joint in self.moving]
 
-    def base_transform(self, q, odom: str = "odom") -> Transform:
+    def base_transform(self, q, odom: str = ODOM) -> Transform:
         """``odom`` → root: the base's planar pose (x, y, yaw) on the floor."""
         return Transform(self.frame(odom), self.frame(self.root), (float(q[X]), float(q[Y]), 0.0),
                          axis_quaternion((0.0, 0.0, 1.0), float(q[YAW])))

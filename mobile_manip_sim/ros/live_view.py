@@ -28,7 +28,7 @@ from ..runtime.pacing import Pacer
 from ..runtime.timeline import Grid
 from ..scene import limits
 from ..scene.errors import UserError
-from .frames import FrameTree
+from .frames import BASE_LINK, ODOM, FrameTree
 from .imu import Imu
 from .message_definitions import definition_text
 from .messages import description, energy, imu, state_messages, tf_cdr, tf_static_cdr
@@ -167,7 +167,7 @@ class HeadlessSource:
     """What `simulate --view` publishes at each sample of a run: the states (as the node
     publishes them), /tf with every link, /imu, /energy, and the latched ones at sample 0."""
 
-    def __init__(self, scene, odom_frame: str = "odom"):
+    def __init__(self, scene, odom_frame: str = ODOM):
         self.tree = FrameTree(scene.robot)
         self.names = scene.robot.joint_names()
         self.odom_frame = odom_frame
@@ -179,7 +179,7 @@ class HeadlessSource:
         messages = state_messages(sim, stamp, self.names, self.odom_frame)
         del messages[CLOCK_TOPIC]   # the view broadcasts its time instead
         messages[TF_TOPIC] = tf_cdr(self.tree, sim.q, stamp, self.odom_frame)
-        messages[IMU_TOPIC] = imu(self.imu.read(sim, k), stamp, self.tree.frame("base_link"),
+        messages[IMU_TOPIC] = imu(self.imu.read(sim, k), stamp, self.tree.frame(BASE_LINK),
                                   self.imu.noise)
         messages[ENERGY_TOPIC] = energy(sim)
         if k == 0:

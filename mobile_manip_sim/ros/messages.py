@@ -22,6 +22,7 @@ from std_msgs.msg import Float64MultiArray, String
 from ..runtime.timeline import NS  # noqa: F401
 from ..scene.coordinates import JOINTS, OMEGA, YAW, V, X, Y
 from .cdr import tf_message_cdr
+from .frames import FOOTPRINT, ODOM
 from .topics import (  # noqa: F401
     ARM_TOPIC,
     CLOCK_TOPIC,
@@ -77,8 +78,8 @@ def joint_state(state, stamp: int, names, efforts=None) -> JointState:
     return message
 
 
-def odometry(state, stamp: int, odom_frame: str = "odom",
-             base_frame: str = "base_footprint") -> Odometry:
+def odometry(state, stamp: int, odom_frame: str = ODOM,
+             base_frame: str = FOOTPRINT) -> Odometry:
     """Pose of ``base_frame`` (x, y, yaw) in ``odom_frame``; twist in ``base_frame``
     (linear.x = v, angular.z = ω)."""
     q, u = state.q, state.u
@@ -124,8 +125,8 @@ def command_values(topic: str, message) -> list[float]:
     return list(message.data)
 
 
-def state_messages(state, stamp: int, names, odom_frame: str = "odom",
-                   base_frame: str = "base_footprint") -> dict:
+def state_messages(state, stamp: int, names, odom_frame: str = ODOM,
+                   base_frame: str = FOOTPRINT) -> dict:
     """Topic → message for /joint_states, /odom and /clock, all stamped ``stamp``."""
     return {JOINT_STATES_TOPIC: joint_state(state, stamp, names),
             ODOM_TOPIC: odometry(state, stamp, odom_frame, base_frame),
@@ -134,7 +135,7 @@ def state_messages(state, stamp: int, names, odom_frame: str = "odom",
 
 # --- what a viewer draws (frames.py's tree) and the IMU ----------------------------------------
 
-def tf_cdr(tree, q, stamp: int, odom_frame: str = "odom", moving: bool = True) -> bytes:
+def tf_cdr(tree, q, stamp: int, odom_frame: str = ODOM, moving: bool = True) -> bytes:
     """/tf at configuration ``q``: odom_frame → the tree's root, then (``moving``) every moving
     joint, all stamped ``stamp``; the exact CDR of the TFMessage (`cdr.tf_message_cdr`)."""
     transforms = [tree.base_transform(q, odom_frame)]

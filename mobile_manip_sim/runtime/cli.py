@@ -8,7 +8,7 @@ import threading
 from contextlib import contextmanager
 from typing import Callable
 
-from ..scene.errors import EXIT_USER_ERROR, UserError
+from ..scene.errors import EXIT_USER_ERROR, SimulationError, StepLimitError, UserError
 
 
 class ArgumentParser(argparse.ArgumentParser):
@@ -86,12 +86,10 @@ def run(main: Callable[[list[str] | None], int | None], argv: list[str] | None =
         return EXIT_USER_ERROR
     except KeyboardInterrupt:
         return 130
-    except RuntimeError as error:  # SimulationError: the numbers went bad; say when and where
-        if "SimulationError" not in {kind.__name__ for kind in type(error).__mro__}:
-            raise   # (by name: importing the engine here would load numba for every executable)
+    except SimulationError as error:  # the numbers went bad; say when and where
         print(f"{prog}: error: {error}", file=sys.stderr)
         # A StepLimitError names the settings that cannot follow the run: a user's choice.
-        return EXIT_USER_ERROR if getattr(error, "key", None) else 1
+        return EXIT_USER_ERROR if isinstance(error, StepLimitError) else 1
     finally:
         for signum, handler in previous.items():
             signal.signal(signum, handler)

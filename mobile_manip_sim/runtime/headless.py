@@ -17,6 +17,7 @@ import numpy as np
 
 from ..engine import layout
 from ..engine.simulation import Simulation
+from ..scene.coordinates import arm_width
 from ..scene.loading import Scene
 from .timeline import sample_times
 
@@ -79,7 +80,7 @@ def run(scene: Scene, duration: float, sample_rate: float, settings=None, on_sam
     if progress:
         progress.follow(lambda: sim.t)
     timing_from = None
-    sim.tracking = Tracking(sim.nu - 2) if sim.arm_control.active else None
+    sim.tracking = Tracking(arm_width(sim.nu)) if sim.arm_control.active else None
     for t in sample_times(duration, sample_rate):
         sim.advance_to(t)
         if sim.tracking:

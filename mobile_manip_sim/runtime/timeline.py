@@ -29,6 +29,8 @@ from typing import Iterator
 
 import numpy as np
 
+from ..scene.coordinates import arm_width
+
 NS = 10 ** 9
 OFF_GRID_TOLERANCE = 1e-12   # relative: a duration this close to a grid point is on it
 
@@ -174,7 +176,7 @@ def start_node_time_line(sim) -> None:
     """The node's t = 0 (at start and after ~/reset): initial state, zero efforts (an arm
     controller holds the initial pose: `Simulation.reset`)."""
     sim.reset()
-    sim.set_efforts(np.zeros(2), None if sim.arm_control.active else np.zeros(sim.nu - 2))
+    sim.set_efforts(np.zeros(2), None if sim.arm_control.active else np.zeros(arm_width(sim.nu)))
 
 
 def apply_commands(sim, base, joints, velocity: bool) -> tuple[np.ndarray, np.ndarray]:

@@ -22,6 +22,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from . import schema
+from .coordinates import arm_size, arm_slide
 from .errors import UserError
 from .limits import ANGLE, DURATION, SPEED, TRAJECTORY_POINTS
 
@@ -52,7 +53,7 @@ def parse_controller(doc, robot, stroke_limits_on: bool) -> ControllerSection | 
     doc = schema.mapping(doc, path)
     schema.keys(doc, path, optional=("arm", "feedforward", "gains", "positions", "velocities",
                                      "trajectory"))
-    n_arm = 2 * robot.n_links
+    n_arm = arm_size(robot.n_links)
     arm = _choice(doc.get("arm", "effort"), f"{path}.arm", ARM_MODES)
     feedforward = _choice(doc.get("feedforward", "gravity"), f"{path}.feedforward", FEEDFORWARDS)
     for key, mode in (("positions", "position"), ("velocities", "velocity"),
@@ -96,9 +97,9 @@ def outside_stroke(point, stroke) -> tuple[int, str] | None:
     """(index of the first prismatic joint of `point` (n_arm) outside its stroke (n, 2), what
     is wrong) or None."""
     for k, (lo, hi) in enumerate(stroke):
-        length = point[2 * k + 1]
+        length = point[arm_slide(k + 1)]
         if not lo <= length <= hi:
-            return 2 * k + 1, f"{length:g} m is outside the stroke [{lo:g}, {hi:g}]"
+            return arm_slide(k + 1), f"{length:g} m is outside the stroke [{lo:g}, {hi:g}]"
     return None
 
 

@@ -48,11 +48,25 @@ def u_slide(k):
     return 2 * k + 1
 
 
+def arm_u(j):
+    """Index in u (and Q) of the arm's coordinate j (0-based: q̇_1, l̇_1, q̇_2, …)."""
+    return 2 + j
+
+
+def arm_turn(k):
+    """Index of q̇_k (rod k, 1-based) among the arm's coordinates (an array of `arm_size(n)`)."""
+    return 2 * k - 2
+
+
+def arm_slide(k):
+    """Index of l̇_k among the arm's coordinates."""
+    return 2 * k - 1
+
+
 def q_joint(j):
     """Index in q of joint j of `RobotModel.joint_names` (0, 1 the wheels; then q_k, l_k); for an
     arm coordinate j ≥ 2 it is also the q index of u's entry j."""
     return 3 + j
-
 
 
 def rod(j):
@@ -68,3 +82,13 @@ def q_size(n):
 def u_size(n):
     """n_u for n rods."""
     return 2 + 2 * n
+
+
+def arm_size(n):
+    """The arm's coordinates (q_1, l_1, …, q_n, l_n) for n rods: its joints, efforts, gains."""
+    return 2 * n
+
+
+def arm_width(n_u):
+    """The arm's coordinates in a u of n_u entries (`arm_size` of its rods)."""
+    return n_u - 2

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .coordinates import ARM_U
+from .coordinates import ARM_U, arm_size
 from .loading import Scene, StrokeLimits
 from .model import Base
 
@@ -78,7 +78,7 @@ class EffectSettings:
 def settings(scene: Scene) -> EffectSettings:
     """The engine settings of `scene`'s effects (module doc)."""
     effects, robot = scene.effects, scene.robot
-    n_arm = 2 * robot.n_links
+    n_arm = arm_size(robot.n_links)
     rate_damping = None
     if effects.wheel_damping or effects.joint_damping is not None:
         rate_damping = np.zeros(2 + n_arm)

@@ -16,7 +16,7 @@ import yaml
 
 from . import methods, schema
 from .controller import ControllerSection, parse_controller
-from .coordinates import ARM_Q, ARM_U, BASE_POSE, WHEELS
+from .coordinates import ARM_Q, ARM_U, BASE_POSE, WHEELS, arm_size
 from .errors import UserError
 from .limits import (
     ANGLE,
@@ -194,7 +194,7 @@ def _robot(doc) -> RobotModel:
 def _effects(doc, robot: RobotModel) -> Effects:
     doc = _mapping(doc, "effects")
     _keys(doc, "effects", optional=EFFECT_NAMES)
-    n_arm = 2 * robot.n_links
+    n_arm = arm_size(robot.n_links)
     effects = {}
     if "gravity" in doc:
         effects["gravity"] = _number(doc["gravity"], "effects.gravity", lo=GRAVITY[0],
@@ -325,8 +325,8 @@ def parse_scene(doc, name="scene") -> Scene:
     if n == 0 and initial.get("joints"):
         raise UserError("robot.arm",
                         "missing: initial.joints gives arm joints but the robot has no arm")
-    joints = _vector(initial.get("joints", default_joints), 2 * n, "initial.joints", lo=-ANGLE,
-                     hi=ANGLE)
+    joints = _vector(initial.get("joints", default_joints), arm_size(n), "initial.joints",
+                     lo=-ANGLE, hi=ANGLE)
     for i in range(n):
         lo, hi = robot.stroke[i]
         if not lo <= joints[2 * i + 1] <= hi:
@@ -348,7 +348,8 @@ def parse_scene(doc, name="scene") -> Scene:
         initial_q=np.concatenate([pose, wheels, joints]), initial_u=velocity,
         wheel_efforts=_vector(efforts.get("wheels", [0.0, 0.0]), 2, "efforts.wheels",
                               lo=-EFFORT, hi=EFFORT),
-        joint_efforts=_vector(efforts.get("joints", [0.0] * 2 * n), 2 * n, "efforts.joints",
+        joint_efforts=_vector(efforts.get("joints", [0.0] * arm_size(n)), arm_size(n),
+                              "efforts.joints",
                               lo=-EFFORT, hi=EFFORT),
         effects=effects, integrator=integrator,
         duration=_number(doc.get("duration", 1.0), "duration", positive=True, hi=DURATION[1]),

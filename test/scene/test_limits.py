@@ -6,22 +6,6 @@ from mobile_manip_sim.recording.bag_format import checked_run_metadata
 from mobile_manip_sim.scene import limits
 from mobile_manip_sim.scene.errors import UserError
 
-NODE_RANGES = {"publish_rate": limits.PUBLISH_RATE, "real_time_factor": limits.REAL_TIME_FACTOR,
-               "command_timeout": limits.COMMAND_TIMEOUT, "sync_timeout": limits.SYNC_TIMEOUT,
-               "wheel_speed.kp": limits.WHEEL_SPEED_GAIN, "wheel_speed.ki": limits.WHEEL_SPEED_GAIN,
-               "integrator.dt": limits.INTEGRATOR_OVERRIDE,
-               "integrator.rtol": limits.INTEGRATOR_OVERRIDE,
-               "integrator.atol": limits.INTEGRATOR_OVERRIDE, "foxglove_port": limits.PORT,
-               "imu.noise.seed": limits.IMU_SEED}
-
-
-def test_the_node_declares_the_ranges_of_the_limits_module():
-    from mobile_manip_sim.node import PARAMETERS
-    declared = {name: parameter.range for name, parameter in PARAMETERS.items()
-                if parameter.range}
-    assert declared == NODE_RANGES
-
-
 NODE_RUN = {"version": "0", "integrator_method": "rk4", "dt": "0.001", "rtol": "1e-09",
             "atol": "1e-12", "source": "node", "base_command": "velocity"}
 
