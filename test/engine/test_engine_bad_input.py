@@ -10,7 +10,6 @@ import json
 import math
 import subprocess
 import sys
-import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
@@ -24,6 +23,7 @@ from huge_commands import apply as apply_command
 from mobile_manip_sim.programs import simulate
 from mobile_manip_sim.scene.errors import UserError
 from mobile_manip_sim.scene.methods import METHODS
+from waiting import no_hang
 
 
 def edit(path, value):
@@ -288,10 +288,8 @@ def test_an_adaptive_solver_that_cannot_follow_stops_promptly_in_one_line(case, 
     from mobile_manip_sim.engine.simulation import StepLimitError
 
     sim = CRAWLS[case](method)
-    start = time.perf_counter()
-    with pytest.raises(StepLimitError) as caught:
-        sim.advance_to(0.01)
-    assert time.perf_counter() - start < 30   # it crawled for minutes (or for ever) before
+    with no_hang("a solver that cannot follow"), pytest.raises(StepLimitError) as caught:
+        sim.advance_to(0.01)   # it crawled for minutes (or for ever) before: a step count below
     message = str(caught.value)
     assert caught.value.key == "integrator.rtol" and "\n" not in message and len(message) < 300
     assert message.startswith("integrator.rtol: t = ") and f"{method} cannot follow" in message
@@ -302,7 +300,6 @@ def test_simulate_exits_2_with_one_line_when_bdf_cannot_follow(tmp_path):
     scene = tmp_path / "featherweight.yaml"
     scene.write_text(yaml.safe_dump({**featherweight_rods_doc(), "integrator": {
         "method": "bdf", "rtol": 1e-14, "atol": 1e-20}}))
-    start = time.monotonic()
     result = subprocess.run([sys.executable, "-m", "mobile_manip_sim.programs.simulate",
                              "--scene", str(scene), "--duration", "1.0",
                              "--out", str(tmp_path / "out.csv")],
@@ -311,7 +308,6 @@ def test_simulate_exits_2_with_one_line_when_bdf_cannot_follow(tmp_path):
     assert result.returncode == 2 and len(lines) == 1, result.stderr
     assert ": error: integrator.rtol: t = " in lines[0], lines[0]
     assert "bdf cannot follow" in lines[0], lines[0]
-    assert time.monotonic() - start < 60
 
 
 def test_the_step_watch_tells_a_crawl_from_a_restart():

@@ -17,7 +17,6 @@ import random
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import pytest
@@ -38,10 +37,10 @@ from mobile_manip_sim.scene.loading import parse_scene, scene_from_text
 from mobile_manip_sim.scene.methods import METHODS
 from mobile_manip_sim.sweep.spec import parse_spec
 from test_stepping_loop import Harness
+from waiting import no_hang
 
 PAPER = paper_doc()
 PAPER_TEXT = yaml.safe_dump(PAPER, sort_keys=False)
-BOUND_S = 2.0          # wall seconds any one input may take to be accepted or refused
 
 FAST = settings(max_examples=150, derandomize=True, deadline=None, database=None,
                 suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
@@ -81,16 +80,15 @@ def mutate(doc, path, value, delete):
 
 def outcome(call):
     """Run `call`; a UserError must be one short line with a key. Returns the error or None."""
-    start = time.perf_counter()
     try:
-        call()
+        with no_hang("accepting or refusing one input"):
+            call()
         error = None
     except UserError as caught:
         error = caught
         message = str(caught)
         assert "\n" not in message and len(message) <= 300, message
         assert caught.key, message
-    assert time.perf_counter() - start < BOUND_S
     return error
 
 

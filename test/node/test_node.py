@@ -713,7 +713,7 @@ def test_cmd_vel_held_for_4_s_drives_the_base_at_that_twist_and_resimulates(prob
         while probe.snapshot("odom")[-1][0] < start + 4 * 10 ** 9:
             assert node.process.poll() is None, node.output()
             publisher.publish(twist)
-            time.sleep(0.02)
+            time.sleep(0.02)   # paces the publisher (a teleop's 50 Hz), not a wait
         last = probe.snapshot("odom")[-1]
         assert abs(last[5] - 0.3) <= 0.03 and abs(last[6] - 0.5) <= 0.05, last[:7]
         efforts = probe.snapshot("joints")[-1][3]
@@ -819,7 +819,8 @@ def test_at_real_time_factor_1_the_node_holds_at_most_200_mb_and_none_of_llvm(pr
     try:
         scene = load_scene(None)
         probe.send(scene.wheel_efforts.tolist(), scene.joint_efforts.tolist())
-        time.sleep(4.0)   # past the first impacts
+        time.sleep(4.0)   # past the first impacts (the shared node's /clock is heard too: no
+        #                   stamp tells this node's time apart, so its 4 s at real time)
         total, llvm = resident_mb(node.process.pid)
         print(f"node VmRSS {total:.1f} MB, of it LLVM {llvm:.1f} MB")
         assert llvm <= 8.0, f"LLVM's library holds {llvm:.1f} MB of the node's {total:.1f} MB"

@@ -10,7 +10,6 @@ import signal
 import subprocess
 import sys
 import threading
-import time
 from pathlib import Path
 
 import pytest
@@ -19,6 +18,7 @@ from bag_rewrite import rewrite_bag
 from executables import executable
 from mobile_manip_sim.runtime import progress as progress_module
 from mobile_manip_sim.runtime.progress import Progress, duration_text
+from waiting import TimedOut, wait_for
 
 SAFETY = 120.0   # s: a safety net against a hang, not a measure
 
@@ -32,13 +32,17 @@ class Terminal:
         self._seen = bytearray()
         self._lock = threading.Lock()
         self._closing = threading.Event()
+        self._empty_looks = 0   # the reader's looks that found nothing to read
         self._reader = threading.Thread(target=self._read, daemon=True)
         self._reader.start()
 
     def _read(self):
         while not self._closing.is_set():
             ready, _, _ = select.select([self.master], [], [], 0.1)
-            if ready:
+            if not ready:
+                with self._lock:
+                    self._empty_looks += 1
+            else:
                 try:
                     chunk = os.read(self.master, 4096)
                 except OSError:   # the slave side closed
@@ -52,19 +56,30 @@ class Terminal:
         with self._lock:
             return self._seen.decode(errors="replace")
 
+    def _looks(self) -> int:
+        with self._lock:
+            return self._empty_looks
+
+    def drain(self) -> None:
+        """Once the writers are gone: wait until the reader has taken everything written (two
+        empty looks from now: the second began after every write)."""
+        looks = self._looks()
+        wait_for(lambda: self._looks() >= looks + 2, "the reader to drain the terminal", SAFETY)
+
     def wait_for(self, pattern: str, what: str, process=None) -> re.Match:
-        deadline = time.monotonic() + SAFETY
-        while time.monotonic() < deadline:
+        def seen():
             found = re.search(pattern, self.text())
-            if found:
+            if found or process is None or process.poll() is None:
                 return found
-            if process is not None and process.poll() is not None:
-                time.sleep(0.2)   # let the reader drain what the process wrote last
-                found = re.search(pattern, self.text())
-                assert found, f"{what}: the process ended ({process.returncode}):\n{self.text()}"
-                return found
-            time.sleep(0.05)
-        raise AssertionError(f"no {what} in:\n{self.text()}")
+            self.drain()   # the process ended: what it wrote last is all there is
+            found = re.search(pattern, self.text())
+            assert found, f"{what}: the process ended ({process.returncode}):\n{self.text()}"
+            return found
+
+        try:
+            return wait_for(seen, what, SAFETY)
+        except TimedOut:
+            raise AssertionError(f"no {what} in:\n{self.text()}") from None
 
     def close(self):
         # The reader stops before its descriptor is closed: the next terminal's pty may get the
@@ -113,9 +128,8 @@ def test_whole_lines_go_anywhere_when_asked_after_a_silence(monkeypatch):
     progress = Progress("warmup", 4, "kernels", lines=True, always=True, stream=stream)
     progress.note("warmup: [1/4] euler")
     progress.update(1)
-    deadline = time.monotonic() + SAFETY
-    while "warmup: 1 of 4 kernels (25 %)" not in stream.getvalue() and time.monotonic() < deadline:
-        time.sleep(0.02)
+    wait_for(lambda: "warmup: 1 of 4 kernels (25 %)" in stream.getvalue(), "the silence's line",
+             SAFETY)
     progress.close()
     lines = stream.getvalue().splitlines()
     assert lines[0] == "warmup: [1/4] euler"

@@ -6,7 +6,6 @@ change at a time); `YAML_CASES` are hand-written attacks on the loader itself.
 """
 import copy
 import math
-import time
 
 import pytest
 import yaml
@@ -17,6 +16,7 @@ from mobile_manip_sim.recording.bag_format import checked_run_metadata
 from mobile_manip_sim.scene import schema
 from mobile_manip_sim.scene.errors import UserError
 from mobile_manip_sim.scene.loading import parse_scene, scene_from_text
+from waiting import no_hang
 
 MAX_MESSAGE = 300
 
@@ -205,10 +205,8 @@ YAML_CASES = {
 
 @pytest.mark.parametrize("text", YAML_CASES.values(), ids=YAML_CASES.keys())
 def test_hostile_yaml_is_one_line_and_fast(text):
-    start = time.perf_counter()
-    with pytest.raises(UserError) as caught:
+    with no_hang("refusing the hostile YAML"), pytest.raises(UserError) as caught:
         scene_from_text(text, "scene.yaml")
-    assert time.perf_counter() - start < 2.0
     message = str(caught.value)
     assert "\n" not in message and len(message) <= MAX_MESSAGE, message
     assert caught.value.key, message
@@ -278,10 +276,8 @@ def test_special_files_are_refused_without_reading(tmp_path):
     for path, problem in (("/dev/zero", "not a regular file"), (fifo, "not a regular file"),
                           (tmp_path, "not a regular file"),
                           (tmp_path / "none.yaml", "cannot read")):
-        start = time.perf_counter()
-        with pytest.raises(UserError, match=problem):
+        with no_hang(f"refusing {path}"), pytest.raises(UserError, match=problem):
             schema.load_yaml(__import__("pathlib").Path(path), what="scene")
-        assert time.perf_counter() - start < 1.0
 
 
 def test_not_utf8_is_one_line(tmp_path):
