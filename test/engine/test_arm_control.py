@@ -105,7 +105,7 @@ def test_a_step_of_the_position_command_settles_within_2_percent():
 
 @pytest.mark.parametrize("method", ["rk4", "dop853"])
 def test_with_the_arm_held_cmd_vel_tracks_within_1_percent_after_1_s(method):
-    """Issue 18's case: the arm in position mode (defaults), cmd_vel 0.3 m/s, 0.5 rad/s through
+    """The arm in position mode (defaults), cmd_vel 0.3 m/s, 0.5 rad/s through
     the wheel-speed loop at its default gains: within 1 % from 1 s to 4 s (measured: 1e-4)."""
     sim = paper(method=method)
     sim.set_base_velocity(0.3, 0.5)
