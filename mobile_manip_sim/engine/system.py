@@ -29,6 +29,7 @@ from ..dynamics.jit import jit, jit_inline
 from ..scene.coordinates import OMEGA, V
 from . import layout
 from .arm_control import ARM_ON, N_ARM_SETTINGS, SEGMENT, SEGMENTS, arm_efforts
+from .arm_reference import WIDTH
 
 # counters[...] indices
 (RHS_EVALS, DAMPING_STAGE, REDUCED_SOLVE, CROSSING_CHECKS, CONTROL_STAGE,
@@ -55,7 +56,7 @@ SystemData = namedtuple("SystemData", [
     "arm_gains",    # (3, n_arm) kp, ki, kd
     "arm_limits",   # (n_arm,) effort limits, inf where none
     "ref_starts",   # (capacity,) s: the reference's segment starts (`arm_reference.py`)
-    "ref_coeffs",   # (capacity, n_arm, 6) their polynomial coefficients
+    "ref_coeffs",   # (capacity, n_arm, arm_reference.WIDTH) their coefficients
     "arm_ref",      # (5, n_arm) scratch: q_ref, q̇_ref, q̈_ref, feedforward, applied efforts
     "arm_scratch",  # (5, n_u) scratch of the inverse-dynamics passes (row ZERO stays zero)
 ])
@@ -198,7 +199,7 @@ class System:
         self.data = SystemData(dynamics.model_record, float(dynamics.gravity), self.damping,
                                self.free, self.Q_cmd, self.control, dynamics.ws, np.zeros(nu),
                                self.counters, settings, gains, limits, np.zeros(1),
-                               np.zeros((1, n_arm, 6)), self.arm_ref,
+                               np.zeros((1, n_arm, WIDTH)), self.arm_ref,
                                np.zeros((5, nu if arm is not None else 0)))
         self.set_locked(())
         size = layout.state_size(nu) + (layout.arm_state_size(nu) if arm is not None else 0)
