@@ -125,6 +125,9 @@ def test_the_shortest_angle_is_the_difference_moved_by_whole_turns_into_minus_pi
                                                          abs=1e-9)
     for start, end in rng.uniform(-1.5, 1.5, (200, 2)):
         assert arm_reference.shortest_angle(start, end) == end - start
+    for start, end in rng.uniform(-20.0, 20.0, (200, 2)):   # the controller's compiled twin
+        assert arm_reference.shortest_angle_jit(start, end) == \
+            arm_reference.shortest_angle(start, end)
     assert arm_reference.shortest_angle(0.0, -np.pi) == np.pi
     assert arm_reference.shortest_angle(0.0, np.pi) == np.pi
     assert arm_reference.shortest_angle(3.0, -3.0) == pytest.approx(TURN - 6.0, abs=1e-15)

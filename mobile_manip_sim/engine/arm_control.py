@@ -46,9 +46,9 @@ from .arm_reference import (
     Q_REF,
     QD_REF,
     QDD_REF,
-    is_continuous,
+    is_continuous_jit,
     reference,
-    shortest_angle,
+    shortest_angle_jit,
 )
 
 # system.arm[...] entries (SEGMENT: the reference segment of the last evaluation, a search hint)
@@ -269,7 +269,8 @@ def arm_efforts(system, s, ds):
     feedforward(system, s, ref[FF])
     for j in range(nu - 2):
         q_j = s[layout.arm_q(j)]
-        e = shortest_angle(q_j, ref[Q_REF, j]) if is_continuous(j) else ref[Q_REF, j] - q_j
+        e = (shortest_angle_jit(q_j, ref[Q_REF, j]) if is_continuous_jit(j)
+             else ref[Q_REF, j] - q_j)
         ed = ref[QD_REF, j] - s[layout.arm_u(nq, j)]
         raw = ref[FF, j] + gains[KP, j] * e + gains[KD, j] * ed + gains[KI, j] * s[i_z + j]
         limit = limits[j]

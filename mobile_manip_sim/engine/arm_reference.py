@@ -74,14 +74,12 @@ def reference(starts, coeffs, count, tau, out, hint):
     return lo
 
 
-@jit_inline
 def is_continuous(j):
     """Arm joint j (0 … n_arm − 1: q_1, l_1, q_2, …) is a revolute joint, continuous: an angle
     and the same angle ± 2π are one pose."""
     return j % 2 == 0
 
 
-@jit_inline
 def shortest_angle(start, end):
     """angles::shortest_angular_distance(start, end), rad: end − start moved by whole turns
     into (−π, π]. Inside that range it is the plain difference, bit for bit."""
@@ -90,6 +88,12 @@ def shortest_angle(start, end):
         return d
     r = np.fmod(d + math.pi, 2.0 * math.pi)   # angles::normalize_angle (C fmod)
     return r + math.pi if r <= 0.0 else r - math.pi
+
+
+# Their compiled twins, inlined into the controller's law; Python calls the plain functions, so
+# nothing is compiled outside the kernels the warm-up compiles.
+is_continuous_jit = jit_inline(is_continuous)
+shortest_angle_jit = jit_inline(shortest_angle)
 
 
 def position_errors(desired, actual) -> np.ndarray:
