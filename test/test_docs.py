@@ -187,12 +187,24 @@ def test_every_docs_page_is_linked_from_the_index_and_every_local_link_resolves(
     broken = []
     for page in PAGES:
         text = page.read_text(encoding="utf-8")
-        for target in re.findall(r"\]\(([^)#\s]+)(?:#[^)]*)?\)", text):
-            if "://" in target or target.startswith("mailto:"):
+        for target, anchor in re.findall(r"\]\(([^)#\s]*)(?:#([^)\s]*))?\)", text):
+            if "://" in target or target.startswith("mailto:") or not (target or anchor):
                 continue
-            if not (page.parent / target).exists() and Path(target).name not in OTHERS_PAGES:
-                broken.append(f"{page.relative_to(ROOT)}: {target}")
-    assert broken == [], "links to files that do not exist"
+            linked = (page.parent / target) if target else page
+            if not linked.exists():
+                if Path(target).name not in OTHERS_PAGES:
+                    broken.append(f"{page.relative_to(ROOT)}: {target}")
+            elif anchor and linked.suffix == ".md" and anchor not in anchors(linked):
+                broken.append(f"{page.relative_to(ROOT)}: {target}#{anchor}")
+    assert broken == [], "links to files or headings that do not exist"
+
+
+def anchors(page: Path) -> set[str]:
+    """The anchors GitHub gives a page's headings: lower case, punctuation dropped, spaces
+    turned into hyphens (fenced blocks skipped)."""
+    text = re.sub(r"^```.*?^```", "", page.read_text(encoding="utf-8"), flags=re.S | re.M)
+    headings = re.findall(r"^#{1,6} +(.+?) *$", text, flags=re.M)
+    return {re.sub(r"[^\w\- ]", "", heading.lower()).replace(" ", "-") for heading in headings}
 
 
 # Pages the docs link to that other work in progress adds; a link to one of them is not broken
