@@ -23,7 +23,7 @@ from pinocchio_reference import build_projected_model
 from pure_python import without_jit
 
 DATA = Path(__file__).resolve().parent / "data"
-SETTLING_TIME = 0.5   # s: README, "The arm controller" (0.43 s measured with rk4 at 1 kHz)
+SETTLING_TIME = 0.5   # s: docs/controllers.md (0.43 s measured with rk4 at 1 kHz)
 STEP = np.array([0.2, 0.1, -0.2, 0.1])   # rad, m, rad, m
 ZERO_GAINS = dict(kp=0.0, ki=0.0, kd=0.0)
 
