@@ -1,4 +1,4 @@
-"""Benchmark of the `simulator` node (issue 4): CPU use and publication jitter at real-time
+"""Benchmark of the `simulator` node: CPU use and publication jitter at real-time
 factor 1, the free-running real-time factor, resident memory. A script, not a test:
 
     python bench/node_benchmark.py [--duration 20] [--free-duration 10] [--out bench/NODE.md]

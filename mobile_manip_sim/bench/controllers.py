@@ -1,4 +1,4 @@
-"""The arm controllers (issue 18): what each mode costs per 1 kHz rk4 step beside effort mode,
+"""The arm controllers: what each mode costs per 1 kHz rk4 step beside effort mode,
 and how well it tracks.
 
 The paper robot without wheel torques, gravity on, end stops off (so that no run pays for
@@ -111,7 +111,7 @@ def measure(progress, quick: bool = False) -> list:
 def section(rows, number: int = 8) -> str:
     """The report's section: a table per mode and the ≤ 15 % target."""
     effort = rows[0][3]
-    lines = [f"## {number}. Arm controllers (issue 18)", "",
+    lines = [f"## {number}. Arm controllers", "",
              __doc__.split("\n\n")[1].strip().replace("\n", " "), ""]
     body = []
     for mode, feedforward, what, per_step, rhs, rms, worst in rows:

@@ -1,4 +1,4 @@
-"""Issue 10's targets that the other sections do not measure: what dop853's cost does as the
+"""The engine targets that the other sections do not measure: what dop853's cost does as the
 tolerance loosens, the paper scene with its stops at error ≤ 1e-6, and a warm `simulate`.
 (The MuJoCo targets are in §7; the node's memory in bench/NODE.md.)"""
 from __future__ import annotations

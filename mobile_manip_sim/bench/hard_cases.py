@@ -1,6 +1,5 @@
-"""The hard cases of issue 6: each builds its scene, runs it and returns its figures together
-with the bounds they must meet. `bench` reports them; ``test/bench/test_hard_cases.py`` asserts
-them.
+"""The hard cases: each builds its scene, runs it and returns its figures together with the
+bounds they must meet. `bench` reports them; ``test/bench/test_hard_cases.py`` asserts them.
 
 Every case reports, at least: whether the run stayed finite (the engine raises on NaN/Inf),
 the largest distance of a rod outside its stroke, the energy-balance error against the

@@ -1,6 +1,6 @@
 """MuJoCo's peer: the equivalent UNCONSTRAINED model of a `RobotModel`, as MJCF.
 
-The same bodies as docs/model.md's robot, built as an ordinary MuJoCo tree (issue 10 item 6):
+The same bodies as docs/model.md's robot, built as an ordinary MuJoCo tree:
 
 - ``base``: slide x, slide y (world axes), hinge z at A; body mass M_pw at G = (d, 0, 0), yaw
   inertia I_pw about G (the roll and pitch components are I_pw too: planar motion never uses them).

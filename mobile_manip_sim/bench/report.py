@@ -164,13 +164,13 @@ def write(results, out: Path) -> Path:
     if results.get("only") == "controllers":
         return _write_parts(parts + [_controllers_section(results)], out)
     targets, _ = _targets(results)
-    parts += ["## Speed targets (issue 6)", "", targets, "",
+    parts += ["## Speed targets", "", targets, "",
               "Ratios are between runs of this same bench invocation. Where a target is missed, "
               "the section it comes from says why (§5 for the real-time factor).", ""]
 
     if results.get("engine"):
         from .engine_targets import rows as engine_rows
-        parts += ["## Engine targets (issue 10)", "",
+        parts += ["## Engine targets", "",
                   table(("target", "measured in this run", "verdict"),
                         engine_rows(results["engine"], verdict, seconds)), "",
                   "The MuJoCo targets (1 kHz rk4 and semi-implicit Euler on the paper scene, 64 "

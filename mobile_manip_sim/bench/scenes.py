@@ -82,7 +82,7 @@ def random_robot_document(n_links: int, seed: int, gravity: float = 10.0,
 
 
 def random_arm_scene(n_links: int = 20, seed: int = 20, duration: float = 0.5) -> Scene:
-    """The random arm of the work–precision study (issue 10 item 6): `n_links` links with physical
+    """The random arm of the work–precision study: `n_links` links with physical
     inertias (MuJoCo can build it), gravity, no efforts, no end stops, the base fixed: MuJoCo's
     peer of it is then the same system, so its errors against our reference are errors."""
     doc = random_robot_document(n_links, seed=seed, physical=True)

@@ -1,5 +1,5 @@
 """Against MuJoCo, in the same run: fixed-step stepping cost of the equivalent unconstrained
-model (`mujoco_peer.py`) beside ours through `Simulation`, for issue 10's speed targets.
+model (`mujoco_peer.py`) beside ours through `Simulation`, for the speed targets against MuJoCo.
 
 Both are timed two ways. In one compiled call: MuJoCo's `mujoco.rollout` (one trajectory, one
 thread; it writes the state after every step) beside our `Simulation.sample` (every 100 Hz sample,

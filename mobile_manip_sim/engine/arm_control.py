@@ -6,6 +6,7 @@ The law, per arm joint j (revolute τ_j in N·m, prismatic F_j in N), with the r
 `arm_reference.py` evaluated at the reference clock τ (a state component, τ̇ = 1):
 
     e = q_ref − q,   ė = q̇_ref − q̇,   ż = e
+    (e the shortest angle on the revolute joints, which are continuous: jtc's error)
     τ_j = sat(ff_j + kp e + kd ė + ki z)     within the scene's effort limits
 
 The derivative acts on q̇_ref − q̇ (for a set-point q̇_ref = 0: on the measurement, so a step
@@ -44,7 +45,14 @@ from ..scene.coordinates import ARM_U, OMEGA, V, arm_size
 from ..scene.errors import UserError
 from ..scene.limits import ARM_GAIN
 from . import layout
-from .arm_reference import Q_REF, QD_REF, QDD_REF, reference
+from .arm_reference import (
+    Q_REF,
+    QD_REF,
+    QDD_REF,
+    is_continuous_jit,
+    reference,
+    shortest_angle_jit,
+)
 
 # system.arm[...] entries (SEGMENT: the reference segment of the last evaluation, a search hint)
 ARM_ON, FEEDFORWARD, SEGMENTS, SEGMENT = range(4)
@@ -220,7 +228,9 @@ def arm_efforts(system, s, ds):
                              ref, int(arm[SEGMENT]))
     feedforward(system, s, ref[FF])
     for j in range(indices.arm_width(nu)):
-        e = ref[Q_REF, j] - s[layout.arm_q(j)]
+        q_j = s[layout.arm_q(j)]
+        e = (shortest_angle_jit(q_j, ref[Q_REF, j]) if is_continuous_jit(j)
+             else ref[Q_REF, j] - q_j)
         ed = ref[QD_REF, j] - s[layout.arm_u(nq, j)]
         raw = ref[FF, j] + gains[KP, j] * e + gains[KD, j] * ed + gains[KI, j] * s[i_z + j]
         limit = limits[j]

@@ -10,7 +10,16 @@ import numpy as np
 
 from ..scene.errors import UserError
 from . import layout
-from .system import KI, KP, TARGET_L, TARGET_R, TORQUE_LIMIT, VELOCITY_MODE, wheel_speed_torques
+from .system import (
+    KI,
+    KP,
+    LIMIT_L,
+    LIMIT_R,
+    TARGET_L,
+    TARGET_R,
+    VELOCITY_MODE,
+    wheel_speed_torques,
+)
 
 
 class BaseCommands:
@@ -20,8 +29,10 @@ class BaseCommands:
     def set_base_velocity(self, v: float, omega: float) -> None:
         """Drive the base at forward speed v (m/s) and yaw rate ω (rad/s) from now on: the wheel
         torques come from the wheel-speed PI loop (`set_wheel_speed_gains`) inside the simulated
-        system, recomputed at every evaluation of the right-hand side and clipped to the wheel
-        effort limits. `set_efforts(wheels=...)` returns the wheels to torque commands."""
+        system, recomputed at every evaluation of the right-hand side and clipped to each wheel's
+        own effort limit, its integral held while that wheel is saturated
+        (`system.wheel_drive`). `set_efforts(wheels=...)` returns the wheels to torque
+        commands."""
         target = command([v, omega], 2, "cmd_vel")
         r, b = self.model.base.wheel_radius, self.model.base.half_track
         control = self.system.control
@@ -42,17 +53,20 @@ class BaseCommands:
 
     def set_wheel_speed_gains(self, kp: float, ki: float, torque_limit: float = math.inf) -> None:
         """Gains of the wheel-speed PI loop: kp (N·m·s/rad) on the speed error, ki (N·m/rad) on
-        its integral; torques within ±torque_limit (N·m) and the scene's wheel effort limits."""
+        its integral; each wheel's torque within ±torque_limit (N·m) and its own effort limit of
+        the scene (τ_R within the right wheel's, τ_L within the left's)."""
         for name, value in (("kp", kp), ("ki", ki)):
             if not (math.isfinite(value) and value >= 0.0):
                 raise UserError(f"wheel_speed.{name}",
                                 f"must be a finite number ≥ 0, got {value!r}")
         if not torque_limit > 0.0:
             raise UserError("wheel_speed.torque_limit", f"must be positive, got {torque_limit!r}")
-        if self.effects.effort_limits is not None:
-            torque_limit = min(torque_limit, float(np.min(self.effects.effort_limits[:2])))
+        limits = [torque_limit, torque_limit]
+        if self.effects.effort_limits is not None:   # (τ_R, τ_L, …): each wheel its own
+            limits = [min(torque_limit, float(w)) for w in self.effects.effort_limits[:2]]
         control = self.system.control
-        control[KP], control[KI], control[TORQUE_LIMIT] = kp, ki, torque_limit
+        control[KP], control[KI] = kp, ki
+        control[LIMIT_R], control[LIMIT_L] = limits
         self._restart()
 
     def wheel_torques(self) -> np.ndarray:

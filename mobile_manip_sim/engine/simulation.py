@@ -54,8 +54,8 @@ ELASTIC_SEMI_IMPLICIT = ("semi_implicit_euler with end stops that rebound (resti
                          "adaptive method where energy matters")
 
 # kp N·m·s/rad, ki N·m/rad (see set_wheel_speed_gains): with the paper's arm held in position
-# mode, cmd_vel (0.3 m/s, 0.5 rad/s) is within 1e-4 of its target from 1 s on (0.5, 5.0 before
-# issue 18: 8 % off at 1 s)
+# mode, cmd_vel (0.3 m/s, 0.5 rad/s) is within 1e-4 of its target from 1 s on (with 0.5, 5.0 it is
+# 8 % off at 1 s)
 DEFAULT_WHEEL_SPEED_GAINS = (2.0, 20.0)
 SCIPY_MIN_RTOL = 100 * np.finfo(float).eps   # SciPy's own floor; passed as is, it warns on stderr
 

@@ -3,7 +3,7 @@
 An implicit solver facing a solution it cannot follow (a wheel command of 1e30 right after a
 reset, a stiff scene at the tightest tolerance) need not fail: it shrinks its step towards the
 spacing of floating-point numbers and crawls on, 1e-18 s at a time, for ever. Two limits turn
-that into an error (README, "Bad input"):
+that into an error (docs/errors.md, "Bad input"):
 
 - the floor: FLOOR_STEPS accepted steps in a row shorter than STEP_FLOOR × max(1 s, t). One short
   step is no crawl: a solver restarted at a discontinuity may begin below the floor, and its step

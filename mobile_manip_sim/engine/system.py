@@ -29,14 +29,16 @@ from ..dynamics.jit import jit, jit_inline
 from ..scene.coordinates import OMEGA, V, arm_width
 from . import layout
 from .arm_control import ARM_ON, N_ARM_SETTINGS, SEGMENT, SEGMENTS, arm_efforts
+from .arm_reference import WIDTH
 
 # counters[...] indices
 (RHS_EVALS, DAMPING_STAGE, REDUCED_SOLVE, CROSSING_CHECKS, CONTROL_STAGE,
  ARM_CONTROL_STAGE) = range(6)
 N_COUNTERS = 6
 
-# control[...] entries: the wheel-speed PI loop (`wheel_speed_torques`)
-VELOCITY_MODE, KP, KI, TORQUE_LIMIT, TARGET_R, TARGET_L = range(6)
+# control[...] entries: the wheel-speed PI loop (`wheel_speed_loop`); each wheel its own limit
+VELOCITY_MODE, KP, KI, LIMIT_R, LIMIT_L, TARGET_R, TARGET_L = range(7)
+N_CONTROL = 7
 
 SystemData = namedtuple("SystemData", [
     "model",     # the dynamics' model record (`dynamics.records.Model`)
@@ -44,7 +46,8 @@ SystemData = namedtuple("SystemData", [
     "damping",   # (n_u,) viscous coefficients on u, or (0,) when no damping effect is on
     "free",      # (n_u,) indices of the free pseudo-velocities, padded with −1
     "Q_cmd",     # (n_u,) commanded generalized forces (wheels' part unused in velocity mode)
-    "control",   # (6,) wheel-speed PI loop: mode (0 effort, 1 velocity), kp, ki, limit, targets
+    "control",   # (7,) wheel-speed PI loop: mode (0 effort, 1 velocity), kp, ki, the limits
+                 # and the target speeds of the right and left wheels
     "ws",        # the dynamics workspace (`dynamics.records.Workspace`)
     "Q",         # (n_u,) scratch: applied generalized forces of the current evaluation
     "counters",  # (N_COUNTERS,) stage counters
@@ -53,25 +56,46 @@ SystemData = namedtuple("SystemData", [
     "arm_gains",    # (3, n_arm) kp, ki, kd
     "arm_limits",   # (n_arm,) effort limits, inf where none
     "ref_starts",   # (capacity,) s: the reference's segment starts (`arm_reference.py`)
-    "ref_coeffs",   # (capacity, n_arm, 6) their polynomial coefficients
+    "ref_coeffs",   # (capacity, n_arm, arm_reference.WIDTH) their coefficients
     "arm_ref",      # (5, n_arm) scratch: q_ref, q̇_ref, q̈_ref, feedforward, applied efforts
     "arm_scratch",  # (5, n_u) scratch of the inverse-dynamics passes (row ZERO stays zero)
 ])
 
 
-@jit
-def wheel_speed_torques(system, s):
-    """(τ_R, τ_L), N·m: the PI loop on wheel speeds, τ = kp (θ̇* − θ̇) + ki e, clipped to ±limit,
-    with θ̇_R/L = (v ± b ω)/r and e the integral of θ̇* − θ̇ held in the state."""
+@jit_inline
+def wheel_drive(kp, ki, target, speed, integral, limit):
+    """One wheel's PI speed loop: (τ, ė). τ = sat(kp (θ̇* − θ̇) + ki e) within ±limit; the
+    integral e stops while τ is saturated in the direction of the error (conditional
+    integration, control_toolbox's CONDITIONAL_INTEGRATION; the arm's PID does the same)."""
+    error = target - speed
+    raw = kp * error + ki * integral
+    tau = min(max(raw, -limit), limit)
+    rate = 0.0 if (raw > limit and error > 0.0) or (raw < -limit and error < 0.0) else error
+    return tau, rate
+
+
+@jit_inline
+def wheel_speed_loop(system, s):
+    """(τ_R, τ_L, ė_R, ė_L): the wheel-speed loop of each wheel (`wheel_drive`), with
+    θ̇_R/L = (v ± b ω)/r, e_R/L held in the state and each wheel's own torque limit."""
     control, base = system.control, system.model.base
     r, b = base.wheel_radius, base.half_track
     nq, nu = layout.sizes(system)
     v, om = s[nq + V], s[nq + OMEGA]
     i_e = layout.controller(nq, nu)
-    kp, ki, limit = control[KP], control[KI], control[TORQUE_LIMIT]
-    tau_R = kp * (control[TARGET_R] - (v + b * om) / r) + ki * s[i_e]
-    tau_L = kp * (control[TARGET_L] - (v - b * om) / r) + ki * s[i_e + 1]
-    return min(max(tau_R, -limit), limit), min(max(tau_L, -limit), limit)
+    kp, ki = control[KP], control[KI]
+    tau_R, rate_R = wheel_drive(kp, ki, control[TARGET_R], (v + b * om) / r, s[i_e],
+                                control[LIMIT_R])
+    tau_L, rate_L = wheel_drive(kp, ki, control[TARGET_L], (v - b * om) / r, s[i_e + 1],
+                                control[LIMIT_L])
+    return tau_R, tau_L, rate_R, rate_L
+
+
+@jit
+def wheel_speed_torques(system, s):
+    """(τ_R, τ_L), N·m: the torques of the wheel-speed loop at s (`wheel_speed_loop`)."""
+    tau_R, tau_L, _, _ = wheel_speed_loop(system, s)
+    return tau_R, tau_L
 
 
 @jit_inline
@@ -89,13 +113,10 @@ def applied_forces(system, s, ds):
     ds[i_e + 1] = 0.0
     if control[VELOCITY_MODE] != 0.0:
         system.counters[CONTROL_STAGE] += 1
-        tau_R, tau_L = wheel_speed_torques(system, s)
+        tau_R, tau_L, ds[i_e], ds[i_e + 1] = wheel_speed_loop(system, s)
         r, b = model.base.wheel_radius, model.base.half_track
         Q[V] = (tau_R + tau_L) / r
         Q[OMEGA] = b * (tau_R - tau_L) / r
-        v, om = s[nq + V], s[nq + OMEGA]
-        ds[i_e] = control[TARGET_R] - (v + b * om) / r
-        ds[i_e + 1] = control[TARGET_L] - (v - b * om) / r
     if system.arm[ARM_ON] != 0.0:
         system.counters[ARM_CONTROL_STAGE] += 1
         arm_efforts(system, s, ds)
@@ -169,8 +190,8 @@ class System:
         self.damping = np.zeros(0) if damping is None else np.asarray(damping, dtype=float)
         self.free = np.full(nu, -1, dtype=np.int64)
         self.counters = np.zeros(N_COUNTERS, dtype=np.int64)
-        self.control = np.zeros(6)
-        self.control[TORQUE_LIMIT] = math.inf
+        self.control = np.zeros(N_CONTROL)
+        self.control[LIMIT_R] = self.control[LIMIT_L] = math.inf
         self.permanently_locked = tuple(sorted(locked))
         settings, gains, limits = arm if arm is not None else (
             np.zeros(N_ARM_SETTINGS), np.zeros((3, 0)), np.zeros(0))
@@ -178,7 +199,7 @@ class System:
         self.data = SystemData(dynamics.model_record, float(dynamics.gravity), self.damping,
                                self.free, self.Q_cmd, self.control, dynamics.ws, np.zeros(nu),
                                self.counters, settings, gains, limits, np.zeros(1),
-                               np.zeros((1, n_arm, 6)), self.arm_ref,
+                               np.zeros((1, n_arm, WIDTH)), self.arm_ref,
                                np.zeros((5, nu if arm is not None else 0)))
         self.set_locked(())
         size = layout.state_size(nu) + (layout.arm_state_size(nu) if arm is not None else 0)

@@ -30,8 +30,8 @@ def help_text() -> str:
     lines = ["usage: simulator [--ros-args [-p NAME:=VALUE]... [--params-file FILE] "
              "[-r FROM:=TO]...]",
              "",
-             f"The ROS 2 node {NODE_NAME}: a simulated mobile manipulator (see the README's "
-             f"node section).",
+             f"The ROS 2 node {NODE_NAME}: a simulated mobile manipulator (its interface: "
+             f"docs/node.md).",
              "",
              "parameters (* may be set while the node runs):"]
     for name, spec in PARAMETERS.items():

@@ -1,6 +1,6 @@
 """`SimulatorNode`: the ROS side of the node — its publishers, command subscriptions, services
 and parameters around a `Simulation`, stepped by a `SteppingLoop` — and `main`. The interface is
-documented in the README ("The ROS 2 node"); topic names, types and QoS are topics.py's."""
+documented in docs/node.md; topic names, types and QoS are topics.py's."""
 from __future__ import annotations
 
 import re

@@ -28,7 +28,7 @@ from ..ros.topics import (
     relative,
     state_qos,
 )
-from ..ros.trajectory_goals import Codes, Goal, JointTolerance, Point, TrajectoryGoals
+from ..ros.trajectory_goals import Codes, Goal, JointTolerance, Point, TrajectoryGoals, errors
 from ..runtime.timeline import NS
 
 WAIT_POLL = 0.5   # s: an execute callback checks this often that the node still runs
@@ -158,7 +158,7 @@ class TrajectoryInterface:
             feedback.error = trajectory_point(*error)
             request.handle.publish_feedback(feedback)
         if self._state_pub is not None:
-            error = (desired[0] - q, desired[1] - u)
+            error = errors(desired, (q, u))
             state = self._state_type(joint_names=self.names)
             state.header.stamp = time_msg(now_ns)
             state.reference = trajectory_point(*desired)

@@ -23,7 +23,7 @@ from ..scene.methods import METHODS
 
 SCENES = ("paper_two_link.yaml", "hard_impacts.yaml", "effect_joint_damping.yaml",
           "effect_locked_joints.yaml")
-EXPECTED = "1.5 to 5 minutes on two cores"   # measured cold: 72–142 s here, 250 s in issue 22
+EXPECTED = "1.5 to 5 minutes on two cores"   # cold: 72–142 s, 250 s when loaded
 
 
 def kernels():

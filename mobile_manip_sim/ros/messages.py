@@ -1,7 +1,7 @@
 """The one place where simulator state becomes ROS messages (the node publishes them, the
 recorder stores them, replay rebuilds them to compare): equal states give equal messages.
 
-Topics, types and QoS: topics.py (meaning: the README's node section).
+Topics, types and QoS: topics.py (meaning: docs/node.md).
 
 Stamps are integer nanoseconds of simulated time. ``state`` is anything with the engine's state
 interface (``q``, ``u``, ``qdot()``, ``wheel_efforts``, ``joint_efforts``): a ``Simulation``.

@@ -22,7 +22,8 @@ them here; the engine does the interpolation (`Simulation.set_arm_trajectory`).
   where it is and ends the goal as canceled; a reset aborts it (INVALID_GOAL).
 
 Result codes are not written here: `Codes.of` reads them from control_msgs' Result type.
-Errors are desired − actual, as jtc's.
+Errors are desired − actual, as jtc's, the position error of a revolute joint (continuous in the
+URDF) the shortest angle (`errors`): tolerances, feedback and the controller state read it.
 """
 from __future__ import annotations
 
@@ -32,6 +33,7 @@ from typing import Callable, NamedTuple
 
 import numpy as np
 
+from ..engine.arm_reference import position_errors
 from ..runtime.timeline import NS, format_ns
 from ..scene.errors import UserError
 
@@ -101,6 +103,12 @@ class Trajectory(NamedTuple):
     positions: np.ndarray        # (m, n)
     velocities: np.ndarray | None
     accelerations: np.ndarray | None
+
+
+def errors(desired, actual) -> tuple:
+    """(position, velocity) errors, desired − actual, of the arm's (q, q̇) pairs: jtc's
+    ``compute_error_for_joint``, the shortest angle on the continuous joints."""
+    return position_errors(desired[0], actual[0]), np.asarray(desired[1]) - np.asarray(actual[1])
 
 
 def default_tolerances(n: int) -> Tolerances:
@@ -290,7 +298,7 @@ class TrajectoryGoals:
         finished, feedback, hold = [], None, False
         active = self.active
         if active is not None:
-            error = (desired[0] - actual[0], desired[1] - actual[1])
+            error = errors(desired, actual)
             feedback = (active, desired, actual, error)
             outcome = Outcome(None, "canceled") if active.cancel_requested else \
                 self._check(active, now_ns, error)

@@ -1,5 +1,5 @@
 """A scene's ``controller:`` section → a validated `ControllerSection`: how the arm is driven
-in a headless run (README, "The arm controller") and the commands applied at t = 0.
+in a headless run (docs/scene.md, "The arm controller") and the commands applied at t = 0.
 
     controller:
       arm: position            # effort | position | velocity | joint_trajectory

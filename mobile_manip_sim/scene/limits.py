@@ -1,4 +1,4 @@
-"""Plausibility bounds: outside them a value is a mistake, not physics (README, "Bad input").
+"""Plausibility bounds: outside them a value is a mistake, not physics (docs/errors.md).
 
 The one home of every bound an input is checked against — scene files (`scene`), the command
 line (`simulate`), a bag's run metadata (`recording.bag_format`) and the node's parameters —

@@ -1,7 +1,7 @@
 """Scene files (YAML) → a validated, immutable `Scene`: robot, initial state, efforts, effects,
 integrator. Every mistake raises `UserError` naming its key path (``robot.arm.links[1].length``).
 
-The full format, with every key and its default, is documented in README.md ("Scene format").
+The full format, with every key and its default, is documented in docs/scene.md.
 """
 from __future__ import annotations
 
@@ -292,7 +292,7 @@ def make_integrator(settings: IntegratorSettings, method=None, dt=None, rtol=Non
 
 def check_work(duration: float, settings: IntegratorSettings, duration_key: str, dt_key: str,
                sample_rate: float | None = None, rate_key: str = "--sample-rate") -> None:
-    """Refuse a run whose work is beyond the documented limits (README, "Bad input"): more than
+    """Refuse a run whose work is beyond the documented limits (docs/errors.md): more than
     MAX_STEPS fixed steps, more than MAX_SAMPLES samples, or a fixed step longer than the sample
     interval (the samples would not be at the step's resolution)."""
     if settings.fixed_step and duration / settings.dt > MAX_STEPS:

@@ -1,4 +1,4 @@
-"""Issue 6's hard cases: each must stay finite, keep its rods within their strokes, keep its
+"""The hard cases: each must stay finite, keep its rods within their strokes, keep its
 energy error within the integrator's promise and finish within a bounded step count.
 
 The cases and their bounds live in `mobile_manip_sim.bench.hard_cases` (the bench reports the

@@ -23,7 +23,7 @@ from pinocchio_reference import build_projected_model
 from pure_python import without_jit
 
 DATA = Path(__file__).resolve().parent / "data"
-SETTLING_TIME = 0.5   # s: README, "The arm controller" (0.43 s measured with rk4 at 1 kHz)
+SETTLING_TIME = 0.5   # s: docs/controllers.md (0.43 s measured with rk4 at 1 kHz)
 STEP = np.array([0.2, 0.1, -0.2, 0.1])   # rad, m, rad, m
 ZERO_GAINS = dict(kp=0.0, ki=0.0, kd=0.0)
 
@@ -105,7 +105,7 @@ def test_a_step_of_the_position_command_settles_within_2_percent():
 
 @pytest.mark.parametrize("method", ["rk4", "dop853"])
 def test_with_the_arm_held_cmd_vel_tracks_within_1_percent_after_1_s(method):
-    """Issue 18's case: the arm in position mode (defaults), cmd_vel 0.3 m/s, 0.5 rad/s through
+    """The arm in position mode (defaults), cmd_vel 0.3 m/s, 0.5 rad/s through
     the wheel-speed loop at its default gains: within 1 % from 1 s to 4 s (measured: 1e-4)."""
     sim = paper(method=method)
     sim.set_base_velocity(0.3, 0.5)
@@ -376,3 +376,56 @@ def test_gains_are_checked_and_filled_in():
     filled = ArmControl("velocity", kp=50.0).for_robot(robot)
     assert filled.kp == (50.0,) * 4
     assert filled.kd == ArmControl.default(robot, "velocity").kd == (17.0, 80.0, 3.4, 40.0)
+
+
+# --- continuous joints and the held last point, as joint_trajectory_controller --------------
+
+TURN = 2.0 * np.pi
+
+
+def started_at(q_arm, mode="joint_trajectory", **control):
+    """The paper robot with its arm at q_arm (rad, m) at rest, its controller holding there."""
+    doc = copy.deepcopy(paper_scene().document)
+    doc["initial"]["joints"] = list(q_arm)
+    return Simulation(parse_scene(doc), arm_control=ArmControl(mode, **control))
+
+
+def test_a_continuous_joint_trajectory_from_3_to_minus_3_rad_turns_the_short_way():
+    """revolute_1 is continuous: as jtc, the start state moves a whole turn towards the first
+    point and the PID reads the shortest angle, so the joint turns +0.283 rad (to −3.0 + 2π)
+    and holds there; the plain difference would swing it −6 rad."""
+    sim = started_at([3.0, 0.5, -0.2, 0.5])
+    target = [-3.0, 0.5, -0.2, 0.5]
+    sim.set_arm_trajectory([1.0], [target])
+    assert sim.arm_reference()[0][0] == pytest.approx(3.0 - TURN, abs=1e-14)
+    rows = sim.sample(np.arange(1, 301) * 0.01)
+    q1 = rows[:, layout.arm_q(0)]
+    assert q1.min() > 3.0 - 0.01 and q1.max() < TURN - 3.0 + 0.01   # between, the short way
+    assert q1[-1] == pytest.approx(TURN - 3.0, abs=2e-3)             # at −3.0, a turn up
+    assert sim.arm_reference()[0][0] == -3.0
+    assert np.abs(arm(sim)[1:] - target[1:]).max() < 2e-3
+
+
+def test_the_pid_reads_the_shortest_angle_in_every_mode():
+    """A set-point a whole turn and 0.1 rad away is 0.1 rad away for a continuous joint."""
+    sim = started_at([0.3, 0.5, -0.2, 0.5], mode="position")
+    sim.set_arm_positions([0.4 + TURN, 0.5, -0.2, 0.5])
+    sim.advance_to(2.0)
+    assert arm(sim)[0] == pytest.approx(0.4, abs=1e-3)
+
+
+def test_after_the_last_point_the_reference_keeps_its_acceleration():
+    """jtc samples the last point itself after its time (position, velocity, acceleration as
+    given): computed torque's feed-forward keeps following that acceleration; a run with it
+    re-simulates bit for bit."""
+    def run():
+        sim = started_at([0.3, 0.5, -0.2, 0.5], feedforward="computed_torque")
+        sim.set_arm_trajectory([0.5], [[0.4, 0.5, -0.2, 0.5]], [[0.0] * 4],
+                               [[0.5, 0.0, -0.5, 0.0]])
+        sim.advance_to(0.8)
+        return sim
+    sim = run()
+    q, qd, qdd = sim.arm_reference()
+    assert q.tolist() == [0.4, 0.5, -0.2, 0.5] and qd.tolist() == [0.0] * 4
+    assert qdd.tolist() == [0.5, 0.0, -0.5, 0.0]
+    assert np.array_equal(run().s, sim.s)

@@ -1,6 +1,6 @@
 """Bad input, as a user meets it: `python -m mobile_manip_sim.programs.simulate` on a broken scene
 file or with a bad flag exits with status 2 and exactly one stderr line
-naming the key path (issues 2, 3).
+naming the key path.
 
 Every case is one change to the valid paper scene, so the change alone is what fails. One case of
 each kind runs as a real process (a few at a time: each pays the interpreter's start-up); the
@@ -45,7 +45,7 @@ NAN, INF = float("nan"), float("inf")
 
 # id: (change to the scene or raw file text or None, extra flags, key path expected on stderr)
 CASES = {
-    # issue 3: the engine's own settings
+    # the engine's own settings
     "unknown method in the scene": (edit(["integrator", "method"], "rk5"), [], "integrator.method"),
     "unknown method flag": (None, ["--method", "rk5"], "--method"),
     "unknown effect": (edit(["effects", "magnetism"], 1.0), [], "effects.magnetism"),
@@ -79,7 +79,7 @@ CASES = {
     "zero effort limit": (edit(["effects", "effort_limits"], {"wheels": 0.0}), [],
                           "effects.effort_limits.wheels"),
     "zero duration flag": (None, ["--duration", "0"], "--duration"),
-    # issue 2: the scene file itself
+    # the scene file itself
     "unreadable file": ("missing", [], "does-not-exist.yaml"),
     "a directory for a file": ("directory", [], "scene_dir"),
     "not UTF-8": (b"name: \xff\xfe\n", [], "scene.yaml"),
@@ -343,7 +343,7 @@ def test_the_step_watch_tells_a_crawl_from_a_restart():
     assert first_problem(slow_then_fast)[0] == 2 * BUDGET_STEPS
 
 
-# --- huge finite commands right after a reset, every method (issue 22) ------------------------
+# --- huge finite commands right after a reset, every method -------------------------------
 
 @pytest.fixture(scope="module")
 def huge_commands():

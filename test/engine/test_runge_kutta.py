@@ -258,7 +258,7 @@ def test_cost_falls_as_rtol_loosens_and_error_follows_rtol(reference):
         evals.append(sim.rhs_evaluations)
         errors.append(np.max(np.abs(rows[:, :-1] - reference[1:])))
     assert evals[0] < evals[1] < evals[2]
-    # Issue 10 targets ≤ 1/4. Measured 150/587 = 0.256 (SciPy's DOP853, the same controller:
+    # The target is ≤ 1/4. Measured 150/587 = 0.256 (SciPy's DOP853, the same controller:
     # 176/593 = 0.30): the order-8 asymptote 10^(−6/8) = 0.18 is diluted by costs that do not
     # shrink with rtol (the ramp-up from the initial guess, rejections). At 100 Hz every step
     # holds a sample; at rtol 1e-4 7 of 9 take their dense output from their stages, at 1e-10

@@ -92,3 +92,50 @@ def test_holding_forces_are_what_the_mass_matrix_says():
         assert np.allclose(forces, expected, atol=1e-10 * scale)
         assert np.abs(forces[[0, 1, 2, 4]]).max() < 1e-10 * scale   # free DOFs need no force
         assert np.abs(forces[[3, 5]]).min() > 1e-3                   # the held ones do
+
+
+def step_response(limits, duration=4.0, rate=100):
+    """A 1 m/s cmd_vel step from rest (arm locked, rk4 1 ms): v and (τ_R, τ_L) at each sample."""
+    sim = paper(**({} if limits is None else {"effort_limits": {"wheels": limits}}))
+    sim.set_base_velocity(1.0, 0.0)
+    v, torques = [], []
+    for k in range(1, int(round(duration * rate)) + 1):
+        sim.advance_to(k / rate)
+        v.append(sim.u[V])
+        torques.append(sim.wheel_torques())
+    return sim, np.array(v), np.array(torques)
+
+
+# What saturation may add to the unsaturated step's overshoot: 1 % of the step. With the
+# integral frozen while a wheel is saturated the loop leaves saturation with the integral it
+# had (zero, from rest) and the error kp·e = limit, a smaller step than the unsaturated one.
+OVERSHOOT_MARGIN = 0.01   # m/s
+
+
+def test_a_saturated_step_overshoots_no_more_than_an_unsaturated_one_and_settles():
+    """Anti-windup: with 0.3 N·m limits the wheels saturate for most of the rise; an integral
+    that kept integrating would carry the base far past 1 m/s (to 1.92 m/s, settling after
+    8 s). It overshoots no more than the unlimited loop (+ OVERSHOOT_MARGIN) and settles."""
+    _, free, _ = step_response(None)
+    sim, limited, torques = step_response([0.3, 0.3])
+    assert np.abs(torques).max() == pytest.approx(0.3, rel=1e-12)    # it did saturate
+    assert np.abs(torques).max() <= 0.3
+    assert free.max() > 1.0                                          # the PI loop overshoots
+    assert limited.max() - 1.0 <= free.max() - 1.0 + OVERSHOOT_MARGIN
+    assert np.all(np.abs(limited[200:] - 1.0) < 0.02)                # within 2 % from 2 s on
+    assert limited[-1] == pytest.approx(1.0, abs=1e-4)
+    assert abs(sim.energy_error()) < 1e-9 * sim.work                 # the work still balances
+
+
+def test_unequal_wheel_limits_give_unequal_torques():
+    """Each wheel within its own limit: [1.0, 0.1] N·m gives τ_R = 1.0 and τ_L = 0.1 while
+    both saturate (not both 0.1), and a torque_limit of the loop lowers only the larger."""
+    sim, v, torques = step_response([1.0, 0.1], duration=0.5)
+    assert torques[0].tolist() == [1.0, 0.1]                        # both saturated at 10 ms
+    assert np.abs(torques[:, 0]).max() == 1.0 and np.abs(torques[:, 1]).max() == 0.1
+    assert sim.u[OMEGA] != 0.0       # unequal torques turn the base, as a real drive would
+    sim = paper(effort_limits={"wheels": [1.0, 0.1]})
+    sim.set_wheel_speed_gains(2.0, 20.0, torque_limit=0.5)
+    sim.set_base_velocity(1.0, 0.0)
+    sim.advance_to(0.01)
+    assert sim.wheel_torques().tolist() == [0.5, 0.1]

@@ -1,5 +1,5 @@
-"""Fuzzing the inputs with hypothesis (issue 13): scenes (as documents and as raw YAML text) and
-bag metadata; and (issue 22) explicit YAML tags and blank values in every YAML reader (scene,
+"""Fuzzing the inputs with hypothesis: scenes (as documents and as raw YAML text) and
+bag metadata; and explicit YAML tags and blank values in every YAML reader (scene,
 sweep spec, params file, bag metadata), blank or odd ``-p`` values for every node parameter,
 mutated sweep specs, run-time node parameters at their extremes, and huge finite commands for
 every method right after a reset (in their own process: test/helpers/huge_commands.py).
@@ -167,7 +167,7 @@ def check_bag_information(changes):
         schema.load_yaml(yaml.safe_dump(doc), what="metadata.yaml")))
 
 
-# --- issue 22's classes: YAML tags, blank values, sweep specs, node parameters, huge commands ---
+# --- more classes: YAML tags, blank values, sweep specs, node parameters, huge commands ---
 
 SWEEP = {"duration": 0.05, "time_limit": 60, "grid": {
     "integrator.method": ["rk4", "dop853"], "robot.arm.links[0].mass_per_length": [0.9, 1.1]},
@@ -345,7 +345,7 @@ def test_fuzz_long(check, strategy):
 
 
 def test_huge_commands_for_every_method_after_a_reset_fixed_seed():
-    """Issue 22: random huge finite commands (1e20 to 1.8e308, any signs, any group) right after
+    """Random huge finite commands (1e20 to 1.8e308, any signs, any group) right after
     a reset, 3 per method with a fixed seed besides the fixed cases."""
     assert check_huge_commands((22, 3), FAST) == len(METHODS) * (len(COMMANDS) + 3)
 
@@ -364,7 +364,7 @@ def test_the_fuzzer_can_fail():
     assert outcome(lambda: rosbag2_metadata.bag_information(BAG_INFORMATION)) is None
     assert outcome(lambda: rosbag2_metadata.bag_information(mutate(
         BAG_INFORMATION, ("rosbag2_bagfile_information", "custom_data"), [1], False))) is not None
-    # issue 22's classes: a bad tag, a blank value and a huge sweep are refused, good ones not
+    # these classes: a bad tag, a blank value and a huge sweep are refused, good ones not
     scene_yaml = READERS["scene"][1]
     assert outcome(lambda: scene_yaml(with_tag(PAPER, ("duration",), "!!float", "abc")))
     assert outcome(lambda: scene_yaml(with_tag(PAPER, ("duration",), "!!float", "0.5"))) is None

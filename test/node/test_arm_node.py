@@ -1,4 +1,4 @@
-"""The node's arm controllers as a ROS user drives them (issue 18): the `simulator` executable in
+"""The node's arm controllers as a ROS user drives them: the `simulator` executable in
 its own process, real DDS, a real rclpy ActionClient in another (trajectory_client.py), with
 control_msgs built from its definitions (the session fixture `interfaces_prefix`). Runs are
 recorded and `replay --resimulate` must reproduce them bit for bit."""

@@ -645,7 +645,7 @@ PARAMETERS = {  # case: (arguments, the key named, what the one line says)
     # in the declared range [0, 1], but a step of 1e-10 s would take 1e8 steps per publication
     "dt 1e-10": (["-p", "integrator.method:=rk4", "-p", "integrator.dt:=1e-10"], "integrator.dt",
                  "must be in [1e-09, 1]"),
-    # the arm controller (issue 18)
+    # the arm controller
     "arm mode unknown": (["-p", "arm_controller:=torque"], "arm_controller", "unknown mode"),
     "arm gains per joint": (["-p", "arm_controller:=position", "-p", "arm_gains.kp:=[1.0, 2.0]"],
                             "arm_gains.kp", "expected one number or 4"),
@@ -809,7 +809,7 @@ def resident_mb(pid: int) -> tuple[float, float]:
 @pytest.mark.bench_target
 def test_at_real_time_factor_1_the_node_holds_at_most_200_mb_and_none_of_llvm(probe, simulator,
                                                                             tmp_path):
-    """Issue 10: rk4 at real_time_factor 1, driven into the end stops. Once the kernels are
+    """rk4 at real_time_factor 1, driven into the end stops. Once the kernels are
     loaded the node gives back LLVM's pages (memory.py; 69 of its 200 MB before); loading a
     kernel later may read a few back."""
     probe.pause(True)   # the shared node idles

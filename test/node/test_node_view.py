@@ -1,4 +1,4 @@
-"""What the node shows (node/view.py, issue 19), as users see it: the `simulator` executable in its
+"""What the node shows (node/view.py), as users see it: the `simulator` executable in its
 own process, tf listeners in processes of their own that import tf2_msgs (built once by
 interfaces_build.py), a probe node in this process, real DDS on a private domain.
 

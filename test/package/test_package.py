@@ -69,12 +69,13 @@ def test_the_shipped_params_file_is_exactly_the_nodes_parameters_at_their_defaul
     assert "not implemented" not in text
 
 
-def test_what_the_readme_commands_write_is_ignored_by_git():
-    """Running the README's commands in a clone leaves `git status` clean: every --out and
-    --record target it names (and simulate's default run.csv) is in .gitignore."""
+def test_what_the_documented_commands_write_is_ignored_by_git():
+    """Running the commands of the README and docs/ in a clone leaves `git status` clean: every
+    --out and --record target they name (and simulate's default run.csv) is in .gitignore."""
     import re
     import subprocess
-    text = (ROOT / "README.md").read_text()
+    text = "\n".join(page.read_text() for page in [ROOT / "README.md",
+                                                   *sorted((ROOT / "docs").glob("*.md"))])
     flags = r"(?:(?<=\s)(?:--out|--record|-o) |record:=)"
     written = set(re.findall(flags + r"([\w.][\w./-]*)", text)) | {"run.csv"}
     written -= {"FILE.csv", "DIR", "bench/"}   # placeholders; bench/ holds the committed report
@@ -82,4 +83,4 @@ def test_what_the_readme_commands_write_is_ignored_by_git():
     for name in sorted(written):
         path = name.rstrip("/") + ("/REPORT.png" if name.endswith("/") or "." not in name else "")
         ignored = subprocess.run(["git", "check-ignore", "-q", "--no-index", path], cwd=ROOT)
-        assert ignored.returncode == 0, f"{path} (written by a README command) is not ignored"
+        assert ignored.returncode == 0, f"{path} (written by a documented command) is not ignored"

@@ -476,8 +476,8 @@ def test_a_velocity_mode_bag_balances_energy_with_the_loops_torques(tmp_path):
     """cmd_vel in the bag, no wheel torques: the wheels take the speed loop's torques (from
     /joint_states and the jump of its proportional term at each cmd_vel change); with the
     default gains (2.0, 20.0) the balance stays within 0.1 J (77 mJ: the loop's transients after
-    an impact are faster than the 100 Hz samples; 28 mJ with the slower 0.5, 5.0 of before
-    issue 18), and the bag re-simulates bit for bit."""
+    an impact are faster than the 100 Hz samples; 28 mJ with slower gains 0.5,
+    5.0), and the bag re-simulates bit for bit."""
     scene = load_scene()
     path = tmp_path / "velocity_bag"
     record_node_bag(path, scene, {10_000_000: ([0.3, 0.5], [4.8, 5.9, 0.0, 1.0])},

@@ -1,4 +1,4 @@
-"""The real `simulate` executable when things go wrong (issue 13): special files, full disks,
+"""The real `simulate` executable when things go wrong: special files, full disks,
 work beyond the limits, signals — always one line (status 2) or a prompt, clean stop, never a
 traceback, a hang or a half-written file. Bags are read back with rosbags (an independent reader).
 """

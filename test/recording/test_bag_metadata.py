@@ -1,4 +1,4 @@
-"""Damaged bag metadata (issue 13): metadata.yaml, the ``mobile_manip_sim`` map, the embedded
+"""Damaged bag metadata: metadata.yaml, the ``mobile_manip_sim`` map, the embedded
 scene.yaml, impacts.json and the recorded QoS, each checked by the one schema. Every case is a
 copy of one bag recorded by the real recorder with one thing damaged; `replay --resimulate` and
 `plot` refuse it with status 2 and one line naming the key, promptly: no traceback, no hang, and

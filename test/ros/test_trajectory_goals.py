@@ -19,6 +19,7 @@ from mobile_manip_sim.ros.trajectory_goals import (
     Point,
     TrajectoryGoals,
     arrange,
+    errors,
     started,
     tolerances,
 )
@@ -227,3 +228,38 @@ def test_a_reset_aborts_every_goal():
     assert active.outcome == waiting.outcome == Outcome(CODES.invalid_goal,
                                                         "the simulation was reset")
     assert goals.active is None and run_to(goals, apply, [10], np.zeros(4))[0] == (None, None, [])
+
+
+TURN = 2.0 * np.pi
+
+
+def test_errors_are_the_shortest_angle_on_the_revolute_joints_only():
+    """jtc's compute_error_for_joint: continuous joints (the arm's revolute ones, as the URDF
+    declares them) take angles::shortest_angular_distance, the others desired − actual."""
+    desired = (np.array([-3.0, 6.5, 3.0 + 2 * TURN, 0.2]), np.array([0.1, 0.2, 0.3, 0.4]))
+    actual = (np.array([3.0, 0.5, 3.1, 0.3]), np.zeros(4))
+    position, velocity = errors(desired, actual)
+    assert position.tolist() == pytest.approx([TURN - 6.0, 6.0, -0.1, -0.1], abs=1e-12)
+    assert velocity.tolist() == [0.1, 0.2, 0.3, 0.4]
+
+
+def test_tolerances_read_the_shortest_angle():
+    """A revolute joint at 3.2 rad whose reference is −3.0 (= 3.283 − 2π) is 0.083 rad off,
+    not 6.2: inside a 0.1 path tolerance; at the end inside a 0.1 goal tolerance (SUCCESSFUL);
+    the feedback's error says 0.083 too. A 0.05 tolerance is violated, naming 0.083."""
+    goals, apply = TrajectoryGoals(NAMES, CODES), Stroke()
+    tolerance = (JointTolerance("arm_revolute_1", 0.1),)
+    request = goals.submit(goal(times=(1.0,), path_tolerance=tolerance, goal_tolerance=tolerance))
+    q = np.array([3.2, 0.3, 0.0, 0.3])
+    desired = (np.array([-3.0, 0.3, 0.0, 0.3]), np.zeros(4), np.zeros(4))
+    run_to(goals, apply, [0], q, desired=desired)
+    step = run_to(goals, apply, [500], q, desired=desired)[0]
+    assert request.outcome is None
+    assert step.feedback[3][0][0] == pytest.approx(TURN - 6.2, abs=1e-12)
+    run_to(goals, apply, [1000], q, desired=desired)
+    assert request.outcome == Outcome(CODES.successful, "goal reached")
+    strict = goals.submit(goal(times=(1.0,),
+                               path_tolerance=(JointTolerance("arm_revolute_1", 0.05),)))
+    run_to(goals, apply, [1100, 1200], q, desired=desired)
+    assert strict.outcome.code == CODES.path_tolerance_violated
+    assert "arm_revolute_1 position error 0.0831853 beyond 0.05" in strict.outcome.text

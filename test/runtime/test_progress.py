@@ -1,4 +1,4 @@
-"""Long work talks (issue 22): `progress.Progress` on a terminal — a pseudo-terminal here, as a
+"""Long work talks: `progress.Progress` on a terminal — a pseudo-terminal here, as a
 user's — and nothing on a pipe; the tools that use it, run with stderr on a pty; each stops on
 the first SIGINT. Every wait is on the text it means (a safety timeout only), never on time."""
 import io

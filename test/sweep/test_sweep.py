@@ -267,7 +267,7 @@ def test_resume_after_sigint_gives_the_same_table_without_redoing_a_run(long_spe
     ("random:\n  count: 0\n  vary:\n    initial.velocity[2]: {normal: [0, 1]}\n",
      "random.count: expected a whole number"),
     ("duration: 1\n", "grid: nothing to sweep"),
-    # simulate's bounds and work limits (issue 22)
+    # simulate's bounds and work limits
     ("duration: 1e300\ngrid: {integrator.method: [rk4]}\n", "duration: must be in (0, 1e+06]"),
     ("sample_rate: 1e9\ngrid: {integrator.method: [rk4]}\n",
      "sample_rate: must be in [1e-06, 1e+06]"),
