@@ -38,6 +38,9 @@ RATE = 100                       # publish_rate (Hz) of the shared node
 PERIOD_NS = 10 ** 9 // RATE
 FAST = ["-p", "integrator.method:=rk4", "-p", "integrator.dt:=0.001",
         "-p", "real_time_factor:=5.0"]
+# The arm takes efforts where a test sends them: the node's default arm controller holds the
+# initial pose (joint_trajectory, test_arm_node.py) and takes no efforts.
+EFFORT_ARM = ["-p", "arm_controller:=effort"]
 TIMEOUT = 20.0                   # s of wall time for any one condition
 STARTUP_TIMEOUT = 60.0           # a loaded machine may need to compile the kernels first
 RELIABLE = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
@@ -169,7 +172,7 @@ def start_simulator(probe, tmp_path, *args) -> SimulatorProcess:
 @pytest.fixture(scope="module")
 def simulator(probe, tmp_path_factory):
     """One node for most tests (command timeout off); each test starts with a reset."""
-    simulator = start_simulator(probe, tmp_path_factory.mktemp("node"), *FAST,
+    simulator = start_simulator(probe, tmp_path_factory.mktemp("node"), *FAST, *EFFORT_ARM,
                                 "-p", "command_timeout:=0.0")
     yield simulator
     code = simulator.stop()
@@ -329,7 +332,7 @@ def test_command_timeout_zeroes_efforts_once_per_silence(probe, simulator, tmp_p
     # The shared node idles (paused: it publishes nothing) while this one, under another node
     # name so that the services do not clash, runs on the same topics.
     probe.pause(True)
-    node = start_simulator(probe, tmp_path, *FAST, "-p", "command_timeout:=0.2",
+    node = start_simulator(probe, tmp_path, *FAST, *EFFORT_ARM, "-p", "command_timeout:=0.2",
                            "-r", "__node:=timeout_sim")
     try:
         wheels, arm = (0.3, 0.3), (1.0, 2.0, 3.0, 4.0)

@@ -97,7 +97,7 @@ def resimulate(bag, tolerance: float) -> int:
                     apply_commands(sim, base_commands.at(start), arm_commands.at(start),
                                    run.velocity)
                     for command in arm_events.get(start, ()):
-                        apply_arm_command(sim, run.arm_control.mode, command)
+                        apply_arm_command(sim, run.arm_controller.mode, command)
                     sim.advance_to(t_end)
                 sim_stamp = stamp
             if message.topic == IMU_TOPIC:
