@@ -6,6 +6,7 @@ from __future__ import annotations
 import re
 import threading
 import time
+import warnings
 
 import rclpy
 import rclpy.logging
@@ -111,7 +112,9 @@ class SimulatorNode(Node):
                                             log.error)
         # Every kernel the run may call, loaded (or compiled) before the start-up line: none
         # compiles afterwards (said if one does: the warm-up was not run for this install).
-        self.sim.load_kernels()
+        with warnings.catch_warnings():   # the scene's advice was given once, by self.sim
+            warnings.simplefilter("ignore", RuntimeWarning)
+            self.sim.load_kernels()
         self._compiles = CompileWatch(lambda name: log.warning(
             f"compiled {name} while running (the first run of an install compiles; "
             f"python3 -m mobile_manip_sim.programs.warmup does it once)")).start()

@@ -1,11 +1,11 @@
 """The arm controller as one record: how the arm is driven (`ArmController`: mode, PID gains,
 feed-forward and the feed-forward's model error) and the table of modes (`MODES`: each mode's
-name, command topic, kind of command, the message a bag records and the engine setter that
-applies a command). The node's parameters, a scene's ``controller:`` section, a bag's
-metadata, the recorder, the bag reader, the timeline and the engine all read these (docs/
-controllers.md).
+name, command topic, kind of command, the message a bag records, the engine setter that
+applies a command and how messages name an array command's entries). The node's parameters,
+a scene's ``controller:`` section, a bag's metadata, the recorder, the bag reader, the timeline
+and the engine all read these (docs/controllers.md).
 
-Scene layer (numpy-free): the defaults that need the dynamics (the default gains of a robot)
+Scene layer (numpy only): the defaults that need the dynamics (the default gains of a robot)
 are the engine's (`engine.arm_control.for_robot`).
 
 Adding a mode: one row of MODES (with its topic and the `Simulation` method that applies its
@@ -14,8 +14,11 @@ command) and that method in `engine/arm_commands.py`.
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import dataclass
 from enum import IntEnum
+
+import numpy as np
 
 from .errors import UserError
 from .limits import ARM_GAIN, MASS, MODEL_ERROR
@@ -25,8 +28,7 @@ JOINT_TRAJECTORY = "trajectory_msgs/msg/JointTrajectory"
 
 
 def _real(v) -> bool:
-    return (not isinstance(v, bool) and isinstance(v, (int, float)) or hasattr(v, "dtype")) \
-        and math.isfinite(float(v))
+    return isinstance(v, numbers.Real) and not isinstance(v, bool) and math.isfinite(v)
 
 
 def _number(record, name, key, lo, hi) -> None:
@@ -44,6 +46,7 @@ class ArmMode:
     command: str       # the kind of command: a scene's key for it, the engine's argument
     recorded: str      # the message type a bag records on `topic` (commands as applied)
     setter: str | None  # the `Simulation` method applying one command (None: efforts)
+    symbols: tuple = ()  # an array command's entries per link, as messages name them
 
     @property
     def controlled(self) -> bool:
@@ -57,11 +60,12 @@ class ArmMode:
 
 
 MODES = {mode.name: mode for mode in (
-    ArmMode("effort", "/arm_effort_controller/commands", "efforts", FLOAT_ARRAY, None),
+    ArmMode("effort", "/arm_effort_controller/commands", "efforts", FLOAT_ARRAY, None,
+            ("tau", "F")),
     ArmMode("position", "/arm_position_controller/commands", "positions", FLOAT_ARRAY,
-            "set_arm_positions"),
+            "set_arm_positions", ("q", "l")),
     ArmMode("velocity", "/arm_velocity_controller/commands", "velocities", FLOAT_ARRAY,
-            "set_arm_velocities"),
+            "set_arm_velocities", ("qdot", "ldot")),
     ArmMode("joint_trajectory", "/joint_trajectory_controller/joint_trajectory", "trajectory",
             JOINT_TRAJECTORY, "set_arm_trajectory"),
 )}
@@ -132,8 +136,7 @@ class ArmController:
                                                f"(choose one of: {', '.join(FEEDFORWARDS)})")
         for name in GAINS:
             value = getattr(self, name)
-            values = (value,) if not isinstance(value, (tuple, list)) and not hasattr(
-                value, "__len__") else tuple(value)
+            values = (value,) if np.ndim(value) == 0 else tuple(value)
             for v in values:
                 if not _real(v) or not ARM_GAIN[0] <= v <= ARM_GAIN[1]:
                     raise UserError(f"arm_gains.{name}", f"expected numbers in [{ARM_GAIN[0]:g}, "
