@@ -47,6 +47,21 @@ def test_mid_run_the_energy_balance_is_rebased_and_time_commands_and_impacts_are
     assert abs(sim.energy_error()) < 1e-6   # rk4 at 1 kHz over 0.5 s (impacts booked)
 
 
+def test_a_rod_resting_at_its_stop_is_free_again_where_the_state_puts_it():
+    """Zero efforts: rod 2 of the paper robot comes to rest at its upper stop by 0.55 s
+    (restitution 0). Set back to mid-stroke at rest, it is free and falls back from there."""
+    sim = Simulation(scene())
+    sim.set_efforts([0.0, 0.0], [0.0] * 4)
+    sim.advance_to(0.55)
+    assert sim.resting.tolist() == [0, 1] and sim.q[8] == 1.0
+    q = sim.q.copy()
+    q[8] = 0.5
+    sim.set_state(q, np.zeros(6))
+    assert not sim.resting.any()
+    sim.advance_to(0.6)
+    assert 0.5 < sim.q[8] < 1.0 and sim.u[5] > 0.0   # sliding out again, not held
+
+
 @pytest.mark.parametrize("q, u, key, problem", [
     (Q[:-1], U, "state.q", "expected 9 values, got shape (8,)"),
     (Q, U + [0.0], "state.u", "expected 6 values, got shape (7,)"),
@@ -55,7 +70,7 @@ def test_mid_run_the_energy_balance_is_rebased_and_time_commands_and_impacts_are
     (Q, U[:1] + [float("inf")] + U[2:], "state.u[1]", "must be finite"),
     (Q, U[:1] + [1e9] + U[2:], "state.u[1]", "within ±10000"),
     (Q[:6] + [1.5] + Q[7:], U, "state.q[6]", r"arm_prismatic_1: 1.5 m is outside the stroke"),
-    ("up", U, "state.q", "expected 9 values"),
+    ("up", U, "state.q", "expected 9 numbers, got up"),
     ({"x": 1}, U, "state.q", "expected 9"),
 ])
 def test_a_bad_state_is_one_line_naming_the_entry(q, u, key, problem):
