@@ -12,7 +12,10 @@ NODE_RANGES = {"publish_rate": limits.PUBLISH_RATE, "real_time_factor": limits.R
                "integrator.dt": limits.INTEGRATOR_OVERRIDE,
                "integrator.rtol": limits.INTEGRATOR_OVERRIDE,
                "integrator.atol": limits.INTEGRATOR_OVERRIDE, "foxglove_port": limits.PORT,
-               "imu.noise.seed": limits.IMU_SEED}
+               "imu.noise.seed": limits.IMU_SEED,
+               "arm_model_error.mass": limits.MODEL_ERROR,
+               "arm_model_error.inertia": limits.MODEL_ERROR,
+               "arm_model_error.payload": (-1.0, limits.MASS[1])}   # negative: the scene's
 
 
 def test_the_node_declares_the_ranges_of_the_limits_module():
