@@ -583,7 +583,7 @@ def lockstep_run(tmp_path, name: str, states: int):
     node = subprocess.Popen([SIMULATOR, "--ros-args", "-p", "integrator.method:=rk4",
                              "-p", "integrator.dt:=0.001", "-p", "real_time_factor:=0.0",
                              "-p", "synchronous:=true", "-p", "sync_timeout:=5.0",
-                             "-p", "command_timeout:=0.0", "-p", f"record:={bag}"],
+                             "-p", "command_timeout:=0.0", "-p", f"record:={bag}", *EFFORT_ARM],
                             env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
         time.sleep(0.5)   # the controller starts after the node
@@ -818,7 +818,7 @@ def test_at_real_time_factor_1_the_node_holds_at_most_200_mb_and_none_of_llvm(pr
     probe.pause(True)   # the shared node idles
     node = start_simulator(probe, tmp_path, "-p", "integrator.method:=rk4",
                            "-p", "integrator.dt:=0.001", "-p", "real_time_factor:=1.0",
-                           "-p", "command_timeout:=0.0", "-r", "__node:=memory_sim")
+                           "-p", "command_timeout:=0.0", *EFFORT_ARM, "-r", "__node:=memory_sim")
     try:
         scene = load_scene(None)
         probe.send(scene.wheel_efforts.tolist(), scene.joint_efforts.tolist())
