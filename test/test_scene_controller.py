@@ -168,3 +168,34 @@ def test_the_model_error_sweep_example_is_a_valid_spec_and_the_error_grows_with_
     exact, tenth, fifth = (row["arm_tracking_max"] for row in worst)
     assert exact < 1e-9 < 1e-6 < tenth < fifth
     assert 1.8 < fifth / tenth < 2.2   # linear in the error
+
+
+def test_the_old_key_arm_reads_as_arm_controller_and_gives_the_same_run():
+    document = copy.deepcopy(load_scene(EXAMPLE).document)
+    old = parse_scene(document)
+    document["controller"]["arm_controller"] = document["controller"].pop("arm")
+    new = parse_scene(document)
+    assert new.controller.arm_controller == old.controller.arm_controller
+    assert all(np.array_equal(a, b) for a, b in zip(new.controller.command[:3],
+                                                     old.controller.command[:3], strict=True))
+    runs = [Simulation(scene) for scene in (old, new)]
+    for sim in runs:
+        sim.advance_to(0.2)
+    assert np.array_equal(runs[0].s, runs[1].s)
+
+
+def test_every_row_of_the_mode_table_is_wired_to_its_topic_and_engine_setter():
+    """The table is the one owner: the bag's topic types and recorded topics, the engine's
+    setters and the scene's command keys all follow from it."""
+    from mobile_manip_sim.ros.topics import ARM_COMMAND_TOPICS, BAG_TOPIC_TYPES, recorded_topics
+    from mobile_manip_sim.scene.arm_controller import MODES
+    from mobile_manip_sim.scene.controller import COMMAND_KEYS
+    assert list(ARM_COMMAND_TOPICS) == list(MODES)
+    for name, row in MODES.items():
+        assert BAG_TOPIC_TYPES[row.topic] == row.recorded
+        assert recorded_topics(arm_controller=name)[row.topic] == row.recorded
+        others = {mode.topic for mode in MODES.values()} - {row.topic}
+        assert not others & set(recorded_topics(arm_controller=name))
+        if row.controlled:
+            assert callable(getattr(Simulation, row.setter)) and row.command in COMMAND_KEYS
+        assert row.array == (row.recorded == "std_msgs/msg/Float64MultiArray")
