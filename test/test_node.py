@@ -153,7 +153,11 @@ def probe(warm_kernels):
 def start_simulator(probe, tmp_path, *args) -> SimulatorProcess:
     """Start a node; wait until it is connected and publishing. probe.run() then holds what
     arrived since the start (other nodes on the domain must be paused); the first messages may
-    have gone out before discovery, so the run need not begin at t = 0."""
+    have gone out before discovery, so the run need not begin at t = 0. The arm takes efforts
+    (EFFORT_ARM) unless ``args`` choose its controller: these tests drive the node by efforts
+    and wait for its arm effort subscription (the default controller is test_arm_node's)."""
+    if not any(str(arg).startswith("arm_controller:=") for arg in args):
+        args = (*args, *EFFORT_ARM)
     marks = probe.marks()
     arm_readers = probe.arm.get_subscription_count()   # another node's count for nothing here
     simulator = SimulatorProcess(tmp_path, *args)

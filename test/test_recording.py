@@ -180,6 +180,11 @@ class Simulator(NodeProcess):
 
 
 def start_simulator(probe, tmp_path, *args, **options) -> Simulator:
+    """A recording node up and subscribed. The arm takes efforts (EFFORT_ARM) unless ``args``
+    choose its controller: these tests send arm efforts and wait for the arm effort
+    subscription (a node recording its default controller is test_arm_node's)."""
+    if not any(str(arg).startswith("arm_controller:=") for arg in args):
+        args = (*args, *EFFORT_ARM)
     probe.clear()
     simulator = Simulator(tmp_path, *args, **options)
     try:
