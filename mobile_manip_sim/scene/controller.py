@@ -88,11 +88,12 @@ def parse_controller(doc, robot, stroke_limits_on: bool) -> ControllerSection | 
     stroke = np.asarray(robot.stroke).reshape(-1, 2) if stroke_limits_on else None
     names = robot.joint_names()[2:]
     command = doc.get(mode.command) if mode.controlled else None
-    if command is not None and mode.command == "positions":
-        command = schema.vector(command, n_arm, f"{path}.positions", lo=-ANGLE, hi=ANGLE)
-        _check_stroke(command, stroke, names, f"{path}.positions")
-    elif command is not None and mode.command == "velocities":
-        command = schema.vector(command, n_arm, f"{path}.velocities", lo=-SPEED, hi=SPEED)
+    if command is not None and mode.array:   # one value per arm joint (the engine checks more)
+        bound = SPEED if mode.command == "velocities" else ANGLE
+        key = f"{path}.{mode.command}"
+        command = schema.vector(command, n_arm, key, lo=-bound, hi=bound)
+        if mode.command == "positions":
+            _check_stroke(command, stroke, names, key)
     elif command is not None:
         command = _trajectory(command, n_arm, stroke, names)
     return ControllerSection(controller, command)
