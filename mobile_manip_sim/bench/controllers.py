@@ -6,8 +6,8 @@ impacts the others do not), 2 s at 1 kHz rk4 in one `Simulation.sample` call (10
 effort mode holds the efforts that balance gravity at the initial pose (no controller stage);
 position mode holds that pose; velocity mode turns joint 1 at 0.1 rad/s; joint_trajectory mode
 follows a 1 Hz sinusoid about the pose (amplitudes 0.2 rad, 0.05 m, 0.3 rad, 0.05 m) sent as
-quintic points every 10 ms. Default gains (`ArmControl.default`). Tracking error: q − q_ref at
-the samples, the reference read back from the engine's own (`arm_reference.reference`).
+quintic points every 10 ms. Default gains (`arm_control.default_controller`). Tracking error:
+q − q_ref at the samples, the reference read back from the engine's own (`arm_reference.reference`).
 CPU time of this thread, best of the repeats.
 """
 from __future__ import annotations
@@ -19,8 +19,9 @@ import numpy as np
 
 from ..dynamics import Dynamics
 from ..engine import arm_reference, layout
-from ..engine.arm_control import SEGMENTS, ArmControl
+from ..engine.arm_control import SEGMENTS
 from ..engine.simulation import Simulation
+from ..scene.arm_controller import ArmController
 from ..scene.coordinates import arm_width
 from ..scene.loading import load_scene, parse_scene
 from .tables import seconds, table, verdict
@@ -58,7 +59,7 @@ def prepared(base, mode: str, feedforward: str) -> Simulation:
     document = copy.deepcopy(base.document)
     document["efforts"]["joints"] = [0.0] * 4
     sim = Simulation(parse_scene(document, base.name),
-                     arm_control=ArmControl(mode, feedforward=feedforward))
+                     arm_controller=ArmController(mode, feedforward=feedforward))
     q0 = sim.q[layout.arm_q(0):].copy()
     if mode == "velocity":
         sim.set_arm_velocities([0.1, 0.0, 0.0, 0.0])

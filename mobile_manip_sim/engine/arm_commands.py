@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..scene.arm_controller import MODES
 from ..scene.controller import outside_stroke
 from ..scene.coordinates import ARM_U, arm_u, arm_width
 from ..scene.errors import UserError
@@ -76,7 +77,7 @@ class ArmCommands:
     def joint_efforts_applied(self) -> np.ndarray:
         """(n_arm,) the arm efforts acting now: the controller's output after saturation, or
         the commanded efforts (saturated) in effort mode."""
-        if not self.arm_control.active:
+        if not self.arm_controller.active:
             return np.array(self.joint_efforts, dtype=float)
         self.acceleration()   # one evaluation at s (uncounted): leaves the efforts in arm_ref
         return self.system.arm_ref[TAU].copy()
@@ -87,20 +88,20 @@ class ArmCommands:
         came from the scene (a position set-point, velocities or a trajectory, at t = 0)."""
         self._set_reference(*arm_reference.hold(self._arm_now()[0]))
         section = self._arm_section
-        if section is None:
+        if section is None or section.command is None:
             return
-        if section.positions is not None:
-            self.set_arm_positions(section.positions)
-        if section.velocities is not None:
-            self.set_arm_velocities(section.velocities)
-        if section.trajectory is not None:
-            self.set_arm_trajectory(*section.trajectory)
+        setter = getattr(self, self.arm_controller.row.setter)
+        if self.arm_controller.row.array:
+            setter(section.command)
+        else:
+            setter(*section.command)
 
     def _arm_mode_is(self, mode, key) -> None:
-        current = self.arm_control.mode
-        if current == "effort":
-            raise UserError(key, "the arm is in effort mode: choose an arm controller "
-                                 "(position, velocity or joint_trajectory)")
+        current = self.arm_controller.mode
+        if not self.arm_controller.active:
+            *others, last = (name for name, row in MODES.items() if row.controlled)
+            raise UserError(key, f"the arm is in {current} mode: choose an arm controller "
+                                 f"({', '.join(others)} or {last})")
         if mode is not None and current != mode:
             raise UserError(key, f"the arm controller is {current!r}, this command needs {mode!r}")
 

@@ -1,5 +1,6 @@
 """The arm controller inside the simulated system, as ros2_control's controllers drive an arm:
-`ArmControl` (the settings: mode, PID gains per joint, feedforward), its defaults, and the
+the settings' defaults for a robot (`for_robot`: the record itself, `scene.arm_controller.
+ArmController`, is the scene layer's), the feed-forward's model (`feedforward_model`) and the
 compiled control law that `system.applied_forces` runs at every right-hand-side evaluation.
 
 The law, per arm joint j (revolute τ_j in N·m, prismatic F_j in N), with the reference of
@@ -25,14 +26,17 @@ in the direction of the error. Feedforward ff:
   `dynamics.reduced.base_acceleration`).
   A locked or resting arm joint is taken at u̇ = 0, a fixed base at u̇_b = 0.
 
+Both model-based feed-forwards compute with ``system.ff_model``: the plant's model record itself,
+or with a model error (`scene.arm_controller.ModelError`) a copy whose masses, inertias and
+payload differ (`feedforward_model`), so computed torque no longer cancels the plant exactly.
+
 The controller's states z (n_arm) and τ follow W in s (`layout.arm_integrals`,
 `layout.reference_clock`) and exist only when the arm is not in effort mode; in effort mode the
 stage is never entered and s, every run and every bag are what they were without it.
 """
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass, replace
+from dataclasses import replace
 
 import numpy as np
 
@@ -40,10 +44,15 @@ from ..dynamics import indices, kernels
 from ..dynamics.articulated import set_moving
 from ..dynamics.jit import jit_inline
 from ..dynamics.reduced import base_acceleration, gravity_efforts
-from ..scene.controller import ARM_MODES, FEEDFORWARDS
+from ..scene.arm_controller import (
+    DEFAULT_FEEDFORWARD,
+    GAINS,
+    ArmController,
+    Feedforward,
+    ModelError,
+)
 from ..scene.coordinates import ARM_U, OMEGA, V, arm_size
 from ..scene.errors import UserError
-from ..scene.limits import ARM_GAIN
 from . import layout
 from .arm_reference import (
     Q_REF,
@@ -57,7 +66,7 @@ from .arm_reference import (
 # system.arm[...] entries (SEGMENT: the reference segment of the last evaluation, a search hint)
 ARM_ON, FEEDFORWARD, SEGMENTS, SEGMENT = range(4)
 N_ARM_SETTINGS = 4
-NO_FEEDFORWARD, GRAVITY, COMPUTED_TORQUE = range(3)
+NO_FEEDFORWARD, GRAVITY, COMPUTED_TORQUE = (int(kind) for kind in Feedforward)
 # system.arm_gains rows
 KP, KI, KD = range(3)
 # system.arm_ref rows: the reference (arm_reference.Q_REF, QD_REF, QDD_REF), then
@@ -65,7 +74,7 @@ FF, TAU = 3, 4        # the feedforward and the applied efforts of the last eval
 # system.arm_scratch rows (n_u each)
 UD, QA, COL_V, COL_W, ZERO = range(5)
 
-# Default gains (`ArmControl.default`): each joint alone, with its diagonal inertia M_jj at the
+# Default gains (`default_controller`): each joint alone, with its diagonal inertia M_jj at the
 # robot's reference pose (every q_k = 0, every rod at mid-stroke), is a critically damped PD of
 # natural frequency ω_n — kp = M_jj ω_n², kd = 2 M_jj ω_n — plus a slow integral, ki = ε M_jj ω_n³
 # (its zero at −ε ω_n: a small ε keeps the overshoot of a step near 1 %; the gravity
@@ -75,77 +84,52 @@ DEFAULT_BANDWIDTH = 20.0        # ω_n, rad/s
 DEFAULT_INTEGRAL_RATIO = 0.005  # ε
 
 
-@dataclass(frozen=True)
-class ArmControl:
-    """How the arm is driven: `mode` (ARM_MODES), PID gains per arm joint in the order
-    (revolute_1, prismatic_1, …) — kp N·m/rad or N/m, ki N·m/(rad·s) or N/(m·s), kd N·m·s/rad
-    or N·s/m; one number stands for every joint, () for `default`'s — and `feedforward`."""
-
-    mode: str = "effort"
-    kp: tuple = ()
-    ki: tuple = ()
-    kd: tuple = ()
-    feedforward: str = "gravity"
-
-    def __post_init__(self):
-        if self.mode not in ARM_MODES:
-            raise UserError("arm_controller", f"unknown mode {self.mode!r} (choose one of: "
-                                              f"{', '.join(ARM_MODES)})")
-        if self.feedforward not in FEEDFORWARDS:
-            raise UserError("arm_feedforward", f"unknown feedforward {self.feedforward!r} "
-                                               f"(choose one of: {', '.join(FEEDFORWARDS)})")
-        for name in ("kp", "ki", "kd"):
-            value = getattr(self, name)
-            values = (value,) if np.ndim(value) == 0 else tuple(value)
-            for v in values:
-                if isinstance(v, bool) or not isinstance(v, (int, float, np.floating, np.integer)) \
-                        or not (math.isfinite(v) and ARM_GAIN[0] <= v <= ARM_GAIN[1]):
-                    raise UserError(f"arm_gains.{name}", f"expected numbers in [{ARM_GAIN[0]:g}, "
-                                                         f"{ARM_GAIN[1]:g}], got {v!r}")
-            object.__setattr__(self, name, tuple(float(v) for v in values))
-
-    @property
-    def active(self) -> bool:
-        """A controller drives the arm (its states are in s)."""
-        return self.mode != "effort"
-
-    @staticmethod
-    def default(robot, mode: str = "position", feedforward: str = "gravity") -> "ArmControl":
-        """The documented defaults for `robot` (module constants; README, "Arm controller")."""
-        if mode == "effort":
-            return ArmControl(mode, feedforward=feedforward)
-        kp, ki, kd = default_gains(robot)
-        return ArmControl(mode, tuple(kp), tuple(ki), tuple(kd), feedforward)
-
-    def for_robot(self, robot) -> "ArmControl":
-        """These settings with every gain given per joint (defaults filled in, one number
-        repeated); a UserError if a list does not have one value per arm joint."""
-        if not self.active:
-            return replace(self, kp=(), ki=(), kd=())
-        n_arm = arm_size(robot.n_links)
-        defaults = default_gains(robot)
-        gains = {}
-        for row, name in enumerate(("kp", "ki", "kd")):
-            value = getattr(self, name)
-            if len(value) == 0:
-                value = tuple(defaults[row])
-            elif len(value) == 1:
-                value = value * n_arm
-            if len(value) != n_arm:
-                raise UserError(f"arm_gains.{name}", f"expected one number or {n_arm} (one per "
-                                                     f"arm joint), got {len(value)}")
-            gains[name] = value
-        return replace(self, **gains)
+def for_robot(controller: ArmController, robot) -> ArmController:
+    """`controller` with every gain given per joint (the robot's defaults filled in, one number
+    repeated); a UserError if a list does not have one value per arm joint. Effort mode keeps
+    no gains and no model error."""
+    if not controller.active:
+        return replace(controller, kp=(), ki=(), kd=(), model_error=ModelError())
+    n_arm = arm_size(robot.n_links)
+    defaults = default_gains(robot)
+    gains = {}
+    for row, name in enumerate(GAINS):
+        value = getattr(controller, name)
+        if len(value) == 0:
+            value = tuple(defaults[row])
+        elif len(value) == 1:
+            value = value * n_arm
+        if len(value) != n_arm:
+            raise UserError(f"arm_gains.{name}", f"expected one number or {n_arm} (one per "
+                                                 f"arm joint), got {len(value)}")
+        gains[name] = value
+    return replace(controller, **gains)
 
 
-def scene_arm_control(section) -> ArmControl:
-    """The settings of a scene's ``controller:`` section (`scene_controller.ControllerSection`):
-    its gains, or the defaults; effort mode when there is none."""
-    if section is None:
-        return ArmControl()
-    gains = section.gains or {}
-    return ArmControl(section.arm, gains.get("kp", ()), gains.get("ki", ()), gains.get("kd", ()),
-                      section.feedforward)
+def default_controller(robot, mode: str = "position",
+                       feedforward: str = DEFAULT_FEEDFORWARD) -> ArmController:
+    """The documented defaults for `robot` (module constants; docs/controllers.md)."""
+    return for_robot(ArmController(mode, feedforward=feedforward), robot)
+
+
+def scene_arm_controller(section) -> ArmController:
+    """The arm controller of a scene's ``controller:`` section (`scene.controller`); effort
+    mode when there is none."""
+    return ArmController() if section is None else section.arm_controller
+
+
+def feedforward_model(model, error: ModelError):
+    """The dynamics' model record (`dynamics.records.Model`) the feed-forward computes with:
+    `model` itself when `error` is exact, else a copy with its masses, inertias and payload
+    changed (`ModelError`); the geometry is the plant's (the frames are shared)."""
+    if error.exact:
+        return model
+    mass, inertia = 1.0 + error.mass, 1.0 + error.inertia
+    base = model.base._replace(mass=model.base.mass * mass,
+                               yaw_inertia=model.base.yaw_inertia * inertia,
+                               wheel_inertia=model.base.wheel_inertia * inertia)
+    tip_mass = model.tip_mass if error.payload is None else float(error.payload)
+    return model._replace(base=base, mu=model.mu * mass, J=model.J * inertia, tip_mass=tip_mass)
 
 
 def default_gains(robot) -> np.ndarray:
@@ -168,13 +152,13 @@ def round_2(values) -> np.ndarray:
     return out
 
 
-def arm_settings(control: ArmControl, effort_limits) -> tuple:
+def arm_settings(control: ArmController, effort_limits) -> tuple:
     """The compiled records' arrays for `control` (resolved, `for_robot`): settings (ARM_ON,
     FEEDFORWARD, SEGMENTS, SEGMENT), gains (3, n_arm) and effort limits (n_arm; inf where none)."""
     n_arm = len(control.kp)
     settings = np.zeros(N_ARM_SETTINGS)
     settings[ARM_ON] = 1.0 if control.active else 0.0
-    settings[FEEDFORWARD] = FEEDFORWARDS.index(control.feedforward)
+    settings[FEEDFORWARD] = control.feedforward_id
     gains = np.array([control.kp, control.ki, control.kd], dtype=float).reshape(3, n_arm)
     limits = np.full(n_arm, np.inf) if effort_limits is None else np.array(effort_limits[ARM_U])
     return settings, gains, limits
@@ -189,7 +173,7 @@ def feedforward(system, s, ff):
         for j in range(n_arm):
             ff[j] = 0.0
         return
-    model, ws, scratch, damping = system.model, system.ws, system.arm_scratch, system.damping
+    model, ws, scratch, damping = system.ff_model, system.ws, system.arm_scratch, system.damping
     nq, nu = layout.sizes(system)
     q, u = s[:nq], s[nq:nq + nu]
     ud, Q_id = scratch[UD], scratch[QA]

@@ -6,8 +6,9 @@
     sim.advance_to(0.01)                              # lands exactly on t = 0.01 s
     sim.q, sim.u, sim.t, sim.energy_error(), sim.impacts, sim.stats()
 
-With an arm controller (``Simulation(scene, arm_control=ArmControl(...))`` or the scene's
+With an arm controller (``Simulation(scene, arm_controller=ArmController(...))`` or the scene's
 ``controller:`` section) the arm takes references instead of efforts (`arm_commands.py`).
+`set_state` puts the robot in any state (validated) between calls to `advance_to`.
 
 Commands change only between calls to `advance_to`, so a run is a pure function of the scene
 and the command sequence: repeating it gives bit-identical states.
@@ -22,17 +23,20 @@ import numpy as np
 
 from ..dynamics import Dynamics
 from ..dynamics.jit import Bound
-from ..scene.coordinates import ARM_U, OMEGA, V, arm_width
+from ..scene.arm_controller import ArmController
+from ..scene.controller import outside_stroke
+from ..scene.coordinates import ARM_Q, ARM_U, OMEGA, V, arm_width
 from ..scene.effects import settings as effect_settings
 from ..scene.errors import SimulationError as SimulationError
 from ..scene.errors import StepLimitError as StepLimitError
 from ..scene.errors import UserError
+from ..scene.limits import ANGLE, SPEED
 from ..scene.loading import IntegratorSettings, Scene
 from ..scene.methods import COMPILED_STEPPERS, IDS, METHODS
 from . import adaptive_stepping, dense, layout, step_watch, stepping
 from . import status as status_codes
 from .arm_commands import ArmCommands
-from .arm_control import ArmControl, arm_settings, scene_arm_control
+from .arm_control import arm_settings, feedforward_model, for_robot, scene_arm_controller
 from .base_commands import BaseCommands, command, finite_forces
 from .events import holding_margin
 from .stops import LOG_HELD, Impact, make_impact_scratch, make_stops, release, relock
@@ -65,21 +69,23 @@ ImpactDetail = namedtuple("ImpactDetail", "q u_before u_after free held")
 
 class Simulation(ArmCommands, BaseCommands):
     def __init__(self, scene: Scene, integrator: IntegratorSettings | None = None,
-                 arm_control: ArmControl | None = None):
-        """`arm_control`: how the arm is driven; None takes the scene's ``controller:`` section
-        (and its commands at t = 0), or effort mode when the scene has none."""
+                 arm_controller: ArmController | None = None):
+        """`arm_controller`: how the arm is driven; None takes the scene's ``controller:``
+        section (and its command at t = 0), or effort mode when the scene has none."""
         self.scene = scene
         self.settings = integrator or scene.integrator
         model = scene.robot
         self.model = model
         self.effects = effects = effect_settings(scene)   # what the scene turns on (effects.py)
         self.dynamics = Dynamics(model, **effects.dynamics_options())
-        self._arm_section = scene.controller if arm_control is None else None
-        self.arm_control = (arm_control or scene_arm_control(scene.controller)).for_robot(model)
-        arm = (arm_settings(self.arm_control, effects.effort_limits)
-               if self.arm_control.active else None)
+        self._arm_section = scene.controller if arm_controller is None else None
+        self.arm_controller = for_robot(arm_controller or scene_arm_controller(scene.controller),
+                                        model)
+        arm = (arm_settings(self.arm_controller, effects.effort_limits)
+               if self.arm_controller.active else None)
         self.system = System(self.dynamics, effects.generalized_damping(model.base), effects.locked,
-                             arm)
+                             arm, feedforward_model(self.dynamics.model_record,
+                                                    self.arm_controller.model_error))
         self.nq, self.nu = model.n_q, model.n_u
         self.stop_law = effects.stop_law
         if (self.settings.method == "semi_implicit_euler" and self.stop_law is not None
@@ -150,10 +156,78 @@ class Simulation(ArmCommands, BaseCommands):
         self.wheel_efforts = None
         self.joint_efforts = np.zeros(arm_width(self.nu))
         self.set_efforts(self.scene.wheel_efforts,
-                         None if self.arm_control.active else self.scene.joint_efforts)
-        if self.arm_control.active:
+                         None if self.arm_controller.active else self.scene.joint_efforts)
+        if self.arm_controller.active:
             self._start_arm()
         self.energy0 = self.total_energy()
+
+    def load_kernels(self) -> None:
+        """Load now (compile, if the warm-up did not) every compiled kernel that this
+        simulation's run may call from Python later — a step, an adaptive step's interpolation,
+        the release check of a command, the arm's reference and efforts, u̇ — by calling each
+        once on a twin (same scene, settings and arm controller; this one is untouched), so that
+        no compile happens while a node runs (the kernels are bound per argument types, which
+        the twin shares)."""
+        twin = Simulation(self.scene, self.settings,
+                          None if self._arm_section is not None else self.arm_controller)
+        twin.advance_to(twin.t + 1e-3)
+        twin.acceleration()
+        scr = twin._scratch
+        holding_margin(twin.system.data, twin.s, twin.resting, scr.stages[3], scr.forces)
+        release(twin.system.data, twin.stops, twin.s, scr.impact, scr.stages[3], scr.forces,
+                False)
+        if twin.arm_controller.active:
+            twin.arm_reference()
+            twin.joint_efforts_applied()
+
+    def set_state(self, q, u) -> None:
+        """Put the robot in configuration ``q`` (n_q: x, y, θ, φ_R, φ_L, then q_k, l_k per
+        link) moving with pseudo-velocities ``u`` (n_u: v, ω, then q̇_k, l̇_k) now, at the
+        current time. Kept: t, the commands, the controllers' states (the wheel loop's and the
+        arm PID's integrals, the arm's reference and its clock), the work W and the impact log.
+        Every rod is free again (the stops watch it: one at or past a stop end moving into it
+        is an impact at the next step); adaptive solves restart here; the energy balance's
+        reference moves by the energy the new state has more or less, so `energy_error` stays
+        the integration's. A UserError naming ``state.q[i]`` or ``state.u[i]`` for a value of
+        the wrong shape, not finite, beyond the scene's bounds, a rod outside its stroke, or a
+        velocity of a locked joint that is not zero."""
+        q = self._state_vector(q, self.nq, "state.q", ANGLE)
+        u = self._state_vector(u, self.nu, "state.u", SPEED)
+        names = self.model.joint_names()
+        found = outside_stroke(q[ARM_Q], np.asarray(self.model.stroke).reshape(-1, 2))
+        if found is not None:
+            i = layout.arm_q(found[0])
+            raise UserError(f"state.q[{i}]", f"{names[2 + found[0]]}: {found[1]}")
+        u_names = ["the base's v", "the base's ω", *names[ARM_U]]
+        for k in self.system.permanently_locked:
+            if u[k] != 0.0:
+                raise UserError(f"state.u[{k}]", f"{u_names[k]} is locked by the scene: its "
+                                                 f"velocity must be 0, got {u[k]:g}")
+        before = self.total_energy()
+        self.s[:self.nq], self.s[self.nq:self.nq + self.nu] = q, u
+        self.resting[:] = 0
+        self.watched[:] = self.stop_law is not None
+        self.stops.run[:] = 0.0
+        relock(self.system.data, self.stops)
+        self._solver = None
+        self._restart()
+        self.energy0 += self.total_energy() - before
+
+    @staticmethod
+    def _state_vector(values, size: int, key: str, bound: float) -> np.ndarray:
+        try:
+            array = np.array(values, dtype=float)
+        except (TypeError, ValueError):
+            raise UserError(key, f"expected {size} numbers, got "
+                                 f"{str(values)[:60]}") from None
+        if array.shape != (size,):
+            raise UserError(key, f"expected {size} values, got shape {array.shape}")
+        bad = np.flatnonzero(~np.isfinite(array) | (np.abs(array) > bound))
+        if bad.size:
+            i = int(bad[0])
+            raise UserError(f"{key}[{i}]", f"must be finite and within ±{bound:g}, got "
+                                           f"{array[i]}")
+        return array
 
     @property
     def t(self) -> float:
@@ -207,9 +281,10 @@ class Simulation(ArmCommands, BaseCommands):
     # --- commands ------------------------------------------------------------------------
     def set_efforts(self, wheels=None, joints=None) -> None:
         """Hold these efforts from now on: wheels (τ_R, τ_L) N·m, joints (τ_1, F_1, …)."""
-        if joints is not None and self.arm_control.active:
-            raise UserError("efforts.joints", f"the arm is driven by its {self.arm_control.mode} "
-                                              f"controller: it takes references, not efforts")
+        if joints is not None and self.arm_controller.active:
+            raise UserError("efforts.joints", f"the arm is driven by its "
+                                              f"{self.arm_controller.mode} controller: it takes "
+                                              f"references, not efforts")
 
         Q = self.system.Q_cmd
         before = Q.copy(), self.velocity_mode

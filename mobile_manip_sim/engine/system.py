@@ -59,6 +59,8 @@ SystemData = namedtuple("SystemData", [
     "ref_coeffs",   # (capacity, n_arm, arm_reference.WIDTH) their coefficients
     "arm_ref",      # (5, n_arm) scratch: q_ref, q̇_ref, q̈_ref, feedforward, applied efforts
     "arm_scratch",  # (5, n_u) scratch of the inverse-dynamics passes (row ZERO stays zero)
+    "ff_model",     # the feed-forward's model record: ``model`` itself unless it has a model
+                    # error (`arm_control.feedforward_model`)
 ])
 
 
@@ -179,9 +181,11 @@ def slide_holding_forces(system, resting, out):
 class System:
     """Holds the compiled `SystemData` record and the Python-side view of the effects."""
 
-    def __init__(self, dynamics, damping: np.ndarray | None, locked: list[int], arm=None):
+    def __init__(self, dynamics, damping: np.ndarray | None, locked: list[int], arm=None,
+                 ff_model=None):
         """`arm`: the arm controller's (settings, gains, limits) of `arm_control.arm_settings`,
-        or None (effort mode: no controller states, no controller stage)."""
+        or None (effort mode: no controller states, no controller stage); `ff_model` the
+        feed-forward's model record (None: the plant's)."""
         self.dynamics = dynamics
         nu = dynamics.model.n_u
         n_arm = arm_width(nu) if arm is not None else 0
@@ -200,7 +204,8 @@ class System:
                                self.free, self.Q_cmd, self.control, dynamics.ws, np.zeros(nu),
                                self.counters, settings, gains, limits, np.zeros(1),
                                np.zeros((1, n_arm, WIDTH)), self.arm_ref,
-                               np.zeros((5, nu if arm is not None else 0)))
+                               np.zeros((5, nu if arm is not None else 0)),
+                               dynamics.model_record if ff_model is None else ff_model)
         self.set_locked(())
         size = layout.state_size(nu) + (layout.arm_state_size(nu) if arm is not None else 0)
         self._scratch = np.zeros(size)

@@ -7,24 +7,26 @@ command intake's, applied by `timeline.apply_commands`)."""
 from __future__ import annotations
 
 from ..ros.messages import arm_command_message
-from ..ros.topics import ARM_COMMAND_TOPICS, relative
+from ..ros.topics import relative
 from ..runtime.timeline import apply_arm_command
+from ..scene.arm_controller import MODES
 from ..scene.errors import UserError
 
 
-def arm_array_topic(control) -> str | None:
-    """The command intake's arm topic for an engine `ArmControl`: the effort topic, an arm
+def arm_array_topic(controller) -> str | None:
+    """The command intake's arm topic for an `ArmController`: the effort topic, an arm
     controller's array topic, or None (trajectories only)."""
-    return None if control.mode == "joint_trajectory" else ARM_COMMAND_TOPICS[control.mode]
+    return controller.row.topic if controller.row.array else None
 
 
 class ArmDriver:
-    """``mode`` one of the engine's ARM_MODES; ``names`` the arm's joints (node order)."""
+    """``mode`` a controlled row of `scene.arm_controller.MODES`; ``names`` the arm's joints
+    (node order)."""
 
     def __init__(self, node, mode: str, names, warn, info):
         self.mode, self.names, self._warn = mode, list(names), warn
         self.trajectories = None
-        if mode == "joint_trajectory":
+        if not MODES[mode].array:
             from .trajectory_action import TrajectoryInterface
             self.trajectories = TrajectoryInterface(node, self.names, warn, info)
         self._taken = 0   # the command intake's arm count when its last array was applied
@@ -40,14 +42,14 @@ class ArmDriver:
         """Apply what is new at the segment start ``start_ns``: the intake's array ``values``
         (``received`` counts them), or the trajectory goals' step. Returns the message to record
         (as applied), or None."""
-        if self.mode in ("position", "velocity"):
+        if MODES[self.mode].array:
             if received == self._taken:
                 return None
             self._taken = received
             try:   # the intake checked length and finiteness; the engine the limits
                 apply_arm_command(sim, self.mode, values)
             except UserError as error:
-                topic = relative(ARM_COMMAND_TOPICS[self.mode])
+                topic = relative(MODES[self.mode].topic)
                 self._warn(("arm", "refused"), f"{topic}: {error}; keeping the last set-point")
                 return None
             return arm_command_message(self.mode, values, self.names, start_ns)

@@ -23,9 +23,7 @@ from std_msgs.msg import Float64MultiArray
 
 from ..ros.messages import command_values
 from ..ros.topics import (
-    ARM_POSITION_TOPIC,
     ARM_TOPIC,
-    ARM_VELOCITY_TOPIC,
     CMD_VEL_TOPIC,
     COMMAND_QOS_DEPTH,
     WHEEL_TOPIC,
@@ -33,11 +31,12 @@ from ..ros.topics import (
     relative,
 )
 from ..runtime.timeline import NS, CommandSlot
+from ..scene.arm_controller import MODES
 from .throttle import Throttle
 
 MAX_TAKEN = 4 * COMMAND_QOS_DEPTH   # messages one drain takes from a command topic, at most
 # The symbols of an arm topic's values, per joint pair (revolute, prismatic), for messages.
-ARM_LABELS = {ARM_POSITION_TOPIC: ("q", "l"), ARM_VELOCITY_TOPIC: ("qdot", "ldot")}
+ARM_LABELS = {mode.topic: mode.symbols for mode in MODES.values() if mode.array}
 
 
 def command_problem(values, expected: int, labels: str) -> tuple[str, str] | None:

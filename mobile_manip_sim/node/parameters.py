@@ -7,13 +7,18 @@ import math
 from dataclasses import dataclass
 from typing import Mapping, NamedTuple
 
-from ..engine.arm_control import ArmControl
 from ..engine.simulation import DEFAULT_WHEEL_SPEED_GAINS
 from ..ros.frames import BASE_LINK, FOOTPRINT, ODOM
 from ..ros.imu import ImuNoise
 from ..ros.topics import BASE_COMMANDS
 from ..scene import limits
-from ..scene.controller import ARM_MODES, FEEDFORWARDS
+from ..scene.arm_controller import (
+    ARM_MODES,
+    DEFAULT_FEEDFORWARD,
+    FEEDFORWARDS,
+    ArmController,
+    ModelError,
+)
 from ..scene.errors import UserError
 from ..scene.loading import METHODS
 
@@ -102,20 +107,34 @@ PARAMETERS = {
 }
 
 
-# --- the arm controller (start-up only): an engine `ArmControl` ------------------------------
+# --- the arm controller (start-up only): a `scene.arm_controller.ArmController` --------------
 # The gains take one number (every joint) or a list (one per arm joint); "" = the documented
-# defaults for the scene's robot (`ArmControl.default`). Declared with dynamic typing.
+# defaults for the scene's robot (`engine.arm_control.for_robot`). Declared with dynamic typing.
+# The default mode holds the initial pose, as a ros2_control robot whose
+# joint_trajectory_controller starts with the current state (docs/controllers.md).
 ARM_GAIN_PARAMETERS = ("arm_gains.kp", "arm_gains.ki", "arm_gains.kd")
+DEFAULT_ARM_CONTROLLER = "joint_trajectory"
 PARAMETERS.update({
-    "arm_controller": Parameter("effort", f"How the arm is driven ({', '.join(ARM_MODES)}): "
-                                          "effort takes arm_effort_controller/commands; the "
-                                          "others run a PID per joint inside the simulated "
-                                          "system on arm_position_controller/commands, "
-                                          "arm_velocity_controller/commands, or "
-                                          "joint_trajectory_controller's topic and action."),
-    "arm_feedforward": Parameter("gravity", f"An arm controller's model-based feed-forward "
-                                            f"({', '.join(FEEDFORWARDS)}), from the project's "
-                                            f"inverse dynamics."),
+    "arm_controller": Parameter(DEFAULT_ARM_CONTROLLER,
+                                f"How the arm is driven ({', '.join(ARM_MODES)}): effort takes "
+                                "arm_effort_controller/commands; the others run a PID per joint "
+                                "inside the simulated system on arm_position_controller/commands,"
+                                " arm_velocity_controller/commands, or "
+                                "joint_trajectory_controller's topic and action (the default: "
+                                "holds the initial pose until a trajectory comes)."),
+    "arm_feedforward": Parameter(DEFAULT_FEEDFORWARD,
+                                 f"An arm controller's model-based feed-forward "
+                                 f"({', '.join(FEEDFORWARDS)}), from the project's inverse "
+                                 f"dynamics."),
+    "arm_model_error.mass": Parameter(0.0, "The feed-forward's relative error on every link's "
+                                           "mass (0.2: 20 % heavier than the plant).",
+                                      limits.MODEL_ERROR),
+    "arm_model_error.inertia": Parameter(0.0, "The feed-forward's relative error on the "
+                                              "rotational inertias (rods' cross-section, base "
+                                              "yaw, wheel spin).", limits.MODEL_ERROR),
+    "arm_model_error.payload": Parameter(-1.0, "The payload mass (kg) the feed-forward assumes; "
+                                               "negative = the scene's.",
+                                         limits.MODEL_PAYLOAD),
     **{name: Parameter("", f"An arm controller's {name[-2:]} per joint: one number for all, a "
                            f"list (arm_revolute_1, arm_prismatic_1, …), or \"\" for the "
                            f"defaults (README).") for name in ARM_GAIN_PARAMETERS},
@@ -124,7 +143,8 @@ PARAMETERS.update({
 
 def arm_gains(name: str, value) -> tuple:
     """The gains of parameter ``name``: () for "" (the defaults), else a tuple of numbers
-    (ArmControl checks their range and count); UserError naming it otherwise."""
+    (`ArmController` checks their range, the engine their count); UserError naming it
+    otherwise."""
     if isinstance(value, str) and value == "":
         return ()
     scalar = isinstance(value, (bool, int, float, str))
@@ -181,7 +201,7 @@ class NodeParameters:
     rtol: float | None
     atol: float | None
 
-    arm_control: ArmControl = ArmControl()   # not yet resolved for the robot (`for_robot`)
+    arm_controller: ArmController = ArmController()   # not yet resolved for the robot
 
     @property
     def velocity_mode(self) -> bool:
@@ -225,9 +245,13 @@ def read(values: Mapping[str, object]) -> NodeParameters:
         wheel_speed_gains=(values["wheel_speed.kp"], values["wheel_speed.ki"]),
         method=values["integrator.method"] or None, dt=values["integrator.dt"] or None,
         rtol=values["integrator.rtol"] or None, atol=values["integrator.atol"] or None,
-        arm_control=ArmControl(values["arm_controller"],
-                               *(arm_gains(name, values[name]) for name in ARM_GAIN_PARAMETERS),
-                               values["arm_feedforward"]))
+        arm_controller=ArmController(
+            values["arm_controller"],
+            *(arm_gains(name, values[name]) for name in ARM_GAIN_PARAMETERS),
+            values["arm_feedforward"],
+            ModelError(values["arm_model_error.mass"], values["arm_model_error.inertia"],
+                       None if values["arm_model_error.payload"] < 0.0
+                       else values["arm_model_error.payload"])))
 
 
 def _view_parameters(values: Mapping[str, object]) -> dict:

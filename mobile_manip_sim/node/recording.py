@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Callable
 
-from ..recording.bag_format import arm_control_metadata
+from ..recording.bag_format import arm_controller_metadata
 from ..recording.rotation import RotatingRecorder
 from ..scene.errors import UserError
 
@@ -38,7 +38,7 @@ class NodeRecording:
         if p.velocity_mode:
             metadata.update(wheel_speed_kp=repr(float(p.wheel_speed_gains[0])),
                             wheel_speed_ki=repr(float(p.wheel_speed_gains[1])))
-        metadata.update(arm_control_metadata(self.sim.arm_control))
+        metadata.update(arm_controller_metadata(self.sim.arm_controller))
         metadata.update(p.imu_noise.as_metadata())
         return RunRecorder(path, self.sim.scene, self._settings, metadata,
                            flush_interval=BAG_FLUSH_INTERVAL, view=True, imu=True)

@@ -6,6 +6,7 @@ from __future__ import annotations
 import re
 import threading
 import time
+import warnings
 
 import rclpy
 import rclpy.logging
@@ -24,10 +25,12 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_srvs.srv import SetBool, Trigger
 
+from ..engine.arm_control import for_robot
 from ..engine.simulation import Simulation
 from ..ros.messages import state_messages
 from ..ros.topics import CLOCK_TOPIC, JOINT_STATES_TOPIC, ODOM_TOPIC, state_qos
 from ..runtime import cli
+from ..runtime.compiles import CompileWatch
 from ..runtime.memory import CompilerPages, release_compiler_pages
 from ..runtime.pacing import Pacer
 from ..runtime.timeline import Grid, apply_commands, start_node_time_line
@@ -60,8 +63,9 @@ class SimulatorNode(Node):
         self.scene = load_scene(p.scene or None)
         self._settings = make_integrator(self.scene.integrator, p.method, p.dt, p.rtol, p.atol,
                                          prefix="integrator")
-        self.arm_control = p.arm_control.for_robot(self.scene.robot)   # UserError: arm_gains.*
-        self.sim = Simulation(self.scene, self._settings, arm_control=self.arm_control)
+        # UserError: arm_gains.*
+        self.arm_controller = for_robot(p.arm_controller, self.scene.robot)
+        self.sim = Simulation(self.scene, self._settings, arm_controller=self.arm_controller)
         self.sim.set_wheel_speed_gains(*p.wheel_speed_gains)
         self.joint_names = self.scene.robot.joint_names()
         self.grid = Grid(p.publish_rate)   # publication k at t_k, segment k → k + 1
@@ -81,10 +85,10 @@ class SimulatorNode(Node):
         self.commands = CommandIntake(self, p.velocity_mode, p.cmd_vel_stamped,
                                       arm_size(self.scene.robot.n_links), p.command_timeout,
                                       throttle, log.warning,
-                                      arm_topic=arm_array_topic(self.arm_control))
+                                      arm_topic=arm_array_topic(self.arm_controller))
         # An arm controller's commands (arm.py); None in effort mode.
-        self.arm = ArmDriver(self, self.arm_control.mode, self.joint_names[ARM_U], throttle.warn,
-                             log.warning) if self.arm_control.active else None
+        self.arm = ArmDriver(self, self.arm_controller.mode, self.joint_names[ARM_U],
+                             throttle.warn, log.warning) if self.arm_controller.active else None
         lockstep = None
         if p.synchronous:
             lockstep = Lockstep(self.commands, self._listening, p.sync_timeout, throttle)
@@ -107,11 +111,20 @@ class SimulatorNode(Node):
         if p.record:   # last: nothing after this may fail and leave an unfinished bag
             self._recording = NodeRecording(p.record, self.sim, self._settings, p, log.info,
                                             log.error)
+        # Every kernel the run may call, loaded (or compiled) before the start-up line: none
+        # compiles afterwards (said if one does: the warm-up was not run for this install).
+        with warnings.catch_warnings():   # the scene's advice was given once, by self.sim
+            warnings.simplefilter("ignore", RuntimeWarning)
+            self.sim.load_kernels()
+        self._compiles = CompileWatch(lambda name: log.warning(
+            f"compiled {name} while running (the first run of an install compiles; "
+            f"python3 -m mobile_manip_sim.programs.warmup does it once)")).start()
         s = self._settings
         log.info(f"scene '{self.scene.name}', integrator {s.method} "
                  f"({'dt ' + str(s.dt) if s.fixed_step else f'rtol {s.rtol}'}), publishing at "
                  f"{self.grid.hz:g} Hz of simulated time, real-time factor "
-                 f"{p.real_time_factor:g}{' (free-running)' if not p.real_time_factor else ''}")
+                 f"{p.real_time_factor:g}{' (free-running)' if not p.real_time_factor else ''}, "
+                 f"arm_controller {self.arm_controller.mode}")
         if self.arm is not None and self.arm.trajectories is not None:
             self.arm.trajectories.start()   # says so if the action is off
         for warning in self.view.warnings:
@@ -237,7 +250,7 @@ class SimulatorNode(Node):
 
     def _replace_engine(self) -> None:
         """The watchdog gave up on a stuck segment: a new engine (the old one is left to it)."""
-        self.sim = Simulation(self.scene, self._settings, arm_control=self.arm_control)
+        self.sim = Simulation(self.scene, self._settings, arm_controller=self.arm_controller)
         self.sim.set_wheel_speed_gains(*self.params.wheel_speed_gains)
         if self._recording is not None:
             self._recording.sim = self.sim
@@ -270,6 +283,7 @@ class SimulatorNode(Node):
 
     def close(self) -> None:
         """After `stop`, before the node is destroyed (SIGINT, SIGTERM, normal exit)."""
+        self._compiles.stop()
         self.view.close()
         if self._recording is not None:
             # While the context is up the node's logger; after SIGINT/SIGTERM shut it down, one

@@ -4,7 +4,10 @@ above all — compiles at run time. numba keeps the machine code beside the sour
 read-only install that was never warmed still runs, compiling in memory on first use.
 
 It runs each integrator on scenes that take every branch of the engine: end stops hit, rods
-resting and released, the Zeno guard, sampling, the wheel-speed loop, damping and locked joints.
+resting and released, the Zeno guard, sampling, the wheel-speed loop, damping and locked joints;
+then every arm controller mode with every feed-forward (`scene.arm_controller.MODES`), so a node
+in any mode compiles nothing after its start-up line (it loads what its run needs before it:
+`Simulation.load_kernels`).
 
 It talks as it goes (a bootstrap's log must never stay silent for long): how long it takes, up
 front; each kernel as it starts; and, while one compiles, a line of progress every few seconds
@@ -18,6 +21,7 @@ from importlib import resources
 from ..dynamics.jit import ENABLED
 from ..engine.simulation import Simulation
 from ..runtime.progress import Progress
+from ..scene.arm_controller import FEEDFORWARDS, MODES, ArmController
 from ..scene.loading import make_integrator, scene_from_text
 from ..scene.methods import METHODS
 
@@ -58,7 +62,23 @@ def warm(stream=sys.stderr) -> float:
             sim.advance_to(0.35)
             sim.set_efforts(wheels=[0.0, 0.0])
             sim.energy_error()
+            sim.load_kernels()
+        modes = dict.fromkeys(mode for mode, _ in controllers())
+        progress.note(f"warmup: the arm controllers ({', '.join(modes)}) "
+                      f"({time.perf_counter() - start:.0f} s)")
+        scene = scenes[SCENES[0]]
+        for mode, feedforward in controllers():
+            sim = Simulation(scene, arm_controller=ArmController(mode, feedforward=feedforward))
+            sim.load_kernels()
+            sim.advance_to(0.05)
     return time.perf_counter() - start
+
+
+def controllers():
+    """(mode, feed-forward) of every arm controller (the compiled law is one kernel for all:
+    each pair's Python-side calls are loaded once)."""
+    return [(name, feedforward) for name, mode in MODES.items() if mode.controlled
+            for feedforward in FEEDFORWARDS]
 
 
 def main() -> int:

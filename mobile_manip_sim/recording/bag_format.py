@@ -25,7 +25,6 @@ from mobile_manip_sim import __version__
 from mobile_manip_sim.ros.imu import METADATA_KEYS, METADATA_SEED, ImuNoise
 from mobile_manip_sim.ros.message_types import message_class
 from mobile_manip_sim.ros.topics import (
-    ARM_COMMAND_TOPICS,
     ARM_TOPIC,
     BAG_TOPIC_TYPES,
     BASE_COMMAND_TOPICS,
@@ -35,7 +34,14 @@ from mobile_manip_sim.ros.topics import (
 )
 from mobile_manip_sim.runtime.timeline import NS, CommandHistory, Grid
 from mobile_manip_sim.scene import limits, schema
-from mobile_manip_sim.scene.controller import ARM_MODES
+from mobile_manip_sim.scene.arm_controller import (
+    DEFAULT_FEEDFORWARD,
+    EFFORT,
+    GAINS,
+    MODES,
+    ArmController,
+    ModelError,
+)
 from mobile_manip_sim.scene.coordinates import ARM_U
 from mobile_manip_sim.scene.errors import UserError
 from mobile_manip_sim.scene.methods import METHODS
@@ -49,8 +55,11 @@ RUN_METADATA_KEYS = ("version", "integrator_method", "dt", "rtol", "atol", "scen
                      "sample_rate", "publish_rate", "duration", "base_command", "wheel_speed_kp",
                      "wheel_speed_ki", *METADATA_KEYS.values(), METADATA_SEED)
 # An arm controller's settings (a run not in effort mode): its mode, feedforward and gains per
-# arm joint (space-separated reprs, exact). An effort-mode bag has none of them.
-ARM_METADATA_KEYS = ("arm_controller", "arm_feedforward", "arm_kp", "arm_ki", "arm_kd")
+# arm joint (space-separated reprs, exact), and its feed-forward's model error when it has one.
+# An effort-mode bag has none of them.
+MODEL_ERROR_FIELDS = ("mass", "inertia", "payload")   # `ModelError`'s, when not the default
+ARM_METADATA_KEYS = ("arm_controller", "arm_feedforward", "arm_kp", "arm_ki", "arm_kd",
+                     *(f"arm_model_error_{name}" for name in MODEL_ERROR_FIELDS))
 RUN_METADATA_KEYS += ARM_METADATA_KEYS
 RUN_METADATA_NUMBERS = {"dt": limits.DT, "rtol": limits.RTOL, "atol": limits.ATOL,
                         "sample_rate": limits.SAMPLE_RATE, "publish_rate": limits.SAMPLE_RATE,
@@ -107,32 +116,37 @@ def checked_run_metadata(value, path: str = METADATA_NAME) -> dict:
     for key in needed:
         if key not in value:
             raise UserError(f"{path}.{key}", f"missing (a {value['source']} run records it)")
-    parsed["arm_control"] = _arm_control(value, path)
+    parsed["arm_controller"] = _arm_controller(value, path)
     return parsed
 
 
-def arm_control_metadata(control) -> dict:
-    """The metadata entries of an engine `ArmControl` resolved for its robot: none in effort
-    mode (such a bag is what it was before arm controllers existed)."""
-    if not control.active:
+def arm_controller_metadata(controller) -> dict:
+    """The metadata entries of an `ArmController` resolved for its robot: none in effort mode
+    (such a bag is what it was before arm controllers existed); the model error's only when the
+    feed-forward's model is not the plant's."""
+    if not controller.active:
         return {}
-    return {"arm_controller": control.mode, "arm_feedforward": control.feedforward,
-            **{f"arm_{name}": " ".join(repr(float(v)) for v in getattr(control, name))
-               for name in ("kp", "ki", "kd")}}
+    entries = {"arm_controller": controller.mode, "arm_feedforward": controller.feedforward,
+               **{f"arm_{name}": " ".join(repr(float(v)) for v in getattr(controller, name))
+                  for name in GAINS}}
+    error = controller.model_error
+    for name in MODEL_ERROR_FIELDS:
+        value = getattr(error, name)
+        if value != getattr(ModelError(), name):
+            entries[f"arm_model_error_{name}"] = repr(float(value))
+    return entries
 
 
-def _arm_control(value: dict, path: str):
-    """The `ArmControl` a bag's metadata records (effort mode without arm_controller)."""
-    from mobile_manip_sim.engine.arm_control import ArmControl
-
-    mode = value.get("arm_controller", "effort")
-    if mode not in ARM_MODES:
+def _arm_controller(value: dict, path: str):
+    """The `ArmController` a bag's metadata records (effort mode without arm_controller)."""
+    mode = value.get("arm_controller", EFFORT)
+    if mode not in MODES:
         raise UserError(f"{path}.arm_controller", f"unknown mode {schema.short(mode)} (choose "
-                                                  f"one of: {', '.join(ARM_MODES)})")
-    if mode == "effort":
-        return ArmControl()
+                                                  f"one of: {', '.join(MODES)})")
+    if not MODES[mode].controlled:
+        return ArmController()
     gains = []
-    for name in ("kp", "ki", "kd"):
+    for name in GAINS:
         key = f"arm_{name}"
         if key not in value:
             raise UserError(f"{path}.{key}", f"missing (arm_controller {mode} records its "
@@ -142,10 +156,29 @@ def _arm_control(value: dict, path: str):
         except ValueError:
             raise UserError(f"{path}.{key}", f"expected numbers, got "
                                              f"{schema.short(value[key])}") from None
+    error = {}
+    for name in MODEL_ERROR_FIELDS:
+        key = f"arm_model_error_{name}"
+        if key in value:
+            try:
+                error[name] = float(value[key])
+            except ValueError:
+                raise UserError(f"{path}.{key}", f"expected a number, got "
+                                                 f"{schema.short(value[key])}") from None
     try:
-        return ArmControl(mode, *gains, value.get("arm_feedforward", "gravity"))
+        return ArmController(mode, *gains, value.get("arm_feedforward", DEFAULT_FEEDFORWARD),
+                             ModelError(**error))
     except UserError as error:
         raise UserError(f"{path}.{error.key}", error.problem) from None
+
+
+def _check_gain_counts(controller, n_arm: int) -> None:
+    """A bag records its controller's gains resolved: one per arm joint of its scene."""
+    for name in GAINS if controller.active else ():
+        if len(getattr(controller, name)) != n_arm:
+            raise UserError(f"{METADATA_NAME}.arm_{name}", f"expected {n_arm} numbers (one per "
+                                                           f"arm joint of the bag's scene), got "
+                                                           f"{len(getattr(controller, name))}")
 
 
 # --- messages ---------------------------------------------------------------------------------
@@ -335,7 +368,8 @@ class RecordedRun:
         self.gains = ((metadata["wheel_speed_kp"], metadata["wheel_speed_ki"]) if self.velocity
                       else None)
         self.names = self.scene.robot.joint_names()
-        self.arm_control = metadata["arm_control"].for_robot(self.scene.robot)
+        self.arm_controller = metadata["arm_controller"]
+        _check_gain_counts(self.arm_controller, len(self.names) - 2)
         self.imu_noise = ImuNoise.from_metadata(metadata, METADATA_NAME)   # a node's /imu
 
     def check_robot(self) -> None:
@@ -400,19 +434,19 @@ class RecordedRun:
         there, in order (`timeline.apply_arm_command`'s); none in effort mode."""
         from mobile_manip_sim.ros.messages import arm_command_values
 
-        mode, events = self.arm_control.mode, {}
-        if not self.arm_control.active:
+        row, events = self.arm_controller.row, {}
+        if not row.controlled:
             return events
-        topic = ARM_COMMAND_TOPICS[mode]
+        mode, topic = row.name, row.topic
         arm_names = self.names[ARM_U]
         for message in self.bag.messages([topic]) if topic in self.bag.topics() else ():
             decoded = decode(message, BAG_TOPIC_TYPES[topic])
-            if mode == "joint_trajectory" and list(decoded.joint_names) != arm_names:
+            if not row.array and list(decoded.joint_names) != arm_names:
                 raise UserError(topic, f"joints {list(decoded.joint_names)} at "
                                        f"{message.log_time_ns} ns, expected the scene's "
                                        f"{arm_names}")
             command = arm_command_values(mode, decoded)
-            if mode != "joint_trajectory":
+            if row.array:
                 self.check_command(ARM_TOPIC, command)
             events.setdefault(message.log_time_ns, []).append(command)
         return events

@@ -37,7 +37,6 @@ from mobile_manip_sim.recording.bag_writer import DEFAULT_CHUNK_SIZE, BagWriter,
 from mobile_manip_sim.ros.cdr import exact_cdr
 from mobile_manip_sim.ros.messages import command_message
 from mobile_manip_sim.ros.topics import (
-    ARM_COMMAND_TOPICS,
     ARM_TOPIC,
     BASE_COMMAND_TOPICS,
     COMMAND_QOS_DEPTH,
@@ -49,6 +48,7 @@ from mobile_manip_sim.ros.topics import (
     TF_TOPIC,
     recorded_topics,
 )
+from mobile_manip_sim.scene.arm_controller import EFFORT, MODES
 from mobile_manip_sim.scene.errors import UserError
 
 # The order in which one publication's messages are written (the latched ones come first).
@@ -84,8 +84,8 @@ class RunRecorder:
         if base_command not in BASE_COMMAND_TOPICS:
             raise UserError("base_command", f"{base_command!r} is not effort or velocity")
         self._base_topic = BASE_COMMAND_TOPICS[base_command]
-        arm_controller = metadata.get("arm_controller", "effort")
-        self._arm_topic = ARM_COMMAND_TOPICS[arm_controller]
+        arm_controller = metadata.get("arm_controller", EFFORT)
+        self._arm_topic = MODES[arm_controller].topic
         self.writer = BagWriter(path, chunk_size=chunk_size)
         self.path = self.writer.path
         try:

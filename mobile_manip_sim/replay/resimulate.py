@@ -69,7 +69,7 @@ def start_run(run: RecordedRun):
     # A node's arm controller is its parameters' (in its metadata); a headless run's is
     # its scene's `controller:` section.
     sim = Simulation(run.scene, run.settings,
-                     arm_control=run.arm_control if run.source == "node" else None)
+                     arm_controller=run.arm_controller if run.source == "node" else None)
     if run.gains is not None:
         sim.set_wheel_speed_gains(*run.gains)
     if run.source == "node":
@@ -114,7 +114,7 @@ def resimulate(bag, tolerance: float) -> int:
                     apply_commands(sim, base_commands.at(start), arm_commands.at(start),
                                    run.velocity)
                     for command in arm_events.get(start, ()):
-                        apply_arm_command(sim, run.arm_control.mode, command)
+                        apply_arm_command(sim, run.arm_controller.mode, command)
                     sim.advance_to(t_end)
                 sim_stamp = stamp
             if message.topic == IMU_TOPIC:

@@ -223,10 +223,11 @@ def trajectory_values(message):
 
 def arm_command_message(mode: str, command, names, stamp: int):
     """The recorded message of an arm controller's command (`timeline.apply_arm_command`)."""
-    return joint_trajectory(command, names, stamp) if mode == "joint_trajectory" \
-        else float64_array(command)
+    from ..scene.arm_controller import MODES
+    return float64_array(command) if MODES[mode].array else joint_trajectory(command, names, stamp)
 
 
 def arm_command_values(mode: str, message):
     """The command of a recorded arm message (the inverse of ``arm_command_message``)."""
-    return trajectory_values(message) if mode == "joint_trajectory" else list(message.data)
+    from ..scene.arm_controller import MODES
+    return list(message.data) if MODES[mode].array else trajectory_values(message)

@@ -37,6 +37,8 @@ none of them; replay and plot do not need them.
 """
 from __future__ import annotations
 
+from ..scene.arm_controller import EFFORT, MODES
+
 JOINT_STATES_TOPIC = "/joint_states"
 ODOM_TOPIC = "/odom"
 CLOCK_TOPIC = "/clock"
@@ -48,7 +50,7 @@ ENERGY_TOPIC = "/energy"
 TF_TYPE = "tf2_msgs/msg/TFMessage"
 WHEEL_TOPIC = "/wheel_effort_controller/commands"
 CMD_VEL_TOPIC = "/cmd_vel"
-ARM_TOPIC = "/arm_effort_controller/commands"
+ARM_TOPIC = MODES[EFFORT].topic   # the arm's effort commands
 STATE_TOPICS = (JOINT_STATES_TOPIC, ODOM_TOPIC, CLOCK_TOPIC)
 # Published once (at start and on reset), transient local, depth 1: late joiners get them.
 LATCHED_TOPICS = (TF_STATIC_TOPIC, DESCRIPTION_TOPIC)
@@ -84,24 +86,23 @@ BAG_TOPIC_TYPES = {**TOPIC_TYPES, CMD_VEL_TOPIC: CMD_VEL_TYPE,
                    IMU_TOPIC: LIVE_TOPIC_TYPES[IMU_TOPIC]}
 
 # --- the arm's controllers (node parameter arm_controller; a bag's arm_controller metadata) ---
-# One command topic per mode, as ros2_controllers names them; joint_trajectory mode also has
-# the FollowJointTrajectory action and publishes the controller's state. A bag records the
-# commands of its run's mode as applied: arrays, or trajectories in the node's joint order,
-# stamped with the simulated time they applied (no points: hold where it is).
-ARM_POSITION_TOPIC = "/arm_position_controller/commands"
-ARM_VELOCITY_TOPIC = "/arm_velocity_controller/commands"
-TRAJECTORY_TOPIC = "/joint_trajectory_controller/joint_trajectory"
+# One command topic per mode, as ros2_controllers names them (the table of modes,
+# `scene.arm_controller.MODES`); joint_trajectory mode also has the FollowJointTrajectory action
+# and publishes the controller's state. A bag records the commands of its run's mode as applied
+# (the row's message type): arrays, or trajectories in the node's joint order, stamped with the
+# simulated time they applied (no points: hold where it is).
+ARM_POSITION_TOPIC = MODES["position"].topic
+ARM_VELOCITY_TOPIC = MODES["velocity"].topic
+TRAJECTORY_TOPIC = MODES["joint_trajectory"].topic
 TRAJECTORY_ACTION = "/joint_trajectory_controller/follow_joint_trajectory"
 CONTROLLER_STATE_TOPIC = "/joint_trajectory_controller/controller_state"
-TRAJECTORY_TYPE = "trajectory_msgs/msg/JointTrajectory"
 TRAJECTORY_ACTION_TYPE = "control_msgs/action/FollowJointTrajectory"
 CONTROLLER_STATE_TYPE = "control_msgs/msg/JointTrajectoryControllerState"
-ARM_COMMAND_TOPICS = {"effort": ARM_TOPIC, "position": ARM_POSITION_TOPIC,
-                      "velocity": ARM_VELOCITY_TOPIC, "joint_trajectory": TRAJECTORY_TOPIC}
-BAG_TOPIC_TYPES.update({ARM_POSITION_TOPIC: "std_msgs/msg/Float64MultiArray",
-                        ARM_VELOCITY_TOPIC: "std_msgs/msg/Float64MultiArray",
-                        TRAJECTORY_TOPIC: TRAJECTORY_TYPE})
-COMMAND_TOPICS = (*COMMAND_TOPICS, ARM_POSITION_TOPIC, ARM_VELOCITY_TOPIC, TRAJECTORY_TOPIC)
+TRAJECTORY_TYPE = MODES["joint_trajectory"].recorded
+ARM_COMMAND_TOPICS = {name: mode.topic for name, mode in MODES.items()}
+BAG_TOPIC_TYPES.update({mode.topic: mode.recorded for mode in MODES.values()})
+COMMAND_TOPICS = (*COMMAND_TOPICS, *(topic for topic in ARM_COMMAND_TOPICS.values()
+                                     if topic not in COMMAND_TOPICS))
 
 def recorded_topics(base_command: str = "effort", view: bool = True, imu: bool = False,
                     arm_controller: str = "effort") -> dict:

@@ -80,7 +80,7 @@ def run(scene: Scene, duration: float, sample_rate: float, settings=None, on_sam
     if progress:
         progress.follow(lambda: sim.t)
     timing_from = None
-    sim.tracking = Tracking(arm_width(sim.nu)) if sim.arm_control.active else None
+    sim.tracking = Tracking(arm_width(sim.nu)) if sim.arm_controller.active else None
     for t in sample_times(duration, sample_rate):
         sim.advance_to(t)
         if sim.tracking:

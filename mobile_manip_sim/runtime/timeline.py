@@ -29,6 +29,7 @@ from typing import Iterator
 
 import numpy as np
 
+from ..scene.arm_controller import MODES
 from ..scene.coordinates import arm_width
 
 NS = 10 ** 9
@@ -176,7 +177,8 @@ def start_node_time_line(sim) -> None:
     """The node's t = 0 (at start and after ~/reset): initial state, zero efforts (an arm
     controller holds the initial pose: `Simulation.reset`)."""
     sim.reset()
-    sim.set_efforts(np.zeros(2), None if sim.arm_control.active else np.zeros(arm_width(sim.nu)))
+    sim.set_efforts(np.zeros(2),
+                    None if sim.arm_controller.active else np.zeros(arm_width(sim.nu)))
 
 
 def apply_commands(sim, base, joints, velocity: bool) -> tuple[np.ndarray, np.ndarray]:
@@ -197,15 +199,15 @@ def apply_commands(sim, base, joints, velocity: bool) -> tuple[np.ndarray, np.nd
 
 def apply_arm_command(sim, mode: str, command) -> None:
     """An arm controller's command as it enters the engine at a segment start (node and
-    re-simulation alike): in ``mode`` position or velocity the n_arm values; in joint_trajectory
-    a `trajectory_goals.Trajectory` (times in integer ns; no points: hold where it is). A
-    command the engine refuses is its UserError."""
-    if mode == "position":
-        sim.set_arm_positions(command)
-    elif mode == "velocity":
-        sim.set_arm_velocities(command)
+    re-simulation alike), through the engine setter of the ``mode``'s row
+    (`scene.arm_controller.MODES`): in an array mode (position, velocity) the n_arm values; in
+    joint_trajectory a `trajectory_goals.Trajectory` (times in integer ns; no points: hold where
+    it is). A command the engine refuses is its UserError."""
+    row = MODES[mode]
+    if row.array:
+        getattr(sim, row.setter)(command)
     elif len(command.times) == 0:
         sim.hold_arm()
     else:
-        sim.set_arm_trajectory(command.times / NS, command.positions, command.velocities,
-                               command.accelerations)
+        getattr(sim, row.setter)(command.times / NS, command.positions, command.velocities,
+                                 command.accelerations)

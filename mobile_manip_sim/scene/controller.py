@@ -1,89 +1,115 @@
-"""A scene's ``controller:`` section → a validated `ControllerSection`: how the arm is driven
-in a headless run (docs/scene.md, "The arm controller") and the commands applied at t = 0.
+"""A scene's ``controller:`` section → a validated `ControllerSection`: the arm controller of a
+headless run (`arm_controller.ArmController`, docs/controllers.md) and the command it takes at
+t = 0.
 
     controller:
-      arm: position            # effort | position | velocity | joint_trajectory
+      arm_controller: position # effort | position | velocity | joint_trajectory (old name: arm)
       feedforward: gravity     # none | gravity | computed_torque
       gains: {kp: 300, ki: [...], kd: ...}   # one number or one per arm joint; optional
+      model_error: {mass: 0.2, inertia: 0.0, payload: 0.5}   # the feed-forward's model; optional
       positions: [...]         # position mode: the set-point (default: the initial pose)
       velocities: [...]        # velocity mode: the joint velocities (default: zero)
       trajectory:              # joint_trajectory mode (default: hold the initial pose)
         points:
           - {time_from_start: 1.0, positions: [...], velocities: [...], accelerations: [...]}
 
-Scene layer (numpy only): the engine turns it into an `engine.arm_control.ArmControl` and the
-commands of `engine.arm_commands`. The mode and feedforward names are that module's; a check that
-needs the dynamics (holding a point against gravity within the effort limits) is the engine's.
+The key of a mode's command is its row's ``command`` (`arm_controller.MODES`). Scene layer (numpy
+only): a check that needs the dynamics (holding a point against gravity within the effort
+limits) is the engine's.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
 from . import schema
+from .arm_controller import (
+    ARM_MODES,
+    DEFAULT_FEEDFORWARD,
+    EFFORT,
+    FEEDFORWARDS,
+    GAINS,
+    MODES,
+    ArmController,
+    ModelError,
+)
 from .coordinates import arm_size, arm_slide
 from .errors import UserError
-from .limits import ANGLE, DURATION, SPEED, TRAJECTORY_POINTS
+from .limits import ANGLE, DURATION, MASS, MODEL_ERROR, SPEED, TRAJECTORY_POINTS
 
-ARM_MODES = ("effort", "position", "velocity", "joint_trajectory")
-FEEDFORWARDS = ("none", "gravity", "computed_torque")
-GAINS = ("kp", "ki", "kd")
-COMMAND_OF_MODE = {"position": "positions", "velocity": "velocities",
-                   "joint_trajectory": "trajectory"}
+MODE_KEY, OLD_MODE_KEY = "arm_controller", "arm"   # the old name is still read
+COMMAND_KEYS = tuple(mode.command for mode in MODES.values() if mode.controlled)
 
 
 @dataclass(frozen=True)
 class ControllerSection:
-    arm: str = "effort"
-    feedforward: str = "gravity"
-    gains: dict | None = None           # {"kp": (n_arm,), …}, the keys given
-    positions: np.ndarray | None = None
-    velocities: np.ndarray | None = None
-    trajectory: tuple | None = None     # (times, positions, velocities, accelerations); the
-                                        # last two None when the points give none
+    arm_controller: ArmController = ArmController()
+    # the mode's command at t = 0 (its row's ``command``): an (n_arm,) array, or the trajectory
+    # (times, positions, velocities, accelerations), the last two None when the points give
+    # none; None: hold the initial pose
+    command: object = None
 
 
 def parse_controller(doc, robot, stroke_limits_on: bool) -> ControllerSection | None:
-    """The validated section (None when the scene has none). Gain bounds are checked again by
-    `ArmControl`; strokes here when the scene's stroke limits are on."""
+    """The validated section (None when the scene has none). Gain counts are checked again by
+    the engine (`arm_control.for_robot`); strokes here when the scene's stroke limits are on."""
     if doc is None:
         return None
     path = "controller"
     doc = schema.mapping(doc, path)
-    schema.keys(doc, path, optional=("arm", "feedforward", "gains", "positions", "velocities",
-                                     "trajectory"))
+    schema.keys(doc, path, optional=(MODE_KEY, OLD_MODE_KEY, "feedforward", "gains",
+                                     "model_error", *COMMAND_KEYS))
+    if MODE_KEY in doc and OLD_MODE_KEY in doc:
+        raise UserError(f"{path}.{OLD_MODE_KEY}", f"the old name of {MODE_KEY}: give one")
+    key = OLD_MODE_KEY if OLD_MODE_KEY in doc else MODE_KEY
     n_arm = arm_size(robot.n_links)
-    arm = _choice(doc.get("arm", "effort"), f"{path}.arm", ARM_MODES)
-    feedforward = _choice(doc.get("feedforward", "gravity"), f"{path}.feedforward", FEEDFORWARDS)
-    for key, mode in (("positions", "position"), ("velocities", "velocity"),
-                      ("trajectory", "joint_trajectory")):
-        if key in doc and arm != mode:
-            raise UserError(f"{path}.{key}", f"applies to arm: {mode}, not arm: {arm}")
-    if arm != "effort" and n_arm == 0:
-        raise UserError(f"{path}.arm", "the robot has no arm to control")
-    gains = None
+    mode = MODES[_choice(doc.get(key, EFFORT), f"{path}.{key}", ARM_MODES)]
+    feedforward = _choice(doc.get("feedforward", DEFAULT_FEEDFORWARD), f"{path}.feedforward",
+                          FEEDFORWARDS)
+    for other in COMMAND_KEYS:
+        if other in doc and other != mode.command:
+            owner = next(m.name for m in MODES.values() if m.command == other)
+            raise UserError(f"{path}.{other}", f"applies to {key}: {owner}, not {key}: "
+                                               f"{mode.name}")
+    if mode.controlled and n_arm == 0:
+        raise UserError(f"{path}.{key}", "the robot has no arm to control")
+    gains = {}
+    for name in ("gains", "model_error"):
+        if name in doc and not mode.controlled:
+            raise UserError(f"{path}.{name}", f"the arm is in effort mode: no {name} apply")
     if "gains" in doc:
-        if arm == "effort":
-            raise UserError(f"{path}.gains", "the arm is in effort mode: no gains apply")
         value = schema.mapping(doc["gains"], f"{path}.gains")
         schema.keys(value, f"{path}.gains", optional=GAINS)
         gains = {name: tuple(schema.vector_or_scalar(value[name], n_arm, f"{path}.gains.{name}",
                                                      nonnegative=True, hi=1e9))
                  for name in GAINS if name in value}
-    section = ControllerSection(arm=arm, feedforward=feedforward, gains=gains)
+    error = _model_error(doc["model_error"]) if "model_error" in doc else ModelError()
+    controller = ArmController(mode.name, feedforward=feedforward, model_error=error, **gains)
     stroke = np.asarray(robot.stroke).reshape(-1, 2) if stroke_limits_on else None
     names = robot.joint_names()[2:]
-    if "positions" in doc:
-        positions = schema.vector(doc["positions"], n_arm, f"{path}.positions", lo=-ANGLE, hi=ANGLE)
-        _check_stroke(positions, stroke, names, f"{path}.positions")
-        section = replace(section, positions=positions)
-    if "velocities" in doc:
-        section = replace(section, velocities=schema.vector(
-            doc["velocities"], n_arm, f"{path}.velocities", lo=-SPEED, hi=SPEED))
-    if "trajectory" in doc:
-        section = replace(section, trajectory=_trajectory(doc["trajectory"], n_arm, stroke, names))
-    return section
+    command = doc.get(mode.command) if mode.controlled else None
+    if command is not None and mode.array:   # one value per arm joint (the engine checks more)
+        bound = SPEED if mode.command == "velocities" else ANGLE
+        key = f"{path}.{mode.command}"
+        command = schema.vector(command, n_arm, key, lo=-bound, hi=bound)
+        if mode.command == "positions":
+            _check_stroke(command, stroke, names, key)
+    elif command is not None:
+        command = _trajectory(command, n_arm, stroke, names)
+    return ControllerSection(controller, command)
+
+
+def _model_error(doc) -> ModelError:
+    path = "controller.model_error"
+    doc = schema.mapping(doc, path)
+    schema.keys(doc, path, optional=("mass", "inertia", "payload"))
+    values = {name: schema.number(doc[name], f"{path}.{name}", lo=MODEL_ERROR[0],
+                                  hi=MODEL_ERROR[1])
+              for name in ("mass", "inertia") if name in doc}
+    if doc.get("payload") is not None:
+        values["payload"] = schema.number(doc["payload"], f"{path}.payload", lo=0.0, hi=MASS[1])
+    return ModelError(**values)
 
 
 def _choice(value, path, choices) -> str:

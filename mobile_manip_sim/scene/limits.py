@@ -32,6 +32,9 @@ RECORDED_DURATION = (1e-9, DURATION[1])   # s, a headless bag's duration (a run 
 WHEEL_SPEED_GAIN = (0.0, 1e6)      # kp N·m·s/rad, ki N·m/rad: the wheel-speed loop's gains
 # the arm PID's kp, ki, kd (N·m/rad, N·m/(rad·s), N·m·s/rad; N/m … for a slide)
 ARM_GAIN = (0.0, 1e9)
+# the arm feed-forward's relative model error (mass, inertia): −0.9 = 10 % of the plant's
+MODEL_ERROR = (-0.9, 10.0)
+MODEL_PAYLOAD = (-1.0, MASS[1])    # kg the feed-forward assumes; negative: the scene's payload
 TRAJECTORY_POINTS = 100_000        # points of one arm trajectory
 
 # --- the node's parameters (besides the gains and the integrator overrides, 0 = the scene's)

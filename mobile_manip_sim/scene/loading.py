@@ -354,9 +354,11 @@ def parse_scene(doc, name="scene") -> Scene:
         effects=effects, integrator=integrator,
         duration=_number(doc.get("duration", 1.0), "duration", positive=True, hi=DURATION[1]),
         document={}, controller=controller)
-    if controller is not None and controller.arm != "effort" and np.any(scene.joint_efforts):
-        raise UserError("efforts.joints", f"the arm is driven by controller.arm: {controller.arm} "
-                                          f"(remove the joint efforts)")
+    if controller is not None and controller.arm_controller.active \
+            and np.any(scene.joint_efforts):
+        raise UserError("efforts.joints", f"the arm is driven by controller.arm_controller: "
+                                          f"{controller.arm_controller.mode} (remove the joint "
+                                          f"efforts)")
     check_work(scene.duration, integrator, "duration", "integrator.dt")
     object.__setattr__(scene, "document", _document(doc, scene))
     return scene

@@ -12,9 +12,10 @@ import pytest
 from executables import executable
 from mobile_manip_sim.dynamics import Dynamics
 from mobile_manip_sim.engine import layout
-from mobile_manip_sim.engine.arm_control import ArmControl, gravity_efforts
+from mobile_manip_sim.engine.arm_control import default_controller, for_robot, gravity_efforts
 from mobile_manip_sim.engine.simulation import Simulation
 from mobile_manip_sim.engine.system import ARM_CONTROL_STAGE, RHS_EVALS
+from mobile_manip_sim.scene.arm_controller import ArmController, ModelError
 from mobile_manip_sim.scene.errors import UserError
 from mobile_manip_sim.scene.loading import load_scene, make_integrator, parse_scene
 from mobile_manip_sim.scene.methods import NAMES as METHOD_NAMES
@@ -40,7 +41,7 @@ def paper_scene(method="rk4", **effects):
 
 def paper(mode="position", method="rk4", effects=None, **control):
     return Simulation(paper_scene(method, **(effects or {})),
-                      arm_control=ArmControl(mode, **control))
+                      arm_controller=ArmController(mode, **control))
 
 
 def arm(sim):
@@ -69,7 +70,7 @@ def test_effort_mode_runs_are_bit_identical_to_main(tmp_path, name, flags):
 
 def test_effort_mode_has_no_controller_states_and_runs_no_controller_stage():
     sim = Simulation(paper_scene())
-    assert not sim.arm_control.active
+    assert not sim.arm_controller.active
     assert sim.s.size == layout.state_size(sim.nu)
     sim.advance_to(0.1)
     assert sim.system.counters[ARM_CONTROL_STAGE] == 0
@@ -123,7 +124,7 @@ def test_every_integrator_carries_the_controller(method):
     2 % of the step, and the energy balance is within each method's order."""
     scene = paper_scene()
     settings = make_integrator(scene.integrator, method, dt=1e-3, rtol=1e-8, atol=1e-10)
-    sim = Simulation(scene, settings, ArmControl("position", feedforward="computed_torque"))
+    sim = Simulation(scene, settings, ArmController("position", feedforward="computed_torque"))
     target = arm(sim) + STEP
     sim.set_arm_positions(target)
     sim.advance_to(1.0)
@@ -368,14 +369,77 @@ def test_effort_mode_takes_no_arm_references():
 def test_gains_are_checked_and_filled_in():
     robot = paper_scene().robot
     with pytest.raises(UserError, match="arm_gains.kp: expected one number or 4"):
-        ArmControl("position", kp=(1.0, 2.0)).for_robot(robot)
+        for_robot(ArmController("position", kp=(1.0, 2.0)), robot)
     with pytest.raises(UserError, match="arm_gains.kd: expected numbers in"):
-        ArmControl("position", kd=-1.0)
+        ArmController("position", kd=-1.0)
     with pytest.raises(UserError, match="arm_controller: unknown mode 'torque'"):
-        ArmControl("torque")
-    filled = ArmControl("velocity", kp=50.0).for_robot(robot)
+        ArmController("torque")
+    filled = for_robot(ArmController("velocity", kp=50.0), robot)
     assert filled.kp == (50.0,) * 4
-    assert filled.kd == ArmControl.default(robot, "velocity").kd == (17.0, 80.0, 3.4, 40.0)
+    assert filled.kd == default_controller(robot, "velocity").kd == (17.0, 80.0, 3.4, 40.0)
+
+
+# --- the feed-forward's model error (docs/controllers.md, "Model error") ----------------------
+
+def smooth_tracking(model_error, duration=2.0):
+    """Computed torque at the default gains on q_ref ≈ q0 + A (1 − cos ωt) (1 Hz, the arm's
+    state at t = 0 on the reference: no transient), quintic points every 10 ms, dop853 at
+    rtol 1e-10: (max |q − q_ref| per joint, the engine's own reference, max |τ_j| applied per
+    joint, the kp of each joint)."""
+    sim = paper("joint_trajectory", method="dop853", feedforward="computed_torque",
+                model_error=model_error)
+    q0, w = arm(sim), 2.0 * np.pi
+    amplitude = np.array([0.2, 0.05, 0.3, 0.05])
+    T = np.arange(1, int(duration * 100) + 1) * 0.01
+    sim.set_arm_trajectory(T, q0 + np.outer(1.0 - np.cos(w * T), amplitude),
+                           np.outer(w * np.sin(w * T), amplitude),
+                           np.outer(w * w * np.cos(w * T), amplitude))
+    worst, effort = np.zeros(4), np.zeros(4)
+    for t in np.arange(1, int(duration * 200) + 1) * 5e-3:
+        sim.advance_to(t)
+        worst = np.maximum(worst, np.abs(arm(sim) - sim.arm_reference()[0]))
+        effort = np.maximum(effort, np.abs(sim.joint_efforts_applied()))
+    assert abs(sim.energy_error()) < 1e-7   # the plant's balance, whatever the controller's model
+    return worst, effort, np.array(sim.arm_controller.kp)
+
+
+def test_without_model_error_computed_torque_tracks_to_1e_10_and_the_plant_model_is_shared():
+    exact = paper(feedforward="computed_torque", model_error=ModelError())
+    assert exact.system.data.ff_model is exact.system.data.model   # the very same record
+    worst, _, _ = smooth_tracking(ModelError())
+    assert worst.max() < 1e-9
+
+
+@pytest.mark.parametrize("error", [ModelError(mass=0.2, inertia=0.2), ModelError(mass=-0.2)])
+def test_with_a_model_error_the_tracking_error_stays_within_the_documented_bound(error):
+    """docs/controllers.md: with every inertial parameter off by δ the feed-forward is off by
+    about δ τ, a disturbance the PID (critically damped, |kp − M ω² + j kd ω| ≥ kp at every ω)
+    turns into |e_j| ≤ 2 |δ| max|τ_j| / kp_j. The error grows with δ (linear: the same run at
+    δ/2 has half the error, within 10 %)."""
+    delta = max(abs(error.mass), abs(error.inertia))
+    worst, effort, kp = smooth_tracking(error)
+    assert np.all(worst <= 2.0 * delta * effort / kp)
+    assert worst.max() > 1e3 * 1e-9   # far above the exact model's
+    half = ModelError(mass=error.mass / 2, inertia=error.inertia / 2)
+    ratio = worst.max() / smooth_tracking(half)[0].max()
+    assert 1.8 < ratio < 2.2
+
+
+def test_the_gravity_feedforward_of_a_heavier_model_is_the_gravity_of_that_model():
+    """G is linear in the masses: +20 % on every mass (the paper robot has no payload) is 1.2 G;
+    a payload the feed-forward assumes is the gravity of the robot carrying it (the project's
+    inverse dynamics with that tip mass)."""
+    exact = paper(feedforward="gravity", **ZERO_GAINS)
+    heavier = paper(feedforward="gravity", model_error=ModelError(mass=0.2), **ZERO_GAINS)
+    loaded = paper(feedforward="gravity", model_error=ModelError(payload=0.7), **ZERO_GAINS)
+    dynamics = Dynamics(exact.model, gravity=10.0, tip_mass=0.7)
+    for q, u in random_states(exact, 3, seed=4):
+        for sim in (exact, heavier, loaded):
+            sim.s[:sim.nq], sim.s[sim.nq:sim.nq + sim.nu] = q, u
+        G = exact.joint_efforts_applied()
+        assert np.allclose(heavier.joint_efforts_applied(), 1.2 * G, rtol=1e-12, atol=1e-12)
+        at_rest = dynamics.inverse_dynamics(q, np.zeros(exact.nu), np.zeros(exact.nu))[2:]
+        assert np.allclose(loaded.joint_efforts_applied(), at_rest, rtol=1e-10, atol=1e-10)
 
 
 # --- continuous joints and the held last point, as joint_trajectory_controller --------------
@@ -387,7 +451,7 @@ def started_at(q_arm, mode="joint_trajectory", **control):
     """The paper robot with its arm at q_arm (rad, m) at rest, its controller holding there."""
     doc = copy.deepcopy(paper_scene().document)
     doc["initial"]["joints"] = list(q_arm)
-    return Simulation(parse_scene(doc), arm_control=ArmControl(mode, **control))
+    return Simulation(parse_scene(doc), arm_controller=ArmController(mode, **control))
 
 
 def test_a_continuous_joint_trajectory_from_3_to_minus_3_rad_turns_the_short_way():

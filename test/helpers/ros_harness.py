@@ -133,3 +133,9 @@ def warm_kernels(*integrators) -> None:
         sim.set_efforts([0.0, 0.0], [0.0] * 4)
         sim.advance_to(1.5)
         assert sim.impacts, f"{method}: the warm-up run reached no end stop"
+        sim.load_kernels()
+    # the node's default arm controller (joint_trajectory): its Python-side kernels too
+    from mobile_manip_sim.scene.arm_controller import ArmController
+    for method, dt in integrators:
+        Simulation(scene, make_integrator(scene.integrator, method, dt),
+                   arm_controller=ArmController("joint_trajectory")).load_kernels()

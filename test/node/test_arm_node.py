@@ -185,6 +185,45 @@ def test_a_velocity_mode_run_moves_at_its_rates_stops_and_resimulates(probe, tmp
     assert "IDENTICAL" in resimulate(bag)
 
 
+def test_the_default_node_holds_the_initial_pose_and_compiles_nothing_after_start_up(
+        probe, tmp_path):
+    """No arm_controller parameter: joint_trajectory, the arm holding its initial pose from the
+    first state on (the gravity feed-forward holds it exactly up to rounding: 1e-9 over 0.5 s),
+    then following a trajectory from the topic. The node loaded its kernels before its start-up
+    line, which names the mode: nothing compiles afterwards (it would say so)."""
+    from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+    publisher = probe.node.create_publisher(JointTrajectory,
+                                            "/joint_trajectory_controller/joint_trajectory", 10)
+    node = start(tmp_path, child_env(DOMAIN_ID), "-r", "__node:=default_arm_sim", probe=probe)
+    target = [0.2, 0.6, -0.3, 0.4]
+    try:
+        first = wait_for(lambda: probe.snapshot("joints"), "a joint state")[0]
+        wait_for(lambda: probe.snapshot("joints")[-1][0] >= first[0] + 5 * 10 ** 8,
+                 "0.5 s of states")
+        held = probe.snapshot("joints")
+        wait_for(lambda: publisher.get_subscription_count() > 0, "the trajectory subscription")
+        message = JointTrajectory(joint_names=NAMES)
+        point = JointTrajectoryPoint(positions=target)
+        point.time_from_start.sec = 1
+        message.points.append(point)
+        publisher.publish(message)
+        wait_for(lambda: _ended(probe, target), "the arm at the trajectory's end", 60.0)
+    finally:
+        probe.node.destroy_publisher(publisher)
+        assert node.stop() == 0, node.output()
+
+    def arm(state):
+        index = {name: i for i, name in enumerate(state[4])}
+        return [state[1][index[name]] for name in NAMES]
+    assert arm(first) == [0.3, 0.5, -0.2, 0.5]   # the paper scene's initial pose
+    drift = max(abs(a - b) for state in held for a, b in zip(arm(state), arm(first), strict=True))
+    assert drift < 1e-9 and len(held) >= 50
+    output = node.output()
+    assert "arm_controller joint_trajectory" in next(
+        line for line in output.splitlines() if "publishing at" in line)
+    assert "compiled " not in output, output
+
+
 def test_without_control_msgs_the_topic_works_and_the_node_says_so_once(probe, tmp_path):
     from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
     publisher = probe.node.create_publisher(JointTrajectory,

@@ -31,6 +31,7 @@ from ros_harness import NodeProcess, on_domain, private_domain, spinning
 from ros_harness import child_env as ros_child_env
 from ros_harness import cpu_seconds as process_cpu_seconds
 from ros_harness import wait_for as harness_wait_for
+from ros_harness import warm_kernels as warm_methods
 
 DOMAIN_ID = private_domain(100, 199)
 HELPERS = os.path.join(os.path.dirname(__file__), "..", "helpers")
@@ -39,6 +40,9 @@ RATE = 100                       # publish_rate (Hz) of the shared node
 PERIOD_NS = 10 ** 9 // RATE
 FAST = ["-p", "integrator.method:=rk4", "-p", "integrator.dt:=0.001",
         "-p", "real_time_factor:=5.0"]
+# The arm takes efforts where a test sends them: the node's default arm controller holds the
+# initial pose (joint_trajectory, test_arm_node.py) and takes no efforts.
+EFFORT_ARM = ["-p", "arm_controller:=effort"]
 TIMEOUT = 20.0                   # s of wall time for any one condition
 STARTUP_TIMEOUT = 60.0           # a loaded machine may need to compile the kernels first
 RELIABLE = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
@@ -150,7 +154,11 @@ def probe(warm_kernels):
 def start_simulator(probe, tmp_path, *args) -> SimulatorProcess:
     """Start a node; wait until it is connected and publishing. probe.run() then holds what
     arrived since the start (other nodes on the domain must be paused); the first messages may
-    have gone out before discovery, so the run need not begin at t = 0."""
+    have gone out before discovery, so the run need not begin at t = 0. The arm takes efforts
+    (EFFORT_ARM) unless ``args`` choose its controller: these tests drive the node by efforts
+    and wait for its arm effort subscription (the default controller is test_arm_node's)."""
+    if not any(str(arg).startswith("arm_controller:=") for arg in args):
+        args = (*args, *EFFORT_ARM)
     marks = probe.marks()
     arm_readers = probe.arm.get_subscription_count()   # another node's count for nothing here
     simulator = SimulatorProcess(tmp_path, *args)
@@ -170,7 +178,7 @@ def start_simulator(probe, tmp_path, *args) -> SimulatorProcess:
 @pytest.fixture(scope="module")
 def simulator(probe, tmp_path_factory):
     """One node for most tests (command timeout off); each test starts with a reset."""
-    simulator = start_simulator(probe, tmp_path_factory.mktemp("node"), *FAST,
+    simulator = start_simulator(probe, tmp_path_factory.mktemp("node"), *FAST, *EFFORT_ARM,
                                 "-p", "command_timeout:=0.0")
     yield simulator
     code = simulator.stop()
@@ -330,7 +338,7 @@ def test_command_timeout_zeroes_efforts_once_per_silence(probe, simulator, tmp_p
     # The shared node idles (paused: it publishes nothing) while this one, under another node
     # name so that the services do not clash, runs on the same topics.
     probe.pause(True)
-    node = start_simulator(probe, tmp_path, *FAST, "-p", "command_timeout:=0.2",
+    node = start_simulator(probe, tmp_path, *FAST, *EFFORT_ARM, "-p", "command_timeout:=0.2",
                            "-r", "__node:=timeout_sim")
     try:
         wheels, arm = (0.3, 0.3), (1.0, 2.0, 3.0, 4.0)
@@ -422,6 +430,9 @@ def test_a_huge_command_after_a_reset_pauses_the_node_until_reset(probe, simulat
     """Each segment failure ends in one error line naming the cause ("simulation failed …"); the
     node pauses, answers services, and ~/reset brings publishing back."""
     from geometry_msgs.msg import Twist
+    # The node loads its kernels before its first message: compile this method's here, where
+    # the start-up wait does not count it (the other tests' rk4 is the warm_kernels fixture's).
+    warm_methods((method, 0.001))
     probe.pause(True)
     name = f"huge_{method}_sim"
     velocity = ["-p", "base_command:=velocity"] if topic == "cmd_vel" else []
@@ -581,7 +592,7 @@ def lockstep_run(tmp_path, name: str, states: int):
     node = subprocess.Popen([SIMULATOR, "--ros-args", "-p", "integrator.method:=rk4",
                              "-p", "integrator.dt:=0.001", "-p", "real_time_factor:=0.0",
                              "-p", "synchronous:=true", "-p", "sync_timeout:=5.0",
-                             "-p", "command_timeout:=0.0", "-p", f"record:={bag}"],
+                             "-p", "command_timeout:=0.0", "-p", f"record:={bag}", *EFFORT_ARM],
                             env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
         time.sleep(0.5)   # the controller starts after the node
@@ -815,7 +826,7 @@ def test_at_real_time_factor_1_the_node_holds_at_most_200_mb_and_none_of_llvm(pr
     probe.pause(True)   # the shared node idles
     node = start_simulator(probe, tmp_path, "-p", "integrator.method:=rk4",
                            "-p", "integrator.dt:=0.001", "-p", "real_time_factor:=1.0",
-                           "-p", "command_timeout:=0.0", "-r", "__node:=memory_sim")
+                           "-p", "command_timeout:=0.0", *EFFORT_ARM, "-r", "__node:=memory_sim")
     try:
         scene = load_scene(None)
         probe.send(scene.wheel_efforts.tolist(), scene.joint_efforts.tolist())

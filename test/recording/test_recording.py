@@ -49,6 +49,8 @@ from ros_harness import wait_for as harness_wait_for
 DOMAIN_ID = private_domain(1, 99)   # test_node.py uses 100-199
 EXECUTABLES = {name: executable(name) for name in ("simulator", "simulate", "replay")}
 FAST = ["-p", "real_time_factor:=5.0", "-p", "integrator.method:=rk4", "-p", "integrator.dt:=0.001"]
+# The arm takes efforts where a test sends them (the node's default controller holds the pose)
+EFFORT_ARM = ["-p", "arm_controller:=effort"]
 PERIOD_NS = 10 ** 7                    # the node's default 100 Hz
 TIMEOUT = 20.0
 STARTUP_TIMEOUT = 60.0
@@ -178,6 +180,11 @@ class Simulator(NodeProcess):
 
 
 def start_simulator(probe, tmp_path, *args, **options) -> Simulator:
+    """A recording node up and subscribed. The arm takes efforts (EFFORT_ARM) unless ``args``
+    choose its controller: these tests send arm efforts and wait for the arm effort
+    subscription (a node recording its default controller is test_arm_node's)."""
+    if not any(str(arg).startswith("arm_controller:=") for arg in args):
+        args = (*args, *EFFORT_ARM)
     probe.clear()
     simulator = Simulator(tmp_path, *args, **options)
     try:
@@ -202,7 +209,7 @@ def node_run(probe, tmp_path_factory):
     """A node recording while the probe sends three command changes; stopped by SIGINT."""
     tmp_path = tmp_path_factory.mktemp("node_run")
     bag = tmp_path / "run"
-    simulator = start_simulator(probe, tmp_path, *FAST, "-p", f"record:={bag}")
+    simulator = start_simulator(probe, tmp_path, *FAST, *EFFORT_ARM, "-p", f"record:={bag}")
     try:
         # State 1 out means segment 0 took its commands (zeros): the first sent applies later.
         wait_for(lambda: any(ns(m.header.stamp) >= PERIOD_NS

@@ -8,10 +8,10 @@ from rclpy.serialization import deserialize_message, serialize_message
 from std_msgs.msg import Float64MultiArray
 from trajectory_msgs.msg import JointTrajectory
 
-from mobile_manip_sim.engine.arm_control import ArmControl
-from mobile_manip_sim.recording.bag_format import arm_control_metadata, checked_run_metadata
+from mobile_manip_sim.recording.bag_format import arm_controller_metadata, checked_run_metadata
 from mobile_manip_sim.ros.messages import arm_command_message, arm_command_values
 from mobile_manip_sim.ros.trajectory_goals import HOLD, Trajectory
+from mobile_manip_sim.scene.arm_controller import ArmController, ModelError
 
 NAMES = ["arm_revolute_1", "arm_prismatic_1", "arm_revolute_2", "arm_prismatic_2"]
 RUN = {"version": "0", "integrator_method": "rk4", "dt": "0.001", "rtol": "1e-06",
@@ -56,11 +56,18 @@ def test_set_points_are_float64_arrays():
 
 
 def test_the_controller_settings_round_trip_through_the_run_metadata():
-    control = ArmControl("joint_trajectory", (170.0, 800.0, 34.0, 1 / 3), (17.0,) * 4,
-                         (0.1, 0.2, 0.3, 0.4), "computed_torque")
-    entries = arm_control_metadata(control)
+    control = ArmController("joint_trajectory", (170.0, 800.0, 34.0, 1 / 3), (17.0,) * 4,
+                            (0.1, 0.2, 0.3, 0.4), "computed_torque")
+    entries = arm_controller_metadata(control)
     assert entries["arm_kp"] == "170.0 800.0 34.0 0.3333333333333333"
-    assert checked_run_metadata({**RUN, **entries})["arm_control"] == control
+    assert not any(key.startswith("arm_model_error") for key in entries)   # exact model
+    assert checked_run_metadata({**RUN, **entries})["arm_controller"] == control
+    # A model error is recorded exactly, and only the parts that differ from the plant's.
+    wrong = ArmController("position", (1.0,) * 4, (0.0,) * 4, (1.0,) * 4, "computed_torque",
+                          ModelError(mass=0.2, payload=1 / 3))
+    entries = arm_controller_metadata(wrong)
+    assert entries["arm_model_error_mass"] == "0.2" and "arm_model_error_inertia" not in entries
+    assert checked_run_metadata({**RUN, **entries})["arm_controller"] == wrong
     # Effort mode writes nothing: such a bag is what it was before arm controllers existed.
-    assert arm_control_metadata(ArmControl()) == {}
-    assert checked_run_metadata(dict(RUN))["arm_control"] == ArmControl()
+    assert arm_controller_metadata(ArmController()) == {}
+    assert checked_run_metadata(dict(RUN))["arm_controller"] == ArmController()
