@@ -28,8 +28,11 @@ MAX_WAIT = 3600.0   # s: the longest single wait (then the loop looks again)
 WATCHDOG_SECONDS = 10.0   # s of wall time without engine progress before a segment is reported
 
 
-class _Abandoned(Exception):
-    """Raised in a stepping thread whose segment was abandoned: the thread ends quietly."""
+class Abandoned(Exception):
+    """Raised in a stepping thread whose segment was abandoned: the thread ends quietly. The
+    ``compute`` callable raises it too, when it finds its engine replaced."""
+
+
 
 
 class State(enum.Enum):
@@ -100,7 +103,7 @@ class SteppingLoop:
         wrong in a turn ends it: the loop fails (one line) and waits for ~/reset."""
         try:
             started = self.begin()
-        except _Abandoned:
+        except Abandoned:
             return
         except Exception as error:
             started = self._crashed(error)
@@ -113,7 +116,7 @@ class SteppingLoop:
                 if not self.turn():
                     return
                 self._record()
-            except _Abandoned:
+            except Abandoned:
                 return
             except Exception as error:
                 if not self._crashed(error):
@@ -215,18 +218,20 @@ class SteppingLoop:
         self.k, self.now_ns = k, self.grid.stamp(k)
 
     def _segment(self):
-        """Compute segment k → k + 1: (k + 1, messages), or None when it failed. _Abandoned
+        """Compute segment k → k + 1: (k + 1, messages), or None when it failed. Abandoned
         when a reset gave up on it meanwhile."""
         with self.cv:
             k, start_ns, thread = self.k, self.now_ns, self.thread
             self.computing = [thread, start_ns, self._progress(), self.pacer.clock(), False]
         try:
             result = k + 1, self._compute(k, start_ns)
+        except Abandoned:
+            raise
         except Exception as error:
             result = error
         with self.cv:
             if thread != self.thread:
-                raise _Abandoned
+                raise Abandoned
             self.computing = None
         if isinstance(result, Exception):
             self._fail(start_ns, result)
