@@ -7,12 +7,12 @@ once: their last message at or before the start. A topic whose message type is n
 (`message_types`: a bag's type name never chooses what is imported) or whose name is not a
 valid ROS topic name is left out with a warning (named with ``--topics``: a one-line error).
 ``/clock`` comes from the bag and is always played, whatever the topics selected; a bag without
-it gets one ``rosgraph_msgs/Clock`` per distinct log time. With ``wait_for_subscribers`` playback is held until every played topic
-but the latched ones has a subscriber (for scripts and tests). Without it, playback still waits
-(at most DISCOVERY_TIMEOUT s) until the subscribers that already run are matched: a reliable
-subscriber matched late would miss the first ~0.4 s of the bag. The time it prints
-("played N messages … in S s") is the playing's alone, without these waits or the final wait
-for acknowledgements.
+it gets one ``rosgraph_msgs/Clock`` per distinct log time. With ``wait_for_subscribers``
+playback is held until every played topic but the latched ones has a subscriber (for scripts
+and tests). Without it, playback still waits (at most DISCOVERY_TIMEOUT s) until the
+subscribers that already run are matched: a reliable subscriber matched late would miss the
+first ~0.4 s of the bag. The time it prints ("played N messages … in S s") is the playing's
+alone, without these waits or the final wait for acknowledgements.
 """
 from __future__ import annotations
 
