@@ -135,6 +135,8 @@ def arm_gains(name: str, value) -> tuple:
     (ArmControl checks their range and count); UserError naming it otherwise."""
     if isinstance(value, str) and value == "":
         return ()
+    if value is None:   # -p arm_gains.kp:=[]: rclpy cannot type an empty list
+        raise UserError(name, "expected a number or a list of numbers, got an empty list")
     scalar = isinstance(value, (bool, int, float, str))
     values = [value] if scalar else list(value)   # a list: rclpy gives an array.array
     if not values or any(isinstance(v, bool) or not isinstance(v, (int, float)) for v in values):

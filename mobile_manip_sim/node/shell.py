@@ -17,7 +17,11 @@ from rcl_interfaces.msg import (
     SetParametersResult,
 )
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
-from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
+from rclpy.exceptions import (
+    InvalidParameterTypeException,
+    InvalidParameterValueException,
+    ParameterUninitializedException,
+)
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
@@ -154,7 +158,14 @@ class SimulatorNode(Node):
         if unknown:
             raise UserError(unknown[0], f"unknown parameter of {NODE_NAME} (known: "
                                         f"{', '.join(PARAMETERS)})")
-        return {name: self.get_parameter(name).value for name in PARAMETERS}
+        values = {}
+        for name in PARAMETERS:
+            try:
+                values[name] = self.get_parameter(name).value
+            except ParameterUninitializedException:   # -p NAME:=[]: rclpy cannot type it
+                raise UserError(name, f"expected {parameters.expected_kind(name)}, got an "
+                                      f"empty list") from None
+        return values
 
     def _validate_parameters(self, changes) -> SetParametersResult:
         for change in changes:

@@ -29,7 +29,7 @@ from mobile_manip_sim.recording.bag_format import (
 )
 from mobile_manip_sim.ros.messages import CLOCK_TOPIC, JOINT_STATES_TOPIC, NS, clock
 from mobile_manip_sim.ros.topics import LATCHED_TOPICS, TF_TYPE
-from mobile_manip_sim.scene import schema
+from mobile_manip_sim.scene import limits, schema
 from mobile_manip_sim.scene.errors import UserError
 
 ACK_TIMEOUT = 2.0          # s: how long to wait at the end for reliable subscribers to ack
@@ -41,7 +41,7 @@ DISCOVERY_TIMEOUT = 3.0
 DISCOVERY_SETTLE = 0.5
 SLEEP_SLICE = 0.05         # s: longest sleep between checks for a shutdown
 MAX_QOS_PROFILES = 100     # recorded publishers of one topic
-MAX_QOS_DEPTH = 100_000    # history depth: a deeper one is damage, and would be allocated
+MAX_QOS_DEPTH = limits.QOS_DEPTH[1]   # history depth: deeper is damage (and would be allocated)
 # An absolute ROS 2 topic name as a bag records it: /token(/token)*, tokens of letters, digits
 # and _, none starting with a digit (rcl's rules; anything else fails create_publisher).
 TOPIC_NAME = re.compile(r"(/[A-Za-z_][A-Za-z0-9_]*)+")

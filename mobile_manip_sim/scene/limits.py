@@ -43,5 +43,6 @@ SYNC_TIMEOUT = (0.001, 3600.0)     # wall s
 INTEGRATOR_OVERRIDE = (0.0, 1.0)   # integrator.dt, .rtol, .atol
 PORT = (0, 65535)                  # the live view's TCP port (node: 0 = off; simulate: 0 = any)
 LINGER = (0.0, 1e7)                # s simulate --view serves on after the run
+QOS_DEPTH = (1, 100_000)           # a topic's history depth (a QoS override, a bag's QoS)
 RECORDING_BAGS = 100               # bags one recording node opens (one per time line)
 IMU_SEED = (0, 2 ** 63 - 1)        # the IMU noise's seed (a ROS integer parameter is int64)
