@@ -189,8 +189,14 @@ def huge_revolute(client):
 
 
 def flood(client, count: int = 40):
-    """``count`` goals sent at once, none awaited: each is rejected or gets its result."""
-    futures = [client.action.send_goal_async(goal([(0.2, [0.1 * (i % 3), 0.4, 0.0, 0.4])]))
+    """``count`` goals sent at once, none awaited: each is rejected or gets its result. The
+    client keeps every answer (rclpy's default depth of 10 would drop its own)."""
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    deep = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+    action = ActionClient(client.node, FollowJointTrajectory, ACTION,
+                          goal_service_qos_profile=deep, result_service_qos_profile=deep)
+    client.spin_until(lambda: action.server_is_ready(), "the server, for the flood")
+    futures = [action.send_goal_async(goal([(0.2, [0.1 * (i % 3), 0.4, 0.0, 0.4])]))
                for i in range(count)]
     client.spin_until(lambda: all(f.done() for f in futures), "every goal's acceptance")
     handles = [f.result() for f in futures]

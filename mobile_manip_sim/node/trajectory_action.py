@@ -41,6 +41,10 @@ from ..runtime.timeline import NS
 
 WAIT_POLL = 0.5   # s: an execute callback checks this often that the node still runs
 MAX_GOALS = 2     # action goals accepted and not yet answered (the active one and its successor)
+# The action's goal, cancel and result services keep this many requests: rclpy's default (10)
+# drops the rest of a burst unanswered, a client then waits for ever (a goal the node never saw
+# cannot be rejected). Each request waiting costs one message.
+REQUEST_DEPTH = 1000
 
 
 def goal_of(trajectory: JointTrajectory, tolerances=None) -> Goal:
@@ -102,11 +106,15 @@ class TrajectoryInterface:
             from rclpy.action import ActionServer, CancelResponse, GoalResponse
             self._type, self._state_type = FollowJointTrajectory, JointTrajectoryControllerState
             self._cancel_response = CancelResponse.ACCEPT
+            from rclpy.qos import QoSProfile, ReliabilityPolicy
             self._responses = GoalResponse
+            requests = QoSProfile(depth=REQUEST_DEPTH, reliability=ReliabilityPolicy.RELIABLE)
             self._action = ActionServer(
                 node, FollowJointTrajectory, relative(TRAJECTORY_ACTION),
                 execute_callback=self._execute, goal_callback=self._on_goal,
-                cancel_callback=self._on_cancel, callback_group=ReentrantCallbackGroup())
+                cancel_callback=self._on_cancel, callback_group=ReentrantCallbackGroup(),
+                goal_service_qos_profile=requests, result_service_qos_profile=requests,
+                cancel_service_qos_profile=requests)
             self._state_pub = node.create_publisher(JointTrajectoryControllerState,
                                                     relative(CONTROLLER_STATE_TOPIC), state_qos())
         self._requests = {}   # goal id → Request (cancel looks it up)
