@@ -700,3 +700,47 @@ def test_a_node_bag_carries_rclpys_type_hashes(node_run):
         channels = make_reader(stream).get_summary().channels.values()
         assert {c.topic: c.metadata["topic_type_hash"] for c in channels} == {
             topic: expected[type_name] for topic, type_name in TOPIC_TYPES.items()}
+
+
+def _last_state_on_disk(path: Path) -> int:
+    """The latest /joint_states stamp that mcap's stream reader finds in the file so far (ns);
+    -1 when none."""
+    last = -1
+    try:
+        with open(path, "rb") as stream:
+            for _, channel, message in NonSeekingReader(stream).iter_messages(
+                    log_time_order=False):
+                if channel.topic == "/joint_states":
+                    last = max(last, message.log_time)
+    except (McapError, OSError, EOFError):
+        pass   # the cut at the open end of a file being written
+    return last
+
+
+def test_a_paused_node_puts_its_recording_on_disk_and_a_sigkill_keeps_it(probe, tmp_path):
+    """While paused nothing new is recorded, yet the open chunk goes to disk on the flush
+    timer: the state the pause stopped at reaches the file without any further state (it
+    stayed in memory for ever before), and survives a SIGKILL."""
+    from std_srvs.srv import SetBool
+    bag = tmp_path / "paused"
+    simulator = start_simulator(probe, tmp_path, *FAST, "-p", f"record:={bag}")
+    try:
+        wait_for(lambda: len(probe.messages("/joint_states")) > 20, "20 states")
+        client = probe.node.create_client(SetBool, "/mobile_manip_sim/pause")
+        try:
+            wait_for(client.service_is_ready, "the pause service")
+            future = client.call_async(SetBool.Request(data=True))
+            wait_for(future.done, "the pause")
+        finally:
+            probe.node.destroy_client(client)
+        answer = future.result().message
+        seconds, nanos = re.search(r"paused at t = (\d+)\.(\d{9}) s", answer).groups()
+        paused_at = int(seconds) * 10 ** 9 + int(nanos)
+        wait_for(lambda: _last_state_on_disk(bag_file(bag)) >= paused_at,
+                 "the state the node paused at, on disk")
+    finally:
+        code = simulator.stop(signal.SIGKILL)
+    assert code == -signal.SIGKILL
+    recovered = open_bag(bag)
+    stamps = [m.log_time_ns for m in recovered.messages() if m.topic == "/joint_states"]
+    assert stamps == [k * PERIOD_NS for k in range(len(stamps))] and stamps[-1] == paused_at
