@@ -479,6 +479,34 @@ def test_a_new_time_line_rotates_the_bag_and_a_failure_only_stops_recording(tmp_
             [0, 10_000_000]
 
 
+def test_a_recording_opens_at_most_max_bags_however_often_it_is_reset(tmp_path):
+    """A peer calling ~/reset in a loop: the node records at most RECORDING_BAGS time lines,
+    then one error line, and no further directory is made."""
+    from mobile_manip_sim.recording.recorder import RunRecorder
+    from mobile_manip_sim.recording.rotation import RotatingRecorder
+    from mobile_manip_sim.ros.messages import state_messages
+
+    scene = load_scene(None)
+    sim = Simulation(scene)
+    names = scene.robot.joint_names()
+    lines = []
+
+    def make_bag(path):
+        return RunRecorder(path, scene, scene.integrator, {"source": "node",
+                                                           "publish_rate": "100.0"})
+
+    recording = RotatingRecorder(tmp_path / "run", make_bag, lines.append, lines.append,
+                                 max_bags=3)
+    for _ in range(6):   # six time lines
+        for stamp in (0, 10_000_000):
+            recording.states(stamp, state_messages(sim, stamp, names), sim.impacts)
+    recording.close()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run", "run_1", "run_2"]
+    assert lines[-1] == ("recording stopped at the reset: 3 bags recorded, the most one node "
+                         "records (one per time line); the simulation goes on")
+    assert sum("recording stopped" in line for line in lines) == 1
+
+
 # --- replay -----------------------------------------------------------------------------------
 
 def test_replay_publishes_the_recorded_messages_in_order_at_the_recorded_rate(probe, headless_bags):
