@@ -26,7 +26,7 @@ from rosbags.rosbag2 import Reader as RosbagsReader
 from rosbags.typesys import Stores, get_typestore
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Float64MultiArray
+from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import Trigger
 
 from bag_rewrite import rewrite_bag
@@ -772,3 +772,42 @@ def test_a_paused_node_puts_its_recording_on_disk_and_a_sigkill_keeps_it(probe, 
     recovered = open_bag(bag)
     stamps = [m.log_time_ns for m in recovered.messages() if m.topic == "/joint_states"]
     assert stamps == [k * PERIOD_NS for k in range(len(stamps))] and stamps[-1] == paused_at
+
+
+def test_replay_imports_nothing_a_bag_names_and_leaves_out_names_rcl_refuses(tmp_path):
+    """A crafted bag: type names `this/msg/Zen` (which imported `this` and printed the Zen of
+    Python) and `..os/msg/X`, a topic `/bad name!` (create_publisher's traceback). Each is left
+    out with one warning and the rest plays; named with --topics, one line, status 2."""
+    from mcap.writer import Writer
+
+    from mobile_manip_sim.ros.message_definitions import definition_text
+    path = tmp_path / "hostile.mcap"
+    with open(path, "wb") as stream:
+        writer = Writer(stream)
+        writer.start(profile="ros2", library="test")
+        string = writer.register_schema("std_msgs/msg/String", "ros2msg",
+                                        definition_text("std_msgs/msg/String").encode())
+        zen = writer.register_schema("this/msg/Zen", "ros2msg", b"string data")
+        dots = writer.register_schema("..os/msg/X", "ros2msg", b"string data")
+        channels = [writer.register_channel(topic, "cdr", schema) for topic, schema in (
+            ("/chatter", string), ("/bad name!", string), ("/zen", zen), ("/os", dots))]
+        data = exact_cdr(String(data="hi"))
+        for k in range(5):
+            for channel in channels:
+                writer.add_message(channel, log_time=k * 10 ** 8, data=data,
+                                   publish_time=k * 10 ** 8)
+        writer.finish()
+    result = run_cli("replay", str(path))
+    assert result.returncode == 0, result.stderr
+    assert "played 5 messages on 1 topics" in result.stdout
+    assert "Beautiful is better than ugly" not in result.stdout + result.stderr
+    warnings = result.stderr.strip().splitlines()
+    assert warnings == [
+        "replay: warning: /bad name! not played: not a valid ROS 2 topic name",
+        "replay: warning: /zen not played: this/msg/Zen: package this is not a known ROS 2 "
+        "message package",
+        "replay: warning: /os not played: ..os/msg/X: not a message type name (package/msg/Type)"]
+    for topic in ("/zen", "/bad name!"):
+        named = run_cli("replay", str(path), "--topics", topic)
+        lines = named.stderr.strip().splitlines()
+        assert named.returncode == 2 and len(lines) == 1 and topic in lines[0], named.stderr
