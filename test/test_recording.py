@@ -28,6 +28,7 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import Trigger
+from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from bag_rewrite import rewrite_bag
 from executables import executable
@@ -811,3 +812,21 @@ def test_replay_imports_nothing_a_bag_names_and_leaves_out_names_rcl_refuses(tmp
         named = run_cli("replay", str(path), "--topics", topic)
         lines = named.stderr.strip().splitlines()
         assert named.returncode == 2 and len(lines) == 1 and topic in lines[0], named.stderr
+
+
+@pytest.mark.parametrize("rows", [[[0.1, 0.2], [0.1]], [[0.1, 0.2, 0.3], [0.1, 0.2, 0.3]],
+                                  [[], []]])
+def test_a_recorded_trajectory_with_ragged_or_wrong_length_points_is_one_line(rows):
+    """What `replay --resimulate` reads back from an arm trajectory record: a damaged one (rows
+    of the wrong length, ragged) is one line naming the point, not numpy's error."""
+    from mobile_manip_sim.ros.messages import trajectory_values
+    from mobile_manip_sim.scene.errors import UserError
+    message = JointTrajectory(joint_names=["a", "b"])
+    for i, row in enumerate(rows):
+        point = JointTrajectoryPoint(positions=row)
+        point.time_from_start.sec = i + 1
+        message.points.append(point)
+    with pytest.raises(UserError) as caught:
+        trajectory_values(message)
+    assert str(caught.value).startswith("recorded trajectory point ") and \
+        "\n" not in str(caught.value)
