@@ -31,7 +31,8 @@ class WireTrajectory(NamedTuple):
     start_ns: int                # header stamp (ns); 0 = now
     times: np.ndarray            # (m,) int64 ns: time_from_start
     fields: dict                 # "positions", "velocities", "accelerations", "effort" →
-    #                              (counts (m,) int64, values (m, width) float64 or None)
+    #                              (counts, offsets): (m,) int64 each, offsets into `words`' bytes
+    words: np.ndarray            # the message's payload as float64 words (values are aligned)
 
 
 class _Reader:
@@ -94,15 +95,19 @@ def read_trajectory(data: bytes) -> WireTrajectory:
                 r.at += 8 * n
         seconds[i], nanos[i] = take("i", 4), take("I", 4)
     words = np.frombuffer(r.data[:end - end % 8], dtype=np.dtype("<f8" if r.little else ">f8"))
-    fields = {}
-    for kind in kinds:
-        width = int(counts[kind].max()) if m else 0
-        values = None
-        if width:
-            index = offsets[kind][:, None] // 8 + np.arange(width)
-            values = words[np.minimum(index, words.size - 1)].astype(float)
-        fields[kind] = (counts[kind], values)
-    return WireTrajectory(joint_names, int(sec) * NS + int(nanosec), seconds * NS + nanos, fields)
+    fields = {kind: (counts[kind], offsets[kind]) for kind in kinds}
+    return WireTrajectory(joint_names, int(sec) * NS + int(nanosec), seconds * NS + nanos, fields,
+                          words)
+
+
+def _gather(wire: WireTrajectory, offsets: np.ndarray, n: int) -> np.ndarray:
+    """(m, n) values from each row's offset (rows whose count is not n hold anything: the
+    caller refuses them by their count). At most m × n values: a message cannot make it
+    allocate more than the goal it would be."""
+    if wire.words.size == 0:
+        return np.zeros((offsets.size, n))
+    index = np.minimum(offsets[:, None] // 8 + np.arange(n), wire.words.size - 1)
+    return wire.words[index].astype(float)
 
 
 def arrays(wire: WireTrajectory, names, codes: Codes) -> Trajectory | Outcome:
@@ -129,13 +134,11 @@ def arrays(wire: WireTrajectory, names, codes: Codes) -> Trajectory | Outcome:
     n, order = len(names), [given.index(name) for name in names]
     out = {}
     for field in ("positions", "velocities", "accelerations"):
-        counts, values = wire.fields[field]
+        counts, offsets = wire.fields[field]
         if field != "positions" and not counts.any():
             out[field] = None
             continue
-        values = values[:, :n] if values is not None else np.zeros((counts.size, n))
-        if values.shape[1] < n:
-            values = np.pad(values, ((0, 0), (0, n - values.shape[1])))
+        values = _gather(wire, offsets, n)
         wrong = counts != n
         finite = np.isfinite(values)
         bad = np.flatnonzero(wrong | ~finite.all(axis=1))
