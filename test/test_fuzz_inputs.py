@@ -502,3 +502,52 @@ def test_the_fuzzer_can_fail():
         outcome(lambda: (_ for _ in ()).throw(UserError("k", "two\nlines")))
     with pytest.raises(ZeroDivisionError):
         outcome(lambda: 1 / 0)
+
+
+def test_trajectory_bytes_read_without_rclpy_give_rclpys_goal_answer():
+    """`trajectory_wire` (the topic's bytes into arrays) against the reference path (rclpy's
+    message → `goal_of` → `trajectory_goals.arrange`) on 300 seeded random trajectories: the
+    same trajectory, or the same refusal word for word."""
+    import numpy as np
+    from rclpy.serialization import serialize_message
+    from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+
+    from mobile_manip_sim.node.trajectory_action import goal_of
+    from mobile_manip_sim.ros.trajectory_goals import Codes, Outcome, arrange
+    from mobile_manip_sim.ros.trajectory_wire import arrays, read_trajectory
+    names = ["j1", "j2", "j3", "j4"]
+    codes = Codes._make(range(len(Codes._fields)))
+    rng = random.Random(30)
+    kinds = {"refused": 0, "taken": 0}
+    for _ in range(300):
+        message = JointTrajectory(joint_names=rng.sample(names, 4) if rng.random() < 0.9
+                                  else ["j1", "j1", "j3", "j4"])
+        message.header.stamp.sec = rng.choice([0, 3])
+        given = {"positions": True, "velocities": rng.random() < 0.5,
+                 "accelerations": rng.random() < 0.3, "effort": rng.random() < 0.05}
+        m = rng.randint(0, 5)
+        for i in range(m):
+            point = JointTrajectoryPoint()
+            for field, present in given.items():
+                count = (4 if rng.random() < 0.97 else rng.choice([0, 3, 5])) if present else \
+                    (0 if rng.random() < 0.98 else 4)
+                values = [float("nan") if rng.random() < 0.01 else rng.uniform(-2, 2)
+                          for _ in range(count)]
+                if field == "velocities" and i == m - 1 and rng.random() < 0.9:
+                    values = [0.0] * count
+                setattr(point, field, values)
+            point.time_from_start.sec = i if rng.random() < 0.97 else 0
+            point.time_from_start.nanosec = rng.randint(0, 999_999_999)
+            message.points.append(point)
+        reference = arrange(goal_of(message), names, codes)
+        wire = read_trajectory(serialize_message(message))
+        ours = arrays(wire, names, codes)
+        assert wire.start_ns == goal_of(message).start_ns
+        if isinstance(reference, Outcome):
+            assert ours == reference
+            kinds["refused"] += 1
+        else:
+            for theirs, mine in zip(reference, ours, strict=True):
+                assert (theirs is None and mine is None) or np.array_equal(theirs, mine)
+            kinds["taken"] += 1
+    assert min(kinds.values()) > 30   # both kinds really compared
