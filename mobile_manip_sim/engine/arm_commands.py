@@ -15,7 +15,7 @@ from ..scene.arm_controller import MODES
 from ..scene.controller import outside_stroke
 from ..scene.coordinates import ARM_U, arm_u, arm_width
 from ..scene.errors import UserError
-from ..scene.limits import DURATION, SPEED, TRAJECTORY_POINTS
+from ..scene.limits import DURATION, REVOLUTE_TARGET, SPEED, TRAJECTORY_POINTS
 from . import arm_reference, layout
 from .arm_control import SEGMENTS, TAU
 from .arm_reference import Q_REF, QD_REF, QDD_REF
@@ -162,6 +162,12 @@ class ArmCommands:
         """Every point within its rod's stroke (when stroke limits are on), and held against
         gravity within the effort limits (when set): else a UserError naming the joint."""
         names = self.model.joint_names()[ARM_U]
+        revolute = np.abs(points[:, 0::2]) > REVOLUTE_TARGET   # the arm's columns: q1, l1, …
+        if revolute.any():
+            i, j = (int(v) for v in np.argwhere(revolute)[0])
+            where = f"{key}[{i}]" if points.shape[0] > 1 else key
+            raise UserError(names[2 * j], f"{points[i, 2 * j]:g} rad ({where}) is beyond "
+                                          f"±{REVOLUTE_TARGET:g} rad")
         stroke = np.asarray(self.model.stroke).reshape(-1, 2)
         limits = self.effects.effort_limits
         for i, point in enumerate(points):

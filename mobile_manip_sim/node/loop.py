@@ -9,10 +9,13 @@ waiting keeps the compute time out of the publication jitter. A segment computed
 is published after the resume; one computed across a reset is dropped.
 
 Nothing ends the loop but `stop`: an exception in a segment (or anywhere in a turn) is one line
-and the FAILED state until ~/reset. A segment whose engine time has not moved for
+and the FAILED state until ~/reset. A segment whose engine has made no progress — neither its
+time nor its count of accepted steps, which compiled code advances as it goes, has moved — for
 WATCHDOG_SECONDS of wall time is reported once (`watch`); a ~/reset then abandons it: the engine
 is replaced (``replace()``) and a new stepping thread goes on from t = 0, while the old one, stuck
-inside compiled code that no Python can interrupt, is left to end with the process.
+inside code that no Python can interrupt, is left to end with the process. When it returns it
+never reaches the new engine: ``compute`` holds the engine it began with and raises `Abandoned`
+once it finds it replaced (the shell's generation check), and the loop drops what it computed.
 """
 from __future__ import annotations
 
@@ -29,8 +32,11 @@ MAX_WAIT = 3600.0   # s: the longest single wait (then the loop looks again)
 WATCHDOG_SECONDS = 10.0   # s of wall time without engine progress before a segment is reported
 
 
-class _Abandoned(Exception):
-    """Raised in a stepping thread whose segment was abandoned: the thread ends quietly."""
+class Abandoned(Exception):
+    """Raised in a stepping thread whose segment was abandoned: the thread ends quietly. The
+    ``compute`` callable raises it too, when it finds its engine replaced."""
+
+
 
 
 class State(enum.Enum):
@@ -60,7 +66,8 @@ class SteppingLoop:
     - ``failed(text)``: log the one line of a failure; ``warn(key, text)``: a throttled warning;
     - ``lockstep``: a `lockstep.Lockstep` in synchronous mode; ``wake()`` interrupts its wait;
     - ``alive()``: False once the ROS context is down (a publication then fails: no error);
-    - ``progress()``: the engine's time (s), which the watchdog watches; ``replace()``: a new
+    - ``progress()``: (the engine's time (s), its count of accepted steps), which the watchdog
+      watches: a segment is stuck when neither moves, slow is not stuck; ``replace()``: a new
       engine for the one a stuck segment holds; ``report(text)``: the watchdog's warning.
     The services call `pause`, `step`, `reset`, `set_real_time_factor` and `stop` from another
     thread, a timer calls `watch`; `run` is the stepping thread."""
@@ -69,7 +76,7 @@ class SteppingLoop:
                  publish: Callable, record: Callable[[], None], failed: Callable[[str], None],
                  warn: Callable[[tuple, str], bool], lockstep=None,
                  wake: Callable[[], None] = lambda: None, alive: Callable[[], bool] = lambda: True,
-                 progress: Callable[[], float] = lambda: 0.0,
+                 progress: Callable[[], tuple] = lambda: (0.0, 0),
                  replace: Callable[[], None] = lambda: None,
                  report: Callable[[str], None] | None = None,
                  wait: Callable[[float | None], object] | None = None):
@@ -101,7 +108,7 @@ class SteppingLoop:
         wrong in a turn ends it: the loop fails (one line) and waits for ~/reset."""
         try:
             started = self.begin()
-        except _Abandoned:
+        except Abandoned:
             return
         except Exception as error:
             started = self._crashed(error)
@@ -114,7 +121,7 @@ class SteppingLoop:
                 if not self.turn():
                     return
                 self._record()
-            except _Abandoned:
+            except Abandoned:
                 return
             except Exception as error:
                 if not self._crashed(error):
@@ -216,18 +223,20 @@ class SteppingLoop:
         self.k, self.now_ns = k, self.grid.stamp(k)
 
     def _segment(self):
-        """Compute segment k → k + 1: (k + 1, messages), or None when it failed. _Abandoned
+        """Compute segment k → k + 1: (k + 1, messages), or None when it failed. Abandoned
         when a reset gave up on it meanwhile."""
         with self.cv:
             k, start_ns, thread = self.k, self.now_ns, self.thread
             self.computing = [thread, start_ns, self._progress(), self.pacer.clock(), False]
         try:
             result = k + 1, self._compute(k, start_ns)
+        except Abandoned:
+            raise
         except Exception as error:
             result = error
         with self.cv:
             if thread != self.thread:
-                raise _Abandoned
+                raise Abandoned
             self.computing = None
         if isinstance(result, Exception):
             self._fail(start_ns, result)
@@ -253,7 +262,7 @@ class SteppingLoop:
             if not reported:
                 computing[4] = True
                 self._report(f"watchdog: the segment after t = {format_ns(start_ns)} s has made "
-                             f"no progress for {stuck:.0f} s (engine at t = {progress:.9g} s); "
+                             f"no progress for {stuck:.0f} s (engine at t = {progress[0]:.9g} s); "
                              f"~/reset abandons it")
             if self.state is not State.RESETTING:
                 return

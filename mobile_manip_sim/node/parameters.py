@@ -4,6 +4,7 @@ a `NodeParameters` record. No ROS: the shell hands in the values rclpy parsed.""
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass
 from typing import Mapping, NamedTuple
 
@@ -25,6 +26,11 @@ from ..scene.loading import METHODS
 NODE_NAME = "mobile_manip_sim"
 PUBLISH_TF = ("all", "base", "none")
 IMU_NOISE = "imu.noise."
+# A tf frame name (and a frame_prefix): letters, digits, _ . - and single / between parts; no
+# leading /, no white space (tf2 refuses or silently mangles the others).
+FRAME_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.\-]*(/[A-Za-z0-9_.\-]+)*")
+# Values a YAML null is written as (-p record:=null): a mistake, not a directory name.
+NULL_WORDS = ("null", "Null", "NULL", "~")
 # The slowest pacing the node takes: at 100 Hz a publication every 10 s of wall time. Slower
 # ones (1e-12 once stopped the node for good) are refused; 0 means as fast as possible.
 MIN_REAL_TIME_FACTOR = 1e-3
@@ -64,6 +70,9 @@ PARAMETERS = {
                                      "do not move it); false leaves it to another simulator."),
     "foxglove_port": Parameter(0, "Port of a Foxglove WebSocket server inside the node (the "
                                   "channels of simulate --view); 0 = off.", limits.PORT),
+    "foxglove_host": Parameter("127.0.0.1", "Address the Foxglove server listens on: 127.0.0.1 "
+                                            "this machine only; 0.0.0.0 every interface (a "
+                                            "laptop on the network)."),
     "imu.noise.angular_velocity_stddev": Parameter(
         [0.0, 0.0, 0.0], "IMU: white-noise standard deviation of the rate gyro per axis "
                          "(x, y, z, rad/s); its variance is the message's covariance."),
@@ -147,6 +156,8 @@ def arm_gains(name: str, value) -> tuple:
     otherwise."""
     if isinstance(value, str) and value == "":
         return ()
+    if value is None:   # -p arm_gains.kp:=[]: rclpy cannot type an empty list
+        raise UserError(name, "expected a number or a list of numbers, got an empty list")
     scalar = isinstance(value, (bool, int, float, str))
     values = [value] if scalar else list(value)   # a list: rclpy gives an array.array
     if not values or any(isinstance(v, bool) or not isinstance(v, (int, float)) for v in values):
@@ -189,6 +200,7 @@ class NodeParameters:
     frame_prefix: str
     publish_clock: bool
     foxglove_port: int             # 0 = off
+    foxglove_host: str             # what the live view listens on
     imu_noise: ImuNoise
     record: str                    # "" = off
     synchronous: bool
@@ -232,6 +244,12 @@ def read(values: Mapping[str, object]) -> NodeParameters:
         if not values[name] or values[name] == BASE_LINK or odom == base:
             raise UserError(name, f"{values[name]!r}: frame names must be non-empty, distinct, "
                                   f"and not base_link (the URDF's body frame)")
+        if not FRAME_NAME.fullmatch(values[name]):
+            raise UserError(name, f"{values[name]!r} is not a tf frame name (letters, digits, "
+                                  f"_ . - and single / between parts; no leading /, no spaces)")
+    if values["record"] in NULL_WORDS:
+        raise UserError("record", f"{values['record']!r} is YAML's null, not a directory: give "
+                                  f"a directory name, or \"\" for no recording")
     if values["base_command"] not in BASE_COMMANDS:
         raise UserError("base_command", f"{values['base_command']!r} is not effort or velocity")
     view = _view_parameters(values)
@@ -260,11 +278,14 @@ def _view_parameters(values: Mapping[str, object]) -> dict:
         raise UserError("publish_tf", f"{values['publish_tf']!r} is not one of "
                                       f"{', '.join(PUBLISH_TF)}")
     prefix = values["frame_prefix"]
-    if prefix.startswith("/") or any(c.isspace() for c in prefix):
-        raise UserError("frame_prefix", f"{prefix!r}: tf frame names start with no '/' and "
-                                        f"hold no white space")
+    if prefix and not FRAME_NAME.fullmatch(prefix.removesuffix("/")):
+        raise UserError("frame_prefix", f"{prefix!r}: tf frame names start with no '/', hold "
+                                        f"no white space and no empty part ('//')")
+    from ..ros.live_view import check_host
+    host = check_host(values["foxglove_host"], "foxglove_host")
     settings = {name[len(IMU_NOISE):]: value if isinstance(value, (str, int, float)) else
                 list(value) for name, value in values.items() if name.startswith(IMU_NOISE)}
     return dict(publish_tf=values["publish_tf"], frame_prefix=prefix,
                 publish_clock=values["publish_clock"], foxglove_port=values["foxglove_port"],
+                foxglove_host=host,
                 imu_noise=ImuNoise.from_settings(settings, IMU_NOISE.rstrip(".")))

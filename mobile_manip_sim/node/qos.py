@@ -10,6 +10,7 @@ from rclpy.qos_overriding_options import QoSOverridingOptions
 
 from ..ros.topics import relative
 from ..scene.errors import UserError
+from ..scene.limits import QOS_DEPTH
 
 QOS_OVERRIDES = "qos_overrides."
 # The policies with_default_policies declares and the values rclpy takes for each.
@@ -36,8 +37,9 @@ def _check(node, resolved: str) -> None:
             continue
         value = override.value
         if policy == DEPTH:
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise UserError(key, f"expected an integer of at least 1, got {value!r}")
+            low, high = QOS_DEPTH
+            if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
+                raise UserError(key, f"expected an integer from {low} to {high}, got {value!r}")
         elif value not in CHOICES[policy]:
             raise UserError(key, f"expected one of {', '.join(CHOICES[policy])}, got {value!r}")
 

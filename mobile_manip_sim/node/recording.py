@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING, Callable
 from ..recording.bag_format import arm_controller_metadata
 from ..recording.rotation import RotatingRecorder
 from ..scene.errors import UserError
+from ..scene.limits import RECORDING_BAGS
 
 if TYPE_CHECKING:   # imported when a bag is opened: mcap and the CDR tables only when recording
     from ..recording.recorder import RunRecorder
@@ -26,7 +27,8 @@ class NodeRecording:
         self.sim, self._settings, self._params = sim, settings, params
         self._published: list[tuple[int, dict]] = []   # states not yet recorded
         try:
-            self._bags = RotatingRecorder(path, self._open_bag, info, error)
+            self._bags = RotatingRecorder(path, self._open_bag, info, error,
+                                          max_bags=RECORDING_BAGS)
         except UserError as failure:
             raise UserError("record", str(failure)) from None
 
@@ -61,6 +63,11 @@ class NodeRecording:
         published, self._published = self._published, []
         for stamp, messages in published:
             self._bags.states(stamp, messages, self.sim.impacts)
+
+    def flush(self) -> None:
+        """A timer's: what is recorded goes to disk within BAG_FLUSH_INTERVAL, also while the
+        node records nothing new (paused, failed)."""
+        self._bags.flush()
 
     def close(self, info: Callable[[str], None], error: Callable[[str], None]) -> None:
         """After the stepping thread stopped: the bag gets its impacts, summary and

@@ -18,7 +18,11 @@ from rcl_interfaces.msg import (
     SetParametersResult,
 )
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
-from rclpy.exceptions import InvalidParameterTypeException, InvalidParameterValueException
+from rclpy.exceptions import (
+    InvalidParameterTypeException,
+    InvalidParameterValueException,
+    ParameterUninitializedException,
+)
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
@@ -41,15 +45,17 @@ from . import arguments, parameters, qos
 from .arm import ArmDriver, arm_array_topic
 from .commands import CommandIntake
 from .lockstep import Lockstep
-from .loop import SteppingLoop
+from .loop import Abandoned, SteppingLoop
 from .parameters import ARM_GAIN_PARAMETERS, NODE_NAME, PARAMETERS
-from .recording import NodeRecording
+from .recording import BAG_FLUSH_INTERVAL, NodeRecording
 from .throttle import Throttle
 from .view import NodeView
 
 SHUTDOWN_POLL = 0.2        # s: how often the executor checks for an external shutdown
 STEP_TIMEOUT = 30.0        # s of wall time a ~/step call waits for its state
 STOP_TIMEOUT = 2.0         # s of wall time shutdown waits for the stepping thread
+EXECUTOR_THREADS = 6       # two goals' execute callbacks, the trajectory topic, the services,
+#                            the timers: none waits for another
 WATCH_PERIOD = 1.0         # s: the watchdog and the check for a namesake node run this often
 STATE_TYPES = {JOINT_STATES_TOPIC: JointState, ODOM_TOPIC: Odometry, CLOCK_TOPIC: Clock}
 
@@ -95,9 +101,10 @@ class SimulatorNode(Node):
         self.loop = SteppingLoop(
             self.grid, Pacer(p.real_time_factor, 1.0 / self.grid.hz), restart=self._restart,
             compute=self._compute, publish=self._publish, record=self._record,
-            failed=log.error, warn=throttle.warn, lockstep=lockstep, wake=self.commands.wake,
-            alive=lambda: rclpy.ok(context=self.context), progress=lambda: self.sim.t,
+            failed=self._failed, warn=throttle.warn, lockstep=lockstep, wake=self.commands.wake,
+            alive=lambda: rclpy.ok(context=self.context), progress=self._progress,
             replace=self._replace_engine, report=log.warning)
+        self._generation = 0   # engines replaced by the watchdog so far (`_owned`)
         self.create_service(Trigger, "~/reset", self._on_reset)
         self.create_service(SetBool, "~/pause", self._on_pause)
         # ~/step waits for its state: in a group of its own, ~/pause and ~/reset answer meanwhile
@@ -108,9 +115,6 @@ class SimulatorNode(Node):
         self.add_on_set_parameters_callback(self._validate_parameters)
         self.add_post_set_parameters_callback(self._apply_parameters)
         self._thread = threading.Thread(target=self.loop.run, name="stepping", daemon=True)
-        if p.record:   # last: nothing after this may fail and leave an unfinished bag
-            self._recording = NodeRecording(p.record, self.sim, self._settings, p, log.info,
-                                            log.error)
         # Every kernel the run may call, loaded (or compiled) before the start-up line: none
         # compiles afterwards (said if one does: the warm-up was not run for this install).
         with warnings.catch_warnings():   # the scene's advice was given once, by self.sim
@@ -119,6 +123,12 @@ class SimulatorNode(Node):
         self._compiles = CompileWatch(lambda name: log.warning(
             f"compiled {name} while running (the first run of an install compiles; "
             f"python3 -m mobile_manip_sim.programs.warmup does it once)")).start()
+        if p.record:   # last: nothing after this may fail and leave an unfinished bag
+            self._recording = NodeRecording(p.record, self.sim, self._settings, p, log.info,
+                                            log.error)
+            # A paused or failed node records nothing: the open chunk goes to disk on a timer.
+            self.create_timer(BAG_FLUSH_INTERVAL, self._recording.flush,
+                              callback_group=MutuallyExclusiveCallbackGroup())
         s = self._settings
         log.info(f"scene '{self.scene.name}', integrator {s.method} "
                  f"({'dt ' + str(s.dt) if s.fixed_step else f'rtol {s.rtol}'}), publishing at "
@@ -162,7 +172,14 @@ class SimulatorNode(Node):
         if unknown:
             raise UserError(unknown[0], f"unknown parameter of {NODE_NAME} (known: "
                                         f"{', '.join(PARAMETERS)})")
-        return {name: self.get_parameter(name).value for name in PARAMETERS}
+        values = {}
+        for name in PARAMETERS:
+            try:
+                values[name] = self.get_parameter(name).value
+            except ParameterUninitializedException:   # -p NAME:=[]: rclpy cannot type it
+                raise UserError(name, f"expected {parameters.expected_kind(name)}, got an "
+                                      f"empty list") from None
+        return values
 
     def _validate_parameters(self, changes) -> SetParametersResult:
         for change in changes:
@@ -196,13 +213,14 @@ class SimulatorNode(Node):
         return response
 
     # --- the loop's callables (stepping thread) ---------------------------------------------
-    def _messages(self, k: int) -> dict:
-        """/joint_states, /odom, /clock and the view's (view.py) for the engine's current
-        state, stamped t_k."""
+    def _messages(self, k: int, sim=None) -> dict:
+        """/joint_states, /odom, /clock and the view's (view.py) for the state of ``sim`` (the
+        engine by default), stamped t_k."""
+        sim = self.sim if sim is None else sim
         stamp = self.grid.stamp(k)
-        messages = state_messages(self.sim, stamp, self.joint_names, self.view.odom_frame,
+        messages = state_messages(sim, stamp, self.joint_names, self.view.odom_frame,
                                   self.view.base_frame)
-        messages.update(self.view.messages(self.sim, k, stamp))
+        messages.update(self.view.messages(sim, k, stamp))
         return messages
 
     def _restart(self) -> dict:
@@ -214,18 +232,42 @@ class SimulatorNode(Node):
         return self._messages(0)
 
     def _compute(self, k: int, start_ns: int) -> dict:
+        # The engine of this segment, once: a thread the watchdog abandoned goes on with its
+        # own engine and never reaches the one that replaced it; `_owned` before each step
+        # that touches what the two share (goals, the bag) ends it instead.
+        sim, generation = self.sim, self._generation
         base, joints = self.commands.held(start_ns)
         efforts = None if self.arm is not None else joints   # the arm's, in effort mode
-        applied = apply_commands(self.sim, base, efforts, self.params.velocity_mode)
+        applied = apply_commands(sim, base, efforts, self.params.velocity_mode)
+        self._owned(generation)
         arm = None if self.arm is None else self.arm.segment_start(
-            self.sim, start_ns, joints, self.commands.arm_received())
+            sim, start_ns, joints, self.commands.arm_received())
+        self._owned(generation)
         if self._recording is not None:
             self._recording.commands(start_ns, applied[0], None if efforts is None else applied[1])
             if arm is not None:
                 self._recording.arm_command(start_ns, arm)
-        self.sim.advance_to(self.grid.time(k + 1))
+        sim.advance_to(self.grid.time(k + 1))
+        self._owned(generation)
         self._compiler_pages.release_if_used()
-        return self._messages(k + 1)
+        return self._messages(k + 1, sim)
+
+    def _owned(self, generation: int) -> None:
+        """Abandoned (loop.py) when the watchdog replaced the engine since ``generation``."""
+        if generation != self._generation:
+            raise Abandoned
+
+    def _progress(self) -> tuple:
+        """What the watchdog watches: the engine's own counters (its time and its accepted
+        steps, which the compiled code advances as it goes)."""
+        sim = self.sim
+        return sim.t, sim.steps
+
+    def _failed(self, text: str) -> None:
+        """A segment failed (the loop's one line): the active goal is answered at once."""
+        self.get_logger().error(text)
+        if self.arm is not None and self.arm.trajectories is not None:
+            self.arm.trajectories.goals.forget(text)
 
     def _publish(self, k: int, messages: dict) -> None:
         published = {}
@@ -250,6 +292,7 @@ class SimulatorNode(Node):
 
     def _replace_engine(self) -> None:
         """The watchdog gave up on a stuck segment: a new engine (the old one is left to it)."""
+        self._generation += 1
         self.sim = Simulation(self.scene, self._settings, arm_controller=self.arm_controller)
         self.sim.set_wheel_speed_gains(*self.params.wheel_speed_gains)
         if self._recording is not None:
@@ -282,15 +325,17 @@ class SimulatorNode(Node):
                 f"the stepping thread did not stop within {STOP_TIMEOUT:g} s; exiting anyway")
 
     def close(self) -> None:
-        """After `stop`, before the node is destroyed (SIGINT, SIGTERM, normal exit)."""
+        """After `stop`, before the node is destroyed (SIGINT, SIGTERM, normal exit): the bag
+        first (its summary and metadata.yaml), then the live view, whose stop waits on no
+        client (live_view.CLOSE_WAIT)."""
         self._compiles.stop()
-        self.view.close()
         if self._recording is not None:
             # While the context is up the node's logger; after SIGINT/SIGTERM shut it down, one
             # without /rosout (the node's would fail to publish and say so).
             logger = (self.get_logger() if rclpy.ok(context=self.context)
                       else rclpy.logging.get_logger(f"{NODE_NAME}_recording"))
             self._recording.close(logger.info, logger.error)
+        self.view.close()
 
 
 def _init(argv) -> None:
@@ -313,10 +358,10 @@ def _main(argv) -> int:
     node = None
     try:
         node = SimulatorNode()
-        # 4: a FollowJointTrajectory goal's execute callback waits in a thread for its outcome;
-        # at most two do (the active goal and the one that will preempt it, e.g. while paused),
-        # and two threads stay for the services.
-        executor = MultiThreadedExecutor(num_threads=4)
+        # A FollowJointTrajectory goal's execute callback waits in a thread for its outcome;
+        # at most two do (trajectory_action.MAX_GOALS), and the others stay for the services,
+        # the trajectory topic and the timers.
+        executor = MultiThreadedExecutor(num_threads=EXECUTOR_THREADS)
         executor.add_node(node)
         node.start()
         # spin_once with a timeout rather than spin(): a signal that shuts the context down

@@ -10,13 +10,20 @@ works, the action and the state are off, and the node says so in one line.
 Threads: a goal's execute callback (an executor thread) submits it and waits for its outcome;
 the stepping thread applies goals at segment starts (`segment_start`), publishes the feedback
 and the state, and ends goals; a cancel marks the goal for the next segment start.
+
+Neither intake can starve the services (~/pause, ~/reset share the node's default group): the
+topic has a callback group of its own and takes the message's bytes, read into arrays by
+`trajectory_wire` (a 100,000-point message would otherwise hold the interpreter lock for seconds
+while rclpy builds its Python objects); the action has its own group too, and accepts at most
+MAX_GOALS goals at a time — one more is rejected at once, with a warning, rather than left to
+wait for a thread.
 """
 from __future__ import annotations
 
 import threading
 
 import numpy as np
-from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from ..ros.messages import time_msg
@@ -29,9 +36,15 @@ from ..ros.topics import (
     state_qos,
 )
 from ..ros.trajectory_goals import Codes, Goal, JointTolerance, Point, TrajectoryGoals, errors
+from ..ros.trajectory_wire import arrays, read_trajectory
 from ..runtime.timeline import NS
 
 WAIT_POLL = 0.5   # s: an execute callback checks this often that the node still runs
+MAX_GOALS = 2     # action goals accepted and not yet answered (the active one and its successor)
+# The action's goal, cancel and result services keep this many requests: rclpy's default (10)
+# drops the rest of a burst unanswered, a client then waits for ever (a goal the node never saw
+# cannot be rejected). Each request waiting costs one message.
+REQUEST_DEPTH = 1000
 
 
 def goal_of(trajectory: JointTrajectory, tolerances=None) -> Goal:
@@ -85,28 +98,63 @@ class TrajectoryInterface:
         self._topic_requests = []   # the topic's trajectories not yet ended (for their log)
         self._lock = threading.Lock()
         node.create_subscription(JointTrajectory, relative(TRAJECTORY_TOPIC), self._on_topic,
-                                 command_qos())
+                                 command_qos(), raw=True,
+                                 callback_group=MutuallyExclusiveCallbackGroup())
         self._action = self._state_pub = None
+        self._in_flight = 0   # action goals accepted and not yet answered
         if self.available:
             from rclpy.action import ActionServer, CancelResponse, GoalResponse
             self._type, self._state_type = FollowJointTrajectory, JointTrajectoryControllerState
             self._cancel_response = CancelResponse.ACCEPT
+            from rclpy.qos import QoSProfile, ReliabilityPolicy
+            self._responses = GoalResponse
+            requests = QoSProfile(depth=REQUEST_DEPTH, reliability=ReliabilityPolicy.RELIABLE)
             self._action = ActionServer(
                 node, FollowJointTrajectory, relative(TRAJECTORY_ACTION),
-                execute_callback=self._execute, goal_callback=lambda _: GoalResponse.ACCEPT,
-                cancel_callback=self._on_cancel, callback_group=ReentrantCallbackGroup())
+                execute_callback=self._execute, goal_callback=self._on_goal,
+                cancel_callback=self._on_cancel, callback_group=ReentrantCallbackGroup(),
+                goal_service_qos_profile=requests, result_service_qos_profile=requests,
+                cancel_service_qos_profile=requests)
             self._state_pub = node.create_publisher(JointTrajectoryControllerState,
                                                     relative(CONTROLLER_STATE_TOPIC), state_qos())
         self._requests = {}   # goal id → Request (cancel looks it up)
 
     # --- executor threads ------------------------------------------------------------------
-    def _on_topic(self, message) -> None:
-        request = self.goals.submit(goal_of(message))
+    def _on_topic(self, data: bytes) -> None:
+        """A JointTrajectory's CDR bytes: read into arrays, checked, submitted."""
+        try:
+            wire = read_trajectory(data)
+        except ValueError as error:
+            self._warn(("trajectory", "malformed"), f"{relative(TRAJECTORY_TOPIC)}: not a "
+                                                    f"JointTrajectory ({error}); ignored")
+            return
+        arranged = arrays(wire, self.names, self.goals.codes)
+        request = self.goals.submit(Goal(wire.joint_names, (), wire.start_ns), arranged=arranged)
         with self._lock:
             self._topic_requests.append(request)
         self._report_topic()
 
+    def _on_goal(self, _request):
+        """Accept a goal unless MAX_GOALS are in flight: then reject it, saying so."""
+        with self._lock:
+            accept = self._in_flight < MAX_GOALS
+            if accept:
+                self._in_flight += 1
+        if not accept:
+            self._warn(("goal", "rejected"), f"{relative(TRAJECTORY_ACTION)}: goal rejected: "
+                                             f"{MAX_GOALS} goals are in flight (send the next "
+                                             f"once one is answered)")
+            return self._responses.REJECT
+        return self._responses.ACCEPT
+
     def _execute(self, goal_handle):
+        try:
+            return self._answer(goal_handle)
+        finally:
+            with self._lock:
+                self._in_flight -= 1
+
+    def _answer(self, goal_handle):
         key = bytes(goal_handle.goal_id.uuid)
         goal = goal_handle.request
         request = self.goals.submit(goal_of(goal.trajectory, goal), goal_handle)
@@ -122,18 +170,22 @@ class TrajectoryInterface:
         result = self._type.Result()
         outcome = request.outcome
         if outcome is None:
+            self.goals.cancel(request)   # nothing is applied after the node stopped
             result.error_code = self.goals.codes.invalid_goal
             result.error_string = "the node is shutting down"
-            goal_handle.abort()
+            end = goal_handle.abort
         elif outcome.code is None:
             result.error_string = outcome.text
-            goal_handle.canceled()
+            end = goal_handle.canceled
         else:
             result.error_code, result.error_string = outcome.code, outcome.text
-            if outcome.code == self.goals.codes.successful:
-                goal_handle.succeed()
-            else:
-                goal_handle.abort()
+            end = goal_handle.succeed if outcome.code == self.goals.codes.successful else \
+                goal_handle.abort
+        try:
+            end()
+        except Exception:   # RCLError: SIGINT/SIGTERM took the context (and the handle) away
+            if self.node.context.ok():
+                raise
         return result
 
     def _on_cancel(self, goal_handle):
@@ -156,7 +208,11 @@ class TrajectoryInterface:
             feedback.desired = trajectory_point(*desired_now)
             feedback.actual = trajectory_point(*actual)
             feedback.error = trajectory_point(*error)
-            request.handle.publish_feedback(feedback)
+            try:
+                request.handle.publish_feedback(feedback)
+            except Exception:   # RCLError: the goal's handle went with a shutdown or its end
+                if self.node.context.ok() and not request.finished.is_set():
+                    raise
         if self._state_pub is not None:
             error = errors(desired, (q, u))
             state = self._state_type(joint_names=self.names)

@@ -16,7 +16,8 @@ publication (stepping thread, outside the loop's lock) and `publish` puts them o
 - /imu (sensor_msgs/Imu, frame base_link): imu.py's reading of sample k, with the ``imu.noise.*``
   parameters (seeded: sample k's noise depends on the seed and k only).
 - ``frame_prefix`` is applied by the tree to every frame named here and to /odom's frames.
-- ``foxglove_port`` (not 0): a `live_view.LiveView` with the channels of `simulate --view`. It
+- ``foxglove_port`` (not 0): a `live_view.LiveView` with the channels of `simulate --view`, on
+  ``foxglove_host`` (127.0.0.1 by default; 0.0.0.0 for another machine). It
   and the bag always get the WHOLE tree on /tf and /tf_static, whatever ``publish_tf`` says (the
   ROS graph may have robot_state_publisher; a viewer of the live view or a bag has not).
 """
@@ -54,6 +55,12 @@ class NodeView:
 
     def __init__(self, node, scene, params):
         self.tree = tree = FrameTree(scene.robot, params.base_frame, params.frame_prefix)
+        links = tree.links
+        for name, value, taken in (("odom_frame", params.odom_frame, links),
+                                   ("base_frame", params.base_frame, links[1:])):
+            if value in taken:   # two frames of one name: tf would see a loop, not a tree
+                raise UserError(name, f"{value!r} is the name of one of the robot's links "
+                                      f"({', '.join(links)}): give it another")
         self._odom = params.odom_frame   # bare: the tree prefixes it
         self.odom_frame, self.base_frame = tree.frame(params.odom_frame), tree.frame(tree.root)
         self.mode = params.publish_tf
@@ -84,8 +91,8 @@ class NodeView:
         if params.foxglove_port:
             from ..ros.live_view import LiveView
             try:
-                self.live = LiveView(params.foxglove_port, name=node.get_fully_qualified_name(),
-                                     batch=LIVE_BATCH)
+                self.live = LiveView(params.foxglove_port, params.foxglove_host,
+                                     name=node.get_fully_qualified_name(), batch=LIVE_BATCH)
             except UserError as error:   # the port in use: name the parameter
                 raise UserError("foxglove_port", error.problem) from None
 

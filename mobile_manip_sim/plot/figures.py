@@ -28,6 +28,12 @@ DPI = 120
 
 # --- quantities the figures show -----------------------------------------------------------
 
+def plain(text) -> str:
+    """``text`` (a scene's name, a file name) shown as written: matplotlib reads text between
+    two ``$`` as mathtext, and a name such as ``$\\frac{$`` would fail the figure."""
+    return str(text).replace("$", r"\$")
+
+
 def residuals(run: Run) -> np.ndarray:
     """(N, 2) docs/model.md's constraint residuals (no skid, no slip) at each sample, m/s."""
     return np.array([constraint_residuals(run.scene.robot, q_k, qdot_k)
@@ -44,7 +50,7 @@ def tip_path(run: Run) -> np.ndarray:
 
 def _figure(run: Run, what: str) -> tuple[Figure, object]:
     figure = Figure(figsize=FIGURE_SIZE, dpi=DPI, layout="constrained")
-    figure.suptitle(f"{run.scene.name}: {what}")
+    figure.suptitle(f"{plain(run.scene.name)}: {what}")
     return figure, figure.add_subplot()
 
 
@@ -194,7 +200,7 @@ def figure_energy(run: Run) -> Figure:
     """Top: T + V − E₀, the work W of efforts and damping, the impact losses L.
     Bottom: the balance (T + V − E₀) − W + L, zero for exact physics."""
     figure = Figure(figsize=(FIGURE_SIZE[0], FIGURE_SIZE[1] * 1.3), dpi=DPI, layout="constrained")
-    figure.suptitle(f"{run.scene.name}: energy balance")
+    figure.suptitle(f"{plain(run.scene.name)}: energy balance")
     top, bottom = figure.subplots(2, 1, sharex=True, height_ratios=[2, 1])
     change = run.energy - run.energy[0]
     W, L = work(run), impact_losses(run)
@@ -206,7 +212,7 @@ def figure_energy(run: Run) -> Figure:
     top.legend(loc="best", fontsize="small")
     top.grid(True, alpha=0.3)
     # two lines, each wrapped: one line ran past the figure's edges for a bag's longer source
-    top.set_title("\n".join(textwrap.wrap(f"efforts: {run.effort_source}", 90) + [
+    top.set_title("\n".join(textwrap.wrap(f"efforts: {plain(run.effort_source)}", 90) + [
         "W by the trapezoid rule at the sample rate, split at impacts"]), fontsize="small")
     bottom.plot(run.t, change - W + L, color="C3", label=r"$T + V - E_0 - W + L$")
     bottom.set_xlabel("t (s)")

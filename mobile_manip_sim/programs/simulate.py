@@ -2,7 +2,7 @@
 
     simulate --scene FILE --duration S --sample-rate HZ --out FILE.csv
              [--method NAME] [--dt S] [--rtol R] [--atol A] [--record DIR] [--set KEY=VALUE]…
-             [--view [PORT]]
+             [--view [PORT]] [--view-host HOST] [--linger S]
 
 Columns: t, x, y, yaw, theta_R, theta_L, q1, l1, …, qn, ln, v, omega, qd1, ld1, …, qdn, ldn,
 energy (T + V, J) (`headless.csv_columns`); LF line ends. Without --scene the embedded paper
@@ -17,13 +17,17 @@ and close a ``--record`` bag.
 
 ``--view [PORT]`` shows the run live in Foxglove (live_view.py: a Foxglove WebSocket server on
 PORT, default 8765, no ROS needed): every sample is published when the wall clock reaches it,
-the run paced to real time, so the CSV and the bag are the same as without it.
+the run paced to real time, so the CSV and the bag are the same as without it. The server
+listens on ``--view-host`` (default 127.0.0.1, this machine only; 0.0.0.0 lets another machine
+connect). After the run it keeps serving the last state until Ctrl-C or SIGTERM (status 0), or
+for ``--linger`` seconds; its stop never waits on a client (live_view.CLOSE_WAIT).
 """
 from __future__ import annotations
 
 import csv
 import os
 import stat
+import threading
 import time
 from pathlib import Path
 
@@ -57,6 +61,12 @@ def _main(argv) -> int:
                         help="show the run live in Foxglove: a WebSocket server on PORT "
                              f"(default {DEFAULT_VIEW_PORT}; 0: any free port), the run paced "
                              "to real time")
+    parser.add_argument("--view-host", default=None, metavar="HOST",
+                        help="address the live view listens on (default 127.0.0.1: this "
+                             "machine only; 0.0.0.0: every interface, for another machine)")
+    parser.add_argument("--linger", type=float, default=None, metavar="S",
+                        help="with --view: keep serving S seconds after the run (default: "
+                             "until Ctrl-C)")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="set a scene key path, e.g. robot.arm.links[0].mass_per_length=1.2 "
                              "(value read as YAML; repeatable)")
@@ -76,10 +86,15 @@ def _main(argv) -> int:
                rate, "--sample-rate")
     out = Path(args.out)
     view = None
+    if args.view is None and (args.view_host is not None or args.linger is not None):
+        raise UserError("--view-host" if args.view_host is not None else "--linger",
+                        "needs --view")
+    linger = None if args.linger is None else schema.number(
+        args.linger, "--linger", lo=0.0, hi=limits.LINGER[1])
     if args.view is not None:
-        from ..ros.live_view import PacedView
+        from ..ros.live_view import DEFAULT_HOST, PacedView
         schema.integer(args.view, "--view", lo=limits.PORT[0], hi=limits.PORT[1])
-        view = PacedView(args.view, scene, rate, duration)
+        view = PacedView(args.view, scene, rate, duration, args.view_host or DEFAULT_HOST)
         print(f"live view: {view.url} (Foxglove: open connection, Foxglove WebSocket)",
               flush=True)
     with CsvOutput(out) as output:
@@ -102,18 +117,35 @@ def _main(argv) -> int:
         progress = Progress("simulate", duration, "s", rate_unit="s per wall s")
         try:
             sim = run(scene, duration, rate, settings, on_sample, progress)
+        except BaseException:
+            if view:
+                view.close()
+            raise
         finally:
             progress.close()
             if recorder:
                 recorder.close()
-            if view:
-                view.close()
         wall = time.perf_counter() - start
         if sim.impacts and output.regular:
             output.write_impacts(out.with_suffix(".impacts.csv"), sim.impacts)
     simulated, wall = sim.timing or (sim.t, wall)
-    print(summary_line(sim, wall, simulated))
+    print(summary_line(sim, wall, simulated), flush=True)
+    if view:
+        _linger(view, linger)
     return 0
+
+
+def _linger(view, seconds: float | None) -> None:
+    """After the run: the live view serves on for ``seconds`` (None: until Ctrl-C or SIGTERM,
+    which end it with status 0), then stops without waiting on any client."""
+    print(f"live view: still serving {view.url} "
+          f"{'until Ctrl-C' if seconds is None else f'for {seconds:g} s'}", flush=True)
+    try:
+        threading.Event().wait(seconds)
+    except (KeyboardInterrupt, cli.Terminated):
+        pass
+    finally:
+        view.close()
 
 
 class CsvOutput:

@@ -169,7 +169,12 @@ class RunRecorder:
                 writer.close()
 
     def _maybe_flush(self) -> None:
-        if self._flush_interval is None:
+        self.flush_if_due()
+
+    def flush_if_due(self) -> None:
+        """Close the open chunk when ``flush_interval`` has passed since the last time: after
+        each state, and from a timer while none come (a paused or failed node)."""
+        if self._flush_interval is None or self.writer is None:
             return
         now = time.monotonic()
         if now - self._flushed_at >= self._flush_interval:

@@ -3,17 +3,20 @@ serialized CDR, untouched) when the wall clock reaches its log time, counted fro
 played message and divided by the rate; each topic gets the QoS the bag says its publisher
 offered. The latched topics (/robot_description, /tf_static: transient local) go first, at
 once: their last message at or before the start. A topic whose message type is not installed
-(tf2_msgs on a pip install) is left out with a warning. ``/clock`` comes from the bag and is
-always played, whatever the topics selected; a bag without it gets one ``rosgraph_msgs/Clock``
-per distinct log time. With ``wait_for_subscribers`` playback is held until every played topic
-but the latched ones has a subscriber (for scripts and tests). Without it, playback still waits
-(at most DISCOVERY_TIMEOUT s) until the subscribers that already run are matched: a reliable
-subscriber matched late would miss the first ~0.4 s of the bag. The time it prints
-("played N messages … in S s") is the playing's alone, without these waits or the final wait
-for acknowledgements.
+(tf2_msgs on a pip install), whose type is not one of the known message packages
+(`message_types`: a bag's type name never chooses what is imported) or whose name is not a
+valid ROS topic name is left out with a warning (named with ``--topics``: a one-line error).
+``/clock`` comes from the bag and is always played, whatever the topics selected; a bag without
+it gets one ``rosgraph_msgs/Clock`` per distinct log time. With ``wait_for_subscribers``
+playback is held until every played topic but the latched ones has a subscriber (for scripts
+and tests). Without it, playback still waits (at most DISCOVERY_TIMEOUT s) until the
+subscribers that already run are matched: a reliable subscriber matched late would miss the
+first ~0.4 s of the bag. The time it prints ("played N messages … in S s") is the playing's
+alone, without these waits or the final wait for acknowledgements.
 """
 from __future__ import annotations
 
+import re
 import sys
 import time
 
@@ -26,7 +29,7 @@ from mobile_manip_sim.recording.bag_format import (
 )
 from mobile_manip_sim.ros.messages import CLOCK_TOPIC, JOINT_STATES_TOPIC, NS, clock
 from mobile_manip_sim.ros.topics import LATCHED_TOPICS, TF_TYPE
-from mobile_manip_sim.scene import schema
+from mobile_manip_sim.scene import limits, schema
 from mobile_manip_sim.scene.errors import UserError
 
 ACK_TIMEOUT = 2.0          # s: how long to wait at the end for reliable subscribers to ack
@@ -38,7 +41,10 @@ DISCOVERY_TIMEOUT = 3.0
 DISCOVERY_SETTLE = 0.5
 SLEEP_SLICE = 0.05         # s: longest sleep between checks for a shutdown
 MAX_QOS_PROFILES = 100     # recorded publishers of one topic
-MAX_QOS_DEPTH = 100_000    # history depth: a deeper one is damage, and would be allocated
+MAX_QOS_DEPTH = limits.QOS_DEPTH[1]   # history depth: deeper is damage (and would be allocated)
+# An absolute ROS 2 topic name as a bag records it: /token(/token)*, tokens of letters, digits
+# and _, none starting with a digit (rcl's rules; anything else fails create_publisher).
+TOPIC_NAME = re.compile(r"(/[A-Za-z_][A-Za-z0-9_]*)+")
 
 
 
@@ -83,8 +89,11 @@ def play(bag, topics=None, rate: float = 1.0, loop: bool = False, start_offset: 
     if chosen:
         for topic in chosen:
             if topic not in topics:
-                raise UserError(topic, f"not in bag {bag.path}; its topics: "
-                                       f"{', '.join(sorted(topics))}")
+                raise UserError(schema.label(topic, 80), f"not in bag {bag.path}; its topics: "
+                                f"{', '.join(schema.label(t, 80) for t in sorted(topics))}")
+            problem = _problem(topic, topics[topic])
+            if problem is not None:
+                raise UserError(schema.label(topic, 80), problem)
         selected = list(dict.fromkeys(chosen))
         if CLOCK_TOPIC in topics and CLOCK_TOPIC not in selected:
             selected.append(CLOCK_TOPIC)
@@ -171,21 +180,31 @@ def _await_discovery(node, publishers: dict) -> None:
         time.sleep(0.02)
 
 
-def _installed(topics: dict) -> list[str]:
-    """The bag's topics whose message types import here; the others are left out with one
-    warning (tf2_msgs, which PyPI has no wheel of, is the usual one)."""
-    played, missing = [], {}
-    for topic, type_name in topics.items():
-        try:
-            message_class(type_name)
-            played.append(topic)
-        except UserError:
-            missing.setdefault(type_name, []).append(topic)
-    for type_name, left_out in missing.items():
+def _problem(topic: str, type_name: str) -> str | None:
+    """Why ``topic`` of type ``type_name`` cannot be played, or None."""
+    if not isinstance(topic, str) or not TOPIC_NAME.fullmatch(topic):
+        return "not a valid ROS 2 topic name"
+    try:
+        message_class(type_name)
+    except UserError as error:
         hint = " (build it with tools/build_interfaces.sh, or source a ROS install)" \
             if type_name == TF_TYPE else ""
-        print(f"replay: warning: {', '.join(left_out)} not played: {type_name} is not "
-              f"installed{hint}", file=sys.stderr)
+        return f"{error.key}: {error.problem}{hint}"
+    return None
+
+
+def _installed(topics: dict) -> list[str]:
+    """The bag's topics that can be played here; the others are left out with one warning
+    each (tf2_msgs, which PyPI has no wheel of, is the usual one)."""
+    played, missing = [], {}
+    for topic, type_name in topics.items():
+        problem = _problem(topic, type_name)
+        if problem is None:
+            played.append(topic)
+        else:
+            missing.setdefault(problem, []).append(schema.label(topic, 80))
+    for problem, left_out in missing.items():
+        print(f"replay: warning: {', '.join(left_out)} not played: {problem}", file=sys.stderr)
     return played
 
 

@@ -7,18 +7,31 @@ no serialisation.
 
 Channels (topics.LIVE_TOPIC_TYPES): /tf, /tf_static, /robot_description, /joint_states, /odom,
 /imu, /energy. /tf_static and /robot_description are latched: the view keeps their last message
-and sends it again to every new subscriber, so a client that connects late still draws the
-robot. Message times (log time, and the server time the view broadcasts) are the simulated
-stamps, the clock the messages' headers use.
+and sends it again when a client subscribes, so a client that connects late still draws the
+robot. The SDK can only send to every subscriber at once, so the re-sends of a topic are
+coalesced: at most one per LATCHED_INTERVAL, however often clients subscribe. Message times
+(log time, and the server time the view broadcasts) are the simulated stamps, the clock the
+messages' headers use.
 
     view = LiveView(8765)                 # 0: any free port (see view.port)
     view.publish(stamp_ns, {"/tf": cdr_bytes, "/joint_states": rclpy_message, ...})
     view.close()
 
+The host is loopback (127.0.0.1) unless given: 0.0.0.0 serves every interface (a laptop on the
+network). The SDK speaks the subprotocol ``foxglove.sdk.v1`` only: the Foxglove app and
+clients that offer it connect; clients that offer only ``foxglove.websocket.v1`` (older
+Lichtblick, older @foxglove/ws-protocol) are refused at the handshake.
+
+`close` never waits on a client: the SDK's stop waits until every connection has drained, which
+a client that stopped reading (a sleeping laptop, a half-open connection) never does, so it runs
+in a thread of its own and `close` returns after at most CLOSE_WAIT seconds (the thread, and the
+connection, end with the process).
+
 `HeadlessSource` composes one sample's messages for `simulate --view`.
 """
 from __future__ import annotations
 
+import socket
 import threading
 import time
 
@@ -45,7 +58,11 @@ from .topics import (
 from .urdf import robot_description
 
 DEFAULT_PORT = 8765
+DEFAULT_HOST = "127.0.0.1"   # loopback; "0.0.0.0" serves every interface
 SERVER_NAME = "mobile_manip_sim"
+CLOSE_WAIT = 1.0             # s: the longest `close` waits for the server to stop
+LATCHED_INTERVAL = 1.0       # s: at most one re-send of a latched topic this often
+TICK = 0.05                  # s: the sending thread looks this often when not batching
 
 
 class LiveView:
@@ -54,7 +71,7 @@ class LiveView:
     that often: what the server costs most is waking its sending per burst, not per message
     (bench/NODE.md), and each message keeps its own stamp."""
 
-    def __init__(self, port: int = DEFAULT_PORT, host: str = "127.0.0.1",
+    def __init__(self, port: int = DEFAULT_PORT, host: str = DEFAULT_HOST,
                  name: str = SERVER_NAME, batch: float = 0.0):
         try:
             import foxglove
@@ -66,8 +83,12 @@ class LiveView:
         if isinstance(port, bool) or not isinstance(port, int) or not low <= port <= high:
             raise UserError("port", f"{port!r} is not a port number ({low} to {high}; 0: any "
                                     f"free one)")
+        host = check_host(host, "host")
+        self.host = host
         self._lock = threading.Lock()
         self._latched: dict[str, tuple[int, bytes]] = {}
+        self._due: set[str] = set()            # latched topics a new subscriber waits for
+        self._resent: dict[str, float] = {}    # topic → monotonic time of its last re-send
         self._context = foxglove.Context()
         self.channels = {
             topic: foxglove.Channel(
@@ -87,28 +108,44 @@ class LiveView:
         self.port = self.server.port
         self._batch, self._pending = batch, []   # (stamp, messages) not sent yet
         self._stopping = threading.Event()
-        self._sender = None
-        if batch > 0:
-            self._sender = threading.Thread(target=self._send_batches, name="live view",
-                                            daemon=True)
-            self._sender.start()
+        self._sender = threading.Thread(target=self._send_batches, name="live view",
+                                        daemon=True)
+        self._sender.start()
 
     @property
     def url(self) -> str:
-        return f"ws://localhost:{self.port}"
+        host = "localhost" if self.host in ("127.0.0.1", "::1", "localhost") else (
+            socket.gethostname() if self.host in ("0.0.0.0", "::") else self.host)
+        return f"ws://{host}:{self.port}"
 
     def publish(self, stamp: int, messages: dict) -> None:
         """Send the messages of one publication (topic → rclpy message, or its CDR bytes),
         stamped ``stamp`` ns of simulated time; topics without a channel are left out."""
-        if self._sender is None:
+        if self._batch <= 0:
             self._send(stamp, messages)
             return
         with self._lock:
             self._pending.append((stamp, messages))
 
     def _send_batches(self) -> None:
-        while not self._stopping.wait(self._batch):
+        while not self._stopping.wait(self._batch if self._batch > 0 else TICK):
             self._flush()
+            self._resend_latched()
+
+    def _resend_latched(self) -> None:
+        """Send each latched topic a client subscribed to since, at most once per
+        LATCHED_INTERVAL (the SDK sends it to every subscriber of the topic)."""
+        now = time.monotonic()
+        with self._lock:
+            due = [topic for topic in self._due
+                   if now - self._resent.get(topic, -LATCHED_INTERVAL) >= LATCHED_INTERVAL]
+            for topic in due:
+                self._due.discard(topic)
+                self._resent[topic] = now
+            messages = [(topic, self._latched.get(topic)) for topic in due]
+        for topic, latched in messages:
+            if latched is not None:
+                self.channels[topic].log(latched[1], log_time=latched[0])
 
     def _flush(self) -> None:
         with self._lock:
@@ -136,20 +173,33 @@ class LiveView:
         return channel is not None and channel.has_sinks()
 
     def _on_subscribe(self, channel) -> None:
-        """A new subscriber of a latched topic gets its last message at once (on the
-        server's thread)."""
+        """A new subscriber of a latched topic gets its last message from the sending thread,
+        within TICK (or the batch) when none was re-sent in the last LATCHED_INTERVAL, else at
+        the interval's end (on the server's thread: only noted)."""
         topic = self._by_id.get(channel.id)
-        with self._lock:
-            latched = self._latched.get(topic)
-        if latched is not None:
-            self.channels[topic].log(latched[1], log_time=latched[0])
+        if topic in LATCHED_TOPICS:
+            with self._lock:
+                self._due.add(topic)
 
     def close(self) -> None:
-        if self._sender is not None:
-            self._stopping.set()
-            self._sender.join()
-            self._flush()
-        self.server.stop()
+        """Send what is queued, then stop the server, waiting CLOSE_WAIT s at most."""
+        if self._stopping.is_set():
+            return
+        self._stopping.set()
+        self._sender.join()
+        self._flush()
+        stopper = threading.Thread(target=self.server.stop, name="live view stop", daemon=True)
+        stopper.start()
+        stopper.join(CLOSE_WAIT)
+
+
+def check_host(host, key: str) -> str:
+    """A host name or address to listen on (one line naming ``key`` otherwise)."""
+    if not isinstance(host, str) or not host or len(host) > 253 or any(
+            c.isspace() or not c.isprintable() or c in "/\\@[]" for c in host):
+        raise UserError(key, f"{host!r} is not a host name or address (127.0.0.1: this machine "
+                             f"only; 0.0.0.0: every interface)")
+    return host
 
 
 def _Listener(on_subscribe):
@@ -192,8 +242,9 @@ class PacedView:
     wall clock reaches it (real-time factor 1, `pacing.Pacer`; a run that cannot keep up paces
     on from where it is, without bursts). Stamps are the run's time line (`timeline.Grid`)."""
 
-    def __init__(self, port: int, scene, sample_rate: float, duration: float | None = None):
-        self.view = LiveView(port)
+    def __init__(self, port: int, scene, sample_rate: float, duration: float | None = None,
+                 host: str = DEFAULT_HOST):
+        self.view = LiveView(port, host)
         self.url = self.view.url
         self.source = HeadlessSource(scene)
         self.grid = Grid(sample_rate, duration)

@@ -21,6 +21,7 @@ from std_msgs.msg import Float64MultiArray, String
 # re-exported here for the message builders' users.
 from ..runtime.timeline import NS  # noqa: F401
 from ..scene.coordinates import JOINTS, OMEGA, YAW, V, X, Y
+from ..scene.errors import UserError
 from .cdr import tf_message_cdr
 from .frames import FOOTPRINT, ODOM
 from .topics import (  # noqa: F401
@@ -217,7 +218,13 @@ def trajectory_values(message):
 
     def rows(field):
         values = [list(getattr(p, field)) for p in points]
-        return None if points and not any(values) else np.array(values, dtype=float).reshape(-1, n)
+        if points and field != "positions" and not any(values):
+            return None
+        for i, row in enumerate(values):   # a damaged bag: one line, not numpy's error
+            if len(row) != n:
+                raise UserError(f"recorded trajectory point {i}",
+                                f"{len(row)} {field} for {n} joints")
+        return np.array(values, dtype=float).reshape(-1, n)
     return Trajectory(times, rows("positions"), rows("velocities"), rows("accelerations"))
 
 

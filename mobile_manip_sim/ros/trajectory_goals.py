@@ -250,11 +250,13 @@ class TrajectoryGoals:
         self._pending: Request | None = None
         self.active: Request | None = None
 
-    def submit(self, goal: Goal, handle=None) -> Request:
+    def submit(self, goal: Goal, handle=None, arranged=None) -> Request:
         """A new goal: refused at once (finished) or waiting for the next segment start, where
-        it preempts the active one. A goal still waiting is preempted by this one."""
+        it preempts the active one. A goal still waiting is preempted by this one. ``arranged``:
+        the goal's `arrange` done already (from arrays: its points are then left empty)."""
         request = Request(goal, handle)
-        arranged = arrange(goal, self.names, self.codes)
+        if arranged is None:
+            arranged = arrange(goal, self.names, self.codes)
         if isinstance(arranged, Outcome):
             request.finish(arranged)
             return request

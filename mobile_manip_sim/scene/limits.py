@@ -36,6 +36,7 @@ ARM_GAIN = (0.0, 1e9)
 MODEL_ERROR = (-0.9, 10.0)
 MODEL_PAYLOAD = (-1.0, MASS[1])    # kg the feed-forward assumes; negative: the scene's payload
 TRAJECTORY_POINTS = 100_000        # points of one arm trajectory
+REVOLUTE_TARGET = 1e4              # rad, |a revolute joint's set-point or trajectory point|
 
 # --- the node's parameters (besides the gains and the integrator overrides, 0 = the scene's)
 PUBLISH_RATE = (0.001, 100000.0)   # Hz of simulated time
@@ -44,4 +45,7 @@ COMMAND_TIMEOUT = (0.0, 1.0e6)     # s of simulated time; 0 disables
 SYNC_TIMEOUT = (0.001, 3600.0)     # wall s
 INTEGRATOR_OVERRIDE = (0.0, 1.0)   # integrator.dt, .rtol, .atol
 PORT = (0, 65535)                  # the live view's TCP port (node: 0 = off; simulate: 0 = any)
+LINGER = (0.0, 1e7)                # s simulate --view serves on after the run
+QOS_DEPTH = (1, 100_000)           # a topic's history depth (a QoS override, a bag's QoS)
+RECORDING_BAGS = 100               # bags one recording node opens (one per time line)
 IMU_SEED = (0, 2 ** 63 - 1)        # the IMU noise's seed (a ROS integer parameter is int64)

@@ -2,7 +2,10 @@
 bag metadata; and explicit YAML tags and blank values in every YAML reader (scene,
 sweep spec, params file, bag metadata), blank or odd ``-p`` values for every node parameter,
 mutated sweep specs, run-time node parameters at their extremes, and huge finite commands for
-every method right after a reset (in their own process: test/helpers/huge_commands.py).
+every method right after a reset (in their own process: test/helpers/huge_commands.py). And what hostile
+peers send: JointTrajectory bytes read without rclpy (`ros.trajectory_wire`), message type and
+topic names from bags, scene names drawn by `plot`, and the node's frame, prefix, record and
+host parameters.
 
 Whatever comes in, the outcome is a valid result or one `UserError` whose message
 is one short line naming a key — never another exception, never a long wait.
@@ -306,6 +309,115 @@ def check_huge_commands(seed_and_count, fuzz_settings):
     return len(cases)
 
 
+def check_trajectory_wire(data):
+    """Any bytes on the trajectory topic: a `Trajectory` or an `Outcome` (the goal's answer),
+    or a one-line ValueError (ignored with a warning) — never another exception."""
+    from mobile_manip_sim.ros.trajectory_goals import Codes, Outcome, Trajectory
+    from mobile_manip_sim.ros.trajectory_wire import arrays, read_trajectory
+    start = time.perf_counter()
+    try:
+        wire = read_trajectory(data)
+    except ValueError as error:
+        assert "\n" not in str(error) and len(str(error)) < 200
+        return
+    codes = Codes._make(range(len(Codes._fields)))
+    result = arrays(wire, ["j1", "j2"], codes)
+    assert isinstance(result, (Trajectory, Outcome))
+    assert time.perf_counter() - start < BOUND_S
+
+
+def _trajectory_bytes(mutations):
+    """A valid JointTrajectory's CDR with ``mutations`` ((offset, byte), ...) applied, cut."""
+    from rclpy.serialization import serialize_message
+    from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+    message = JointTrajectory(joint_names=["j1", "j2"])
+    message.points = [JointTrajectoryPoint(positions=[0.1 * i, 0.2], velocities=[0.0, 0.0])
+                      for i in range(3)]
+    for i, point in enumerate(message.points):
+        point.time_from_start.sec, point.time_from_start.nanosec = i, 5
+    data = bytearray(serialize_message(message))
+    cut, changes = mutations
+    for offset, value in changes:
+        data[offset % len(data)] = value
+    return bytes(data[:max(0, len(data) - cut)])
+
+
+wire_bytes = st.one_of(st.binary(max_size=300), st.tuples(
+    st.integers(0, 120), st.lists(st.tuples(st.integers(0, 10**6), st.integers(0, 255)),
+                                  max_size=6)).map(_trajectory_bytes))
+
+
+def check_type_name(name):
+    """A bag's type name: a message class of a known package or one line; nothing outside the
+    known packages is imported because of it."""
+    from mobile_manip_sim.ros.message_types import KNOWN_PACKAGES, message_class
+    before = set(sys.modules)
+    found = None
+    error = outcome(lambda: found_class.append(message_class(name)))
+    if error is None:
+        found = found_class.pop()
+        assert found.__module__.split(".")[0] in KNOWN_PACKAGES
+    new = {module.split(".")[0] for module in set(sys.modules) - before}
+    assert new <= KNOWN_PACKAGES | {"rosidl_parser", "rpyutils"}, new
+
+
+found_class = []
+type_names = st.one_of(st.text(max_size=40), st.builds(
+    lambda package, name: f"{package}/msg/{name}",
+    st.sampled_from(["std_msgs", "sensor_msgs", "os", "this", "..os", "antigravity", "",
+                     "tf2_msgs", "std_msgs.msg", "nav_msgs"]),
+    st.sampled_from(["String", "Zen", "X", "system", "JointState", "", "__class__", "Odometry"])))
+
+
+def check_topic_name(name):
+    """A bag's topic name: replay plays it only if rcl takes it as a topic name."""
+    from rclpy.exceptions import InvalidTopicNameException
+    from rclpy.validate_full_topic_name import validate_full_topic_name
+
+    from mobile_manip_sim.replay.play import _problem
+    problem = _problem(name, "std_msgs/msg/String")
+    if problem is None:
+        try:
+            validate_full_topic_name(name)
+        except InvalidTopicNameException as error:
+            pytest.fail(f"{name!r} accepted by replay, refused by rcl: {error}")
+    else:
+        assert "\n" not in problem
+
+
+topic_names = st.one_of(st.text(max_size=30), st.from_regex(r"/[A-Za-z0-9_/ !~{}.-]{0,20}",
+                                                             fullmatch=True))
+
+
+def check_scene_name_in_a_title(name):
+    """Any scene name in a figure's title draws (mathtext would parse `$…$`)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    from mobile_manip_sim.plot.figures import plain
+    figure = Figure(figsize=(2, 1))
+    FigureCanvasAgg(figure)
+    figure.suptitle(f"{plain(name)}: energy balance")
+    figure.canvas.draw()
+
+
+DEFAULTS = {name: spec.default for name, spec in PARAMETERS.items()}
+NAMED = ["odom_frame", "base_frame", "frame_prefix", "record", "foxglove_host"]
+names_and_values = st.tuples(st.sampled_from(NAMED), st.one_of(
+    st.text(max_size=16), st.sampled_from(["/odom", "a b", "robot1//", "null", "~", "base_link",
+                                           "odom", "0.0.0.0", "::1", "x/", "//", "a/b"])))
+
+
+def check_named_parameter(case):
+    """Frame names, prefix, record and host as the node reads them: one line or a record
+    whose frames tf would take."""
+    name, value = case
+    read = []
+    error = outcome(lambda: read.append(node_parameters.read({**DEFAULTS, name: value})))
+    if error is None and name in ("odom_frame", "base_frame"):
+        assert value and not value.startswith("/") and not any(c.isspace() for c in value)
+
+
 def fuzz(settings, check, strategy) -> int:
     """Run `check` on hypothesis examples of `strategy` (each check asserts through `outcome`);
     returns how many examples it saw."""
@@ -330,6 +442,9 @@ CHECKS = [
                                     st.sampled_from(BLANKS))),
     (check_sweep, sweep_changes),
     (check_run_time_parameter, st.tuples(st.sampled_from(DYNAMIC), extremes)),
+    (check_trajectory_wire, wire_bytes), (check_type_name, type_names),
+    (check_topic_name, topic_names), (check_scene_name_in_a_title, st.text(max_size=24)),
+    (check_named_parameter, names_and_values),
 ]
 
 
@@ -385,3 +500,52 @@ def test_the_fuzzer_can_fail():
         outcome(lambda: (_ for _ in ()).throw(UserError("k", "two\nlines")))
     with pytest.raises(ZeroDivisionError):
         outcome(lambda: 1 / 0)
+
+
+def test_trajectory_bytes_read_without_rclpy_give_rclpys_goal_answer():
+    """`trajectory_wire` (the topic's bytes into arrays) against the reference path (rclpy's
+    message → `goal_of` → `trajectory_goals.arrange`) on 300 seeded random trajectories: the
+    same trajectory, or the same refusal word for word."""
+    import numpy as np
+    from rclpy.serialization import serialize_message
+    from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
+
+    from mobile_manip_sim.node.trajectory_action import goal_of
+    from mobile_manip_sim.ros.trajectory_goals import Codes, Outcome, arrange
+    from mobile_manip_sim.ros.trajectory_wire import arrays, read_trajectory
+    names = ["j1", "j2", "j3", "j4"]
+    codes = Codes._make(range(len(Codes._fields)))
+    rng = random.Random(30)
+    kinds = {"refused": 0, "taken": 0}
+    for _ in range(300):
+        message = JointTrajectory(joint_names=rng.sample(names, 4) if rng.random() < 0.9
+                                  else ["j1", "j1", "j3", "j4"])
+        message.header.stamp.sec = rng.choice([0, 3])
+        given = {"positions": True, "velocities": rng.random() < 0.5,
+                 "accelerations": rng.random() < 0.3, "effort": rng.random() < 0.05}
+        m = rng.randint(0, 5)
+        for i in range(m):
+            point = JointTrajectoryPoint()
+            for field, present in given.items():
+                count = (4 if rng.random() < 0.97 else rng.choice([0, 3, 5])) if present else \
+                    (0 if rng.random() < 0.98 else 4)
+                values = [float("nan") if rng.random() < 0.01 else rng.uniform(-2, 2)
+                          for _ in range(count)]
+                if field == "velocities" and i == m - 1 and rng.random() < 0.9:
+                    values = [0.0] * count
+                setattr(point, field, values)
+            point.time_from_start.sec = i if rng.random() < 0.97 else 0
+            point.time_from_start.nanosec = rng.randint(0, 999_999_999)
+            message.points.append(point)
+        reference = arrange(goal_of(message), names, codes)
+        wire = read_trajectory(serialize_message(message))
+        ours = arrays(wire, names, codes)
+        assert wire.start_ns == goal_of(message).start_ns
+        if isinstance(reference, Outcome):
+            assert ours == reference
+            kinds["refused"] += 1
+        else:
+            for theirs, mine in zip(reference, ours, strict=True):
+                assert (theirs is None and mine is None) or np.array_equal(theirs, mine)
+            kinds["taken"] += 1
+    assert min(kinds.values()) > 30   # both kinds really compared

@@ -182,6 +182,30 @@ def paused(client):
     return {"answers": answers, "first": client.result(first), "second": client.result(second)}
 
 
+def huge_revolute(client):
+    """Revolute targets no integrator can follow (1e6, 1e300 rad): each answered at once."""
+    return {"results": [client.result(client.send(goal([(1.0, [value, 0.5, 0.0, 0.5])])))
+                        for value in (1e6, 1e300)]}
+
+
+def flood(client, count: int = 40):
+    """``count`` goals sent at once, none awaited: each is rejected or gets its result. The
+    client keeps every answer (rclpy's default depth of 10 would drop its own)."""
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    deep = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+    action = ActionClient(client.node, FollowJointTrajectory, ACTION,
+                          goal_service_qos_profile=deep, result_service_qos_profile=deep)
+    client.spin_until(lambda: action.server_is_ready(), "the server, for the flood")
+    futures = [action.send_goal_async(goal([(0.2, [0.1 * (i % 3), 0.4, 0.0, 0.4])]))
+               for i in range(count)]
+    client.spin_until(lambda: all(f.done() for f in futures), "every goal's acceptance")
+    handles = [f.result() for f in futures]
+    results = [h.get_result_async() for h in handles if h.accepted]
+    client.spin_until(lambda: all(r.done() for r in results), "every accepted goal's result")
+    return {"rejected": sum(not h.accepted for h in handles), "accepted": len(results),
+            "statuses": sorted({r.result().status for r in results})}
+
+
 def main(scenarios) -> int:
     rclpy.init()
     client = Client()

@@ -295,3 +295,41 @@ def test_a_segment_without_progress_is_reported_once_and_a_reset_abandons_it():
     finally:
         stuck.set()
         harness.loop.stop()
+
+
+def test_a_slow_segment_whose_engine_counts_steps_is_not_stuck():
+    """The watchdog reads the engine's own progress (time, accepted steps): a segment that
+    takes long but whose step count moves is never reported, nor abandoned by a reset."""
+    harness = Harness(real_time_factor=0.0, threaded=True)
+    steps, release, replaced, reports = [0], threading.Event(), [], []
+
+    def compute(k, start_ns):
+        if k == 2:
+            release.wait(60)
+        return ("state", k + 1)
+
+    harness.loop._compute = compute
+    harness.loop._progress = lambda: (0.02, steps[0])
+    harness.loop._replace = lambda: replaced.append(True)
+    harness.loop._report = reports.append
+    thread = threading.Thread(target=harness.loop.run, daemon=True)
+    thread.start()
+    try:
+        wait_for(lambda: harness.loop.computing is not None and harness.loop.k == 2,
+                 "the slow segment", 10)
+        for _ in range(5):
+            harness.clock.now += WATCHDOG_SECONDS
+            steps[0] += 1
+            harness.loop.watch()
+        harness.loop.reset()
+        steps[0] += 1
+        harness.clock.now += WATCHDOG_SECONDS
+        harness.loop.watch()
+        assert reports == [] and replaced == []
+        harness.clock.now += WATCHDOG_SECONDS + 1   # now it does not move: stuck
+        harness.loop.watch()
+        assert replaced == [True] and "abandoned" in reports[-1]
+    finally:
+        release.set()
+        harness.loop.stop()
+        thread.join(10)

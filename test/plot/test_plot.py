@@ -490,3 +490,20 @@ def test_a_velocity_mode_bag_balances_energy_with_the_loops_torques(tmp_path):
     result = subprocess.run([str(BIN / "replay"), str(path), "--resimulate"],
                             capture_output=True, text=True, timeout=120)
     assert result.returncode == 0 and "IDENTICAL" in result.stdout, result.stdout + result.stderr
+
+
+@pytest.mark.parametrize("name", [r"$\frac{$", "$x$ and $", "50 $ a day", "^_{}%&#\\"])
+def test_a_scene_name_that_matplotlib_would_read_as_mathtext_is_drawn_as_written(tmp_path, name):
+    """A scene's name reaches the figures' titles: `$\\frac{$` once failed the whole plot with
+    mathtext's parse error. Each title that names the scene shows its text, every `$` kept."""
+    scene = parse_scene({**load_scene().document, "name": name}, "scene")
+    assert scene.name == name
+    write_bag(tmp_path / "bag", scene, 0.05)
+    figures = plot(tmp_path / "bag", tmp_path / "figures")
+    for figure in figures.values():
+        figure.canvas.draw()   # mathtext parses here
+        title = figure.get_suptitle() if hasattr(figure, "get_suptitle") else \
+            figure._suptitle.get_text()
+        assert title.replace("\\$", "$").startswith(f"{name}: ")
+    assert sorted(p.name for p in (tmp_path / "figures").glob("*.png")) == \
+        sorted(f"{n}.png" for n in FIGURE_NAMES)

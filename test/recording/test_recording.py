@@ -26,8 +26,9 @@ from rosbags.rosbag2 import Reader as RosbagsReader
 from rosbags.typesys import Stores, get_typestore
 from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
-from std_msgs.msg import Float64MultiArray
+from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import Trigger
+from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from bag_rewrite import rewrite_bag
 from executables import executable
@@ -486,6 +487,34 @@ def test_a_new_time_line_rotates_the_bag_and_a_failure_only_stops_recording(tmp_
             [0, 10_000_000]
 
 
+def test_a_recording_opens_at_most_max_bags_however_often_it_is_reset(tmp_path):
+    """A peer calling ~/reset in a loop: the node records at most RECORDING_BAGS time lines,
+    then one error line, and no further directory is made."""
+    from mobile_manip_sim.recording.recorder import RunRecorder
+    from mobile_manip_sim.recording.rotation import RotatingRecorder
+    from mobile_manip_sim.ros.messages import state_messages
+
+    scene = load_scene(None)
+    sim = Simulation(scene)
+    names = scene.robot.joint_names()
+    lines = []
+
+    def make_bag(path):
+        return RunRecorder(path, scene, scene.integrator, {"source": "node",
+                                                           "publish_rate": "100.0"})
+
+    recording = RotatingRecorder(tmp_path / "run", make_bag, lines.append, lines.append,
+                                 max_bags=3)
+    for _ in range(6):   # six time lines
+        for stamp in (0, 10_000_000):
+            recording.states(stamp, state_messages(sim, stamp, names), sim.impacts)
+    recording.close()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run", "run_1", "run_2"]
+    assert lines[-1] == ("recording stopped at the reset: 3 bags recorded, the most one node "
+                         "records (one per time line); the simulation goes on")
+    assert sum("recording stopped" in line for line in lines) == 1
+
+
 # --- replay -----------------------------------------------------------------------------------
 
 def test_replay_publishes_the_recorded_messages_in_order_at_the_recorded_rate(probe, headless_bags):
@@ -707,3 +736,104 @@ def test_a_node_bag_carries_rclpys_type_hashes(node_run):
         channels = make_reader(stream).get_summary().channels.values()
         assert {c.topic: c.metadata["topic_type_hash"] for c in channels} == {
             topic: expected[type_name] for topic, type_name in TOPIC_TYPES.items()}
+
+
+def _last_state_on_disk(path: Path) -> int:
+    """The latest /joint_states stamp that mcap's stream reader finds in the file so far (ns);
+    -1 when none."""
+    last = -1
+    try:
+        with open(path, "rb") as stream:
+            for _, channel, message in NonSeekingReader(stream).iter_messages(
+                    log_time_order=False):
+                if channel.topic == "/joint_states":
+                    last = max(last, message.log_time)
+    except (McapError, OSError, EOFError):
+        pass   # the cut at the open end of a file being written
+    return last
+
+
+def test_a_paused_node_puts_its_recording_on_disk_and_a_sigkill_keeps_it(probe, tmp_path):
+    """While paused nothing new is recorded, yet the open chunk goes to disk on the flush
+    timer: the state the pause stopped at reaches the file without any further state (it
+    stayed in memory for ever before), and survives a SIGKILL."""
+    from std_srvs.srv import SetBool
+    bag = tmp_path / "paused"
+    simulator = start_simulator(probe, tmp_path, *FAST, "-p", f"record:={bag}")
+    try:
+        wait_for(lambda: len(probe.messages("/joint_states")) > 20, "20 states")
+        client = probe.node.create_client(SetBool, "/mobile_manip_sim/pause")
+        try:
+            wait_for(client.service_is_ready, "the pause service")
+            future = client.call_async(SetBool.Request(data=True))
+            wait_for(future.done, "the pause")
+        finally:
+            probe.node.destroy_client(client)
+        answer = future.result().message
+        seconds, nanos = re.search(r"paused at t = (\d+)\.(\d{9}) s", answer).groups()
+        paused_at = int(seconds) * 10 ** 9 + int(nanos)
+        wait_for(lambda: _last_state_on_disk(bag_file(bag)) >= paused_at,
+                 "the state the node paused at, on disk")
+    finally:
+        code = simulator.stop(signal.SIGKILL)
+    assert code == -signal.SIGKILL
+    recovered = open_bag(bag)
+    stamps = [m.log_time_ns for m in recovered.messages() if m.topic == "/joint_states"]
+    assert stamps == [k * PERIOD_NS for k in range(len(stamps))] and stamps[-1] == paused_at
+
+
+def test_replay_imports_nothing_a_bag_names_and_leaves_out_names_rcl_refuses(tmp_path):
+    """A crafted bag: type names `this/msg/Zen` (which imported `this` and printed the Zen of
+    Python) and `..os/msg/X`, a topic `/bad name!` (create_publisher's traceback). Each is left
+    out with one warning and the rest plays; named with --topics, one line, status 2."""
+    from mcap.writer import Writer
+
+    from mobile_manip_sim.ros.message_definitions import definition_text
+    path = tmp_path / "hostile.mcap"
+    with open(path, "wb") as stream:
+        writer = Writer(stream)
+        writer.start(profile="ros2", library="test")
+        string = writer.register_schema("std_msgs/msg/String", "ros2msg",
+                                        definition_text("std_msgs/msg/String").encode())
+        zen = writer.register_schema("this/msg/Zen", "ros2msg", b"string data")
+        dots = writer.register_schema("..os/msg/X", "ros2msg", b"string data")
+        channels = [writer.register_channel(topic, "cdr", schema) for topic, schema in (
+            ("/chatter", string), ("/bad name!", string), ("/zen", zen), ("/os", dots))]
+        data = exact_cdr(String(data="hi"))
+        for k in range(5):
+            for channel in channels:
+                writer.add_message(channel, log_time=k * 10 ** 8, data=data,
+                                   publish_time=k * 10 ** 8)
+        writer.finish()
+    result = run_cli("replay", str(path))
+    assert result.returncode == 0, result.stderr
+    assert "played 5 messages on 1 topics" in result.stdout
+    assert "Beautiful is better than ugly" not in result.stdout + result.stderr
+    warnings = result.stderr.strip().splitlines()
+    assert warnings == [
+        "replay: warning: /bad name! not played: not a valid ROS 2 topic name",
+        "replay: warning: /zen not played: this/msg/Zen: package this is not a known ROS 2 "
+        "message package",
+        "replay: warning: /os not played: ..os/msg/X: not a message type name (package/msg/Type)"]
+    for topic in ("/zen", "/bad name!"):
+        named = run_cli("replay", str(path), "--topics", topic)
+        lines = named.stderr.strip().splitlines()
+        assert named.returncode == 2 and len(lines) == 1 and topic in lines[0], named.stderr
+
+
+@pytest.mark.parametrize("rows", [[[0.1, 0.2], [0.1]], [[0.1, 0.2, 0.3], [0.1, 0.2, 0.3]],
+                                  [[], []]])
+def test_a_recorded_trajectory_with_ragged_or_wrong_length_points_is_one_line(rows):
+    """What `replay --resimulate` reads back from an arm trajectory record: a damaged one (rows
+    of the wrong length, ragged) is one line naming the point, not numpy's error."""
+    from mobile_manip_sim.ros.messages import trajectory_values
+    from mobile_manip_sim.scene.errors import UserError
+    message = JointTrajectory(joint_names=["a", "b"])
+    for i, row in enumerate(rows):
+        point = JointTrajectoryPoint(positions=row)
+        point.time_from_start.sec = i + 1
+        message.points.append(point)
+    with pytest.raises(UserError) as caught:
+        trajectory_values(message)
+    assert str(caught.value).startswith("recorded trajectory point ") and \
+        "\n" not in str(caught.value)
