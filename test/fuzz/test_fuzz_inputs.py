@@ -2,8 +2,8 @@
 bag metadata; and explicit YAML tags and blank values in every YAML reader (scene,
 sweep spec, params file, bag metadata), blank or odd ``-p`` values for every node parameter,
 mutated sweep specs, run-time node parameters at their extremes, and huge finite commands for
-every method right after a reset (in their own process: test/helpers/huge_commands.py). And what hostile
-peers send: JointTrajectory bytes read without rclpy (`ros.trajectory_wire`), message type and
+every method right after a reset (in their own process: test/helpers/huge_commands.py). And
+what hostile peers send: JointTrajectory bytes read without rclpy (`ros.trajectory_wire`), message type and
 topic names from bags, scene names drawn by `plot`, and the node's frame, prefix, record and
 host parameters.
 
@@ -314,7 +314,6 @@ def check_trajectory_wire(data):
     or a one-line ValueError (ignored with a warning) — never another exception."""
     from mobile_manip_sim.ros.trajectory_goals import Codes, Outcome, Trajectory
     from mobile_manip_sim.ros.trajectory_wire import arrays, read_trajectory
-    start = time.perf_counter()
     try:
         wire = read_trajectory(data)
     except ValueError as error:
@@ -323,7 +322,6 @@ def check_trajectory_wire(data):
     codes = Codes._make(range(len(Codes._fields)))
     result = arrays(wire, ["j1", "j2"], codes)
     assert isinstance(result, (Trajectory, Outcome))
-    assert time.perf_counter() - start < BOUND_S
 
 
 def _trajectory_bytes(mutations):
