@@ -3,9 +3,9 @@ bag metadata; and explicit YAML tags and blank values in every YAML reader (scen
 sweep spec, params file, bag metadata), blank or odd ``-p`` values for every node parameter,
 mutated sweep specs, run-time node parameters at their extremes, and huge finite commands for
 every method right after a reset (in their own process: test/helpers/huge_commands.py). And
-what hostile peers send: JointTrajectory bytes read without rclpy (`ros.trajectory_wire`), message type and
-topic names from bags, scene names drawn by `plot`, and the node's frame, prefix, record and
-host parameters.
+what hostile peers send: JointTrajectory bytes read without rclpy (`ros.trajectory_wire`),
+message type and topic names from bags, scene names drawn by `plot`, and the node's frame,
+prefix, record and host parameters.
 
 Whatever comes in, the outcome is a valid result or one `UserError` whose message
 is one short line naming a key — never another exception, never a long wait.
