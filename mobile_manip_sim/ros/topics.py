@@ -103,6 +103,15 @@ BAG_TOPIC_TYPES.update({ARM_POSITION_TOPIC: "std_msgs/msg/Float64MultiArray",
                         TRAJECTORY_TOPIC: TRAJECTORY_TYPE})
 COMMAND_TOPICS = (*COMMAND_TOPICS, ARM_POSITION_TOPIC, ARM_VELOCITY_TOPIC, TRAJECTORY_TOPIC)
 
+# --- ros2_control's topic-based hardware interface (node parameter ros2_control) ---
+# joint_state_topic_hardware_interface publishes sensor_msgs/JointState commands by joint name
+# (position, velocity or effort per the joint's command interface; QoS depth 1, reliable) and
+# reads joint states (SensorDataQoS: best effort, which our reliable publisher serves). The
+# names are those of that interface's documented example; the URDF block names them
+# (urdf.ros2_control_block).
+JOINT_COMMANDS_TOPIC = "/topic_based_joint_commands"
+ROBOT_JOINT_STATES_TOPIC = "/topic_based_joint_states"
+
 def recorded_topics(base_command: str = "effort", view: bool = True, imu: bool = False,
                     arm_controller: str = "effort") -> dict:
     """Topic → type of the bag of a run whose base takes ``base_command`` (effort|velocity)
