@@ -81,6 +81,14 @@ PARAMETERS = {
                                         "wheel_effort_controller/commands; velocity: the base "
                                         "takes cmd_vel, turned into wheel torques by a "
                                         "wheel-speed PI loop inside the simulated system."),
+    "ros2_control": Parameter(False, "Be the hardware of ros2_control's topic-based interface "
+                                     "(joint_state_topic_hardware_interface): take sensor_msgs/"
+                                     "JointState commands by joint name on "
+                                     "topic_based_joint_commands and publish the joint states on "
+                                     "topic_based_joint_states instead of joint_states (whose "
+                                     "publisher is then joint_state_broadcaster); the wheels' "
+                                     "interface follows base_command, the arm's arm_controller "
+                                     "(position, velocity or effort); no command times out."),
     "cmd_vel_stamped": Parameter(False, "Velocity mode: cmd_vel is geometry_msgs/TwistStamped "
                                         "(as Jazzy's diff_drive_controller takes it) rather "
                                         "than Twist."),
@@ -181,6 +189,7 @@ class NodeParameters:
     atol: float | None
 
     arm_control: ArmControl = ArmControl()   # not yet resolved for the robot (`for_robot`)
+    ros2_control: bool = False     # joint commands and states of the topic-based interface
 
     @property
     def velocity_mode(self) -> bool:
@@ -213,6 +222,11 @@ def read(values: Mapping[str, object]) -> NodeParameters:
                                   f"and not base_link (the URDF's body frame)")
     if values["base_command"] not in BASE_COMMANDS:
         raise UserError("base_command", f"{values['base_command']!r} is not effort or velocity")
+    if values["ros2_control"] and values["arm_controller"] == "joint_trajectory":
+        raise UserError("ros2_control", "takes the arm's commands from controller_manager: set "
+                                        "arm_controller to position, velocity or effort (the "
+                                        "arm's command interface; joint_trajectory_controller "
+                                        "then runs in controller_manager)")
     view = _view_parameters(values)
     return NodeParameters(
         scene=values["scene"], publish_rate=values["publish_rate"],
@@ -226,7 +240,8 @@ def read(values: Mapping[str, object]) -> NodeParameters:
         rtol=values["integrator.rtol"] or None, atol=values["integrator.atol"] or None,
         arm_control=ArmControl(values["arm_controller"],
                                *(arm_gains(name, values[name]) for name in ARM_GAIN_PARAMETERS),
-                               values["arm_feedforward"]))
+                               values["arm_feedforward"]),
+        ros2_control=values["ros2_control"])
 
 
 def _view_parameters(values: Mapping[str, object]) -> dict:

@@ -26,12 +26,18 @@ from std_srvs.srv import SetBool, Trigger
 
 from ..engine.simulation import Simulation
 from ..ros.messages import state_messages
-from ..ros.topics import CLOCK_TOPIC, JOINT_STATES_TOPIC, ODOM_TOPIC, state_qos
+from ..ros.topics import (
+    CLOCK_TOPIC,
+    JOINT_STATES_TOPIC,
+    ODOM_TOPIC,
+    ROBOT_JOINT_STATES_TOPIC,
+    state_qos,
+)
 from ..runtime import cli
 from ..runtime.memory import CompilerPages, release_compiler_pages
 from ..runtime.pacing import Pacer
 from ..runtime.timeline import Grid, apply_commands, start_node_time_line
-from ..scene.coordinates import ARM_U
+from ..scene.coordinates import ARM_Q, ARM_U
 from ..scene.errors import UserError
 from ..scene.loading import load_scene, make_integrator
 from . import arguments, parameters, qos
@@ -72,15 +78,21 @@ class SimulatorNode(Node):
 
         # Relative names: a namespace (__ns:=/robot1) or a remap moves every topic but /clock,
         # which use_sim_time clients read at /clock whatever their namespace (publish_clock).
+        # ros2_control: joint_state_broadcaster publishes joint_states; ours go to the topic the
+        # hardware interface reads (recorded as /joint_states all the same).
         self._state_pubs = {topic: qos.publisher(self, kind, topic, state_qos(),
                                                  absolute=topic == CLOCK_TOPIC)
                             for topic, kind in STATE_TYPES.items()
-                            if p.publish_clock or topic != CLOCK_TOPIC}
+                            if (p.publish_clock or topic != CLOCK_TOPIC)
+                            and not (p.ros2_control and topic == JOINT_STATES_TOPIC)}
+        self._hardware_states = None if not p.ros2_control else qos.publisher(
+            self, JointState, ROBOT_JOINT_STATES_TOPIC, state_qos())
         self.view = NodeView(self, self.scene, p)
         qos.check_unknown(self)
         self.commands = CommandIntake(self, p.velocity_mode, p.cmd_vel_stamped,
                                       len(self.joint_names) - 2, p.command_timeout, throttle,
-                                      log.warning, arm_topic=arm_array_topic(self.arm_control))
+                                      log.warning, arm_topic=arm_array_topic(self.arm_control),
+                                      joint_commands=self._joint_commands())
         # An arm controller's commands (arm.py); None in effort mode.
         self.arm = ArmDriver(self, self.arm_control.mode, self.joint_names[ARM_U], throttle.warn,
                              log.warning) if self.arm_control.active else None
@@ -110,7 +122,8 @@ class SimulatorNode(Node):
         log.info(f"scene '{self.scene.name}', integrator {s.method} "
                  f"({'dt ' + str(s.dt) if s.fixed_step else f'rtol {s.rtol}'}), publishing at "
                  f"{self.grid.hz:g} Hz of simulated time, real-time factor "
-                 f"{p.real_time_factor:g}{' (free-running)' if not p.real_time_factor else ''}")
+                 f"{p.real_time_factor:g}{' (free-running)' if not p.real_time_factor else ''}; "
+                 f"{self._mode()}")
         if self.arm is not None and self.arm.trajectories is not None:
             self.arm.trajectories.start()   # says so if the action is off
         for warning in self.view.warnings:
@@ -118,6 +131,27 @@ class SimulatorNode(Node):
         if self.view.live is not None:
             log.info(f"live view: {self.view.live.url} (Foxglove: open connection, Foxglove "
                      f"WebSocket)")
+
+    def _mode(self) -> str:
+        """The start-up line's account of how the node is driven and paced."""
+        p = self.params
+        inputs = ("ros2_control hardware (joint commands on topic_based_joint_commands)"
+                  if p.ros2_control else f"base {p.base_command}, arm {self.arm_control.mode}")
+        pacing = (f"synchronous: waits for a state subscriber and a command publisher, then "
+                  f"steps once per command (sync_timeout {p.sync_timeout:g} s)"
+                  if p.synchronous else "paced by the wall clock")
+        if not p.publish_clock:
+            pacing = "following the /clock it hears (publish_clock false)"
+        return f"mode: {inputs}; {pacing}"
+
+    def _joint_commands(self) -> dict | None:
+        """The command intake's settings for ros2_control's joint commands, or None."""
+        if not self.params.ros2_control:
+            return None
+        base = self.scene.robot.base
+        return dict(names=self.joint_names, arm_interface=self.arm_control.mode,
+                    wheel_radius=base.wheel_radius, half_track=base.half_track,
+                    arm_initial=self.scene.initial_q[ARM_Q])
 
     # --- parameters ------------------------------------------------------------------------
     def _declared_parameters(self) -> dict:
@@ -221,6 +255,9 @@ class SimulatorNode(Node):
                 if topic in self._state_pubs:
                     self._state_pubs[topic].publish(self.view.wire(topic, messages[topic]))
                 published[topic] = messages[topic]
+            if self._hardware_states is not None:
+                self._hardware_states.publish(self.view.wire(JOINT_STATES_TOPIC,
+                                                             messages[JOINT_STATES_TOPIC]))
             self.view.publish(self.grid.stamp(k), messages, published)
         finally:
             # What went out is recorded, even when a shutdown fails the rest of the group.
@@ -232,7 +269,8 @@ class SimulatorNode(Node):
             self._recording.record()
 
     def _listening(self) -> bool:
-        return any(pub.get_subscription_count() > 0 for pub in self._state_pubs.values())
+        publishers = [*self._state_pubs.values(), self._hardware_states]
+        return any(pub.get_subscription_count() > 0 for pub in publishers if pub is not None)
 
     def _replace_engine(self) -> None:
         """The watchdog gave up on a stuck segment: a new engine (the old one is left to it)."""
