@@ -24,7 +24,7 @@ from mobile_manip_sim.scene.coordinates import ARM_Q
 from mobile_manip_sim.scene.loading import load_scene
 from ros_harness import NodeProcess, child_env, on_domain, private_domain, spinning, wait_for
 
-DOMAIN_ID = private_domain(230, 239)
+DOMAIN_ID = private_domain(1, 232)
 FAST = ["-p", "integrator.method:=rk4", "-p", "integrator.dt:=0.001",
         "-p", "real_time_factor:=5.0", "-p", "ros2_control:=true"]
 TIMEOUT = 60.0

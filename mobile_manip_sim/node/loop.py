@@ -289,6 +289,11 @@ class SteppingLoop:
                                 f"s; simulated time runs slower"):
             self.pacer.restart_window()
 
+    def notify(self) -> None:
+        """Something the pacer waits for happened (a /clock heard): look again now."""
+        with self.cv:
+            self.cv.notify_all()
+
     def _changed(self) -> None:
         """Under cv: the state changed; wake the stepping thread wherever it waits."""
         self.cv.notify_all()

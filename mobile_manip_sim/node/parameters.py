@@ -55,7 +55,10 @@ PARAMETERS = {
                                   "/imu, the URDF's links), e.g. robot1/: two robots then make "
                                   "one tree without a shared frame. Joint names stay bare."),
     "publish_clock": Parameter(True, "Publish simulated time on the absolute /clock (namespaces "
-                                     "do not move it); false leaves it to another simulator."),
+                                     "do not move it); false leaves it to another simulator "
+                                     "and follows the /clock it hears: a state goes out once "
+                                     "that clock has reached its stamp (real_time_factor "
+                                     "then moot)."),
     "foxglove_port": Parameter(0, "Port of a Foxglove WebSocket server inside the node (the "
                                   "channels of simulate --view); 0 = off.", limits.PORT),
     "imu.noise.angular_velocity_stddev": Parameter(

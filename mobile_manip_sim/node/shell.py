@@ -43,7 +43,7 @@ from ..scene.loading import load_scene, make_integrator
 from . import arguments, parameters, qos
 from .arm import ArmDriver, arm_array_topic
 from .commands import CommandIntake
-from .lockstep import Lockstep
+from .lockstep import ClockFollower, Lockstep
 from .loop import SteppingLoop
 from .parameters import ARM_GAIN_PARAMETERS, NODE_NAME, PARAMETERS
 from .recording import NodeRecording
@@ -99,12 +99,19 @@ class SimulatorNode(Node):
         lockstep = None
         if p.synchronous:
             lockstep = Lockstep(self.commands, self._listening, p.sync_timeout, throttle)
+        # publish_clock false: another simulator's /clock paces us (lockstep.ClockFollower).
+        pacer = (Pacer if p.publish_clock else ClockFollower)(p.real_time_factor,
+                                                              1.0 / self.grid.hz)
         self.loop = SteppingLoop(
-            self.grid, Pacer(p.real_time_factor, 1.0 / self.grid.hz), restart=self._restart,
+            self.grid, pacer, restart=self._restart,
             compute=self._compute, publish=self._publish, record=self._record,
             failed=log.error, warn=throttle.warn, lockstep=lockstep, wake=self.commands.wake,
             alive=lambda: rclpy.ok(context=self.context), progress=lambda: self.sim.t,
             replace=self._replace_engine, report=log.warning)
+        if not p.publish_clock:
+            pacer.notify = self.loop.notify
+            self.create_subscription(Clock, CLOCK_TOPIC, self._on_clock, state_qos(),
+                                     callback_group=MutuallyExclusiveCallbackGroup())
         self.create_service(Trigger, "~/reset", self._on_reset)
         self.create_service(SetBool, "~/pause", self._on_pause)
         # ~/step waits for its state: in a group of its own, ~/pause and ~/reset answer meanwhile
@@ -210,6 +217,9 @@ class SimulatorNode(Node):
         response.success, response.message = self.loop.pause(request.data)
         self.get_logger().info(response.message)
         return response
+
+    def _on_clock(self, message) -> None:
+        self.loop.pacer.heard(message.clock.sec * 1_000_000_000 + message.clock.nanosec)
 
     def _on_step(self, request, response):
         response.success, response.message = self.loop.step(STEP_TIMEOUT)
