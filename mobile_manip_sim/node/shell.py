@@ -54,6 +54,7 @@ SHUTDOWN_POLL = 0.2        # s: how often the executor checks for an external sh
 STEP_TIMEOUT = 30.0        # s of wall time a ~/step call waits for its state
 STOP_TIMEOUT = 2.0         # s of wall time shutdown waits for the stepping thread
 WATCH_PERIOD = 1.0         # s: the watchdog and the check for a namesake node run this often
+KERNEL_NOTE = 10.0         # s: a first segment longer than this is compiling: said, and again
 STATE_TYPES = {JOINT_STATES_TOPIC: JointState, ODOM_TOPIC: Odometry, CLOCK_TOPIC: Clock}
 
 
@@ -72,6 +73,8 @@ class SimulatorNode(Node):
         self.joint_names = self.scene.robot.joint_names()
         self.grid = Grid(p.publish_rate)   # publication k at t_k, segment k → k + 1
         self._compiler_pages = CompilerPages()   # given back after a segment loaded a kernel
+        self._first_segment = threading.Event()   # set once a segment ran: kernels loaded
+        self._kernel_note: threading.Thread | None = None
         self._recording: NodeRecording | None = None
         log = self.get_logger()
         throttle = Throttle(log.warning)
@@ -244,6 +247,10 @@ class SimulatorNode(Node):
         return self._messages(0)
 
     def _compute(self, k: int, start_ns: int) -> dict:
+        if self._kernel_note is None:   # the first segment: it loads (or compiles) the kernels
+            self._kernel_note = threading.Thread(target=self._say_kernels, name="kernels",
+                                                 daemon=True)
+            self._kernel_note.start()
         base, joints = self.commands.held(start_ns)
         efforts = None if self.arm is not None else joints   # the arm's, in effort mode
         applied = apply_commands(self.sim, base, efforts, self.params.velocity_mode)
@@ -254,6 +261,7 @@ class SimulatorNode(Node):
             if arm is not None:
                 self._recording.arm_command(start_ns, arm)
         self.sim.advance_to(self.grid.time(k + 1))
+        self._first_segment.set()
         self._compiler_pages.release_if_used()
         return self._messages(k + 1)
 
@@ -305,6 +313,21 @@ class SimulatorNode(Node):
     def start(self) -> None:
         """Start the stepping thread. Nothing is computed here, before the executor spins."""
         self._thread.start()
+
+    def _say_kernels(self) -> None:
+        """The first segment loads the compiled kernels — or compiles them, minutes, on an
+        install never warmed up: say so, and while it lasts say so again every KERNEL_NOTE s."""
+        log, start = self.get_logger(), time.monotonic()
+        if self._first_segment.wait(KERNEL_NOTE):
+            return
+        log.warning("the first segment is compiling the engine's kernels (this install was not "
+                    "warmed up: `ros2 run mobile_manip_sim warmup` compiles them once, ahead); "
+                    "simulated time starts when it is done")
+        while not self._first_segment.wait(KERNEL_NOTE):
+            if not rclpy.ok(context=self.context):
+                return
+            log.info(f"still compiling the kernels ({time.monotonic() - start:.0f} s)")
+        log.info(f"kernels compiled in {time.monotonic() - start:.0f} s; stepping")
 
     def stop(self) -> None:
         """Stop the stepping thread (idempotent); nothing is published afterwards."""
