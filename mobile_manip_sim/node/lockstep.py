@@ -73,6 +73,7 @@ class ClockFollower:
         self.notify: Callable[[], None] = lambda: None
 
     paced = True
+    follows = True   # the loop's ~/step waits for the clock too
 
     def heard(self, clock_ns: int) -> None:
         """A /clock message: the latest time heard (a clock that jumps back is followed)."""

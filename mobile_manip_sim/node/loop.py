@@ -175,6 +175,11 @@ class SteppingLoop:
             if self.state not in (State.RUNNING, State.STEPPING):
                 return True
             k, messages = pending
+            if (self.state is State.STEPPING and getattr(self.pacer, "follows", False)
+                    and self.pacer.delay(self.grid.stamp(k)) > 0):
+                # a node following another's /clock steps no further than that clock
+                self._wait(self.pacer.delay(self.grid.stamp(k)))
+                return True
             if self.state is State.STEPPING:   # a ~/step: publish now, no pacing
                 self._go_out(k, messages)
                 self.pending = None
