@@ -28,6 +28,10 @@ tf2_ros's topics do (use_sim_time clients and tf listeners read them there).
                                     joint_trajectory_controller/follow_joint_trajectory)
   joint_trajectory_controller/controller_state  control_msgs/msg/JointTrajectoryControllerState
                                     state, arm_controller joint_trajectory
+  topic_based_joint_commands        sensor_msgs/msg/JointState      command, ros2_control: by
+                                    joint name, from joint_state_topic_hardware_interface
+  topic_based_joint_states          sensor_msgs/msg/JointState      state, ros2_control: what
+                                    joint_states carries (which is then not published)
 
 A bag holds the state topics, the view topics (what a viewer needs to draw the robot: /tf,
 /tf_static, /robot_description; the latched ones with their transient-local QoS) and the command
