@@ -3,6 +3,7 @@
 processes on real DDS and a use_sim_time client node in this process, as RViz or tf would run.
 The clock's owner runs at half real time and the follower would run at full speed on its own:
 without following, its stamps run ahead within a second."""
+import re
 import threading
 
 import rclpy
@@ -94,7 +95,11 @@ def test_a_follower_is_never_stamped_ahead_of_the_clock_it_hears(warm_kernels, t
                 assert max(stamp for stamp, _ in robot2) <= final
                 stamps = [stamp for stamp, _ in robot2]
                 assert stamps == sorted(stamps) and len(set(stamps)) == len(stamps)
-            assert "following the /clock it hears" in follower.output()
+            # the start-up line says the mode: how it is driven, how it is paced
+            assert re.search(r"mode: base effort, arm \w+; following the /clock it hears",
+                             follower.output()), follower.output()
+            assert re.search(r"mode: base effort, arm \w+; paced by the wall clock",
+                             owner.output()), owner.output()
         finally:
             assert owner.stop() == 0, owner.output()
             assert follower.stop() == 0, follower.output()

@@ -102,13 +102,16 @@ def hardware_of(warm_kernels, tmp_path):
                 item.__exit__(None, None, None)
 
 
-def test_diff_drive_wheel_velocities_and_jtc_arm_positions_drive_the_robot(hardware_of):
+def test_diff_drive_wheel_velocities_and_jtc_arm_positions_drive_the_robot(hardware_of,
+                                                                           tmp_path):
     """Wheels by velocity (diff_drive_controller's interface), the arm by position
     (joint_trajectory_controller's): the wheels turn at the commanded speeds, the arm reaches the
-    commanded pose, and our joint_states go to the interface's topic only."""
+    commanded pose, and our joint_states go to the interface's topic only. The node's bag
+    records the commands as applied and re-simulates bit for bit."""
     joints = block("velocity", "position")
+    bag = tmp_path / "ros2_control_run"
     simulator, hw = hardware_of(joints, "-p", "base_command:=velocity",
-                                "-p", "arm_controller:=position")
+                                "-p", "arm_controller:=position", "-p", f"record:={bag}")
     names = [name for name, _ in joints]
     target = dict(zip(names[2:], SCENE.initial_q[ARM_Q] + [0.2, 0.05, -0.1, 0.05], strict=True))
     speeds = {"right_wheel_joint": 3.0, "left_wheel_joint": 2.0}
@@ -129,6 +132,13 @@ def test_diff_drive_wheel_velocities_and_jtc_arm_positions_drive_the_robot(hardw
     topics = dict(hw.node.get_topic_names_and_types())
     assert "/joint_states" not in topics or not hw.node.get_publishers_info_by_topic(
         JOINT_STATES_TOPIC), "joint_states is joint_state_broadcaster's under ros2_control"
+    assert simulator.stop() == 0, simulator.output()
+    import subprocess
+
+    from executables import executable
+    result = subprocess.run([executable("replay"), str(bag), "--resimulate"],
+                            capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0 and "IDENTICAL" in result.stdout, result.stdout + result.stderr
 
 
 def test_efforts_by_joint_name_are_applied_and_reported_as_efforts(hardware_of):
@@ -138,6 +148,7 @@ def test_efforts_by_joint_name_are_applied_and_reported_as_efforts(hardware_of):
     simulator, hw = hardware_of(joints, "-p", "base_command:=effort",
                                 "-p", "arm_controller:=effort")
     names = [name for name, _ in joints]
+    assert "mode: ros2_control hardware" in simulator.output()
     efforts = dict(zip(names, [0.1, 0.2, 1.5, 4.0, -0.3, 1.0], strict=True))
     hw.write(efforts)
     wait_for(lambda: all(hw.latest()[name][2] == value for name, value in efforts.items()),
