@@ -151,7 +151,8 @@ class SimulatorNode(Node):
                   f"steps once per command (sync_timeout {p.sync_timeout:g} s)"
                   if p.synchronous else "paced by the wall clock")
         if not p.publish_clock:
-            pacing = "following the /clock it hears (publish_clock false)"
+            pacing = (f"{pacing} and " if p.synchronous else "") + \
+                "following the /clock it hears (publish_clock false)"
         return f"mode: {inputs}; {pacing}"
 
     def _joint_commands(self) -> dict | None:
