@@ -148,7 +148,7 @@ class SimulatorNode(Node):
         inputs = ("ros2_control hardware (joint commands on topic_based_joint_commands)"
                   if p.ros2_control else f"base {p.base_command}, arm {self.arm_control.mode}")
         pacing = (f"synchronous: waits for a state subscriber and a command publisher, then "
-                  f"steps once per command (sync_timeout {p.sync_timeout:g} s)"
+                  f"steps once per command (or after {p.sync_timeout:g} s without one)"
                   if p.synchronous else "paced by the wall clock")
         if not p.publish_clock:
             pacing = (f"{pacing} and " if p.synchronous else "") + \
@@ -261,8 +261,10 @@ class SimulatorNode(Node):
             self._recording.commands(start_ns, applied[0], None if efforts is None else applied[1])
             if arm is not None:
                 self._recording.arm_command(start_ns, arm)
-        self.sim.advance_to(self.grid.time(k + 1))
-        self._first_segment.set()
+        try:
+            self.sim.advance_to(self.grid.time(k + 1))
+        finally:   # done or failed: no longer loading the kernels
+            self._first_segment.set()
         self._compiler_pages.release_if_used()
         return self._messages(k + 1)
 
