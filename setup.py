@@ -22,7 +22,7 @@ setup(
     include_package_data=True,
     python_requires=">=3.10",
     install_requires=[
-        "setuptools", "numpy", "scipy", "pyyaml", "mcap", "numba", "matplotlib",
+        "setuptools", "numpy", "scipy", "pyyaml", "mcap", "zstandard", "numba", "matplotlib",
         "dask[distributed]", "pyarrow", "foxglove-sdk",
         # ROS 2 Jazzy from PyPI wheels; on a ROS install these are already there (colcon does
         # not pip-install them).
@@ -49,6 +49,7 @@ setup(
             "simulator = mobile_manip_sim.node:main",
             "replay = mobile_manip_sim.replay.cli:main",
             "sweep = mobile_manip_sim.sweep.cli:main",
+            "warmup = mobile_manip_sim.programs.warmup:main",
         ],
     },
 )

@@ -40,6 +40,14 @@ def help_text() -> str:
         bounds = f" in {parameters.bounds(name)}" if spec.range else ""
         lines.append(f"  {name}{' *' if spec.dynamic else ''} = {shown}{bounds}")
         lines.append(f"      {spec.description}")
+    from .qos import CHOICES, DEPTH, QOS_OVERRIDES  # rclpy: only when help is asked for
+    lines += ["", "QoS overrides (read-only; one set per published topic, as rclpy nodes take "
+                  "them):"]
+    for policy, choices in CHOICES.items():
+        lines.append(f"  {QOS_OVERRIDES}<topic>.publisher.{policy} = {' | '.join(choices)}")
+    lines += [f"  {QOS_OVERRIDES}<topic>.publisher.{DEPTH} = an integer of at least 1",
+              "      <topic> is the resolved name: /odom, or /robot1/odom under -r "
+              "__ns:=/robot1; a topic the node does not publish is refused."]
     return "\n".join(lines)
 
 

@@ -26,6 +26,7 @@ from ..ros.topics import (
     ARM_TOPIC,
     CMD_VEL_TOPIC,
     COMMAND_QOS_DEPTH,
+    JOINT_COMMANDS_TOPIC,
     WHEEL_TOPIC,
     command_qos,
     relative,
@@ -80,22 +81,102 @@ class CommandInput:
         self.name = self.subscription.topic_name   # as remapped, for messages
 
     def take(self, since_ns: int) -> list:
-        """The messages waiting that arrived at or after ``since_ns`` (wall clock, ns), oldest
-        first; at most MAX_TAKEN: a flood cannot hold us."""
-        taken = []
-        subscription = self.subscription
-        with subscription.handle:
-            for _ in range(MAX_TAKEN):
-                message = subscription.handle.take_message(subscription.msg_type, False)
-                if message is None:
-                    break
-                if message[1]["received_timestamp"] >= since_ns:
-                    taken.append(message[0])
-        return taken
+        return take(self.subscription, since_ns)
 
     def commanded(self) -> bool:
         """Someone publishes on this topic."""
         return self.subscription.get_publisher_count() > 0
+
+
+def take(subscription, since_ns: int) -> list:
+    """The messages waiting on ``subscription`` that arrived at or after ``since_ns`` (wall
+    clock, ns), oldest first; at most MAX_TAKEN: a flood cannot hold us."""
+    taken = []
+    with subscription.handle:
+        for _ in range(MAX_TAKEN):
+            message = subscription.handle.take_message(subscription.msg_type, False)
+            if message is None:
+                break
+            if message[1]["received_timestamp"] >= since_ns:
+                taken.append(message[0])
+    return taken
+
+
+class JointCommands:
+    """ros2_control's topic-based hardware interface (joint_state_topic_hardware_interface):
+    sensor_msgs/JointState commands by joint name on one topic. Each joint takes the field of its
+    command interface — the wheels velocity (base_command velocity) or effort, the arm's joints
+    the arm controller's (position, velocity or effort) — as that interface fills it: a field
+    as long as ``name`` is by name; a shorter one holds, in ``name`` order, the values of the
+    named joints whose interface it is. A joint a message does not name keeps its last command.
+    The wheels' values become the base command (wheel torques, or v = r(ω_R + ω_L)/2,
+    ω = r(ω_R − ω_L)/(2b)), the arm's the arm command: the same slots the array topics fill."""
+
+    FIELDS = ("position", "velocity", "effort")
+
+    def __init__(self, node, group, names, velocity_mode: bool, arm_interface: str,
+                 wheel_radius: float, half_track: float, arm_initial):
+        self.topic, self.what, self.times_out = JOINT_COMMANDS_TOPIC, "joint", False
+        self.names = list(names)
+        self.interfaces = {name: ("velocity" if velocity_mode else "effort") if j < 2
+                           else arm_interface for j, name in enumerate(self.names)}
+        self._velocity_mode, self._r, self._b = velocity_mode, wheel_radius, half_track
+        self._arm_initial = np.array(arm_initial, dtype=float)
+        self.values = np.zeros(len(self.names))   # the last command of each joint
+        self.restart()
+        from sensor_msgs.msg import JointState
+        self.subscription = node.create_subscription(JointState, relative(self.topic),
+                                                     lambda _: None, command_qos(),
+                                                     callback_group=group)
+        self.name = self.subscription.topic_name
+
+    def take(self, since_ns: int) -> list:
+        return take(self.subscription, since_ns)
+
+    def commanded(self) -> bool:
+        return self.subscription.get_publisher_count() > 0
+
+    def restart(self) -> None:
+        """~/reset: the wheels' commands zero, the arm's its initial ones."""
+        self.values[:2] = 0.0
+        self.values[2:] = self._arm_initial
+
+    def read(self, message) -> tuple[np.ndarray | None, str | None]:
+        """(every joint's command after ``message``, None), or (None, why it is refused)."""
+        names = list(message.name)
+        unknown = [name for name in names if name not in self.interfaces]
+        if unknown:
+            return None, (f"unknown joint {unknown[0]!r} (the node's joints: "
+                          f"{', '.join(self.names)})")
+        if len(set(names)) != len(names):
+            return None, "a joint is named twice"
+        values = self.values.copy()
+        for field in self.FIELDS:
+            given = list(getattr(message, field))
+            if not given:
+                continue
+            if len(given) == len(names):
+                pairs = zip(names, given, strict=True)
+            else:
+                mine = [name for name in names if self.interfaces[name] == field]
+                if len(given) != len(mine):
+                    return None, (f"{field} has {len(given)} values for {len(names)} names "
+                                  f"({len(mine)} of them take {field} commands)")
+                pairs = zip(mine, given, strict=True)
+            for name, value in pairs:
+                if self.interfaces[name] != field:
+                    continue
+                if not math.isfinite(value):
+                    return None, f"{field} of {name} is {value}"
+                values[self.names.index(name)] = value
+        return values, None
+
+    def base(self, values) -> list[float]:
+        """The base slot's command from the wheels' values."""
+        right, left = float(values[0]), float(values[1])
+        if not self._velocity_mode:
+            return [right, left]
+        return [0.5 * self._r * (right + left), 0.5 * self._r * (right - left) / self._b]
 
 
 class CommandIntake:
@@ -106,7 +187,10 @@ class CommandIntake:
 
     def __init__(self, node, velocity_mode: bool, stamped: bool, arm_size: int,
                  timeout: float, throttle: Throttle, log_warning: Callable[[str], None],
-                 arm_topic: str | None = ARM_TOPIC):
+                 arm_topic: str | None = ARM_TOPIC, joint_commands: dict | None = None):
+        """``joint_commands``: the keyword arguments of `JointCommands` but the node's and the
+        group's, to take ros2_control's joint commands too (then no command times out: that
+        interface sends a command only when it changes); None: not."""
         taken = _TakenByTheSteppingThread()
         if velocity_mode:
             from geometry_msgs.msg import Twist, TwistStamped
@@ -122,6 +206,12 @@ class CommandIntake:
         if arm_topic is not None:
             self.inputs += (CommandInput(node, arm_topic, Float64MultiArray, arm_size, arm_labels,
                                          "arm", taken, times_out=arm_topic == ARM_TOPIC),)
+        self.joints = None
+        if joint_commands is not None:
+            for command in self.inputs:
+                command.times_out = False
+            self.joints = JointCommands(node, taken, velocity_mode=velocity_mode,
+                                        **joint_commands)
         self._stamped = stamped
         self.timeout_ns = round(timeout * NS)
         self._throttle, self._log_warning = throttle, log_warning
@@ -154,6 +244,24 @@ class CommandIntake:
             if latest is not None:
                 with self._lock:
                     command.slot.receive(latest, now_ns)
+        if self.joints is not None:
+            self._drain_joints(now_ns)
+
+    def _drain_joints(self, now_ns: int) -> None:
+        """The latest valid joint command fills the base slot and the arm's (if any)."""
+        joints = self.joints
+        for message in reversed(joints.take(self._since_ns)):
+            values, problem = joints.read(message)
+            if problem is not None:
+                self._throttle.warn((joints.topic, "bad"),
+                                    f"{joints.name}: {problem}; keeping the last valid command")
+                continue
+            joints.values = values
+            with self._lock:
+                self.inputs[0].slot.receive(joints.base(values), now_ns)
+                if len(self.inputs) > 1:
+                    self.inputs[1].slot.receive(values[2:], now_ns)
+            return
 
     def held(self, segment_start_ns: int) -> tuple[np.ndarray, np.ndarray]:
         """The base command (wheel torques, or [v, ω]) and the arm's (efforts, or an arm
@@ -185,6 +293,8 @@ class CommandIntake:
         with self._lock:
             for command in self.inputs:
                 command.slot.clear()
+            if self.joints is not None:
+                self.joints.restart()
             self._since_ns = now_wall_ns
 
     def restart(self) -> None:
@@ -207,11 +317,15 @@ class CommandIntake:
             return [command.slot.seq != command.slot.seq_published for command in self.inputs]
 
     def commanded(self) -> list[bool]:
-        return [command.commanded() for command in self.inputs]
+        """Per input: someone publishes on it (ros2_control's joint commands count for both)."""
+        joints = self.joints is not None and self.joints.commanded()
+        return [command.commanded() or joints for command in self.inputs]
 
     def wait(self, timeout: float) -> None:
         """Until a command subscription has a message, `wake` is called, or ``timeout`` s."""
         subscriptions = [command.subscription for command in self.inputs]
+        if self.joints is not None:
+            subscriptions.append(self.joints.subscription)
         with contextlib.ExitStack() as stack:
             for entity in (*subscriptions, self._guard):
                 stack.enter_context(entity.handle)

@@ -52,3 +52,46 @@ class Lockstep:
                                                f"{format_ns(now_ns)} s; holding the last one")
                 return
             self.commands.wait(remaining)
+
+
+class ClockFollower:
+    """The pacer of a node that does not publish /clock (publish_clock false): state k, stamped
+    t_k, goes out once the /clock it hears (another simulator's) has reached t_k, so every
+    message of every robot is stamped on that one clock and none ahead of it; the node runs
+    as fast as that clock, never faster, and behind it when it cannot keep up (its stamps then
+    lie in the past, never in the future). Until a /clock is heard, only t = 0 goes out.
+    `heard` is called from the /clock subscription; ``notify()`` wakes the stepping thread.
+    It stands in for a `runtime.pacing.Pacer` (the same methods; real_time_factor is moot)."""
+
+    POLL = 0.5   # s: the longest wait between looks at the clock (a notification ends it early)
+
+    def __init__(self, real_time_factor: float, period: float,
+                 clock: Callable[[], float] = time.monotonic):
+        self.real_time_factor, self.period, self.clock = real_time_factor, period, clock
+        self.heard_ns: int | None = None
+        self.anchor = self.window = (clock(), 0)
+        self.notify: Callable[[], None] = lambda: None
+
+    paced = True
+    follows = True   # the loop's ~/step waits for the clock too
+
+    def heard(self, clock_ns: int) -> None:
+        """A /clock message: the latest time heard (a clock that jumps back is followed)."""
+        self.heard_ns = clock_ns
+        self.notify()
+
+    def delay(self, stamp: int) -> float:
+        """≤ 0 when the heard clock has reached ``stamp``, else how long to wait at most."""
+        return -1.0 if self.heard_ns is not None and stamp <= self.heard_ns else self.POLL
+
+    def late(self, stamp: int, late: float) -> None:
+        return None   # following a clock is never late: it waits for it
+
+    def reanchor(self, now_ns: int) -> None:
+        self.anchor = self.window = (self.clock(), now_ns)
+
+    def set_real_time_factor(self, factor: float, now_ns: int) -> None:
+        self.real_time_factor = factor   # the heard clock paces, not the factor
+
+    def restart_window(self) -> None:
+        self.window = self.anchor

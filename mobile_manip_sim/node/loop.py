@@ -183,6 +183,11 @@ class SteppingLoop:
             if self.state not in (State.RUNNING, State.STEPPING):
                 return True
             k, messages = pending
+            if (self.state is State.STEPPING and getattr(self.pacer, "follows", False)
+                    and self.pacer.delay(self.grid.stamp(k)) > 0):
+                # a node following another's /clock steps no further than that clock
+                self._wait(self.pacer.delay(self.grid.stamp(k)))
+                return True
             if self.state is State.STEPPING:   # a ~/step: publish now, no pacing
                 self._go_out(k, messages)
                 self.pending = None
@@ -298,6 +303,11 @@ class SteppingLoop:
                                 f"clock, measured real-time factor {measured:.2f} since {since} "
                                 f"s; simulated time runs slower"):
             self.pacer.restart_window()
+
+    def notify(self) -> None:
+        """Something the pacer waits for happened (a /clock heard): look again now."""
+        with self.cv:
+            self.cv.notify_all()
 
     def _changed(self) -> None:
         """Under cv: the state changed; wake the stepping thread wherever it waits."""

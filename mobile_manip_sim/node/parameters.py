@@ -67,7 +67,10 @@ PARAMETERS = {
                                   "/imu, the URDF's links), e.g. robot1/: two robots then make "
                                   "one tree without a shared frame. Joint names stay bare."),
     "publish_clock": Parameter(True, "Publish simulated time on the absolute /clock (namespaces "
-                                     "do not move it); false leaves it to another simulator."),
+                                     "do not move it); false leaves it to another simulator "
+                                     "and follows the /clock it hears: a state goes out once "
+                                     "that clock has reached its stamp (real_time_factor "
+                                     "then moot)."),
     "foxglove_port": Parameter(0, "Port of a Foxglove WebSocket server inside the node (the "
                                   "channels of simulate --view); 0 = off.", limits.PORT),
     "foxglove_host": Parameter("127.0.0.1", "Address the Foxglove server listens on: 127.0.0.1 "
@@ -96,6 +99,14 @@ PARAMETERS = {
                                         "wheel_effort_controller/commands; velocity: the base "
                                         "takes cmd_vel, turned into wheel torques by a "
                                         "wheel-speed PI loop inside the simulated system."),
+    "ros2_control": Parameter(False, "Be the hardware of ros2_control's topic-based interface "
+                                     "(joint_state_topic_hardware_interface): take sensor_msgs/"
+                                     "JointState commands by joint name on "
+                                     "topic_based_joint_commands and publish the joint states on "
+                                     "topic_based_joint_states instead of joint_states (whose "
+                                     "publisher is then joint_state_broadcaster); the wheels' "
+                                     "interface follows base_command, the arm's arm_controller "
+                                     "(position, velocity or effort); no command times out."),
     "cmd_vel_stamped": Parameter(False, "Velocity mode: cmd_vel is geometry_msgs/TwistStamped "
                                         "(as Jazzy's diff_drive_controller takes it) rather "
                                         "than Twist."),
@@ -214,6 +225,7 @@ class NodeParameters:
     atol: float | None
 
     arm_controller: ArmController = ArmController()   # not yet resolved for the robot
+    ros2_control: bool = False     # joint commands and states of the topic-based interface
 
     @property
     def velocity_mode(self) -> bool:
@@ -252,6 +264,11 @@ def read(values: Mapping[str, object]) -> NodeParameters:
                                   f"a directory name, or \"\" for no recording")
     if values["base_command"] not in BASE_COMMANDS:
         raise UserError("base_command", f"{values['base_command']!r} is not effort or velocity")
+    if values["ros2_control"] and values["arm_controller"] == "joint_trajectory":
+        raise UserError("ros2_control", "takes the arm's commands from controller_manager: set "
+                                        "arm_controller to position, velocity or effort (the "
+                                        "arm's command interface; joint_trajectory_controller "
+                                        "then runs in controller_manager)")
     view = _view_parameters(values)
     return NodeParameters(
         scene=values["scene"], publish_rate=values["publish_rate"],
@@ -269,7 +286,8 @@ def read(values: Mapping[str, object]) -> NodeParameters:
             values["arm_feedforward"],
             ModelError(values["arm_model_error.mass"], values["arm_model_error.inertia"],
                        None if values["arm_model_error.payload"] < 0.0
-                       else values["arm_model_error.payload"])))
+                       else values["arm_model_error.payload"])),
+        ros2_control=values["ros2_control"])
 
 
 def _view_parameters(values: Mapping[str, object]) -> dict:

@@ -32,19 +32,25 @@ from std_srvs.srv import SetBool, Trigger
 from ..engine.arm_control import for_robot
 from ..engine.simulation import Simulation
 from ..ros.messages import state_messages
-from ..ros.topics import CLOCK_TOPIC, JOINT_STATES_TOPIC, ODOM_TOPIC, state_qos
+from ..ros.topics import (
+    CLOCK_TOPIC,
+    JOINT_STATES_TOPIC,
+    ODOM_TOPIC,
+    ROBOT_JOINT_STATES_TOPIC,
+    state_qos,
+)
 from ..runtime import cli
 from ..runtime.compiles import CompileWatch
 from ..runtime.memory import CompilerPages, release_compiler_pages
 from ..runtime.pacing import Pacer
 from ..runtime.timeline import Grid, apply_commands, start_node_time_line
-from ..scene.coordinates import ARM_U, arm_size
+from ..scene.coordinates import ARM_Q, ARM_U, arm_size
 from ..scene.errors import UserError
 from ..scene.loading import load_scene, make_integrator
 from . import arguments, parameters, qos
 from .arm import ArmDriver, arm_array_topic
 from .commands import CommandIntake
-from .lockstep import Lockstep
+from .lockstep import ClockFollower, Lockstep
 from .loop import Abandoned, SteppingLoop
 from .parameters import ARM_GAIN_PARAMETERS, NODE_NAME, PARAMETERS
 from .recording import BAG_FLUSH_INTERVAL, NodeRecording
@@ -57,6 +63,7 @@ STOP_TIMEOUT = 2.0         # s of wall time shutdown waits for the stepping thre
 EXECUTOR_THREADS = 6       # two goals' execute callbacks, the trajectory topic, the services,
 #                            the timers: none waits for another
 WATCH_PERIOD = 1.0         # s: the watchdog and the check for a namesake node run this often
+KERNEL_NOTE = 10.0         # s: a first segment longer than this is compiling: said, and again
 STATE_TYPES = {JOINT_STATES_TOPIC: JointState, ODOM_TOPIC: Odometry, CLOCK_TOPIC: Clock}
 
 
@@ -76,35 +83,50 @@ class SimulatorNode(Node):
         self.joint_names = self.scene.robot.joint_names()
         self.grid = Grid(p.publish_rate)   # publication k at t_k, segment k → k + 1
         self._compiler_pages = CompilerPages()   # given back after a segment loaded a kernel
+        self._first_segment = threading.Event()   # set once a segment ran: kernels loaded
+        self._kernel_note: threading.Thread | None = None
         self._recording: NodeRecording | None = None
         log = self.get_logger()
         throttle = Throttle(log.warning)
 
         # Relative names: a namespace (__ns:=/robot1) or a remap moves every topic but /clock,
         # which use_sim_time clients read at /clock whatever their namespace (publish_clock).
+        # ros2_control: joint_state_broadcaster publishes joint_states; ours go to the topic the
+        # hardware interface reads (recorded as /joint_states all the same).
         self._state_pubs = {topic: qos.publisher(self, kind, topic, state_qos(),
                                                  absolute=topic == CLOCK_TOPIC)
                             for topic, kind in STATE_TYPES.items()
-                            if p.publish_clock or topic != CLOCK_TOPIC}
+                            if (p.publish_clock or topic != CLOCK_TOPIC)
+                            and not (p.ros2_control and topic == JOINT_STATES_TOPIC)}
+        self._hardware_states = None if not p.ros2_control else qos.publisher(
+            self, JointState, ROBOT_JOINT_STATES_TOPIC, state_qos())
         self.view = NodeView(self, self.scene, p)
         qos.check_unknown(self)
         self.commands = CommandIntake(self, p.velocity_mode, p.cmd_vel_stamped,
                                       arm_size(self.scene.robot.n_links), p.command_timeout,
                                       throttle, log.warning,
-                                      arm_topic=arm_array_topic(self.arm_controller))
+                                      arm_topic=arm_array_topic(self.arm_controller),
+                                      joint_commands=self._joint_commands())
         # An arm controller's commands (arm.py); None in effort mode.
         self.arm = ArmDriver(self, self.arm_controller.mode, self.joint_names[ARM_U],
                              throttle.warn, log.warning) if self.arm_controller.active else None
         lockstep = None
         if p.synchronous:
             lockstep = Lockstep(self.commands, self._listening, p.sync_timeout, throttle)
+        # publish_clock false: another simulator's /clock paces us (lockstep.ClockFollower).
+        pacer = (Pacer if p.publish_clock else ClockFollower)(p.real_time_factor,
+                                                              1.0 / self.grid.hz)
         self.loop = SteppingLoop(
-            self.grid, Pacer(p.real_time_factor, 1.0 / self.grid.hz), restart=self._restart,
+            self.grid, pacer, restart=self._restart,
             compute=self._compute, publish=self._publish, record=self._record,
             failed=self._failed, warn=throttle.warn, lockstep=lockstep, wake=self.commands.wake,
             alive=lambda: rclpy.ok(context=self.context), progress=self._progress,
             replace=self._replace_engine, report=log.warning)
         self._generation = 0   # engines replaced by the watchdog so far (`_owned`)
+        if not p.publish_clock:
+            pacer.notify = self.loop.notify
+            self.create_subscription(Clock, CLOCK_TOPIC, self._on_clock, state_qos(),
+                                     callback_group=MutuallyExclusiveCallbackGroup())
         self.create_service(Trigger, "~/reset", self._on_reset)
         self.create_service(SetBool, "~/pause", self._on_pause)
         # ~/step waits for its state: in a group of its own, ~/pause and ~/reset answer meanwhile
@@ -133,8 +155,8 @@ class SimulatorNode(Node):
         log.info(f"scene '{self.scene.name}', integrator {s.method} "
                  f"({'dt ' + str(s.dt) if s.fixed_step else f'rtol {s.rtol}'}), publishing at "
                  f"{self.grid.hz:g} Hz of simulated time, real-time factor "
-                 f"{p.real_time_factor:g}{' (free-running)' if not p.real_time_factor else ''}, "
-                 f"arm_controller {self.arm_controller.mode}")
+                 f"{p.real_time_factor:g}{' (free-running)' if not p.real_time_factor else ''}; "
+                 f"{self._mode()}")
         if self.arm is not None and self.arm.trajectories is not None:
             self.arm.trajectories.start()   # says so if the action is off
         for warning in self.view.warnings:
@@ -142,6 +164,29 @@ class SimulatorNode(Node):
         if self.view.live is not None:
             log.info(f"live view: {self.view.live.url} (Foxglove: open connection, Foxglove "
                      f"WebSocket)")
+
+    def _mode(self) -> str:
+        """The start-up line's account of how the node is driven and paced."""
+        p = self.params
+        inputs = ("ros2_control hardware (joint commands on topic_based_joint_commands)"
+                  if p.ros2_control else f"base {p.base_command}, "
+                       f"arm_controller {self.arm_controller.mode}")
+        pacing = (f"synchronous: waits for a state subscriber and a command publisher, then "
+                  f"steps once per command (or after {p.sync_timeout:g} s without one)"
+                  if p.synchronous else "paced by the wall clock")
+        if not p.publish_clock:
+            pacing = (f"{pacing} and " if p.synchronous else "") + \
+                "following the /clock it hears (publish_clock false)"
+        return f"mode: {inputs}; {pacing}"
+
+    def _joint_commands(self) -> dict | None:
+        """The command intake's settings for ros2_control's joint commands, or None."""
+        if not self.params.ros2_control:
+            return None
+        base = self.scene.robot.base
+        return dict(names=self.joint_names, arm_interface=self.arm_controller.mode,
+                    wheel_radius=base.wheel_radius, half_track=base.half_track,
+                    arm_initial=self.scene.initial_q[ARM_Q])
 
     # --- parameters ------------------------------------------------------------------------
     def _declared_parameters(self) -> dict:
@@ -208,6 +253,9 @@ class SimulatorNode(Node):
         self.get_logger().info(response.message)
         return response
 
+    def _on_clock(self, message) -> None:
+        self.loop.pacer.heard(message.clock.sec * 1_000_000_000 + message.clock.nanosec)
+
     def _on_step(self, request, response):
         response.success, response.message = self.loop.step(STEP_TIMEOUT)
         return response
@@ -236,6 +284,10 @@ class SimulatorNode(Node):
         # own engine and never reaches the one that replaced it; `_owned` before each step
         # that touches what the two share (goals, the bag) ends it instead.
         sim, generation = self.sim, self._generation
+        if self._kernel_note is None:   # the first segment: it loads (or compiles) the kernels
+            self._kernel_note = threading.Thread(target=self._say_kernels, name="kernels",
+                                                 daemon=True)
+            self._kernel_note.start()
         base, joints = self.commands.held(start_ns)
         efforts = None if self.arm is not None else joints   # the arm's, in effort mode
         applied = apply_commands(sim, base, efforts, self.params.velocity_mode)
@@ -247,7 +299,10 @@ class SimulatorNode(Node):
             self._recording.commands(start_ns, applied[0], None if efforts is None else applied[1])
             if arm is not None:
                 self._recording.arm_command(start_ns, arm)
-        sim.advance_to(self.grid.time(k + 1))
+        try:
+            sim.advance_to(self.grid.time(k + 1))
+        finally:   # done or failed: no longer loading the kernels
+            self._first_segment.set()
         self._owned(generation)
         self._compiler_pages.release_if_used()
         return self._messages(k + 1, sim)
@@ -277,6 +332,9 @@ class SimulatorNode(Node):
                 if topic in self._state_pubs:
                     self._state_pubs[topic].publish(self.view.wire(topic, messages[topic]))
                 published[topic] = messages[topic]
+            if self._hardware_states is not None:
+                self._hardware_states.publish(self.view.wire(JOINT_STATES_TOPIC,
+                                                             messages[JOINT_STATES_TOPIC]))
             self.view.publish(self.grid.stamp(k), messages, published)
         finally:
             # What went out is recorded, even when a shutdown fails the rest of the group.
@@ -288,7 +346,8 @@ class SimulatorNode(Node):
             self._recording.record()
 
     def _listening(self) -> bool:
-        return any(pub.get_subscription_count() > 0 for pub in self._state_pubs.values())
+        publishers = [*self._state_pubs.values(), self._hardware_states]
+        return any(pub.get_subscription_count() > 0 for pub in publishers if pub is not None)
 
     def _replace_engine(self) -> None:
         """The watchdog gave up on a stuck segment: a new engine (the old one is left to it)."""
@@ -314,6 +373,21 @@ class SimulatorNode(Node):
     def start(self) -> None:
         """Start the stepping thread. Nothing is computed here, before the executor spins."""
         self._thread.start()
+
+    def _say_kernels(self) -> None:
+        """The first segment loads the compiled kernels — or compiles them, minutes, on an
+        install never warmed up: say so, and while it lasts say so again every KERNEL_NOTE s."""
+        log, start = self.get_logger(), time.monotonic()
+        if self._first_segment.wait(KERNEL_NOTE):
+            return
+        log.warning("the first segment is compiling the engine's kernels (this install was not "
+                    "warmed up: `ros2 run mobile_manip_sim warmup` compiles them once, ahead); "
+                    "simulated time starts when it is done")
+        while not self._first_segment.wait(KERNEL_NOTE):
+            if not rclpy.ok(context=self.context):
+                return
+            log.info(f"still compiling the kernels ({time.monotonic() - start:.0f} s)")
+        log.info(f"kernels compiled in {time.monotonic() - start:.0f} s; stepping")
 
     def stop(self) -> None:
         """Stop the stepping thread (idempotent); nothing is published afterwards."""

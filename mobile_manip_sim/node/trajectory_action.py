@@ -174,8 +174,14 @@ class TrajectoryInterface:
             result.error_code = self.goals.codes.invalid_goal
             result.error_string = "the node is shutting down"
             end = goal_handle.abort
-        elif outcome.code is None:
+        elif outcome.code is None or outcome.canceled:
+            result.error_code = outcome.code or 0   # a preempted goal: INVALID_GOAL, as jtc
             result.error_string = outcome.text
+            if not goal_handle.is_cancel_requested:
+                # Preempted: ends CANCELED as jtc's does. An action goal reaches CANCELED only
+                # through CANCELING, which rclpy enters only for a client's cancel request.
+                from rclpy.impl.implementation_singleton import rclpy_implementation
+                goal_handle._update_state(rclpy_implementation.GoalEvent.CANCEL_GOAL)
             end = goal_handle.canceled
         else:
             result.error_code, result.error_string = outcome.code, outcome.text

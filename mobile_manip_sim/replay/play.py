@@ -8,11 +8,14 @@ once: their last message at or before the start. A topic whose message type is n
 valid ROS topic name is left out with a warning (named with ``--topics``: a one-line error).
 ``/clock`` comes from the bag and is always played, whatever the topics selected; a bag without
 it gets one ``rosgraph_msgs/Clock`` per distinct log time. With ``wait_for_subscribers``
-playback is held until every played topic but the latched ones has a subscriber (for scripts
-and tests). Without it, playback still waits (at most DISCOVERY_TIMEOUT s) until the
-subscribers that already run are matched: a reliable subscriber matched late would miss the
-first ~0.4 s of the bag. The time it prints ("played N messages … in S s") is the playing's
-alone, without these waits or the final wait for acknowledgements.
+playback is held until some played topic has a subscriber and every subscriber discovery knows
+of is matched, the graph unchanged for DISCOVERY_SETTLE s (for scripts and tests; a subscriber
+of only some topics is enough). Without it, playback still waits so (at most DISCOVERY_TIMEOUT
+s): a reliable subscriber matched late would miss the first ~0.4 s of the bag. Pacing starts at
+the first message played, after the scan to ``--start-offset``: message m is due
+(t_m − start) / rate after it, however long the scan took. The time it prints ("played N
+messages … in S s") is the playing's alone, without these waits or the final wait for
+acknowledgements.
 """
 from __future__ import annotations
 
@@ -129,11 +132,7 @@ def play(bag, topics=None, rate: float = 1.0, loop: bool = False, start_offset: 
                    if topic not in LATCHED_TOPICS}
         if clock_publisher is not None:
             waiting[CLOCK_TOPIC] = clock_publisher
-        if wait_for_subscribers:
-            while rclpy.ok() and not all(p.get_subscription_count() for p in waiting.values()):
-                time.sleep(SLEEP_SLICE)
-        else:
-            _await_discovery(node, waiting)
+        _await_discovery(node, waiting, None if wait_for_subscribers else DISCOVERY_TIMEOUT)
         played = 0
         wall_start = time.monotonic()
         while rclpy.ok():
@@ -157,17 +156,18 @@ def play(bag, topics=None, rate: float = 1.0, loop: bool = False, start_offset: 
     return 0
 
 
-def _await_discovery(node, publishers: dict) -> None:
+def _await_discovery(node, publishers: dict, timeout: float | None) -> None:
     """Give discovery the time to match the subscribers that already run: until some
     subscriber is known on a played topic, every one known is matched and the graph (nodes,
-    subscribers, matches) has not changed for DISCOVERY_SETTLE s; at most DISCOVERY_TIMEOUT s."""
+    subscribers, matches) has not changed for DISCOVERY_SETTLE s; at most ``timeout`` s (None:
+    until then, however long)."""
     import rclpy
 
     start = time.monotonic()
     last, since = None, start
     while rclpy.ok():
         now = time.monotonic()
-        if now - start >= DISCOVERY_TIMEOUT:
+        if timeout is not None and now - start >= timeout:
             return
         known = [node.count_subscribers(topic) for topic in publishers]
         matched = [publisher.get_subscription_count() for publisher in publishers.values()]
@@ -229,25 +229,31 @@ def _first_at(bag, topics, start: int):
     return None
 
 
-def _play_once(bag, topics, start: int, rate: float, publishers, clock_publisher) -> int:
-    """Publish the messages from log time ``start`` on, paced by the wall clock."""
-    import rclpy
+def _play_once(bag, topics, start: int, rate: float, publishers, clock_publisher,
+               wall=time.monotonic, sleep=time.sleep, ok=None) -> int:
+    """Publish the messages from log time ``start`` on, paced by the wall clock ``wall`` from
+    the instant the first of them is reached (the scan to ``start`` is not playing time)."""
+    if ok is None:
+        import rclpy
+        ok = rclpy.ok
 
-    wall_start = time.monotonic()
+    wall_start = None
     played = 0
     last_clock = None
     for message in bag.messages(topics):
         if message.log_time_ns < start or (message.log_time_ns == start
                                            and message.topic in LATCHED_TOPICS):
             continue   # before the start, or played already (`_play_latched`)
+        if wall_start is None:
+            wall_start = wall()
         due = wall_start + (message.log_time_ns - start) / NS / rate
         while True:
-            if not rclpy.ok():
+            if not ok():
                 return played
-            remaining = due - time.monotonic()
+            remaining = due - wall()
             if remaining <= 0:
                 break
-            time.sleep(min(remaining, SLEEP_SLICE))
+            sleep(min(remaining, SLEEP_SLICE))
         if clock_publisher is not None and message.log_time_ns != last_clock:
             clock_publisher.publish(clock(message.log_time_ns))
             last_clock = message.log_time_ns

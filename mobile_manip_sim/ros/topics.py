@@ -28,6 +28,10 @@ tf2_ros's topics do (use_sim_time clients and tf listeners read them there).
                                     joint_trajectory_controller/follow_joint_trajectory)
   joint_trajectory_controller/controller_state  control_msgs/msg/JointTrajectoryControllerState
                                     state, arm_controller joint_trajectory
+  topic_based_joint_commands        sensor_msgs/msg/JointState      command, ros2_control: by
+                                    joint name, from joint_state_topic_hardware_interface
+  topic_based_joint_states          sensor_msgs/msg/JointState      state, ros2_control: what
+                                    joint_states carries (which is then not published)
 
 A bag holds the state topics, the view topics (what a viewer needs to draw the robot: /tf,
 /tf_static, /robot_description; the latched ones with their transient-local QoS) and the command
@@ -103,6 +107,15 @@ ARM_COMMAND_TOPICS = {name: mode.topic for name, mode in MODES.items()}
 BAG_TOPIC_TYPES.update({mode.topic: mode.recorded for mode in MODES.values()})
 COMMAND_TOPICS = (*COMMAND_TOPICS, *(topic for topic in ARM_COMMAND_TOPICS.values()
                                      if topic not in COMMAND_TOPICS))
+
+# --- ros2_control's topic-based hardware interface (node parameter ros2_control) ---
+# joint_state_topic_hardware_interface publishes sensor_msgs/JointState commands by joint name
+# (position, velocity or effort per the joint's command interface; QoS depth 1, reliable) and
+# reads joint states (SensorDataQoS: best effort, which our reliable publisher serves). The
+# names are those of that interface's documented example; the URDF block names them
+# (urdf.ros2_control_block).
+JOINT_COMMANDS_TOPIC = "/topic_based_joint_commands"
+ROBOT_JOINT_STATES_TOPIC = "/topic_based_joint_states"
 
 def recorded_topics(base_command: str = "effort", view: bool = True, imu: bool = False,
                     arm_controller: str = "effort") -> dict:

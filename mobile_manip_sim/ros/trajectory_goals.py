@@ -18,8 +18,8 @@ them here; the engine does the interpolation (`Simulation.set_arm_trajectory`).
   state there: before the last point's time the path tolerance (PATH_TOLERANCE_VIOLATED, then the
   arm holds where it is); from then on, within the goal tolerance is SUCCESSFUL, and outside it
   for more than goal_time (when non-zero) GOAL_TOLERANCE_VIOLATED (then it holds).
-- A new goal preempts the active one (INVALID_GOAL, "preempted", as jtc); a cancel holds the arm
-  where it is and ends the goal as canceled; a reset aborts it (INVALID_GOAL).
+- A new goal preempts the active one (CANCELED with INVALID_GOAL, "preempted", as jtc); a cancel
+  holds the arm where it is and ends the goal as canceled; a reset aborts it (INVALID_GOAL).
 
 Result codes are not written here: `Codes.of` reads them from control_msgs' Result type.
 Errors are desired − actual, as jtc's, the position error of a revolute joint (continuous in the
@@ -87,6 +87,9 @@ class Goal(NamedTuple):
 class Outcome(NamedTuple):
     code: int | None             # None: canceled
     text: str
+    # Ends as CANCELED with ``code`` (a preempted goal: joint_trajectory_controller cancels it
+    # with INVALID_GOAL), rather than ABORTED.
+    canceled: bool = False
 
 
 class Tolerances(NamedTuple):
@@ -287,7 +290,7 @@ class TrajectoryGoals:
             self._pending = self.active = None
 
     def _preempted(self) -> Outcome:
-        return Outcome(self.codes.invalid_goal, "preempted by a new goal")
+        return Outcome(self.codes.invalid_goal, "preempted by a new goal", canceled=True)
 
     def segment_start(self, now_ns: int, desired, actual,
                       apply: Callable[[Trajectory], None]) -> Step:

@@ -43,6 +43,28 @@ def _main(argv) -> int:
     columns = runner.state_columns(len(spec.document["robot"].get("arm", {}).get("links", [])))
     store = results.Store(Path(args.out), results.schema(varied, columns), fingerprint(spec))
     todo = [i for i in range(len(runs)) if i not in store.done]
+    if spec.duplicates():
+        print(spec.duplicates(), flush=True)
+    start = time.perf_counter()
+    if todo:
+        if _sweep(args, spec, runs, todo, store) == 130:
+            return 130
+    else:   # finished already: no cluster to start (a LocalCluster costs seconds to minutes)
+        print(f"sweep: {len(runs)} runs, all already in {args.out}: nothing to run",
+              flush=True)
+    store.flush(final=True)
+    table = store.table()
+    failed = table.column("status").to_pylist().count("failed")
+    from . import report
+    report.write(Path(args.out), table, spec)
+    print(f"sweep: {table.num_rows} runs, {table.num_rows - failed} ok, {failed} failed, "
+          f"{time.perf_counter() - start:.1f} s wall → {args.out}/runs.parquet, "
+          f"{args.out}/REPORT.md")
+    return 0
+
+
+def _sweep(args, spec: Spec, runs: list, todo: list, store) -> int:
+    """Run ``todo`` on the cluster; 130 when interrupted (every finished run kept), else 0."""
     client, cluster = _connect(args)
     workers = max(1, len(client.scheduler_info()["workers"]) or (args.workers or 1))
     chunk = spec.chunk or max(1, min(100, math.ceil(len(todo) / (8 * workers))))
@@ -50,7 +72,6 @@ def _main(argv) -> int:
     print(f"sweep: {len(runs)} runs, {len(store.done)} already in {args.out}, {len(todo)} to do "
           f"in {len(chunks)} chunks of ≤ {chunk} on {_where(args, workers)}", flush=True)
     progress = Progress("sweep", len(runs), "runs", done=len(store.done))
-    start = time.perf_counter()
     try:
         _run(client, spec, runs, chunks, store, progress, args.out)
     except KeyboardInterrupt:
@@ -62,15 +83,7 @@ def _main(argv) -> int:
         return 130
     finally:
         _close(client, cluster)
-    store.flush(final=True)
     progress.close()
-    table = store.table()
-    failed = table.column("status").to_pylist().count("failed")
-    from . import report
-    report.write(Path(args.out), table, spec)
-    print(f"sweep: {table.num_rows} runs, {table.num_rows - failed} ok, {failed} failed, "
-          f"{time.perf_counter() - start:.1f} s wall → {args.out}/runs.parquet, "
-          f"{args.out}/REPORT.md")
     return 0
 
 

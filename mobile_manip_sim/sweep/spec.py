@@ -6,7 +6,7 @@
     sample_rate: 100                       # Hz: also write DIR/runs/run-N.csv (off by default)
     time_limit: 60                         # wall s per run; beyond it the run is failed
     chunk: 50                              # runs per Dask task (default: chosen from the count)
-    grid: {integrator.method: [rk4, dop853], integrator.dt: [0.001, 0.002]}
+    grid: {integrator.method: [rk4, semi_implicit_euler], integrator.dt: [0.001, 0.002]}
     random: {count: 100, seed: 7, vary: {"initial.velocity[2]": {normal: [0.0, 0.1]}}}
 
 Runs are numbered grid point by grid point (the grid's first key varies slowest), each grid point
@@ -17,6 +17,11 @@ its fixed steps or samples (`scene.check_work`, for the base scene here and for 
 integrator when it runs); at most MAX_RUNS runs (grid points × draws); a key path varied once
 (in the grid or in random.vary, not both; no value twice in a grid list); a uniform draw whose
 range is a finite number.
+
+A grid point that differs from an earlier one only in settings its method ignores — the step
+``integrator.dt`` of an adaptive method (dop853 × dt), the tolerances ``integrator.rtol`` and
+``integrator.atol`` of a fixed-step one — would run the same run again: it is dropped, and
+`Spec.duplicates` says so in one line (the sweep prints it).
 """
 from __future__ import annotations
 
@@ -31,6 +36,7 @@ from ..scene import schema
 from ..scene.errors import UserError
 from ..scene.limits import DURATION, SAMPLE_RATE
 from ..scene.loading import check_work, load_scene
+from ..scene.methods import METHODS
 from ..scene.overrides import check_known, parse_path, path_label
 
 DISTRIBUTIONS = {"uniform": "[low, high]", "normal": "[mean, standard deviation]",
@@ -57,10 +63,32 @@ class Spec:
     def varied(self) -> list[str]:
         return list(self.grid) + [path for path in self.vary if path not in self.grid]
 
+    def points(self) -> tuple[list[dict], int]:
+        """The grid points, each once (`_unused`), and how many were dropped as repeats."""
+        points, seen = [], set()
+        for values in itertools.product(*self.grid.values()):
+            point = dict(zip(self.grid, values, strict=True))
+            ignored = _unused(point, self.document)
+            key = tuple((path, repr(value)) for path, value in point.items()
+                        if path not in ignored)
+            if key not in seen:
+                seen.add(key)
+                points.append(point)
+        return points, math.prod(len(values) for values in self.grid.values()) - len(points)
+
+    def duplicates(self) -> str | None:
+        """One line on the grid points dropped as repeats of earlier ones, or None."""
+        dropped = self.points()[1]
+        if not dropped:
+            return None
+        return (f"sweep: {dropped} grid point{'s' if dropped > 1 else ''} dropped: "
+                f"integrator.dt does not apply to an adaptive method, nor integrator.rtol or "
+                f"atol to a fixed-step one, so {'they' if dropped > 1 else 'it'} would repeat "
+                f"earlier runs (each row keeps the first such point's values)")
+
     def runs(self) -> list[dict]:
         """Every run's overrides {path: value}, indexed by run id."""
-        points = [dict(zip(self.grid, values, strict=True))
-                  for values in itertools.product(*self.grid.values())]
+        points = self.points()[0]
         draws = self.draws()
         if not draws:
             return points
@@ -73,6 +101,15 @@ class Spec:
         columns = {path: _draw(rng, name, params, self.count)
                    for path, (name, params) in self.vary.items()}
         return [{path: column[i] for path, column in columns.items()} for i in range(self.count)]
+
+
+def _unused(point: dict, document: dict) -> set:
+    """The integrator settings of ``point`` that its method ignores."""
+    method = point.get("integrator.method", document.get("integrator", {}).get("method"))
+    entry = METHODS.get(method)
+    if entry is None:
+        return set()
+    return {"integrator.rtol", "integrator.atol"} if entry.fixed_step else {"integrator.dt"}
 
 
 def _draw(rng, name, params, count) -> list:

@@ -54,6 +54,8 @@ def test_help_is_asked_before_ros_args_and_names_every_parameter():
     for name, spec in PARAMETERS.items():
         assert f"  {name}{' *' if spec.dynamic else ''} = " in text
         assert spec.description in text
+    for policy in ("history", "depth", "reliability"):   # rclpy's standard QoS overrides
+        assert f"  qos_overrides.<topic>.publisher.{policy} = " in text
 
 
 @pytest.mark.parametrize("value, problem", [

@@ -60,9 +60,10 @@ class Probe:
 
     def __init__(self, context):
         self.node = rclpy.create_node("view_test_probe", context=context)
-        self.clock, self.imu = [], []
+        self.clock, self.imu, self.robot2 = [], [], []
         self.node.create_subscription(Clock, "/clock", self.clock.append, RELIABLE)
         self.node.create_subscription(Imu, "/imu", self.imu.append, RELIABLE)
+        self.node.create_subscription(Imu, "/robot2/imu", self.robot2.append, RELIABLE)
 
     def publishers(self, topic: str) -> list:
         return self.node.get_publishers_info_by_topic(topic)
@@ -174,6 +175,8 @@ def test_two_namespaced_simulators_make_one_tree_and_one_clock(probe, tf2_env, t
     second = start(tmp_path, tf2_env, "-r", "__ns:=/robot2", "-p", "frame_prefix:=robot2/",
                    "-p", "publish_clock:=false")
     try:
+        # the second follows the first's /clock: it publishes once it has heard it
+        wait_for(lambda: len(probe.robot2) >= 5, "the second simulator following the clock")
         seen = listen(tf2_env, 50, "/robot1", statics=2)
         # one /clock, absolute (not /robot1/clock), from the first simulator only
         wait_for(lambda: len(probe.publishers("/clock")) == 1 or None, "one /clock publisher")

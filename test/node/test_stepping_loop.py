@@ -333,3 +333,30 @@ def test_a_slow_segment_whose_engine_counts_steps_is_not_stuck():
         release.set()
         harness.loop.stop()
         thread.join(10)
+
+
+def test_a_clock_follower_publishes_each_state_once_the_heard_clock_reaches_it():
+    """publish_clock false: state k goes out once the /clock heard has reached t_k, never
+    before, whatever the wall clock says; a ~/step does not get ahead of it either."""
+    from mobile_manip_sim.node.lockstep import ClockFollower
+    harness = Harness()
+    follower = ClockFollower(1.0, PERIOD, harness.clock)
+    harness.loop.pacer = follower
+    assert harness.loop.begin() and harness.ks() == [0]
+    for _ in range(50):   # nothing heard: the wall clock runs, nothing more goes out
+        harness.loop.turn()
+    assert harness.ks() == [0]
+    follower.heard(round(3 * PERIOD * 1e9))
+    for _ in range(50):
+        harness.loop.turn()
+    assert harness.ks() == [0, 1, 2, 3]
+    harness.loop.pause(True)
+    with harness.loop.cv:   # what ~/step asks for (the service itself waits in its thread)
+        harness.loop.state, harness.loop.steps = State.STEPPING, 1
+    for _ in range(20):
+        harness.loop.turn()
+    assert harness.ks() == [0, 1, 2, 3]
+    follower.heard(round(4 * PERIOD * 1e9))
+    harness.run_until(4)
+    assert harness.loop.state is State.PAUSED and harness.ks() == [0, 1, 2, 3, 4]
+    assert not harness.warnings   # waiting for the clock is not "cannot keep up"

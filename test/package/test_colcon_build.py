@@ -45,7 +45,7 @@ def run_built(workspace, command, **kwargs):
 
 def test_colcon_build_installs_every_executable_under_lib(workspace):
     lib = workspace / "install" / "mobile_manip_sim" / "lib" / "mobile_manip_sim"
-    for exe in ("simulate", "describe", "simulator", "replay", "plot"):
+    for exe in ("simulate", "describe", "simulator", "replay", "plot", "warmup"):
         assert (lib / exe).is_file() and os.access(lib / exe, os.X_OK), exe
     share = workspace / "install" / "mobile_manip_sim" / "share" / "mobile_manip_sim"
     assert (share / "package.xml").is_file()

@@ -11,15 +11,22 @@ from mobile_manip_sim.node import PARAMETERS
 
 ROOT = Path(__file__).resolve().parents[2]
 
-# Import name → rosdep key. A new third-party import must be added here AND to package.xml.
+# Import name → rosdep key, or → "pip:NAME" for a package rosdep has no rule for (then it is a
+# line of requirements.txt). A new third-party import must be added here AND to package.xml or
+# requirements.txt (test_rosdep_keys.py checks that package.xml's keys resolve).
 ROSDEP_KEYS = {
     "numpy": "python3-numpy", "scipy": "python3-scipy", "yaml": "python3-yaml",
-    "numba": "python3-numba", "matplotlib": "python3-matplotlib",
-    "zstandard": "python3-zstandard", "mcap": "python3-mcap-pip", "pinocchio": "pinocchio",
-    "mujoco": "python3-mujoco-pip", "distributed": "python3-dask-distributed-pip",
-    "dask": "python3-dask-distributed-pip", "pyarrow": "python3-pyarrow-pip",
-    "foxglove": "python3-foxglove-sdk-pip",
+    "numba": "python3-numba", "matplotlib": "python3-matplotlib", "pinocchio": "pinocchio",
+    "mujoco": "python3-mujoco-pip", "zstandard": "pip:zstandard", "mcap": "pip:mcap",
+    "distributed": "pip:dask[distributed]", "dask": "pip:dask[distributed]",
+    "pyarrow": "pip:pyarrow", "foxglove": "pip:foxglove-sdk",
 }
+
+
+def pip_requirements() -> set:
+    """The requirements.txt lines (what rosdep cannot install), as "pip:NAME"."""
+    lines = (ROOT / "requirements.txt").read_text().splitlines()
+    return {f"pip:{line.strip()}" for line in lines if line.strip() and not line.startswith("#")}
 
 
 def third_party_imports() -> dict:
@@ -43,12 +50,12 @@ def third_party_imports() -> dict:
 def test_every_third_party_import_is_a_package_xml_dependency():
     root = ET.parse(ROOT / "package.xml").getroot()
     declared = {element.text.strip() for element in root
-                if element.tag.endswith("depend") and element.text}
+                if element.tag.endswith("depend") and element.text} | pip_requirements()
     imports = third_party_imports()
     assert {"numpy", "rclpy", "numba", "matplotlib", "zstandard"} <= set(imports)
     missing = {module: str(path) for module, path in imports.items()
                if ROSDEP_KEYS.get(module, module) not in declared}
-    assert not missing, f"imported but not in package.xml: {missing}"
+    assert not missing, f"imported but not in package.xml nor requirements.txt: {missing}"
 
 
 def leaves(tree: dict, prefix: str = "") -> dict:

@@ -399,6 +399,8 @@ def test_foxglove_layout_plots_the_recorded_topics_by_joint_name():
         for path in paths:
             topic = path["value"].split(".")[0]
             assert topic in ("/joint_states", "/odom"), path
+            if topic == "/odom":   # /odom's child frame is base_frame: base_footprint
+                assert "base_link" not in path.get("label", "") + config["title"], path
             if topic == "/joint_states":
                 field, index = path["value"][len(topic) + 1:-1].split("[")
                 assert field in ("position", "velocity", "effort")

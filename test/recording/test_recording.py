@@ -1,7 +1,6 @@
 """Recording, replay and re-simulation as users run them: the installed `simulator`, `simulate`
 and `replay` executables in their own processes, real DDS (a random ROS_DOMAIN_ID, localhost
 discovery), and bags read back by independent readers (rosbags; mcap + mcap_ros2)."""
-import itertools
 import json
 import random
 import re
@@ -532,14 +531,8 @@ def test_replay_publishes_the_recorded_messages_in_order_at_the_recorded_rate(pr
              "every replayed message")
     for topic, expected in recorded.items():
         assert probe.messages(topic) == [m for _, m in expected], topic
-    arrivals = [arrival for arrival, _ in probe.arrivals("/joint_states")]
-    stamps = [t for t, _ in recorded["/joint_states"]]
-    for arrival, stamp in zip(arrivals, stamps, strict=True):   # never early, loosely on time
-        assert arrival - arrivals[0] >= (stamp - stamps[0]) / 1e9 / rate - 0.01
-    span = (stamps[-1] - stamps[0]) / 1e9 / rate
-    assert span * 0.8 - 0.02 <= arrivals[-1] - arrivals[0] <= span * 1.25 + 0.1
-    gaps = sorted(b - a for a, b in itertools.pairwise(arrivals))
-    assert abs(gaps[len(gaps) // 2] - 0.05 / rate) < 0.01   # median spacing: 50 ms / rate
+    # The pacing itself (from the offset, at the rate, never early) is checked on a fake clock
+    # in test_replay.py: arrival times here would race with the machine's load.
     # … and /robot_description, latched, played first (its t = 0 message, before the start)
     assert f"played {sum(len(v) for v in recorded.values()) + 1} messages" in result.stdout
     # The time printed is the playing's: at least the bag's span at that rate (paced, never

@@ -198,9 +198,9 @@ def test_a_new_goal_preempts_the_active_one_and_a_waiting_one():
     run_to(goals, apply, [0], np.zeros(4))
     waiting = goals.submit(goal(times=(2.0,)))
     second = goals.submit(goal(times=(5.0,)))
-    assert waiting.outcome == Outcome(CODES.invalid_goal, "preempted by a new goal")
+    assert waiting.outcome == Outcome(CODES.invalid_goal, "preempted by a new goal", canceled=True)
     step = run_to(goals, apply, [10], np.zeros(4))[0]
-    assert first.outcome == Outcome(CODES.invalid_goal, "preempted by a new goal")
+    assert first.outcome == Outcome(CODES.invalid_goal, "preempted by a new goal", canceled=True)
     assert step.finished == [first] and goals.active is second
     assert step.command.times.tolist() == [5 * S] and second.applied_ns == 10 * MS
 

@@ -205,8 +205,139 @@ def test_urdf_joint_names_and_types_match_joint_states(name):
         assert float(tip.find("inertial/mass").get("value")) == scene.effects.payload
     else:
         assert tip.find("inertial") is None
-    wheel = root.find("link[@name='right_wheel']")
-    assert (wheel.find("inertial") is not None) == bool(scene.effects.wheel_inertia)
+    wheel = root.find("link[@name='right_wheel']/inertial/inertia")
+    spin = float(wheel.get("iyy")) if wheel is not None else 0.0
+    assert spin == (robot.base.wheel_inertia if scene.effects.wheel_inertia else 0.0)
+
+
+def inertials(root) -> dict:
+    """Link name → (mass, centre of mass in the link, 3×3 inertia about it)."""
+    found = {}
+    for link in root.findall("link"):
+        inertial = link.find("inertial")
+        if inertial is None:
+            continue
+        i = inertial.find("inertia").attrib
+        inertia = np.array([[i["ixx"], i["ixy"], i["ixz"]], [i["ixy"], i["iyy"], i["iyz"]],
+                            [i["ixz"], i["iyz"], i["izz"]]], dtype=float)
+        com = np.array(inertial.find("origin").get("xyz").split(), dtype=float)
+        found[link.get("name")] = (float(inertial.find("mass").get("value")), com, inertia)
+    return found
+
+
+@pytest.mark.parametrize("name", SCENES)
+def test_urdf_masses_and_inertias_are_the_scenes(name):
+    """Every link's mass and inertia from the scene: the wheels are discs of the scene's spin
+    inertia (m_w = 2 I_w / r², unless the base's share would not be physical), base + wheels
+    weigh M_pw with their centre of mass at G = (d, 0) and yaw inertia I_pw about it; each rod is
+    μL with the slender-rod inertia; every inertia is positive semi-definite, and those the URDF
+    makes up (base, wheels) obey the triangle inequalities."""
+    scene = SCENES[name]
+    robot, base = scene.robot, scene.robot.base
+    d, b, r = base.com_offset, base.half_track, base.wheel_radius
+    links = inertials(ET.fromstring(robot_description(scene)))
+    m_w = links["right_wheel"][0] if "right_wheel" in links else 0.0
+    assert m_w <= 2.0 * base.wheel_inertia / r ** 2 * (1 + 1e-12)
+    if name in ("paper", "payload"):
+        assert m_w == pytest.approx(2.0 * base.wheel_inertia / r ** 2, rel=1e-12) and m_w > 0
+    m_base, c_base, I_base = links["base_link"]
+    assert m_base + 2 * m_w == pytest.approx(base.mass, rel=1e-12)
+    x_g = (m_base * c_base[0]) / base.mass   # the wheels sit at x = 0
+    assert x_g == pytest.approx(d, rel=1e-12, abs=1e-15)
+    yaw = I_base[2, 2] + m_base * (c_base[0] - d) ** 2
+    if m_w:
+        I_wheel = links["right_wheel"][2]
+        yaw += 2 * (I_wheel[2, 2] + m_w * (d ** 2 + b ** 2))
+    assert yaw == pytest.approx(base.yaw_inertia, rel=1e-9)
+    for k in range(robot.n_links):
+        mass, com, inertia = links[f"arm_rod_{k + 1}"]
+        L = robot.length[k]
+        assert mass == pytest.approx(robot.mass_per_length[k] * L, rel=1e-15)
+        assert com[0] == pytest.approx(-L / 2)
+        assert inertia[2, 2] == pytest.approx(mass * L ** 2 / 12
+                                              + robot.inertia_per_length[k][2, 2] * L)
+    total = sum(mass for mass, _, _ in links.values())
+    expected = base.mass + float(np.sum(robot.mass_per_length * robot.length))
+    expected += scene.effects.payload or 0.0
+    assert total == pytest.approx(expected, rel=1e-12)
+    for link, (mass, _, inertia) in links.items():
+        assert mass >= 0.0, link
+        assert np.allclose(inertia, inertia.T)
+        moments = np.linalg.eigvalsh(inertia)
+        tol = 1e-12 * max(1.0, moments.max())
+        assert moments.min() >= -tol, link
+        a, b_, c = moments
+        if link.startswith("arm_rod"):   # the scene's own J: the URDF states it as it is
+            continue
+        assert a + b_ >= c - tol and a + c >= b_ - tol and b_ + c >= a - tol, link
+    assert links["base_link"][2][0, 0] != base.yaw_inertia   # no copy of yaw into roll, pitch
+
+
+@pytest.mark.parametrize("name", ["paper", "random_1", "random_5"])
+def test_urdf_limits_and_collision_shapes(name):
+    """Prismatic limits are the strokes, efforts the scene's limits (else the largest the
+    simulator accepts); a box collides for the base, cylinders for wheels and rods."""
+    from mobile_manip_sim.scene import limits
+    scene = SCENES[name]
+    robot = scene.robot
+    root = ET.fromstring(robot_description(scene))
+    effort = effect_settings(scene).effort_limits
+    assert (effort is None) == (name == "paper")
+    for j, joint_name in enumerate(robot.joint_names()):
+        limit = root.find(f"joint[@name='{joint_name}']/limit")
+        expected = limits.EFFORT if effort is None or np.isinf(effort[j]) else effort[j]
+        assert float(limit.get("effort")) == expected, joint_name
+        assert float(limit.get("velocity")) == limits.SPEED
+    for k in range(robot.n_links):
+        limit = root.find(f"joint[@name='arm_prismatic_{k + 1}']/limit")
+        assert (float(limit.get("lower")), float(limit.get("upper"))) == tuple(robot.stroke[k])
+        assert root.find(f"link[@name='arm_rod_{k + 1}']/collision/geometry/cylinder") \
+            is not None
+    assert root.find("link[@name='base_link']/collision/geometry/box") is not None
+    for wheel in ("right_wheel", "left_wheel"):
+        shape = root.find(f"link[@name='{wheel}']/collision/geometry/cylinder")
+        assert float(shape.get("radius")) == robot.base.wheel_radius
+
+
+def test_pinocchio_mass_matrix_at_the_initial_state_is_ours():
+    scene = SCENES["paper"]
+    urdf, dyn = UrdfModel(scene), core_dynamics(scene)
+    M, M_urdf = dyn.mass_matrix(scene.initial_q), urdf.mass_matrix(scene.initial_q)
+    assert np.max(np.abs(M - M_urdf)) <= TOL * np.linalg.norm(M)
+
+
+@pytest.mark.parametrize("wheels, arm", [("velocity", "position"), ("effort", "effort"),
+                                         ("velocity", "velocity")])
+def test_ros2_control_block_for_the_topic_based_hardware_interface(wheels, arm):
+    """describe --ros2-control: one system of joint_state_topic_hardware_interface, naming the
+    node's command and state topics, every joint of /joint_states with one command interface
+    (the wheels', the arm's) and position, velocity, effort states starting at the scene's pose."""
+    from mobile_manip_sim.ros.topics import JOINT_COMMANDS_TOPIC, ROBOT_JOINT_STATES_TOPIC
+    result = run_describe("--ros2-control", "--wheel-interface", wheels, "--arm-interface", arm)
+    assert result.returncode == 0, result.stderr
+    root = ET.fromstring(result.stdout)
+    scene = load_scene()
+    blocks = root.findall("ros2_control")
+    assert len(blocks) == 1 and blocks[0].get("type") == "system"
+    hardware = blocks[0].find("hardware")
+    assert hardware.findtext("plugin").strip() == \
+        "joint_state_topic_hardware_interface/JointStateTopicSystem"
+    params = {p.get("name"): p.text for p in hardware.findall("param")}
+    assert params["joint_commands_topic"] == JOINT_COMMANDS_TOPIC.lstrip("/")
+    assert params["joint_states_topic"] == ROBOT_JOINT_STATES_TOPIC.lstrip("/")
+    joints = blocks[0].findall("joint")
+    assert [j.get("name") for j in joints] == scene.robot.joint_names()
+    urdf_joints = {j.get("name") for j in root.findall("joint")}
+    for j, joint in enumerate(joints):
+        assert joint.get("name") in urdf_joints
+        assert [c.get("name") for c in joint.findall("command_interface")] == \
+            [wheels if j < 2 else arm]
+        states = joint.findall("state_interface")
+        assert [s.get("name") for s in states] == ["position", "velocity", "effort"]
+        assert float(states[0].findtext("param")) == scene.initial_q[3 + j]
+    assert run_describe("--ros2-control", "--arm-interface", "joint_trajectory").returncode == 2
+    plain = run_describe()
+    assert "ros2_control" not in plain.stdout
 
 
 def run_describe(*args):

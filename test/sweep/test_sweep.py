@@ -360,3 +360,47 @@ def test_simulate_set_names_a_bad_key(tmp_path):
     assert result.returncode == EXIT_USER_ERROR
     assert result.stderr.strip().startswith("simulate: error: robot.arm.linkz: unknown key"), \
         result.stderr
+
+
+def test_a_finished_sweep_run_again_starts_no_cluster(small, tmp_path):
+    """Every run already in DIR: the same command writes the report again and starts nothing
+    (here a `distributed` whose Client and LocalCluster fail on use comes first)."""
+    out, _ = small
+    spec = tmp_path / "small.yaml"
+    spec.write_text(SMALL)
+    fake = tmp_path / "no_dask" / "distributed"
+    fake.mkdir(parents=True)
+    (fake / "__init__.py").write_text(
+        "class WorkerPlugin:\n    pass\n\n\n"
+        "def _started(*args, **kwargs):\n"
+        "    raise RuntimeError('a finished sweep started Dask')\n\n\n"
+        "Client = LocalCluster = as_completed = _started\n")
+    before = table(out)
+    path = os.pathsep.join([str(fake.parent), os.environ.get("PYTHONPATH", "")])
+    result = subprocess.run([executable("sweep"), str(spec), "--out", str(out)],
+                            capture_output=True, text=True, timeout=120,
+                            env={**os.environ, "PYTHONPATH": path})
+    assert result.returncode == 0, result.stderr
+    assert "all already in" in result.stdout and "nothing to run" in result.stdout
+    assert "LocalCluster" not in result.stdout + result.stderr
+    assert table(out) == before
+
+
+def test_grid_points_a_method_ignores_are_dropped_with_one_line():
+    """dop853 × dt: the adaptive method ignores dt, so its second dt would repeat the first;
+    rk4 × rtol likewise. Each distinct run once; the sweep says how many it dropped."""
+    from mobile_manip_sim.scene import schema
+    from mobile_manip_sim.sweep.spec import parse_spec
+    text = "grid: {integrator.method: [dop853, rk4], integrator.dt: [0.001, 0.002]}\n"
+    spec = parse_spec(schema.load_yaml(text, what="test"))
+    assert spec.runs() == [{"integrator.method": "dop853", "integrator.dt": 0.001},
+                           {"integrator.method": "rk4", "integrator.dt": 0.001},
+                           {"integrator.method": "rk4", "integrator.dt": 0.002}]
+    assert "1 grid point dropped" in spec.duplicates() and "integrator.dt" in spec.duplicates()
+    text = "grid: {integrator.rtol: [1.0e-6, 1.0e-8], integrator.method: [rk4, rk45]}\n"
+    spec = parse_spec(schema.load_yaml(text, what="test"))
+    assert [tuple(run.values()) for run in spec.runs()] == [
+        (1e-6, "rk4"), (1e-6, "rk45"), (1e-8, "rk45")]
+    text = "grid: {integrator.method: [rk4, euler], integrator.dt: [0.001, 0.002]}\n"
+    spec = parse_spec(schema.load_yaml(text, what="test"))
+    assert len(spec.runs()) == 4 and spec.duplicates() is None
