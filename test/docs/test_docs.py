@@ -209,7 +209,7 @@ def anchors(page: Path) -> set[str]:
 
 # Pages the docs link to that other work in progress adds; a link to one of them is not broken
 # while it is on its way. Remove a name once its page exists.
-OTHERS_PAGES = {"ros.md", "batch.md"}
+OTHERS_PAGES = {"batch.md"}
 
 
 def repository_files() -> list[Path]:
