@@ -1,6 +1,12 @@
 """What the test modules share: the import path (test/helpers/, the helper modules in one place
 for all folders, then the test folders), and the engine kernels warmed once per session
-(ros_harness.py holds the ROS harness itself; waiting.py the one `wait_for`)."""
+(ros_harness.py holds the ROS harness itself; waiting.py the one `wait_for`).
+
+Where a file goes: a test of a module of ``mobile_manip_sim/<folder>/`` in ``test/<folder>/``;
+facts about the repository as a whole in ``test/package/`` (packaging, colcon, the layer and
+owner checks), ``test/docs/`` (every docs block run) and ``test/fuzz/``; anything that is not a
+``test_*.py`` (helper modules, scripts run as processes, the Node.js client) in ``test/helpers/``.
+Test file names stay unique across folders (the folders have no ``__init__.py``)."""
 import sys
 from pathlib import Path
 
