@@ -42,7 +42,7 @@ from mobile_manip_sim.scene.arm_controller import (
     ArmController,
     ModelError,
 )
-from mobile_manip_sim.scene.coordinates import ARM_U
+from mobile_manip_sim.scene.coordinates import ARM_U, arm_width
 from mobile_manip_sim.scene.errors import UserError
 from mobile_manip_sim.scene.methods import METHODS
 
@@ -369,7 +369,7 @@ class RecordedRun:
                       else None)
         self.names = self.scene.robot.joint_names()
         self.arm_controller = metadata["arm_controller"]
-        _check_gain_counts(self.arm_controller, len(self.names) - 2)
+        _check_gain_counts(self.arm_controller, arm_width(len(self.names)))
         self.imu_noise = ImuNoise.from_metadata(metadata, METADATA_NAME)   # a node's /imu
 
     def check_robot(self) -> None:
