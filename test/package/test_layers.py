@@ -161,7 +161,7 @@ OWNERS = [
                 r"|\b2\s*\*\s*k\s*[-+]\s*[12]\b|len\([\w.]*names\)\s*-\s*2"), None),
     ("a frame name", "ros/frames.py",
      re.compile(r"[\"'](?:odom|base_footprint|base_link)[\"']"), None),
-    ("an error type", "scene/errors.py", re.compile(r"^class \w+\([\w.]*(?:Error|Exception)\b"), None),
+    ("an error type", "scene/errors.py", re.compile(r"^class \w+Error\("), None),
     ("an error matched by its name", "scene/errors.py",
      re.compile(r"\btype\([^)]*\)\.__name__\s*(?:==|!=|in\b|not in\b)|__name__ for \w+ in"
                 r"|[\"'](?:User|Simulation|StepLimit)Error[\"']"), None),
