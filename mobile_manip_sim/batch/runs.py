@@ -96,6 +96,7 @@ class Batch:
         self.errors: list[str | None] = [None] * self.size
         self.wall = np.zeros(self.size)   # each lane's share of wall time (s)
         self.sample_t = np.zeros((self.size, 0))   # each lane's own t at the last samples
+        self.compiled_cpu = 0.0   # CPU s (all threads) spent inside the compiled calls
         links = None
         for i, scene in enumerate(built):
             if isinstance(scene, BaseException):
@@ -239,8 +240,10 @@ class Batch:
             next_sample[pending] = first
             block_start = started = time.perf_counter()
             while pending.size:
+                cpu = time.process_time()
                 compiled.advance_fixed(*lists, pending, lane_of[pending], times, last, out, out_t,
                                        write, budget, code, next_sample, failure)
+                self.compiled_cpu += time.process_time() - cpu
                 now = time.perf_counter()
                 self.wall[pending] += (now - started) * threads / max(pending.size, threads)
                 started = now

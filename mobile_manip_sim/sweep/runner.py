@@ -80,9 +80,10 @@ def run_scene(document: dict, overrides: dict, duration: float, rate: float):
 
 def run_block(document: dict, runs: list, duration: float, sample_rate: float | None = None,
               time_limit: float | None = None, csv_dir: str | None = None,
-              threads: int | None = None) -> list[dict]:
+              threads: int | None = None, stats: dict | None = None) -> list[dict]:
     """The rows of ``runs`` [(run id, overrides)], run as the lanes of one `Batch` on `threads`
-    threads: each row is `run_one`'s for that run (``cpu_s``: the block's CPU time per run)."""
+    threads: each row is `run_one`'s for that run (``cpu_s``: the block's CPU time per run).
+    `stats`, if given, receives the CPU s inside the compiled calls (``compiled_cpu``)."""
     rate = sample_rate or DEFAULT_SAMPLE_RATE
     start_cpu = time.process_time()
     scenes = []
@@ -110,6 +111,8 @@ def run_block(document: dict, runs: list, duration: float, sample_rate: float | 
             except Exception as error:
                 row.update(status="failed", error=error_line(error))
         rows.append(row)
+    if stats is not None:
+        stats["compiled_cpu"] = batch.compiled_cpu
     cpu = (time.process_time() - start_cpu) / max(len(runs), 1)
     for row in rows:
         row["cpu_s"] = cpu
