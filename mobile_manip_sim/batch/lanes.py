@@ -100,13 +100,11 @@ def advance_fixed(methods, systems, stops, scratches, states, clocks, lanes, rec
 
 
 @jit
-def configuration_rates(model, samples, nq, nu):
-    """q̇ at each sample row (q, u, …) into a new (samples, n_q) array: `kernels.configuration_rate`
-    row by row, as `Dynamics.configuration_rate` gives it."""
-    out = np.empty((samples.shape[0], nq))
+def configuration_rates(model, samples, nq, nu, out):
+    """q̇ at each sample row (q, u, …) into out[i] (n_q each): `kernels.configuration_rate` row by
+    row, as `Dynamics.configuration_rate` gives it."""
     for i in range(samples.shape[0]):
         kernels.configuration_rate(model, samples[i, :nq], samples[i, nq:nq + nu], out[i])
-    return out
 
 
 def empty_rows(lanes: int, size: int) -> np.ndarray:

@@ -232,7 +232,7 @@ class Batch:
         next_sample = np.zeros(self.size, dtype=np.int64)
         write = rows is not None
         out = rows if write else compiled.empty_rows(self.size, self._state_size())
-        out_t = self.sample_t if write else out[:, :, 0]
+        out_t = self.sample_t if write else np.zeros((self.size, 1))
         block, first = 1, 0
         while first < times.size:
             last = min(times.size, first + block)
@@ -265,6 +265,7 @@ class Batch:
             try:
                 if code[r] == compiled.LANE_FAILED:
                     sim._after_compiled(int(failure[r]))   # raises the run's own error
+                    raise RuntimeError(f"the stepping ended with status {int(failure[r])}")
                 if code[r] == compiled.LANE_PAUSED:
                     sim._after_compiled(BUDGET)             # empties the log, as after a call
                 self._check_time_limit(i)
