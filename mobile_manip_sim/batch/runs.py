@@ -205,15 +205,16 @@ class Batch:
                             f"t = {self.sims[i].t:.6g} s")
 
     def _lists(self):
-        """The compiled call's per-lane records, rebuilt when a lane's records were replaced."""
-        sims = [sim for sim in self.sims if sim is not None]
+        """The compiled call's per-lane records (those of the compiled lanes), rebuilt when a
+        lane's records were replaced (a command that grew them, a reset)."""
+        chosen = np.flatnonzero(self.compiled)
+        sims = [self.sims[i] for i in chosen]
         key = [(sim.system.data, sim.s, sim.stops, sim._scratch, sim._clock) for sim in sims]
         if self._records is None or any(
                 any(a is not b for a, b in zip(old, new, strict=True))
                 for old, new in zip(self._records[0], key, strict=True)):
             lane_of = np.full(self.size, -1, dtype=np.int64)
-            lane_of[[i for i, sim in enumerate(self.sims) if sim is not None]] = np.arange(
-                len(sims))
+            lane_of[chosen] = np.arange(len(sims))
             lists = (np.array([sim._core_args[0] for sim in sims], dtype=np.int64),
                      compiled.lane_list([sim.system.data for sim in sims]),
                      compiled.lane_list([sim.stops for sim in sims]),

@@ -103,12 +103,19 @@ def mujoco_rollout(runs: list[dict], threads: int = 2) -> Timing | None:
         joints = list(scene.joint_efforts)
         joints[0] = run["efforts.joints[0]"]
         controls.append(peer.control(scene.wheel_efforts, joints))
-    control = np.repeat(np.array(controls)[:, None, :], nstep, axis=1)
-    initial_states = np.repeat(initial[None, :], len(runs), axis=0)
+    controls = np.array(controls)[:, None, :]   # constant over the run: tiled by rollout
     datas = [mujoco.MjData(peers[0].model) for _ in range(threads)]
-    state = np.zeros((len(runs), nstep, initial.size))
-    timing, _ = _timed(lambda: rollout.rollout(models, datas, initial_states, control,
-                                               state=state))
+    chunk = 250   # runs per rollout call: its state output (every step) stays ~50 MB
+    state = np.zeros((chunk, nstep, initial.size))
+
+    def work():
+        for first in range(0, len(runs), chunk):
+            last = min(len(runs), first + chunk)
+            rollout.rollout(models[first:last], datas,
+                            np.repeat(initial[None, :], last - first, axis=0),
+                            np.repeat(controls[first:last], nstep, axis=1),
+                            state=state[:last - first], persistent_pool=True)
+    timing, _ = _timed(work)
     return timing
 
 
