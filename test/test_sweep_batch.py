@@ -13,7 +13,7 @@ from mobile_manip_sim.sweep.runner import run_chunk, run_chunk_one_by_one
 from mobile_manip_sim.sweep.spec import load_spec
 
 CONFIG = Path(__file__).resolve().parents[1] / "config"
-# 18 runs: the three fixed-step methods (compiled lanes) and dop853 (stepped alone), two masses
+# 18 runs: the three fixed-step methods (compiled lanes), two masses
 # of which one is refused, initial rates that bring rods to their stops in some runs only.
 SPEC = """\
 duration: 0.6
@@ -31,8 +31,11 @@ random:
 NOT_COMPARED = ("cpu_s", "worker")   # the chunk's CPU time per run; where it ran
 
 
-def comparable(rows) -> list[dict]:
-    return [{k: v for k, v in sorted(row.items()) if k not in NOT_COMPARED}
+def comparable(rows, columns=None) -> list[dict]:
+    """The rows by run, without the columns that may differ (`columns`: those of a table, a
+    row's missing ones as the table stores them: None)."""
+    columns = columns or sorted({k for row in rows for k in row})
+    return [{k: row.get(k) for k in columns if k not in NOT_COMPARED}
             for row in sorted(rows, key=lambda row: row["run"])]
 
 
@@ -48,7 +51,7 @@ def test_sweep_local_gives_the_rows_and_csv_files_of_the_runs_one_by_one(tmp_pat
                              "--workers", "2"], capture_output=True, text=True, timeout=3000)
     assert result.returncode == 0, result.stderr
     assert "this process (no Dask), 2 threads" in result.stdout
-    assert "18 runs, 12 ok, 6 failed" in result.stdout
+    assert "18 runs, 9 ok, 9 failed" in result.stdout
     spec = load_spec(spec_path)
     runs = spec.runs()
     reference_csv = tmp_path / "one_by_one"
@@ -57,10 +60,10 @@ def test_sweep_local_gives_the_rows_and_csv_files_of_the_runs_one_by_one(tmp_pat
     table = pq.read_table(out / "runs.parquet").to_pylist()
     for row in expected:
         row.update(runs[row["run"]])
-    assert comparable(table) == comparable(expected)
+    assert comparable(table) == comparable(expected, list(table[0]))
     assert {row["impacts"] > 0 for row in table if row["status"] == "ok"} == {True, False}
     assert csv_files(out / "runs") == csv_files(reference_csv)
-    assert len(csv_files(reference_csv)) == 12
+    assert len(csv_files(reference_csv)) == 9
 
 
 def test_a_dask_task_is_one_batch_with_the_rows_of_the_runs_one_by_one(tmp_path):

@@ -20,6 +20,7 @@ state, chatter, its time limit) is failed alone, with its one-line reason; the o
 from __future__ import annotations
 
 import math
+import os
 import time
 from dataclasses import dataclass
 
@@ -34,6 +35,11 @@ from ..scene.overrides import scene_with
 from . import lanes as compiled
 
 BLOCK_SECONDS = 0.25   # wall s aimed at per compiled call: progress, limits and Ctrl-C between
+# Threads that finish their lanes first wait for the call's end asleep, not spinning: OpenMP's
+# default spin would bill a core for every wait (the user's own setting wins; read when numba
+# starts its thread pool, at the first compiled call).
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+CHUNK_LANES = 1   # lanes handed to a thread at a time: the lanes' costs differ (impacts, methods)
 
 
 class TimeLimit(Exception):
@@ -227,7 +233,7 @@ class Batch:
     def _compiled_lanes(self, lanes: np.ndarray, times: np.ndarray, rows, progress) -> None:
         lane_of, lists = self._lists()
         budget = self.sims[lanes[0]]._step_budget
-        threads = compiled.set_threads(self.threads or 1 << 30)
+        threads = _set_threads(self.threads or 1 << 30)
         code = np.zeros(self.size, dtype=np.int64)
         failure = np.zeros(self.size, dtype=np.int64)
         next_sample = np.zeros(self.size, dtype=np.int64)
@@ -276,6 +282,15 @@ class Batch:
             if code[r] == compiled.LANE_PAUSED and next_sample[r] < last:
                 again.append(i)   # (a lane paused on its block's last sample is through)
         return np.array(again, dtype=np.int64)
+
+
+def _set_threads(count: int) -> int:
+    """Threads of the next compiled calls from this thread, and the lanes dealt at a time."""
+    count = compiled.set_threads(count)
+    if compiled.ENABLED:
+        import numba
+        numba.set_parallel_chunksize(CHUNK_LANES)
+    return count
 
 
 def _row(values, row: int, lanes: int):

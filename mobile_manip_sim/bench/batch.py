@@ -190,11 +190,23 @@ def lanes_fd_rate(runs: list[dict], threads: int = 1) -> float:
 
 
 def instruction_mix() -> dict:
-    """Counts of packed (4-wide) and scalar double arithmetic in the lanes' machine code."""
-    from ..batch import lanes
-    if not hasattr(lanes.fixed_lane, "inspect_asm"):
+    """Counts of packed (4-wide) and scalar double arithmetic in the machine code of the forward
+    dynamics every lane runs (`articulated_forward_dynamics`, compiled afresh here: the cached
+    copy keeps no assembly), on the paper robot's records."""
+    from ..dynamics.jit import ENABLED
+    if not ENABLED:
         return {}
-    asm = "\n".join(lanes.fixed_lane.inspect_asm().values())
+    import numba
+
+    from ..dynamics.articulated import articulated_forward_dynamics
+    from ..engine.simulation import Simulation
+    from ..scene.loading import load_scene
+    sim = Simulation(load_scene())
+    data, nq, nu = sim.system.data, sim.nq, sim.nu
+    fresh = numba.njit(_nrt=False, error_model="numpy")(articulated_forward_dynamics.py_func)
+    fresh(data.model, sim.s[:nq], sim.s[nq:nq + nu], data.Q, data.gravity, data.free, data.ws,
+          np.zeros(nu))
+    asm = "\n".join(fresh.inspect_asm().values())
     names = ("vmulpd", "vaddpd", "vsubpd", "vdivpd", "vfmadd", "vmulsd", "vaddsd", "vsubsd",
              "vdivsd")
     return {name: len(re.findall(rf"\b{name}\w*", asm)) for name in names}
