@@ -58,6 +58,10 @@ def warm(stream=sys.stderr) -> float:
             sim.advance_to(0.35)
             sim.set_efforts(wheels=[0.0, 0.0])
             sim.energy_error()
+        progress.note(f"warmup: the batch's compiled lanes, for sweeps "
+                      f"({time.perf_counter() - start:.0f} s)")
+        from ..batch import Batch
+        Batch(scenes[SCENES[0]], [{"integrator.method": "rk4"}], threads=1).sample([0.01, 0.02])
     return time.perf_counter() - start
 
 
