@@ -107,7 +107,7 @@ def run_block(document: dict, runs: list, duration: float, sample_rate: float | 
                 row["status"] = "ok"
                 if csv_dir:
                     _write_csv(f"{csv_dir}/run-{run_id:06d}.csv", state_columns(sim.model.n_links),
-                               _csv_rows(batch.sample_t[i], samples[i]))
+                               _csv_rows(batch.sample_t[i], samples[i], sim.nq + sim.nu))
             except Exception as error:
                 row.update(status="failed", error=error_line(error))
         rows.append(row)
@@ -134,9 +134,9 @@ def _tracking(sim, states: np.ndarray):
     return tracking
 
 
-def _csv_rows(t: np.ndarray, samples: np.ndarray) -> list:
-    """`headless.csv_row` of each sample: t, q, u, T + V (the work and controller states out)."""
-    return [[float(t[k]), *row[:-1].tolist(), float(row[-1])]
+def _csv_rows(t: np.ndarray, samples: np.ndarray, size: int) -> list:
+    """`headless.csv_row` of each sample: t, q, u (its first `size` entries), T + V."""
+    return [[float(t[k]), *row[:size].tolist(), float(row[-1])]
             for k, row in enumerate(samples)]
 
 
