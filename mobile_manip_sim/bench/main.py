@@ -5,6 +5,7 @@ and how the hard cases behave; write ``REPORT.md`` and PNG plots.
     bench --out /tmp/b --quick    # a smoke run: short sweeps, one repeat
     bench --out /tmp/m --only mujoco --quick   # the MuJoCo section alone, under a minute
     bench --out /tmp/c --only controllers      # the arm controllers' section alone
+    bench --out /tmp/b --only batch            # many runs in one call (the batch) alone
 """
 from __future__ import annotations
 
@@ -47,7 +48,7 @@ def _main(argv) -> int:
                         help="directory for REPORT.md and the plots (default bench)")
     parser.add_argument("--quick", action="store_true",
                         help="a smoke run: short sweeps, one repeat")
-    parser.add_argument("--only", choices=("mujoco", "controllers"),
+    parser.add_argument("--only", choices=("mujoco", "controllers", "batch"),
                         help="run one section alone (REPORT.md holds only it)")
     args = parser.parse_args(argv)
     out = Path(args.out)
@@ -80,7 +81,11 @@ def _main(argv) -> int:
         progress.section("arm controllers: cost per step and tracking")
         results["controllers"] = controllers.measure(progress, quick=args.quick)
         return _write(report, results, out, progress)
-    progress = Progress(10)
+    if args.only == "batch":
+        progress = Progress(1)
+        _batch_section(results, progress, args.quick)
+        return _write(report, results, out, progress)
+    progress = Progress(11)
 
     progress.section("warming up the compiled kernels")
     versus.realtime(lambda _line: None, quick=True)
@@ -125,7 +130,14 @@ def _main(argv) -> int:
     progress.section("arm controllers: cost per step and tracking")
     results["controllers"] = controllers.measure(progress, quick=args.quick)
 
+    _batch_section(results, progress, args.quick)
     return _write(report, results, out, progress)
+
+
+def _batch_section(results, progress, quick: bool) -> None:
+    from . import batch
+    progress.section("many runs in one call: the batch against MuJoCo rollout and Dask")
+    results["batch"] = batch.measure(progress, quick=quick)
 
 
 def _mujoco_section(versus_mujoco, results, progress, quick: bool) -> None:

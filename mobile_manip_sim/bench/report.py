@@ -163,6 +163,8 @@ def write(results, out: Path) -> Path:
         return _write_parts(parts + [_mujoco_section(results)], out)
     if results.get("only") == "controllers":
         return _write_parts(parts + [_controllers_section(results)], out)
+    if results.get("only") == "batch":
+        return _write_parts(parts + [_batch_section(results)], out)
     targets, _ = _targets(results)
     parts += ["## Speed targets", "", targets, "",
               "Ratios are between runs of this same bench invocation. Where a target is missed, "
@@ -297,12 +299,19 @@ def write(results, out: Path) -> Path:
         parts.append(_mujoco_section(results))
     if results.get("controllers"):
         parts.append(_controllers_section(results))
+    if results.get("batch"):
+        parts.append(_batch_section(results))
     return _write_parts(parts, out)
 
 
 def _controllers_section(results) -> str:
     from .controllers import section
     return section(results["controllers"], number=8)
+
+
+def _batch_section(results) -> str:
+    from .batch import section
+    return section(results["batch"], number=9)
 
 
 def _mujoco_section(results) -> str:

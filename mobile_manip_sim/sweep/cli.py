@@ -1,11 +1,14 @@
 """`sweep`: many runs of one scene on a Dask cluster, one row each in DIR/runs.parquet.
 
-    sweep SPEC.yaml --out DIR [--scheduler ADDRESS] [--workers N] [--connect-timeout S]
+    sweep SPEC.yaml --out DIR [--local | --scheduler ADDRESS] [--workers N]
+                              [--connect-timeout S]
 
 Without --scheduler a LocalCluster of N worker processes (default: the cores) runs on this
 machine; with it the sweep goes to a running scheduler (`dask scheduler` and `dask worker` on
-other machines, or dask-jobqueue's SLURMCluster). Running the same command again on DIR runs
-only what is missing; Ctrl-C keeps every finished run.
+other machines, or dask-jobqueue's SLURMCluster). Each Dask task is a chunk of runs stepped as
+one batch (`mobile_manip_sim.batch`). With --local there is no Dask at all: this process runs the
+chunks one after another, each a batch on N threads (default: the cores). Running the same
+command again on DIR runs only what is missing; Ctrl-C keeps every finished run.
 """
 from __future__ import annotations
 
@@ -21,6 +24,9 @@ from ..runtime.progress import Progress
 from ..scene.errors import UserError
 from .spec import Spec, load_spec
 
+DASK_CHUNK = 500    # runs per Dask task at most (a batch each; fewer when runs are few)
+LOCAL_CHUNK = 1000  # runs per batch without Dask: a part of runs.parquet each
+
 
 def _main(argv) -> int:
     parser = cli.ArgumentParser(prog="sweep", description=__doc__.split("\n\n")[0])
@@ -29,13 +35,18 @@ def _main(argv) -> int:
                         help="directory for runs.parquet and REPORT.md")
     parser.add_argument("--scheduler", metavar="ADDRESS",
                         help="a running Dask scheduler (tcp://host:port)")
+    parser.add_argument("--local", action="store_true",
+                        help="no Dask: run the batches in this process, on N threads")
     parser.add_argument("--workers", type=int,
-                        help="LocalCluster worker processes (default: the cores)")
+                        help="LocalCluster worker processes, or threads with --local "
+                             "(default: the cores)")
     parser.add_argument("--connect-timeout", type=float, default=10.0, metavar="S",
                         help="seconds to wait for the scheduler (default 10)")
     args = parser.parse_args(argv)
     if args.workers is not None and args.workers < 1:
         raise UserError("--workers", f"must be at least 1, got {args.workers}")
+    if args.local and args.scheduler:
+        raise UserError("--local", "runs without Dask: it takes no --scheduler")
     spec = load_spec(args.spec)
     from . import results, runner  # after the spec is checked: bad input is answered at once
     runs = spec.runs()
@@ -65,15 +76,23 @@ def _main(argv) -> int:
 
 def _sweep(args, spec: Spec, runs: list, todo: list, store) -> int:
     """Run ``todo`` on the cluster; 130 when interrupted (every finished run kept), else 0."""
-    client, cluster = _connect(args)
-    workers = max(1, len(client.scheduler_info()["workers"]) or (args.workers or 1))
-    chunk = spec.chunk or max(1, min(100, math.ceil(len(todo) / (8 * workers))))
+    client = cluster = None
+    if args.local:
+        workers = args.workers or os.cpu_count() or 1
+        chunk = spec.chunk or LOCAL_CHUNK
+    else:
+        client, cluster = _connect(args)
+        workers = max(1, len(client.scheduler_info()["workers"]) or (args.workers or 1))
+        chunk = spec.chunk or max(1, min(DASK_CHUNK, math.ceil(len(todo) / (8 * workers))))
     chunks = [todo[i:i + chunk] for i in range(0, len(todo), chunk)]
     print(f"sweep: {len(runs)} runs, {len(store.done)} already in {args.out}, {len(todo)} to do "
           f"in {len(chunks)} chunks of ≤ {chunk} on {_where(args, workers)}", flush=True)
     progress = Progress("sweep", len(runs), "runs", done=len(store.done))
     try:
-        _run(client, spec, runs, chunks, store, progress, args.out)
+        if args.local:
+            _run_local(workers, spec, runs, chunks, store, progress, args.out)
+        else:
+            _run(client, spec, runs, chunks, store, progress, args.out)
     except KeyboardInterrupt:
         store.flush()
         progress.close()
@@ -82,7 +101,8 @@ def _sweep(args, spec: Spec, runs: list, todo: list, store) -> int:
               flush=True)
         return 130
     finally:
-        _close(client, cluster)
+        if client is not None:
+            _close(client, cluster)
     progress.close()
     return 0
 
@@ -116,9 +136,31 @@ def _connect(args):
 
 
 def _where(args, workers: int) -> str:
+    if args.local:
+        return f"this process (no Dask), {workers} thread{'s' if workers > 1 else ''}"
     if args.scheduler:
         return f"{args.scheduler} ({workers} workers now)"
     return f"a LocalCluster of {workers} worker{'s' if workers > 1 else ''}"
+
+
+def _csv_dir(spec: Spec, out: str) -> str | None:
+    return str(Path(out).resolve() / "runs") if spec.sample_rate else None
+
+
+def _run_local(threads: int, spec: Spec, runs: list, chunks: list, store, progress,
+               out: str) -> None:
+    """Without Dask: each chunk one batch on `threads` threads in this process, its rows
+    written as soon as it ends (a part each, as a Dask task's)."""
+    from . import runner
+    runner.warm_up(spec.document)
+    failures = 0
+    for ids in chunks:
+        rows = runner.run_block(spec.document, [(i, runs[i]) for i in ids], spec.duration,
+                                spec.sample_rate, spec.time_limit, _csv_dir(spec, out), threads)
+        rows = [{**row, "worker": "local"} for row in rows]
+        store.add(rows, runs)
+        failures += sum(row["status"] == "failed" for row in rows)
+        progress.update(progress.done + len(rows), f", {failures} failed")
 
 
 def _run(client, spec: Spec, runs: list, chunks: list, store, progress, out: str) -> None:
@@ -126,7 +168,7 @@ def _run(client, spec: Spec, runs: list, chunks: list, store, progress, out: str
     from distributed.scheduler import KilledWorker
 
     from . import runner
-    csv_dir = str(Path(out).resolve() / "runs") if spec.sample_rate else None
+    csv_dir = _csv_dir(spec, out)
     futures = {}
     failures = 0
     for ids in chunks:

@@ -1,9 +1,14 @@
-"""One run of a sweep, as `simulate` runs it, and the Dask task that runs a chunk of them.
+"""One run of a sweep, as `simulate` runs it, and the task that runs a chunk of them.
 
 A run is `headless.run(scene, duration, sample_rate)` on the scene document with the run's
 overrides, parsed by the scene parser: the final state is bit for bit what
 ``simulate --set PATH=VALUE …`` prints in its last CSV row. Any failure (a bad value, a
 non-finite state, the time limit) becomes the row's ``error``; the sweep goes on.
+
+A chunk (a Dask task, or a block of a sweep without Dask) runs as one `Batch` (`run_block`): its
+runs are the batch's lanes, stepped together in compiled calls, each lane bit for bit its run
+alone, so its row is the row `run_one` gives (but ``cpu_s``, the chunk's CPU time shared out
+among its runs). `run_chunk_one_by_one` is the path without the batch, kept to compare.
 """
 from __future__ import annotations
 
@@ -14,17 +19,16 @@ from pathlib import Path
 import numpy as np
 from distributed import WorkerPlugin
 
+from ..batch import Batch, TimeLimit, error_line
+from ..batch.lanes import configuration_rates
 from ..dynamics import constraint_residuals
 from ..runtime import headless
+from ..runtime.timeline import sample_times
 from ..scene.errors import UserError
 from ..scene.loading import check_work
 from ..scene.methods import METHODS
 from ..scene.overrides import scene_with
 from .spec import DEFAULT_SAMPLE_RATE
-
-
-class TimeLimit(Exception):
-    pass
 
 
 def state_columns(n_links: int) -> list[str]:
@@ -53,12 +57,8 @@ def run_one(document: dict, overrides: dict, duration: float, sample_rate: float
             raise UserError("robot.arm.links", "a sweep cannot change the number of links")
         check_work(duration, scene.integrator, "duration", "integrator.dt", rate, "sample_rate")
         sim = headless.run(scene, duration, rate, None, on_sample)
-    except (UserError, TimeLimit) as error:
-        row["error"] = str(error)
-    except RuntimeError as error:   # SimulationError: the state went non-finite
-        row["error"] = f"{type(error).__name__}: {error}"
-    except Exception as error:      # anything else is recorded too: one line, the sweep goes on
-        row["error"] = f"{type(error).__name__}: {error}".splitlines()[0]
+    except Exception as error:   # recorded as one line (`error_line`): the sweep goes on
+        row["error"] = error_line(error)
     else:
         row.update(_figures(sim, scene, np.array(samples)))
         row["status"] = "ok"
@@ -68,14 +68,103 @@ def run_one(document: dict, overrides: dict, duration: float, sample_rate: float
     return row
 
 
-def _figures(sim, scene, samples: np.ndarray) -> dict:
-    names = state_columns(scene.robot.n_links)
-    figures = dict(zip(names, map(float, headless.csv_row(sim)), strict=True))
+def run_scene(document: dict, overrides: dict, duration: float, rate: float):
+    """The run's scene, checked as `run_one` checks it (UserError naming the key)."""
+    n_links = len(document["robot"].get("arm", {}).get("links", []))
+    scene = scene_with(document, overrides)
+    if scene.robot.n_links != n_links:
+        raise UserError("robot.arm.links", "a sweep cannot change the number of links")
+    check_work(duration, scene.integrator, "duration", "integrator.dt", rate, "sample_rate")
+    return scene
+
+
+def run_block(document: dict, runs: list, duration: float, sample_rate: float | None = None,
+              time_limit: float | None = None, csv_dir: str | None = None,
+              threads: int | None = None, stats: dict | None = None) -> list[dict]:
+    """The rows of ``runs`` [(run id, overrides)], run as the lanes of one `Batch` on `threads`
+    threads: each row is `run_one`'s for that run (``cpu_s``: the block's CPU time per run).
+    `stats`, if given, receives the CPU s inside the compiled calls (``compiled_cpu``)."""
+    rate = sample_rate or DEFAULT_SAMPLE_RATE
+    start_cpu = time.process_time()
+    scenes = []
+    for _, overrides in runs:
+        try:
+            scenes.append(run_scene(document, overrides, duration, rate))
+        except Exception as error:   # that lane fails with it; the block goes on
+            scenes.append(error)
+    batch = Batch.of_scenes(scenes, threads=threads, time_limit=time_limit)
+    times = np.fromiter(sample_times(duration, rate), dtype=float)
+    samples = batch.sample(times)
+    rows = []
+    for i, (run_id, _) in enumerate(runs):
+        row = {"run": run_id, "status": "failed", "error": batch.errors[i]}
+        sim = batch.lane(i)
+        if row["error"] is None:
+            try:
+                states = samples[i, :, :-1]
+                sim.tracking = _tracking(sim, states)
+                row.update(_figures(sim, scenes[i], states, residual_of_samples))
+                row["status"] = "ok"
+                if csv_dir:
+                    _write_csv(f"{csv_dir}/run-{run_id:06d}.csv", state_columns(sim.model.n_links),
+                               _csv_rows(batch.sample_t[i], samples[i], sim.nq + sim.nu))
+            except Exception as error:
+                row.update(status="failed", error=error_line(error))
+        rows.append(row)
+    if stats is not None:
+        stats["compiled_cpu"] = batch.compiled_cpu
+    cpu = (time.process_time() - start_cpu) / max(len(runs), 1)
+    for row in rows:
+        row["cpu_s"] = cpu
+    return rows
+
+
+def _tracking(sim, states: np.ndarray):
+    """The arm's `headless.Tracking` over the samples, as `headless.run` measures it, or None."""
+    if not sim.arm_control.active:
+        return None
+    tracking = headless.Tracking(sim.nu - 2)
+    now = sim.s
+    try:
+        for s in states:
+            sim.s = s   # read at each sample (q and the reference clock), as the run read it
+            tracking.sample(sim)
+    finally:
+        sim.s = now
+    return tracking
+
+
+def _csv_rows(t: np.ndarray, samples: np.ndarray, size: int) -> list:
+    """`headless.csv_row` of each sample: t, q, u (its first `size` entries), T + V."""
+    return [[float(t[k]), *row[:size].tolist(), float(row[-1])]
+            for k, row in enumerate(samples)]
+
+
+def residual_per_sample(sim, samples: np.ndarray) -> float:
+    """The largest constraint residual over the samples, one sample at a time (`run_one`)."""
     nq, nu = sim.nq, sim.nu
     residual = 0.0
     for s in samples:
         residual = max(residual, *map(abs, constraint_residuals(
             sim.model, s[:nq], sim.dynamics.configuration_rate(s[:nq], s[nq:nq + nu]))))
+    return residual
+
+
+def residual_of_samples(sim, samples: np.ndarray) -> float:
+    """The same figure for all samples at once (`run_block`): q̇ of every sample in one compiled
+    call, the residuals as arrays (the same operations, element by element)."""
+    nq, nu = sim.nq, sim.nu
+    rates = np.empty((samples.shape[0], nq))
+    configuration_rates(sim.dynamics.model_record, np.ascontiguousarray(samples), nq, nu, rates)
+    pair = constraint_residuals(sim.model, samples[:, :nq].T, rates.T)
+    return max(0.0, *(float(np.max(np.abs(r), initial=0.0)) for r in pair))
+
+
+def _figures(sim, scene, samples: np.ndarray, residual=residual_per_sample) -> dict:
+    names = state_columns(scene.robot.n_links)
+    figures = dict(zip(names, map(float, headless.csv_row(sim)), strict=True))
+    nq = sim.nq
+    residual = residual(sim, samples)
     stroke = np.array(scene.robot.stroke).reshape(-1, 2)
     violation = 0.0
     if scene.robot.n_links and scene.effects.stroke_limits is not None:
@@ -100,8 +189,18 @@ def _write_csv(path: str, columns: list[str], rows: list) -> None:
 
 
 def run_chunk(document: dict, runs: list, duration: float, sample_rate: float | None,
-              time_limit: float | None, csv_dir: str | None) -> list[dict]:
-    """The Dask task: the rows of ``runs`` [(run id, overrides)], each tagged with its worker."""
+              time_limit: float | None, csv_dir: str | None, threads: int = 1) -> list[dict]:
+    """The Dask task: the rows of ``runs`` [(run id, overrides)] as one batch (`run_block`, one
+    thread: a worker is one core), each tagged with its worker."""
+    warm_up(document)
+    worker = _worker_address()
+    rows = run_block(document, runs, duration, sample_rate, time_limit, csv_dir, threads)
+    return [{**row, "worker": worker} for row in rows]
+
+
+def run_chunk_one_by_one(document: dict, runs: list, duration: float, sample_rate: float | None,
+                         time_limit: float | None, csv_dir: str | None) -> list[dict]:
+    """`run_chunk` without the batch: `run_one` after `run_one`."""
     warm_up(document)
     worker = _worker_address()
     rows = []
@@ -128,6 +227,7 @@ def warm_up(document: dict | None = None) -> None:
             run_one(base, {"integrator.method": method}, 0.02)
         except Exception:  # warming is best effort; the real runs report their own errors
             pass
+    run_block(base, [(0, {"integrator.method": "rk4"})], 0.02, threads=1)   # the batch's lanes
     _warm = True
 
 

@@ -192,8 +192,7 @@ def test_every_docs_page_is_linked_from_the_index_and_every_local_link_resolves(
                 continue
             linked = (page.parent / target) if target else page
             if not linked.exists():
-                if Path(target).name not in OTHERS_PAGES:
-                    broken.append(f"{page.relative_to(ROOT)}: {target}")
+                broken.append(f"{page.relative_to(ROOT)}: {target}")
             elif anchor and linked.suffix == ".md" and anchor not in anchors(linked):
                 broken.append(f"{page.relative_to(ROOT)}: {target}#{anchor}")
     assert broken == [], "links to files or headings that do not exist"
@@ -206,10 +205,6 @@ def anchors(page: Path) -> set[str]:
     headings = re.findall(r"^#{1,6} +(.+?) *$", text, flags=re.M)
     return {re.sub(r"[^\w\- ]", "", heading.lower()).replace(" ", "-") for heading in headings}
 
-
-# Pages the docs link to that other work in progress adds; a link to one of them is not broken
-# while it is on its way. Remove a name once its page exists.
-OTHERS_PAGES = {"batch.md"}
 
 
 def repository_files() -> list[Path]:

@@ -1,0 +1,112 @@
+"""The compiled lanes: many runs advanced in one compiled call, spread over the cores.
+
+Each lane is one run with its own records (the system, its stops, its scratch, its state and
+clock: exactly those its own `Simulation` steps with), and each lane follows the very calls a
+`Simulation` makes from Python: for every sample time, `stepping.advance` with the simulation's
+step budget, again after BUDGET, and — where Python would empty the impact log after each call
+(`Simulation._collect_impacts`) — the lane pauses as soon as a call has logged an impact, so that
+Python moves the log into that lane's impact list before the lane goes on. The steps, the events
+(crossings, impacts, releases, holds: `engine/stepping.py` and `engine/stops.py`, called, never
+copied), the calls' boundaries and hence the rhs counters are those of the run alone: each lane
+is bit for bit its own run. A lane that fails (NOT_FINITE, CHATTER) stops where its own run
+would raise, and the others go on.
+
+`advance_fixed` runs the lanes of the fixed-step methods; the loop over lanes is numba's
+`prange` (threads, the lanes of one call shared among them), one thread per lane at a time, the
+project's scalar kernels inside each lane. Without numba it is the same loop in Python.
+"""
+import numpy as np
+
+from ..dynamics import kernels
+from ..dynamics.jit import ENABLED, jit
+from ..engine.stepping import BUDGET, DONE, DT, LOG_FULL, T0, K, advance, total_energy
+
+# a lane's outcome after a call (`code`)
+LANE_DONE, LANE_PAUSED, LANE_FAILED = 0, 1, 2
+
+if ENABLED:
+    import numba
+    from numba.typed import List as LaneList
+
+    prange = numba.prange
+
+    def jit_lanes(function):
+        """A compiled loop over lanes, its iterations run by numba's threads (cached on disk;
+        the stale-cache sweep of `dynamics/jit.py` reads this module for its '@jit')."""
+        return numba.njit(parallel=True, cache=True, nogil=True, error_model="numpy",
+                          fastmath=False)(function)
+
+    def set_threads(count: int) -> int:
+        """Threads for the next calls from this thread (at most numba's pool); returns it."""
+        count = max(1, min(int(count), numba.config.NUMBA_NUM_THREADS))
+        numba.set_num_threads(count)
+        return count
+else:
+    prange = range
+    LaneList = list
+
+    def jit_lanes(function):
+        return function
+
+    def set_threads(count: int) -> int:
+        return 1
+
+
+def lane_list(items) -> "LaneList":
+    """The per-lane records as the compiled call takes them (a typed list under numba)."""
+    return LaneList(items)
+
+
+@jit
+def fixed_lane(method, system, stops, scr, s, clock, times, first, last, rows, rows_t, write,
+               budget):
+    """One lane from sample `first` towards sample `last` (exclusive), as `Simulation.advance_to`
+    does it sample by sample (rows[i] = (s, T + V) at times[i] and rows_t[i] the lane's own
+    clock there, `Simulation.t`, when `write`). Returns (code, next sample, the stepping status
+    that ended a failed lane)."""
+    size = s.shape[0]
+    i = first
+    while i < last:
+        status = advance(method, system, stops, scr, s, clock, times[i], budget)
+        if status == DONE:
+            if write:
+                for j in range(size):
+                    rows[i, j] = s[j]
+                rows[i, size] = total_energy(system, s)
+                rows_t[i] = clock[T0] + clock[K] * clock[DT]
+            i += 1
+        elif status != BUDGET and status != LOG_FULL:
+            return LANE_FAILED, i, status
+        if stops.count[0] > 0:   # Python empties the impact log after every call
+            return LANE_PAUSED, i, status
+    return LANE_DONE, i, DONE
+
+
+@jit_lanes
+def advance_fixed(methods, systems, stops, scratches, states, clocks, lanes, records, times,
+                  last, rows, rows_t, write, budget, code, next_sample, failure):
+    """Every lane in `lanes` (its records at index records[j] of the lists) from its
+    next_sample[lane] towards sample `last`, in parallel; each lane's outcome in code[lane],
+    next_sample[lane] and failure[lane] (`fixed_lane`). rows[lane] are its samples (with
+    `write`; else rows is one dummy row per lane)."""
+    for j in prange(lanes.shape[0]):
+        lane, r = lanes[j], records[j]
+        c, i, status = fixed_lane(methods[r], systems[r], stops[r], scratches[r], states[r],
+                                  clocks[r], times, next_sample[lane], last, rows[lane],
+                                  rows_t[lane], write, budget)
+        code[lane] = c
+        next_sample[lane] = i
+        failure[lane] = status
+
+
+@jit
+def configuration_rates(model, samples, nq, nu, out):
+    """q̇ at each sample row (q, u, …) into out[i] (n_q each): `kernels.configuration_rate` row by
+    row, as `Dynamics.configuration_rate` gives it."""
+    for i in range(samples.shape[0]):
+        kernels.configuration_rate(model, samples[i, :nq], samples[i, nq:nq + nu], out[i])
+
+
+def empty_rows(lanes: int, size: int) -> np.ndarray:
+    """Rows for calls that write none (`advance_to`): one row per lane, never written."""
+    return np.zeros((lanes, 1, size + 1))

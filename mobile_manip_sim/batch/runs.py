@@ -1,0 +1,310 @@
+"""`Batch`: N runs of one robot, stepped together — the lanes of the fixed-step methods in one
+compiled call spread over the cores (`lanes.py`), each lane bit for bit its own `simulate` run.
+
+    from mobile_manip_sim.batch import Batch
+    batch = Batch(scene, [{"robot.arm.links[0].mass_per_length": m} for m in masses])
+    rows = batch.sample(times)        # (N, samples, state + 1): (s, T + V) of each lane
+    batch.status[i]                   # LaneStatus: ok, error, t, impacts, energy_error, …
+
+Every lane is a `Simulation` of its own scene (the scene with the lane's overrides, parsed as
+`simulate --set` parses them), so parameters, initial states, efforts, controller and integrator
+settings may all differ between lanes; only the number of links must be the same. Commands go to
+one lane (`set_efforts`, or any command of `lane(i)`) between calls.
+
+Lanes of rk4, semi-implicit Euler and Euler run in the compiled call. Lanes of the adaptive
+methods (rk45, dop853, radau, bdf) are not compiled lanes: each is stepped by its own
+`Simulation` from Python, sample by sample — the same numbers, without the batch's speed
+(`LaneStatus.compiled` says which). A lane that fails (a bad override, a non-finite command or
+state, chatter, its time limit) is failed alone, with its one-line reason; the others go on.
+"""
+from __future__ import annotations
+
+import math
+import os
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from ..engine.simulation import Simulation
+from ..engine.stepping import BUDGET
+from ..scene.errors import UserError
+from ..scene.loading import Scene
+from ..scene.methods import METHODS
+from ..scene.overrides import scene_with
+from . import lanes as compiled
+
+BLOCK_SECONDS = 0.25   # wall s aimed at per compiled call: progress, limits and Ctrl-C between
+# Threads that finish their lanes first wait for the call's end asleep, not spinning: OpenMP's
+# default spin would bill a core for every wait (the user's own setting wins; read when numba
+# starts its thread pool, at the first compiled call).
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+CHUNK_LANES = 1   # lanes handed to a thread at a time: the lanes' costs differ (impacts, methods)
+
+
+class TimeLimit(Exception):
+    """A lane ran past its share of wall time (`Batch(time_limit=…)`)."""
+
+
+def error_line(error: BaseException) -> str:
+    """The line a failed run reports: a user error or time limit as it is, the state gone
+    non-finite (`SimulationError`) with its type's name, anything else (a bug) likewise, its
+    first line only."""
+    if isinstance(error, (UserError, TimeLimit)):
+        return str(error)
+    if isinstance(error, RuntimeError):
+        return f"{type(error).__name__}: {error}"
+    return f"{type(error).__name__}: {error}".splitlines()[0]
+
+
+@dataclass
+class LaneStatus:
+    ok: bool                 # False once the lane has failed (it is then stepped no more)
+    error: str | None        # the one-line reason of a failed lane
+    t: float                 # s: where the lane is (where it stopped, if failed)
+    impacts: int             # impacts so far (`Simulation.impacts`)
+    energy_error: float      # J: `Simulation.energy_error()` now (nan if it never started)
+    compiled: bool           # stepped in the compiled lanes, or by its own Simulation
+
+
+class Batch:
+    def __init__(self, scene: Scene | dict, overrides: list[dict] | None = None, *,
+                 threads: int | None = None, time_limit: float | None = None):
+        """`scene`: a `Scene` or a scene document; `overrides`: one {key path: value} per lane
+        (default: one lane, the scene itself). `threads`: threads of the compiled calls (default:
+        numba's, one per core). `time_limit`: wall s per lane (its share of each call's wall time,
+        call wall × threads / lanes in the call); past it the lane is failed at its next sample."""
+        document = scene.document if isinstance(scene, Scene) else scene
+        overrides = [{}] if overrides is None else list(overrides)
+        built = []
+        for values in overrides:
+            try:
+                built.append(scene if isinstance(scene, Scene) and not values
+                             else scene_with(document, values))
+            except Exception as error:   # the lane is failed with its reason; the others go on
+                built.append(error)
+        self._start(built, threads, time_limit)
+
+    @classmethod
+    def of_scenes(cls, scenes: list, *, threads: int | None = None,
+                  time_limit: float | None = None) -> Batch:
+        """A batch of these scenes, one lane each (an exception in place of a scene: that lane
+        is failed from the start with it as its reason)."""
+        batch = cls.__new__(cls)
+        batch._start(list(scenes), threads, time_limit)
+        return batch
+
+    def _start(self, built: list, threads: int | None, time_limit: float | None) -> None:
+        self.size = len(built)
+        self.threads = threads
+        self.time_limit = time_limit
+        self.sims: list[Simulation | None] = [None] * self.size
+        self.errors: list[str | None] = [None] * self.size
+        self.wall = np.zeros(self.size)   # each lane's share of wall time (s)
+        self.sample_t = np.zeros((self.size, 0))   # each lane's own t at the last samples
+        self.compiled_cpu = 0.0   # CPU s (all threads) spent inside the compiled calls
+        links = None
+        for i, scene in enumerate(built):
+            if isinstance(scene, BaseException):
+                self.errors[i] = error_line(scene)
+                continue
+            if links is None:
+                links = scene.robot.n_links
+            if scene.robot.n_links != links:
+                self.errors[i] = str(UserError("robot.arm.links", "the lanes of a batch have one "
+                                                                  "number of links"))
+                continue
+            try:
+                self.sims[i] = Simulation(scene)
+            except Exception as error:
+                self.errors[i] = error_line(error)
+        self.compiled = np.array([sim is not None and METHODS[sim.settings.method].fixed_step
+                                  for sim in self.sims], dtype=bool)
+        self._records = None
+
+    # --- per lane ---------------------------------------------------------------------------
+    def lane(self, i: int) -> Simulation | None:
+        """Lane i's own `Simulation` (None if it failed before it started): read it, or command
+        it between calls (the batch picks up the records a command replaces)."""
+        return self.sims[i]
+
+    @property
+    def ok(self) -> np.ndarray:
+        return np.array([error is None for error in self.errors], dtype=bool)
+
+    @property
+    def status(self) -> list[LaneStatus]:
+        return [self._status(i) for i in range(self.size)]
+
+    def _status(self, i: int) -> LaneStatus:
+        sim = self.sims[i]
+        if sim is None:
+            return LaneStatus(False, self.errors[i], 0.0, 0, math.nan, False)
+        return LaneStatus(self.errors[i] is None, self.errors[i], sim.t, len(sim.impacts),
+                          sim.energy_error(), bool(self.compiled[i]))
+
+    def fail(self, i: int, error: BaseException | str) -> None:
+        """Lane i is failed with this reason: it is stepped no more."""
+        if self.errors[i] is None:
+            self.errors[i] = error if isinstance(error, str) else error_line(error)
+
+    def set_efforts(self, wheels=None, joints=None, lanes=None) -> None:
+        """`Simulation.set_efforts` on each lane in `lanes` (default: all that are ok); `wheels`
+        and `joints` are one command for all of them or one row per lane. A lane that refuses its
+        command (non-finite, wrong length, overflowing) is failed alone, with the reason."""
+        chosen = np.flatnonzero(self.ok) if lanes is None else np.asarray(lanes, dtype=int)
+        for row, i in enumerate(chosen):
+            if self.errors[i] is not None:
+                continue
+            try:
+                self.sims[i].set_efforts(_row(wheels, row, len(chosen)),
+                                         _row(joints, row, len(chosen)))
+            except Exception as error:
+                self.fail(i, error)
+
+    # --- stepping ---------------------------------------------------------------------------
+    def advance_to(self, t_end: float) -> None:
+        """Every lane that is ok to exactly t_end (s)."""
+        self._run(np.array([float(t_end)]), None, None)
+
+    def sample(self, times, progress=None) -> np.ndarray:
+        """Every lane through the increasing sample times (s): an (N, samples, state + 1) array
+        whose [i, k] is lane i's (s, T + V) at times[k], as `Simulation.sample` gives it (nan
+        after a lane failed). `progress`: a `runtime.progress.Progress` counting samples."""
+        times = np.ascontiguousarray(times, dtype=float).reshape(-1)
+        size = self._state_size()
+        rows = np.full((self.size, times.size, size + 1), np.nan)
+        self.sample_t = np.full((self.size, times.size), np.nan)
+        self._run(times, rows, progress)
+        return rows
+
+    def _state_size(self) -> int:
+        return next((sim.s.size for sim in self.sims if sim is not None), 0)
+
+    def _run(self, times: np.ndarray, rows, progress) -> None:
+        for i in np.flatnonzero(self.ok & ~self.compiled):
+            self._scalar_lane(i, times, rows)
+        lanes = np.flatnonzero(self.ok & self.compiled)
+        if lanes.size:
+            self._compiled_lanes(lanes, times, rows, progress)
+
+    def _scalar_lane(self, i: int, times: np.ndarray, rows) -> None:
+        """A lane the compiled call does not run, stepped by its own Simulation as `simulate`
+        steps it: advance_to, sample after sample."""
+        sim = self.sims[i]
+        start = time.perf_counter()
+        try:
+            for k, t in enumerate(times):
+                sim.advance_to(t)
+                if rows is not None:
+                    rows[i, k, :-1], rows[i, k, -1] = sim.s, sim.total_energy()
+                    self.sample_t[i, k] = sim.t
+                self.wall[i] += time.perf_counter() - start
+                start = time.perf_counter()
+                self._check_time_limit(i)
+        except Exception as error:
+            self.fail(i, error)
+
+    def _check_time_limit(self, i: int) -> None:
+        if self.time_limit is not None and self.wall[i] > self.time_limit:
+            raise TimeLimit(f"time_limit: stopped after {self.time_limit:g} s wall at "
+                            f"t = {self.sims[i].t:.6g} s")
+
+    def _lists(self):
+        """The compiled call's per-lane records (those of the compiled lanes), rebuilt when a
+        lane's records were replaced (a command that grew them, a reset)."""
+        chosen = np.flatnonzero(self.compiled)
+        sims = [self.sims[i] for i in chosen]
+        key = [(sim.system.data, sim.s, sim.stops, sim._scratch, sim._clock) for sim in sims]
+        if self._records is None or any(
+                any(a is not b for a, b in zip(old, new, strict=True))
+                for old, new in zip(self._records[0], key, strict=True)):
+            lane_of = np.full(self.size, -1, dtype=np.int64)
+            lane_of[chosen] = np.arange(len(sims))
+            lists = (np.array([sim._core_args[0] for sim in sims], dtype=np.int64),
+                     compiled.lane_list([sim.system.data for sim in sims]),
+                     compiled.lane_list([sim.stops for sim in sims]),
+                     compiled.lane_list([sim._scratch for sim in sims]),
+                     compiled.lane_list([sim.s for sim in sims]),
+                     compiled.lane_list([sim._clock for sim in sims]))
+            self._records = (key, lane_of, lists)
+        return self._records[1], self._records[2]
+
+    def _compiled_lanes(self, lanes: np.ndarray, times: np.ndarray, rows, progress) -> None:
+        lane_of, lists = self._lists()
+        budget = self.sims[lanes[0]]._step_budget
+        threads = _set_threads(self.threads or 1 << 30)
+        code = np.zeros(self.size, dtype=np.int64)
+        failure = np.zeros(self.size, dtype=np.int64)
+        next_sample = np.zeros(self.size, dtype=np.int64)
+        write = rows is not None
+        out = rows if write else compiled.empty_rows(self.size, self._state_size())
+        out_t = self.sample_t if write else np.zeros((self.size, 1))
+        block, first = 1, 0
+        while first < times.size:
+            last = min(times.size, first + block)
+            pending = lanes[[self.errors[i] is None for i in lanes]]
+            next_sample[pending] = first
+            block_start = started = time.perf_counter()
+            while pending.size:
+                cpu = time.process_time()
+                compiled.advance_fixed(*lists, pending, lane_of[pending], times, last, out, out_t,
+                                       write, budget, code, next_sample, failure)
+                self.compiled_cpu += time.process_time() - cpu
+                now = time.perf_counter()
+                self.wall[pending] += (now - started) * threads / max(pending.size, threads)
+                started = now
+                pending = self._after_call(pending, code, failure, next_sample, last)
+            if progress is not None:
+                progress.update(last, f", {int((~self.ok).sum())} failed")
+            block = _next_block(block, last - first, time.perf_counter() - block_start)
+            first = last
+
+    def _after_call(self, pending, code, failure, next_sample, last) -> np.ndarray:
+        """After a compiled call: impacts moved into each paused lane's list (as Python does
+        after every call of a run), failed lanes told why, time limits checked; returns the
+        lanes that still have samples to reach in this block."""
+        again = []
+        for i in pending:
+            sim, r = self.sims[i], i
+            if code[r] == compiled.LANE_DONE and self.time_limit is None:
+                continue
+            try:
+                if code[r] == compiled.LANE_FAILED:
+                    sim._after_compiled(int(failure[r]))   # raises the run's own error
+                    raise RuntimeError(f"the stepping ended with status {int(failure[r])}")
+                if code[r] == compiled.LANE_PAUSED:
+                    sim._after_compiled(BUDGET)             # empties the log, as after a call
+                self._check_time_limit(i)
+            except Exception as error:
+                self.fail(i, error)
+                continue
+            if code[r] == compiled.LANE_PAUSED and next_sample[r] < last:
+                again.append(i)   # (a lane paused on its block's last sample is through)
+        return np.array(again, dtype=np.int64)
+
+
+def _set_threads(count: int) -> int:
+    """Threads of the next compiled calls from this thread, and the lanes dealt at a time."""
+    count = compiled.set_threads(count)
+    if compiled.ENABLED:
+        import numba
+        numba.set_parallel_chunksize(CHUNK_LANES)
+    return count
+
+
+def _row(values, row: int, lanes: int):
+    """One lane's command out of one shared command or one row per lane."""
+    if values is None:
+        return None
+    array = np.asarray(values, dtype=float) if not isinstance(values, np.ndarray) else values
+    return array[row] if array.ndim == 2 and array.shape[0] == lanes else values
+
+
+def _next_block(block: int, done: int, spent: float) -> int:
+    """Samples for the next compiled call: doubled while a call takes under BLOCK_SECONDS."""
+    if spent < BLOCK_SECONDS / 2 and done == block:
+        return 2 * block
+    if spent > 2 * BLOCK_SECONDS:
+        return max(1, block // 2)
+    return block

@@ -1,0 +1,144 @@
+"""The batch engine (`mobile_manip_sim.batch`): every lane is bit for bit its own `simulate` run,
+whatever the other lanes do — impacts, rests, releases and holds in some lanes and not in others,
+failures — and a lane that fails stops alone."""
+from __future__ import annotations
+
+import copy
+import math
+
+import numpy as np
+import pytest
+
+from mobile_manip_sim.batch import Batch
+from mobile_manip_sim.runtime import headless
+from mobile_manip_sim.runtime.timeline import sample_times
+from mobile_manip_sim.scene.overrides import scene_with
+from robots import random_robot_document
+
+FIXED = ("rk4", "semi_implicit_euler", "euler")
+DURATION, RATE = 0.4, 50.0
+
+
+def random_lanes(seed: int, count: int, n_links: int):
+    """A random robot with stops and `count` lanes of it: method, dt, a rod's mass, the initial
+    rates (some fast enough to reach the stops, some not), efforts and the stops' law varied."""
+    rng = np.random.default_rng(seed)
+    document = random_robot_document(rng, n_links)
+    document["effects"]["stroke_limits"] = {"restitution": 0.0, "rest_speed": 0.05}
+    document["duration"] = DURATION
+    lanes = []
+    for i in range(count):
+        slow = i % 2 == 0   # slow lanes without gravity stay off their stops; the others not
+        speed = 0.01 if slow else 3.0
+        lanes.append({
+            "effects.gravity": 0.0 if slow else 10.0,
+            "integrator.method": FIXED[i % 3],
+            "integrator.dt": float(rng.choice([1e-3, 2e-3, 5e-3])),
+            "robot.arm.links[0].mass_per_length": float(rng.uniform(0.5, 3.0)),
+            "initial.velocity": (rng.normal(size=2) * speed).tolist()
+                                + (rng.normal(size=2 * n_links) * speed).tolist(),
+            "efforts.wheels": rng.uniform(-0.2, 0.2, 2).tolist(),
+            "effects.stroke_limits.restitution": float(rng.choice([0.0, 0.5, 0.9])),
+        })
+    return document, lanes
+
+
+def simulate(document: dict, overrides: dict):
+    """The lane's own run, as `simulate` runs it: its samples (s, T + V) and the simulation."""
+    rows = []
+    sim = headless.run(scene_with(document, overrides), DURATION, RATE, None,
+                       lambda sim: rows.append([*sim.s, sim.total_energy()]))
+    return np.array(rows), sim
+
+
+def same_bits(a: np.ndarray, b: np.ndarray) -> bool:
+    return a.shape == b.shape and np.array_equal(a.view(np.int64), b.view(np.int64))
+
+
+@pytest.mark.parametrize("seed, n_links", [(11, 2), (12, 3)])
+def test_every_lane_is_bit_for_bit_its_own_simulate_run(seed, n_links):
+    document, lanes = random_lanes(seed, 12, n_links)
+    batch = Batch(document, lanes, threads=2)
+    times = np.array(list(sample_times(DURATION, RATE)))
+    rows = batch.sample(times)
+    impacts, resting = [], []
+    for i, overrides in enumerate(lanes):
+        expected, sim = simulate(document, overrides)
+        lane, status = batch.lane(i), batch.status[i]
+        assert status.ok and status.compiled, status.error
+        assert same_bits(rows[i], expected), f"lane {i} ({overrides['integrator.method']})"
+        assert lane.impacts == sim.impacts
+        assert [d.held for d in lane.impact_details] == [d.held for d in sim.impact_details]
+        assert (lane.steps, lane.rhs_evaluations) == (sim.steps, sim.rhs_evaluations)
+        assert same_bits(np.array([status.energy_error]), np.array([sim.energy_error()]))
+        assert lane.t == sim.t == DURATION
+        impacts.append(len(sim.impacts))
+        resting.append(any(impact.resting for impact in sim.impacts))
+    # the lanes differ in what happens to them: impacts in some, none in others; rests too
+    assert 0 in impacts and max(impacts) > 0, impacts
+    assert any(resting) and not all(resting), resting
+
+
+def test_a_lane_given_a_non_finite_command_fails_alone_and_the_others_are_untouched():
+    document, lanes = random_lanes(21, 4, 2)
+    batch = Batch(document, lanes, threads=2)
+    batch.advance_to(0.1)
+    batch.set_efforts(wheels=[math.nan, 0.0], lanes=[1])
+    batch.set_efforts(joints=[[0.0, 1.0, 0.0, math.inf]], lanes=[2])
+    batch.advance_to(DURATION)
+    status = batch.status
+    assert [s.ok for s in status] == [True, False, False, True]
+    assert status[1].error.startswith("efforts.wheels: values must be finite")
+    assert status[2].error.startswith("efforts.joints: values must be finite")
+    assert "\n" not in status[1].error + status[2].error
+    assert status[1].t == status[2].t == 0.1   # stepped no more
+    for i in (0, 3):   # the others: exactly their runs alone
+        expected, sim = simulate(document, lanes[i])
+        assert same_bits(batch.lane(i).s, sim.s)
+        assert batch.lane(i).impacts == sim.impacts
+
+
+def test_a_lane_whose_state_goes_non_finite_fails_alone_with_the_runs_own_error():
+    document, lanes = random_lanes(31, 3, 2)
+    # euler with a step far beyond what stiff joint damping allows: it diverges
+    lanes[1].update({"integrator.method": "euler", "integrator.dt": 0.01,
+                     "effects.joint_damping": [1e6] * 4})
+    batch = Batch(document, lanes, threads=2)
+    rows = batch.sample(np.array(list(sample_times(DURATION, RATE))))
+    status = batch.status
+    assert status[1].ok is False and status[1].error.startswith("SimulationError: t = ")
+    assert np.isnan(rows[1, -1]).all()
+    for i in (0, 2):
+        assert status[i].ok
+        expected, _ = simulate(document, lanes[i])
+        assert same_bits(rows[i], expected)
+
+
+def test_a_bad_override_fails_its_lane_at_once_naming_the_key():
+    document, lanes = random_lanes(41, 3, 2)
+    lanes[0] = {**lanes[0], "integrator.dt": -1.0}
+    batch = Batch(document, lanes)
+    batch.advance_to(0.05)
+    status = batch.status
+    assert not status[0].ok and status[0].error.startswith("integrator.dt")
+    assert status[1].ok and status[2].ok and status[1].t == 0.05
+
+
+def test_adaptive_lanes_are_stepped_by_their_own_simulation_with_the_same_numbers():
+    document, lanes = random_lanes(51, 3, 2)
+    lanes[1] = {**lanes[1], "integrator.method": "dop853"}
+    batch = Batch(document, lanes, threads=2)
+    rows = batch.sample(np.array(list(sample_times(DURATION, RATE))))
+    assert [s.compiled for s in batch.status] == [True, False, True]
+    for i, overrides in enumerate(lanes):
+        expected, sim = simulate(document, overrides)
+        assert same_bits(rows[i], expected)
+        assert batch.lane(i).impacts == sim.impacts
+
+
+def test_one_thread_and_two_give_the_same_bits():
+    document, lanes = random_lanes(61, 6, 2)
+    times = np.array(list(sample_times(DURATION, RATE)))
+    one = Batch(copy.deepcopy(document), lanes, threads=1).sample(times)
+    two = Batch(copy.deepcopy(document), lanes, threads=2).sample(times)
+    assert same_bits(one, two)
