@@ -28,6 +28,7 @@ from ..engine.simulation import Simulation
 from ..ros.messages import state_messages
 from ..ros.topics import CLOCK_TOPIC, JOINT_STATES_TOPIC, ODOM_TOPIC, state_qos
 from ..runtime import cli
+from ..runtime.headless import hold_ledger
 from ..runtime.memory import CompilerPages, release_compiler_pages
 from ..runtime.pacing import Pacer
 from ..runtime.timeline import Grid, apply_commands, start_node_time_line
@@ -63,6 +64,7 @@ class SimulatorNode(Node):
         self.arm_control = p.arm_control.for_robot(self.scene.robot)   # UserError: arm_gains.*
         self.sim = Simulation(self.scene, self._settings, arm_control=self.arm_control)
         self.sim.set_wheel_speed_gains(*p.wheel_speed_gains)
+        self.sim.hold_warning = self.get_logger().warning   # a hold over its bound: one line
         self.joint_names = self.scene.robot.joint_names()
         self.grid = Grid(p.publish_rate)   # publication k at t_k, segment k → k + 1
         self._compiler_pages = CompilerPages()   # given back after a segment loaded a kernel
@@ -238,6 +240,7 @@ class SimulatorNode(Node):
         """The watchdog gave up on a stuck segment: a new engine (the old one is left to it)."""
         self.sim = Simulation(self.scene, self._settings, arm_control=self.arm_control)
         self.sim.set_wheel_speed_gains(*self.params.wheel_speed_gains)
+        self.sim.hold_warning = self.get_logger().warning
         if self._recording is not None:
             self._recording.sim = self.sim
 
@@ -269,6 +272,9 @@ class SimulatorNode(Node):
 
     def close(self) -> None:
         """After `stop`, before the node is destroyed (SIGINT, SIGTERM, normal exit)."""
+        if self.sim.holds:   # the energy the engine removed beyond the impact law, said once
+            rclpy.logging.get_logger(NODE_NAME).info(f"end stops: {hold_ledger(self.sim)} "
+                                                     f"beyond the impact law")
         self.view.close()
         if self._recording is not None:
             # While the context is up the node's logger; after SIGINT/SIGTERM shut it down, one
