@@ -149,9 +149,7 @@ def test_a_geometric_run_is_evidence_where_its_tail_fits_in_zeno_tail():
 
 
 def test_runs_that_do_not_shrink_in_speed_are_no_geometric_evidence():
-    intervals = 0.01 * 0.1 ** np.arange(6)          # shrinking fast, but the speed does not
+    intervals = 0.01 * 0.1 ** np.arange(4)          # shrinking fast, but the speed does not
     times = np.concatenate([[0.0], np.cumsum(intervals)])
-    allowed = guard(times, np.full(times.size, 2.0))
-    assert all(a < 0.0 for a, dt in zip(allowed[1:], intervals, strict=True)
-               if dt > events.ZENO_TAIL)
+    assert all(a < 0.0 for a in guard(times, np.full(times.size, 2.0)))
     assert not any(a >= 0 for a in guard(0.02 * np.arange(500), np.full(500, 1.0)))
