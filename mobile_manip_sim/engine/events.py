@@ -21,8 +21,9 @@ A release is watched as a crossing is: while a rod rests, every evaluation of th
 side inside a step (each stage, and the step's end) samples the holding forces
 (`system.watch_holding`); where one of them saw a stop pull, the margin is sampled at N_SAMPLES
 instants of the step itself (`first_release`) and the first pull located by the same root
-finder. A pull window is therefore seen when it covers one of the method's evaluation instants:
-any window longer than the largest gap between them (docs/model.md states it per method).
+finder. A pull window is therefore seen when it covers one of the method's evaluation instants
+deeply enough: any window at least twice the largest gap between them (docs/model.md states it
+per method).
 
 `step_state(...)` is the one place that evaluates the state inside a step for the event
 functions, so one Illinois root finder (`locate`) serves every method.
