@@ -20,7 +20,8 @@ SciPy step, its interpolant a `dense.POWER` series, becomes the step in hand (`r
 The Zeno guard is `events.zeno_guard`, the fixed-step core's too (called by `stops.impact`): it
 reads the impact times alone, never the step.
 
-The simulated time is clock[T0] of `stepping.py`'s clock (K stays 0); STEPS and LOST as there.
+The simulated time is clock[T0] of `stepping.py`'s clock (K stays 0); STEPS and the energy ledger
+(LOST, HELD, HOLDS) as there.
 """
 import math
 from collections import namedtuple
@@ -31,20 +32,20 @@ from ..dynamics.jit import jit
 from . import layout
 from . import runge_kutta as rk
 from .dense import Interpolant, interpolate
-from .events import RELEASE, crossing_in_step, first_crossing, holding_margin_after, locate
-from .status import BUDGET, CRAWLING, DONE, LOG_FULL, NOT_FINITE, STALLED
+from .events import crossing_in_step, first_crossing, first_release
+from .status import BUDGET, CONTACT_FAILED, CRAWLING, DONE, LOG_FULL, NOT_FINITE, STALLED
 from .step_watch import clear, make_watch, watch_step
 from .stepping import (
-    LOST,
     STEPS,
     T0,
     any_watched,
+    book,
     copy_into,
     finite,
     total_energy,
 )
 from .stops import any_resting, impact, release
-from .system import derivative
+from .system import LEAST_MARGIN, clear_holding, derivative
 
 # Solve.status[...] entries
 (STEP_T0,     # start of the step in hand (s)
@@ -164,9 +165,9 @@ def locate_event(method, system, stops, scr, solve):
     rod reaching a stop, or the instant a resting rod's stop would start to pull."""
     work, status, start = solve.work, solve.status, solve.start
     y1, h = work[rk.WORK_Y1], status[STEP_H]
-    # The holding forces at y₁ are what f(y₁), the step's last evaluation, left in the workspace:
-    # check before the interpolant's stages evaluate anything else.
-    pulled = any_resting(stops) and holding_margin_after(system, stops.resting, scr.forces) < 0.0
+    # Every evaluation of the step (its stages, f(y₁)) sampled the holding forces
+    # (`system.watch_holding`): read before the interpolant's stages evaluate anything else.
+    pulled = any_resting(stops) and system.holding[LEAST_MARGIN] < 0.0
     if any_watched(stops) and crossing_in_step(start, y1, h, system, stops.watched, stops.stroke):
         dense = interpolant(method, system, solve, True)
         h_hit, k, side = first_crossing(method, system, start, h, stops.watched, stops.resting,
@@ -180,10 +181,10 @@ def locate_event(method, system, stops, scr, solve):
             status[EVENT_K], status[EVENT_SIDE] = k, side
     if pulled:
         dense = interpolant(method, system, solve, True)
-        h_leave = locate(RELEASE, method, system, start, 0.0, h, 0, 0, 0.0, stops.resting,
-                         scr.trial, scr.stages, scr.forces, dense)
+        h_leave = first_release(method, system, start, h, stops.resting, scr.trial, scr.stages,
+                                scr.forces, dense)
         # whichever comes first: the other one is found again by the solve restarted there
-        if status[EVENT] == NO_EVENT or h_leave < status[EVENT_H]:
+        if h_leave >= 0.0 and (status[EVENT] == NO_EVENT or h_leave < status[EVENT_H]):
             interpolate(dense, start, h_leave, solve.event)
             status[EVENT], status[EVENT_H] = LEAVE, h_leave
 
@@ -206,6 +207,7 @@ def take_step(method, system, stops, scr, solve, s, clock):
         if status[H_NEXT] <= 0.0:
             status[H_NEXT] = rk.initial_step(method, system, start, f0, math.inf, rtol, atol,
                                              math.inf, y1, f1)
+    clear_holding(system)
     h, h_next = rk.accepted_step(method, system, start, status[STEP_T0], status[H_NEXT], math.inf,
                                  rtol, atol, work)
     if h < 0.0:
@@ -230,8 +232,8 @@ def apply_event(system, stops, scr, solve, s, clock):
     copy_into(solve.event, s)
     clock[T0] = t
     if status[EVENT] == IMPACT:
-        clock[LOST] += impact(system, stops, s, int(status[EVENT_K]), int(status[EVENT_SIDE]), t,
-                              scr.impact, scr.stages[3], scr.forces)
+        book(clock, impact(system, stops, s, int(status[EVENT_K]), int(status[EVENT_SIDE]), t,
+                           scr.impact, scr.stages[3], scr.forces))
     else:
         release(system, stops, s, scr.impact, scr.stages[3], scr.forces, True)
     restart(solve)
@@ -289,6 +291,8 @@ def advance(method, system, stops, scr, solve, s, clock, t_end, max_steps):
     room = stops.log.shape[0] // 2
     taken = 0
     while not reach(method, system, stops, scr, solve, s, clock, t_end):
+        if stops.failed[0] != 0:
+            return CONTACT_FAILED
         if taken >= max_steps:
             return BUDGET
         if stops.count[0] > room:

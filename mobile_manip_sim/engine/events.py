@@ -17,6 +17,14 @@ crosses and comes back within one step is not missed (SciPy's sign-change detect
 scipy #9228); the first crossing is bracketed between 16 samples of the step plus the path's
 turning points, then located by the Illinois method.
 
+A release is watched as a crossing is: while a rod rests, every evaluation of the right-hand
+side inside a step (each stage, and the step's end) samples the holding forces
+(`system.watch_holding`); where one of them saw a stop pull, the margin is sampled at N_SAMPLES
+instants of the step itself (`first_release`) and the first pull located by the same root
+finder. A pull window is therefore seen when it covers one of the method's evaluation instants
+deeply enough: any window at least twice the largest gap between them (docs/model.md states it
+per method).
+
 `step_state(...)` is the one place that evaluates the state inside a step for the event
 functions, so one Illinois root finder (`locate`) serves every method.
 
@@ -26,15 +34,22 @@ Simultaneous impacts (`simultaneous_hits`): rods that reach their stops within S
 times SIMULTANEOUS (or already past it) is moved onto it and hit with the rest, so the result
 does not depend on which crossing round-off places first.
 
-The Zeno guard (`zeno_guard`), the one for every method, fixed-step and adaptive, reads the
-impact times alone, never the step: the impacts of one rod at one stop whose intervals shrink
-accumulate at a finite time; once the tail still to come, estimated from the last two
-intervals as a geometric series, is shorter than ZENO_TAIL (or an interval itself is), the
-rest of the series is one event and the rod is held there. Each rod and stop keeps its own
-record (`stops.StopsData.run`), so impacts of other rods in between neither break it nor count
-towards it. A rod bouncing faster than ``rest_speed`` is held only there, so its impact count
-does not depend on the method or the tolerance. The last resort when rods are released and hit
-again without end is the fixed-step core's log-room exit (`stepping.CHATTER`).
+The Zeno guard (`zeno_guard`, `ZENO_*`), the one for every method, fixed-step and adaptive,
+reads the impacts alone, never the step. Each rod and stop keeps its own record
+(`stops.StopsData.run`), so impacts of other rods in between neither break it nor count towards
+it. An impact at a stop is *evidence* of an accumulation point when either
+- the last ZENO_RUN intervals between impacts there each shrank and so did the arrival speeds,
+  and the tail the last ratio r predicts, interval · r / (1 − r), fits in ZENO_TAIL; or
+- the interval since the last impact there is itself within ZENO_TAIL.
+Evidence alone never holds a rod: `stops.impact` then solves the impact both ways (the law, and
+the law with the contacts held) and holds only when the hold removes at most ZENO_SHARE of the
+run's kinetic energy (the largest T⁻ at an impact at that stop since the start or the last
+reset) beyond what the law removes. One or two short intervals in a finite cascade fail that
+test (the rod still carries its energy); the tail of a true accumulation passes it by orders of
+magnitude. A rod bouncing
+faster than ``rest_speed`` is held only there, so its impact count does not depend on the
+method or the tolerance. The last resort when rods are released and hit again without end is
+the fixed-step core's log-room exit (`stepping.CHATTER`).
 """
 import math
 
@@ -42,34 +57,48 @@ from ..dynamics.jit import jit, jit_inline
 from . import layout
 from .dense import interpolate
 from .fixed_step import step
-from .system import CROSSING_CHECKS, derivative, slide_holding_forces
+from .system import CROSSING_CHECKS, derivative, holding_margin_now, slide_holding_forces
 
 CROSSING, RELEASE = 0, 1
 N_SAMPLES = 16
 SIMULTANEOUS = 1e-9   # s: stops reached this close together in time are one impact
-ZENO_TAIL = 1e-6      # s: a run of impacts whose remaining tail is shorter than this is held
-RUN_COUNT, RUN_LAST, RUN_INTERVAL = 0, 1, 2   # stops.run[k − 1, stop, ...]
+ZENO_TAIL = 1e-6      # s: a run of impacts whose remaining tail is shorter is evidence of Zeno
+ZENO_RUN = 3          # shrinking intervals (and arrival speeds) in a row that make a geometric run
+ZENO_SHARE = 1e-6    # a hold removes at most this share of its run's kinetic energy (J / J)
+# stops.run[k − 1, stop, ...]: impacts at that stop, time of the last (s), interval before it (s),
+# arrival speed of the last (m/s), how many intervals and speeds in a row shrank, the largest
+# kinetic energy at an impact there (J)
+RUN_COUNT, RUN_LAST, RUN_INTERVAL, RUN_SPEED, RUN_SHRINKS, RUN_ENERGY = range(6)
+RUN_FIELDS = 6
 
 
 @jit
-def zeno_guard(run, k, side, t):
-    """The Zeno guard of the module doc: rod k (1-based) meets its lower (side −1) or upper (+1)
-    stop at time t (s). Records the impact in ``run`` ((n, 2, 3): impacts, time of the last,
-    interval before it, per rod and stop) and returns True when the rod is to be held: the
-    interval since its last impact there is within ZENO_TAIL, or it shrank by the ratio r and
-    the tail to come, interval · r / (1 − r), is."""
+def zeno_guard(run, k, side, t, speed, T):
+    """The Zeno guard's evidence (module doc): rod k (1-based) meets its lower (side −1) or upper
+    (+1) stop at time t (s) with arrival speed |l̇| ``speed`` (m/s), the kinetic energy being T
+    (J). Records the impact in ``run`` ((n, 2, RUN_FIELDS), per rod and stop) and returns the
+    energy (J) a hold may remove there beyond the law — ZENO_SHARE of the largest T at an impact
+    there since the start — when the impacts there are evidence of an accumulation point, and −1
+    when they are not."""
     record = run[k - 1, 0 if side < 0 else 1]
-    hold = False
+    evidence = False
     if record[RUN_COUNT] > 0.0:
         interval = t - record[RUN_LAST]
-        hold = interval <= ZENO_TAIL
-        if record[RUN_COUNT] > 1.0 and interval < record[RUN_INTERVAL]:
+        if (record[RUN_COUNT] > 1.0 and interval < record[RUN_INTERVAL]
+                and speed < record[RUN_SPEED]):
+            record[RUN_SHRINKS] += 1.0
+        else:
+            record[RUN_SHRINKS] = 0.0
+        evidence = interval <= ZENO_TAIL
+        if record[RUN_SHRINKS] >= ZENO_RUN:
             ratio = interval / record[RUN_INTERVAL]
-            hold = hold or interval * ratio <= ZENO_TAIL * (1.0 - ratio)
+            evidence = evidence or interval * ratio <= ZENO_TAIL * (1.0 - ratio)
         record[RUN_INTERVAL] = interval
     record[RUN_COUNT] += 1.0
     record[RUN_LAST] = t
-    return hold
+    record[RUN_SPEED] = speed
+    record[RUN_ENERGY] = max(record[RUN_ENERGY], T)
+    return ZENO_SHARE * record[RUN_ENERGY] if evidence else -1.0
 
 
 @jit
@@ -164,12 +193,7 @@ def holding_margin(system, s, resting, ds, forces):
 def holding_margin_after(system, resting, forces):
     """`holding_margin` right after a derivative at the state (which left the forces)."""
     slide_holding_forces(system, resting, forces)
-    margin = math.inf
-    for k in range(1, resting.shape[0] + 1):
-        if resting[k - 1] != 0:
-            # The stop pushes outward only: +l at the lower stop (side −1), −l at the upper (+1).
-            margin = min(margin, -resting[k - 1] * forces[layout.u_slide(k)])
-    return margin
+    return holding_margin_now(system)
 
 
 @jit
@@ -300,3 +324,21 @@ def first_crossing(method, system, s0, h, watched, resting, stroke, samples, cro
         if best_k == 0 or h_hit < best_h:
             best_h, best_k, best_side = h_hit, k, side
     return best_h, best_k, best_side
+
+
+@jit
+def first_release(method, system, s0, h, resting, trial, stages, forces, dense=None):
+    """Earliest h' in (0, h] at which a resting rod's stop would start to pull, or −1 when none
+    does: the holding margin sampled at N_SAMPLES instants of the step (the integrator's own step,
+    or the step's dense output) and located (`locate`) between the last sample where every stop
+    pushes and the first where one pulls. Called only when an evaluation inside the step saw a
+    stop pull (`system.watch_holding`), so that resting costs nothing more while the stops push."""
+    before = 0.0
+    for j in range(1, N_SAMPLES + 1):
+        h_j = h * j / N_SAMPLES
+        if event_value(RELEASE, method, system, s0, h_j, 0, 0, 0.0, resting, trial, stages, forces,
+                       dense) < 0.0:
+            return locate(RELEASE, method, system, s0, before, h_j, 0, 0, 0.0, resting, trial,
+                          stages, forces, dense)
+        before = h_j
+    return -1.0

@@ -39,8 +39,17 @@ from .arm_commands import ArmCommands
 from .arm_control import arm_settings, feedforward_model, for_robot, scene_arm_controller
 from .base_commands import BaseCommands, command, finite_forces
 from .events import holding_margin
-from .stops import LOG_HELD, Impact, make_impact_scratch, make_stops, release, relock
-from .system import RHS_EVALS, VELOCITY_MODE, System
+from .stops import (
+    LOG_HELD,
+    LOG_HOLD_BOUND,
+    LOG_HOLD_LOST,
+    Impact,
+    make_impact_scratch,
+    make_stops,
+    release,
+    relock,
+)
+from .system import LEAST_MARGIN, RHS_EVALS, VELOCITY_MODE, System
 
 
 def scipy_solver(method: str):
@@ -62,6 +71,10 @@ ELASTIC_SEMI_IMPLICIT = ("semi_implicit_euler with end stops that rebound (resti
 # 8 % off at 1 s)
 DEFAULT_WHEEL_SPEED_GAINS = (2.0, 20.0)
 SCIPY_MIN_RTOL = 100 * np.finfo(float).eps   # SciPy's own floor; passed as is, it warns on stderr
+
+
+def hold_warning(line: str) -> None:
+    warnings.warn(line, RuntimeWarning, stacklevel=4)
 
 
 ImpactDetail = namedtuple("ImpactDetail", "q u_before u_after free held")
@@ -91,13 +104,14 @@ class Simulation(ArmCommands, BaseCommands):
         if (self.settings.method == "semi_implicit_euler" and self.stop_law is not None
                 and self.stop_law.restitution > 0.0):
             warnings.warn(ELASTIC_SEMI_IMPLICIT, RuntimeWarning, stacklevel=2)
-        self.stops = make_stops(model, effects.stop_law, self.system.permanently_locked)
+        self.stops = make_stops(model, effects.stop_law, self.system.permanently_locked,
+                                self.system.data.resting)
         self.watched, self.resting = self.stops.watched, self.stops.resting
         self.stroke = self.stops.stroke
         size = self.system.state(model.n_q * [0.0], self.nu * [0.0]).size
         self._scratch = stepping.make_scratch(size, model.n_links,
                                               make_impact_scratch(self.nu, model.n_links))
-        self._clock = np.zeros(5)
+        self._clock = np.zeros(stepping.CLOCK_SIZE)
         self._clock[stepping.DT] = self.settings.dt
         # The compiled core that runs the method (stepping.py, adaptive_stepping.py; None: SciPy's
         # radau/bdf, stepped from Python) and its leading arguments. Steps per compiled call:
@@ -122,6 +136,9 @@ class Simulation(ArmCommands, BaseCommands):
         self._locate_event = Bound(adaptive_stepping.locate_event)
         self._watch_step = Bound(step_watch.watch_step)
         self.set_wheel_speed_gains(*DEFAULT_WHEEL_SPEED_GAINS)
+        # says, on one line, that a hold removed more than the Zeno guard's bound (the node
+        # replaces it by its logger's warning)
+        self.hold_warning = hold_warning
         self.reset()
 
     def _rebind_system(self) -> None:
@@ -148,6 +165,7 @@ class Simulation(ArmCommands, BaseCommands):
         self.watched[:] = self.stop_law is not None
         self.stops.count[0] = 0
         self.stops.run[:] = 0.0   # no run of impacts for the Zeno guard
+        self.stops.failed[0] = 0
         relock(self.system.data, self.stops)
         self.impacts: list[Impact] = []
         self.impact_details: list[ImpactDetail] = []
@@ -240,7 +258,20 @@ class Simulation(ArmCommands, BaseCommands):
 
     @property
     def impact_energy_lost(self) -> float:
+        """Energy the impact law removed since t = 0 (J): restitution < 1 and rests."""
         return float(self._clock[stepping.LOST])
+
+    @property
+    def hold_energy(self) -> float:
+        """Energy the engine's holds removed beyond the impact law since t = 0 (J): not physics,
+        so `energy_error` counts it as error (docs/model.md, "Resting, leaving, and no Zeno")."""
+        return float(self._clock[stepping.HELD])
+
+    @property
+    def holds(self) -> int:
+        """How many impacts the engine held (the Zeno guard, or a rod found at its stop not
+        moving into it) since t = 0."""
+        return int(self._clock[stepping.HOLDS])
 
     @property
     def q(self) -> np.ndarray:
@@ -259,7 +290,8 @@ class Simulation(ArmCommands, BaseCommands):
         return float(self._total_energy(self.system.data, self.s))
 
     def energy_error(self) -> float:
-        """(T + V)(t) − (T + V)(0) − W(t) + impact losses: zero for exact physics (J)."""
+        """(T + V)(t) − (T + V)(0) − W(t) + the impact law's losses: zero for exact physics (J).
+        Energy removed by holds is not a loss of the law: it shows here (as −`hold_energy`)."""
         return self.total_energy() - self.energy0 - self.work + self.impact_energy_lost
 
     def qdot(self) -> np.ndarray:
@@ -317,6 +349,8 @@ class Simulation(ArmCommands, BaseCommands):
                                                  scr.stages[3], scr.forces) < 0.0:
             release(self.system.data, self.stops, self.s, scr.impact, scr.stages[3], scr.forces,
                     False)
+            if self.stops.failed[0]:
+                self._contact_failed()
 
     # --- stepping ------------------------------------------------------------------------
     def advance_to(self, t_end: float) -> None:
@@ -367,16 +401,32 @@ class Simulation(ArmCommands, BaseCommands):
             self._cannot_follow(self.t, "a stage overflowed (its error estimate is NaN)"
                                 if math.isnan(h) else
                                 f"the step fell below 10 spacings of t (h = {h:.3g} s)")
+        if status == status_codes.CONTACT_FAILED:
+            self._contact_failed()
         if status == status_codes.CHATTER:
             raise SimulationError(f"t = {self.t:.9g} s: end stops chatter beyond what one step can "
                                   f"resolve (rods released and hitting again without end); "
                                   f"try a smaller dt or a larger effects.stroke_limits.rest_speed")
 
+    def _contact_failed(self) -> None:
+        raise SimulationError(f"t = {self.t:.9g} s: the end stops' contact solve found no "
+                              f"impulses (a singular contact set); try a smaller dt or tighter "
+                              f"tolerances")
+
     def _collect_impacts(self) -> None:
-        """Move the compiled stop log into `impacts` (and `impact_details`)."""
+        """Move the compiled stop log into `impacts` (and `impact_details`); a hold that removed
+        more than the Zeno guard's bound is reported on one line (`hold_warning`)."""
         stops = self.stops
         for row in range(int(stops.count[0])):
-            self.impacts.append(Impact.from_log(stops.log[row]))
+            log = stops.log[row]
+            if log[LOG_HOLD_LOST] > log[LOG_HOLD_BOUND]:
+                impact = Impact.from_log(log)
+                self.hold_warning(
+                    f"t = {impact.time:.9g} s: rod {impact.link} held at its {impact.stop} stop "
+                    f"(arriving at {abs(impact.ld_before):.3g} m/s), removing "
+                    f"{impact.hold_energy:.3g} J beyond the impact law (the bound is "
+                    f"{log[LOG_HOLD_BOUND]:.3g} J)")
+            self.impacts.append(Impact.from_log(log))
             self.impact_details.append(ImpactDetail(
                 stops.log_q[row].copy(), stops.log_u[row, 0].copy(), stops.log_u[row, 1].copy(),
                 [int(i) for i in np.flatnonzero(stops.log_free[row])],
@@ -390,6 +440,8 @@ class Simulation(ArmCommands, BaseCommands):
         on the solver's interpolant as a power series (`dense.from_scipy`)."""
         while not self._reach(*self._core_args, self.s, self._clock, t_end):
             self._collect_impacts()
+            if self.stops.failed[0]:
+                self._contact_failed()
             self._take_scipy_step()
         self._collect_impacts()
 
@@ -398,6 +450,7 @@ class Simulation(ArmCommands, BaseCommands):
         solve = self._solve
         in_hand = adaptive_stepping.step_in_hand(solve)[1] != 0.0
         t_before = self._solver.t if in_hand else self.t
+        self.system.data.holding[LEAST_MARGIN] = math.inf   # its evaluations sample them anew
         try:   # overflows are ours to report in one line, not numpy's warnings on stderr
             with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
                 solver, message = self._scipy_step(t_before)
@@ -410,7 +463,7 @@ class Simulation(ArmCommands, BaseCommands):
             self._fail(solver.y)
         series = dense.from_scipy(solver.dense_output()).coeffs
         adaptive_stepping.hand_in_step(solve, solver.t - t_before, solver.y, series)
-        if self.resting.any():   # the release check needs f(y₁) just evaluated
+        if self.resting.any():   # the release check needs f(y₁) evaluated (and watched)
             adaptive_stepping.set_step_end_derivative(
                 solve, self.system.derivative(adaptive_stepping.step_end(solve)))
         self._locate_event(*self._core_args)
@@ -451,4 +504,5 @@ class Simulation(ArmCommands, BaseCommands):
 
     def stats(self) -> dict:
         return {"t": self.t, "steps": self.steps, "rhs_evaluations": self.rhs_evaluations,
-                "impacts": len(self.impacts), "energy_error": self.energy_error()}
+                "impacts": len(self.impacts), "holds": self.holds,
+                "hold_energy": self.hold_energy, "energy_error": self.energy_error()}

@@ -11,3 +11,4 @@ NOT_FINITE = 3   # the state became NaN or infinite (a SimulationError)
 CHATTER = 4      # impacts without end within one step: the log's room ran out (last resort)
 STALLED = 5      # adaptive: the step fell below 10 spacings of t, or a stage overflowed
 CRAWLING = 6     # adaptive: the steps crawl (`step_watch`: which limit, and where)
+CONTACT_FAILED = 7   # an impact's or a release's contact solve found no answer

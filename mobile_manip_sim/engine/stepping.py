@@ -21,19 +21,21 @@ from ..scene.coordinates import arm_size
 from . import layout
 from .events import (
     N_SAMPLES,
-    RELEASE,
     crossing_in_step,
     first_crossing,
+    first_release,
     holding_margin,
-    locate,
     step_state,
 )
 from .fixed_step import step
-from .status import BUDGET, CHATTER, DONE, LOG_FULL, NOT_FINITE  # why `advance` returned
+from .status import BUDGET, CHATTER, CONTACT_FAILED, DONE, LOG_FULL, NOT_FINITE  # why it returned
 from .stops import any_resting, impact, release
+from .system import LEAST_MARGIN, clear_holding
 
-# clock[...] entries
-T0, DT, K, STEPS, LOST = range(5)
+# clock[...] entries: LOST the energy the impact law removed (J), HELD the energy holds removed
+# beyond it (J), HOLDS how many impacts were held (`stops.impact`)
+T0, DT, K, STEPS, LOST, HELD, HOLDS = range(7)
+CLOCK_SIZE = 7
 
 StepScratch = namedtuple("StepScratch", [
     "out",      # (size,) the step's end state
@@ -74,6 +76,15 @@ def any_watched(stops):
     return False
 
 
+@jit_inline
+def book(clock, ledger):
+    """Add an impact's (law, hold, held) energies and count (`stops.impact`) to the ledger."""
+    lost, removed, held = ledger
+    clock[LOST] += lost
+    clock[HELD] += removed
+    clock[HOLDS] += held
+
+
 @jit
 def step_with_events(method, system, stops, scr, s, h, t, clock):
     """One step of length h from time t in which end stops may be hit and resting rods leave
@@ -85,6 +96,7 @@ def step_with_events(method, system, stops, scr, s, h, t, clock):
     capacity = stops.log.shape[0]
     n = stops.resting.shape[0]
     for _ in range(2 * capacity):
+        clear_holding(system)
         step(method, system, s, h, scr.out, scr.stages)
         if not finite(scr.out):
             return NOT_FINITE
@@ -95,10 +107,12 @@ def step_with_events(method, system, stops, scr, s, h, t, clock):
                                             stops.stroke, scr.samples, scr.crossed, scr.trial,
                                             scr.stages, scr.forces)
         h_leave = -1.0
-        if any_resting(stops) and holding_margin(system, scr.out, stops.resting, scr.stages[0],
-                                                 scr.forces) < 0.0:
-            h_leave = locate(RELEASE, method, system, s, 0.0, h, 0, 0, 0.0, stops.resting,
-                             scr.trial, scr.stages, scr.forces)
+        if any_resting(stops) and (holding_margin(system, scr.out, stops.resting, scr.stages[0],
+                                                  scr.forces) < 0.0
+                                   or system.holding[LEAST_MARGIN] < 0.0):
+            # a stage (or the end) saw a stop pull: find the first pull on the step itself
+            h_leave = first_release(method, system, s, h, stops.resting, scr.trial, scr.stages,
+                                    scr.forces)
         if k == 0 and h_leave < 0.0:   # no event (or the Hermite path dipped, the step did not)
             copy_into(scr.out, s)
             return DONE
@@ -109,6 +123,8 @@ def step_with_events(method, system, stops, scr, s, h, t, clock):
             h -= h_leave
             t += h_leave
             release(system, stops, s, scr.impact, scr.stages[3], scr.forces, True)
+            if stops.failed[0] != 0:
+                return CONTACT_FAILED
         else:
             if stops.count[0] + n > capacity:
                 # The log is full within one step: rods released and hitting again without end
@@ -119,8 +135,10 @@ def step_with_events(method, system, stops, scr, s, h, t, clock):
             s[layout.q_slide(k)] = stops.stroke[k - 1, 0] if side < 0 else stops.stroke[k - 1, 1]
             h -= h_hit
             t += h_hit
-            clock[LOST] += impact(system, stops, s, k, side, t, scr.impact, scr.stages[3],
-                                  scr.forces)
+            book(clock, impact(system, stops, s, k, side, t, scr.impact, scr.stages[3],
+                               scr.forces))
+            if stops.failed[0] != 0:
+                return CONTACT_FAILED
         if h <= 1e-15 * dt:
             return DONE
     return CHATTER
@@ -132,14 +150,17 @@ def grid_step(method, system, stops, scr, s, clock, k1_ready):
     whether scr.stages[0] now holds f(s) for the next step (the release check computed it)."""
     dt = clock[DT]
     t = clock[T0] + clock[K] * dt
+    clear_holding(system)
     step(method, system, s, dt, scr.out, scr.stages, k1_ready)
     if not finite(scr.out):
         return NOT_FINITE, False
-    # The holding forces need f(out), which is the next step's first stage: computed once.
+    # The holding forces need f(out), which is the next step's first stage: computed once. The
+    # stages sampled them inside the step (`system.watch_holding`).
     if (any_watched(stops) and crossing_in_step(s, scr.out, dt, system, stops.watched,
                                                 stops.stroke)
-            or any_resting(stops) and holding_margin(system, scr.out, stops.resting,
-                                                     scr.stages[0], scr.forces) < 0.0):
+            or any_resting(stops) and (holding_margin(system, scr.out, stops.resting,
+                                                      scr.stages[0], scr.forces) < 0.0
+                                       or system.holding[LEAST_MARGIN] < 0.0)):
         return step_with_events(method, system, stops, scr, s, dt, t, clock), False
     copy_into(scr.out, s)
     return DONE, any_resting(stops)

@@ -27,15 +27,20 @@ import numpy as np
 from ..dynamics import kernels
 from ..dynamics.jit import jit, jit_inline
 from . import layout
-from .events import simultaneous_hits, zeno_guard
-from .system import derivative, slide_holding_forces
+from .events import RUN_ENERGY, RUN_FIELDS, ZENO_SHARE, simultaneous_hits, zeno_guard
+from .system import WATCH_ON, derivative, slide_holding_forces
 
 IMPULSE, REFLECT = 0, 1
 LAW_IDS = {"impulse": IMPULSE, "reflect": REFLECT}
 # log[i, ...] columns
 (LOG_TIME, LOG_LINK, LOG_SIDE, LOG_LD_BEFORE, LOG_LD_AFTER, LOG_LOST, LOG_RESTING,
- LOG_HELD) = range(8)
-LOG_COLUMNS = 8
+ LOG_HELD, LOG_HOLD_LOST, LOG_HOLD_BOUND) = range(10)
+LOG_COLUMNS = 10
+# StopsData.failed[0]: why the stops failed the run (0: they did not)
+CONTACT_SOLVE_FAILED = 1
+# which contacts an impact solve holds (bilateral): none (the law), the rods found at their stop
+# not moving into it, or every contact (an accumulation point: the Zeno guard)
+HOLD_NONE, HOLD_PRESSED, HOLD_ALL = 0, 1, 2
 LOG_ROOM = 64   # rows of the impact log per stop (see `make_stops`)
 
 StopsData = namedtuple("StopsData", [
@@ -49,9 +54,9 @@ StopsData = namedtuple("StopsData", [
     "log_u",      # (capacity, 2, n_u) u⁻ and u⁺ of each impact
     "log_free",   # (capacity, n_u) bool: the pseudo-velocities free at each impact
     "count",      # (1,) int64: rows of the log in use
-    "run",        # (n, 2, 3) the Zeno guard's record per rod and stop (0 lower, 1 upper): impacts,
-                  # time of the last (s), interval before it (s) (`events.zeno_guard`); cleared
-                  # on reset
+    "run",        # (n, 2, events.RUN_FIELDS) the Zeno guard's record per rod and stop (0 lower,
+                  # 1 upper) (`events.zeno_guard`); cleared on reset
+    "failed",     # (1,) int64: why the stops failed the run (CONTACT_SOLVE_FAILED), 0 while not
 ])
 
 StopLaw = namedtuple("StopLaw", [
@@ -74,11 +79,14 @@ ImpactScratch = namedtuple("ImpactScratch", [
     "MinvE",     # (n, n_u) M⁻¹ E, one row per contact
     "W",         # (n, n) the Delassus matrix Eᵀ M⁻¹ E
     "cholesky",  # (n, n + 1) the solve's factor and right-hand side
+    "saved_u",   # (2, n_u) u⁻ of an impact, and u⁺ of the law (an impact solved both ways)
+    "saved_flags",  # (4, n) int64: resting and watched before the impact, and after the law
 ])
 
 
-def make_stops(model, stop_law, permanently_locked) -> StopsData:
-    """The stops of `model` under the scene's `StrokeLimits` (None: no stops, never watched)."""
+def make_stops(model, stop_law, permanently_locked, resting) -> StopsData:
+    """The stops of `model` under the scene's `StrokeLimits` (None: no stops, never watched);
+    ``resting`` (n,) int64 is the system's own array (`system.SystemData.resting`)."""
     n, nq, nu = model.n_links, model.n_q, model.n_u
     # Half of it is room for one step's impacts: LOG_ROOM at each stop of every rod and
     # 4·LOG_ROOM more — far more than a run of impacts takes to reach its accumulation point
@@ -88,11 +96,12 @@ def make_stops(model, stop_law, permanently_locked) -> StopsData:
     permanent[list(permanently_locked)] = True
     law = (StopLaw(LAW_IDS[stop_law.law], float(stop_law.restitution),
                    float(stop_law.rest_speed)) if stop_law else StopLaw(IMPULSE, 0.0, 0.0))
-    return StopsData(np.zeros(n, dtype=np.bool_), np.zeros(n, dtype=np.int64),
+    return StopsData(np.zeros(n, dtype=np.bool_), resting,
                      np.array(model.stroke, dtype=float), permanent, law,
                      np.zeros((capacity, LOG_COLUMNS)), np.zeros((capacity, nq)),
                      np.zeros((capacity, 2, nu)), np.zeros((capacity, nu), dtype=np.bool_),
-                     np.zeros(1, dtype=np.int64), np.zeros((n, 2, 3)))
+                     np.zeros(1, dtype=np.int64), np.zeros((n, 2, RUN_FIELDS)),
+                     np.zeros(1, dtype=np.int64))
 
 
 def make_impact_scratch(nu: int, n: int) -> ImpactScratch:
@@ -104,13 +113,16 @@ def make_impact_scratch(nu: int, n: int) -> ImpactScratch:
                          np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64),
                          np.zeros((2, n), dtype=np.bool_),
                          np.zeros((6, n)), np.zeros((n, nu)), np.zeros((n, n)),
-                         np.zeros((n, n + 1)))
+                         np.zeros((n, n + 1)), np.zeros((2, nu)),
+                         np.zeros((4, n), dtype=np.int64))
 
 
 @jit
 def relock(system, stops):
-    """system.free = the pseudo-velocities neither locked by the scene nor held at a stop."""
+    """system.free = the pseudo-velocities neither locked by the scene nor held at a stop; the
+    holding forces are watched at every evaluation while a rod rests (`system.watch_holding`)."""
     nu = system.free.shape[0]
+    system.holding[WATCH_ON] = 1.0 if any_resting(stops) else 0.0
     m = 0
     for j in range(nu):
         locked = stops.permanent[j]
@@ -156,8 +168,10 @@ def release(system, stops, s, scratch, ds, forces, at_root):
         bilateral, active = scratch.flags[0, :m], scratch.flags[1, :m]
         for c in range(m):
             bilateral[c] = False
-        solve_contacts(scratch.W[:m, :m], a0[:m], bilateral, active, P[:m], w[:m],
-                       scratch.cholesky[:m, :m + 1], scratch.index[:m])
+        if solve_contacts(scratch.W[:m, :m], a0[:m], bilateral, active, P[:m], w[:m],
+                          scratch.cholesky[:m, :m + 1], scratch.index[:m]) < 0:
+            stops.failed[0] = CONTACT_SOLVE_FAILED   # the run ends here (`Simulation`)
+            return 0
         largest = 0.0
         for c in range(m):
             largest = max(largest, abs(P[c]))
@@ -303,7 +317,8 @@ def contact_impulses(system, stops, s, m, scratch):
     P ≥ 0 ⊥ c⁺ + e c⁻ ≥ 0, in place on s. Rods are unlocked for the impulse; afterwards a
     resting rod whose stop gave no impulse and that moves away leaves it (resting → 0). A
     bilateral contact (held: the Zeno guard, or a rod found at its stop not moving into it)
-    takes an impulse of either sign and ends with c⁺ = 0."""
+    takes an impulse of either sign and ends with c⁺ = 0. When the solve fails (`solve_contacts`
+    returns −1), s is left as it was and stops.failed says so: the run ends there."""
     nq, _ = layout.sizes(system)
     rods = scratch.rods
     sigma, e, c_minus, qv, P, w = (scratch.contact[0], scratch.contact[1], scratch.contact[2],
@@ -314,8 +329,10 @@ def contact_impulses(system, stops, s, m, scratch):
     for a in range(m):
         c_minus[a] = sigma[a] * s[nq + layout.u_slide(rods[a])]
         qv[a] = (1.0 + e[a]) * c_minus[a]
-    solve_contacts(scratch.W[:m, :m], qv[:m], bilateral, active, P[:m], w[:m],
-                   scratch.cholesky[:m, :m + 1], scratch.index[:m])
+    if solve_contacts(scratch.W[:m, :m], qv[:m], bilateral, active, P[:m], w[:m],
+                      scratch.cholesky[:m, :m + 1], scratch.index[:m]) < 0:
+        stops.failed[0] = CONTACT_SOLVE_FAILED
+        return
     for c in range(m):
         if P[c] != 0.0:
             for a in range(n_free):
@@ -331,24 +348,91 @@ def contact_impulses(system, stops, s, m, scratch):
 
 
 @jit
+def solve_impact(system, stops, s, first, row, scratch, holds):
+    """Apply the impact of log rows first..row (the rods hit) and every resting rod to s, holding
+    (bilateral, e = 0) the contacts ``holds`` says (HOLD_NONE: the law alone; HOLD_PRESSED: the
+    rods found at their stop not moving into it; HOLD_ALL: every contact)."""
+    nq, _ = layout.sizes(system)
+    law, restitution, rest_speed = stops.law.kind, stops.law.restitution, stops.law.rest_speed
+    rods, sigma, e = scratch.rods, scratch.contact[0], scratch.contact[1]
+    bilateral = scratch.flags[0]
+    m = 0
+    for i in range(first, row):
+        r, side = int(stops.log[i, LOG_LINK]), stops.log[i, LOG_SIDE]
+        u_before = stops.log[i, LOG_LD_BEFORE]
+        pressed = side * u_before <= 0.0
+        held = holds == HOLD_ALL or holds == HOLD_PRESSED and pressed
+        e_r = 0.0 if held or abs(restitution * u_before) < rest_speed else restitution
+        if law == REFLECT:
+            s[nq + layout.u_slide(r)] = -e_r * u_before
+        rods[m], sigma[m], e[m], bilateral[m] = r, -side, e_r, held
+        m += 1
+    if law == IMPULSE:
+        for r in range(1, stops.resting.shape[0] + 1):
+            if stops.resting[r - 1] != 0:
+                rods[m], sigma[m], e[m] = r, -float(stops.resting[r - 1]), 0.0
+                bilateral[m] = holds == HOLD_ALL
+                m += 1
+        contact_impulses(system, stops, s, m, scratch)
+
+
+@jit_inline
+def save_outcome(system, stops, s, scratch, which):
+    """Keep u and the resting and watched flags of s as scratch.saved_u[which] (0: before the
+    impact, 1: after the law)."""
+    nq, nu = layout.sizes(system)
+    for j in range(nu):
+        scratch.saved_u[which, j] = s[nq + j]
+    for r in range(stops.resting.shape[0]):
+        scratch.saved_flags[2 * which, r] = stops.resting[r]
+        scratch.saved_flags[2 * which + 1, r] = 1 if stops.watched[r] else 0
+
+
+@jit_inline
+def restore_outcome(system, stops, s, scratch, which):
+    nq, nu = layout.sizes(system)
+    for j in range(nu):
+        s[nq + j] = scratch.saved_u[which, j]
+    for r in range(stops.resting.shape[0]):
+        stops.resting[r] = scratch.saved_flags[2 * which, r]
+        stops.watched[r] = scratch.saved_flags[2 * which + 1, r] != 0
+    relock(system, stops)
+
+
+@jit
 def impact(system, stops, s, k, side, t, scratch, ds, forces):
     """Rod k (1-based) meets its lower (side −1) or upper (+1) stop at time t (s), s the located
     state (l_k at the stop): one impact of every rod reaching its stop within
     `events.SIMULTANEOUS` of t (`events.simultaneous_hits`) and every resting rod; a rod whose
     rebound would be slower than rest_speed stops dead (e = 0) and rests, the others rebound.
-    One log row per rod hit (the impact's whole energy loss on the first). Then a resting rod
-    that its stop would have to pull leaves (`release`). Returns the energy lost (J)."""
+
+    Holds (docs/model.md, "Resting, leaving, and no Zeno"): where the Zeno guard sees evidence of
+    an accumulation point (`events.zeno_guard`), the impact is solved both ways, by the law and
+    with every contact held, and held only when the hold removes no more than the guard allows
+    beyond the law; a rod found at its stop not moving into it is always held (its rebound is too
+    small to resolve in time). One log row per rod hit; on the first, the energy the law removed
+    (LOG_LOST), the energy the hold removed beyond it (LOG_HOLD_LOST) and what a Zeno hold may
+    remove there (LOG_HOLD_BOUND, `events.ZENO_SHARE` of the run's kinetic energy). Then a
+    resting rod that its stop would have to pull leaves (`release`). Returns (energy the law
+    removed (J), energy the hold removed (J), 1.0 for a hold or 0.0)."""
     nq, nu = layout.sizes(system)
     n = stops.resting.shape[0]
-    law, restitution, rest_speed = stops.law.kind, stops.law.restitution, stops.law.rest_speed
     hits = scratch.hits
     simultaneous_hits(system, stops, s, k, side, hits)
-    hold = False   # an accumulation point at any stop hit: every contact is held
+    T_before = kinetic_energy(system, s)
+    allowance = -1.0   # what a hold may remove beyond the law (J); −1: no evidence of Zeno
+    bound = 0.0        # ZENO_SHARE of the largest run energy among the stops hit (J)
     for r in range(1, n + 1):
-        if hits[r - 1] != 0 and zeno_guard(stops.run, r, hits[r - 1], t):
-            hold = True
+        if hits[r - 1] != 0:
+            allowed = zeno_guard(stops.run, r, hits[r - 1], t,
+                                 abs(s[nq + layout.u_slide(r)]), T_before)
+            if allowed >= 0.0:
+                allowance = allowed if allowance < 0.0 else min(allowance, allowed)
+            bound = max(bound, ZENO_SHARE * stops.run[r - 1, 0 if hits[r - 1] < 0 else 1,
+                                                      RUN_ENERGY])
     row = stops.count[0]
     first = row
+    pressed = False
     for r in range(1, n + 1):
         if hits[r - 1] != 0:
             for i in range(nq):
@@ -366,28 +450,38 @@ def impact(system, stops, s, k, side, t, scratch, ds, forces):
             # the very instant the rod left: its rebound is too small to resolve in time, i.e.
             # the rod is pressed against the stop. Hold it there; ignoring the crossing would
             # restart the event loop at this same instant forever (a Zeno stall).
-            log[LOG_HELD] = 1.0 if hold or hits[r - 1] * log[LOG_LD_BEFORE] <= 0.0 else 0.0
+            log[LOG_HELD] = 1.0 if hits[r - 1] * log[LOG_LD_BEFORE] <= 0.0 else 0.0
+            pressed = pressed or log[LOG_HELD] != 0.0
             row += 1
-    T_before = kinetic_energy(system, s)
-    rods, sigma, e = scratch.rods, scratch.contact[0], scratch.contact[1]
-    bilateral = scratch.flags[0]
-    m = 0
-    for i in range(first, row):
-        r, u_before = int(stops.log[i, LOG_LINK]), stops.log[i, LOG_LD_BEFORE]
-        held = stops.log[i, LOG_HELD] != 0.0
-        e_r = 0.0 if held or abs(restitution * u_before) < rest_speed else restitution
-        if law == REFLECT:
-            s[nq + layout.u_slide(r)] = -e_r * u_before
-        rods[m], sigma[m], e[m], bilateral[m] = r, -float(stops.log[i, LOG_SIDE]), e_r, held
-        m += 1
-    if law == IMPULSE:
-        for r in range(1, n + 1):
-            if stops.resting[r - 1] != 0:
-                rods[m], sigma[m], e[m], bilateral[m] = r, -float(stops.resting[r - 1]), 0.0, hold
-                m += 1
-        contact_impulses(system, stops, s, m, scratch)
+    holds = HOLD_NONE
+    if allowance < 0.0 and not pressed:
+        solve_impact(system, stops, s, first, row, scratch, HOLD_NONE)
+        T_law = kinetic_energy(system, s)
+    else:
+        # solved both ways: the law (booked as the impact's loss), then with the holds
+        save_outcome(system, stops, s, scratch, 0)
+        solve_impact(system, stops, s, first, row, scratch, HOLD_NONE)
+        T_law = kinetic_energy(system, s)
+        if allowance >= 0.0 and stops.failed[0] == 0:
+            save_outcome(system, stops, s, scratch, 1)
+            restore_outcome(system, stops, s, scratch, 0)
+            solve_impact(system, stops, s, first, row, scratch, HOLD_ALL)
+            holds = HOLD_ALL
+            if T_law - kinetic_energy(system, s) > allowance:   # no accumulation: the law
+                holds = HOLD_NONE
+                restore_outcome(system, stops, s, scratch, 1)
+        if holds == HOLD_NONE and pressed and stops.failed[0] == 0:
+            restore_outcome(system, stops, s, scratch, 0)
+            solve_impact(system, stops, s, first, row, scratch, HOLD_PRESSED)
+            holds = HOLD_PRESSED
+    if stops.failed[0] != 0:
+        return 0.0, 0.0, 0.0
     for i in range(first, row):
         r = int(stops.log[i, LOG_LINK])
+        if holds == HOLD_ALL:
+            stops.log[i, LOG_HELD] = 1.0
+        elif holds == HOLD_NONE:
+            stops.log[i, LOG_HELD] = 0.0
         if s[nq + layout.u_slide(r)] == 0.0:   # stopped dead (e = 0, active): held at its stop
             s[nq + layout.u_slide(r)] = 0.0     # (not −0.0)
             stops.resting[r - 1] = hits[r - 1]
@@ -396,16 +490,21 @@ def impact(system, stops, s, k, side, t, scratch, ds, forces):
         r = int(stops.log[i, LOG_LINK])
         stops.log[i, LOG_LD_AFTER] = s[nq + layout.u_slide(r)]
         stops.log[i, LOG_LOST] = 0.0
+        stops.log[i, LOG_HOLD_LOST] = 0.0
+        stops.log[i, LOG_HOLD_BOUND] = 0.0
         stops.log[i, LOG_RESTING] = 1.0 if stops.resting[r - 1] != 0 else 0.0
         for j in range(nu):
             stops.log_u[i, 1, j] = s[nq + j]
     stops.count[0] = row
     relock(system, stops)
-    lost = T_before - kinetic_energy(system, s)
+    lost = T_before - T_law
+    removed = T_law - kinetic_energy(system, s) if holds != HOLD_NONE else 0.0
     stops.log[first, LOG_LOST] = lost
+    stops.log[first, LOG_HOLD_LOST] = removed
+    stops.log[first, LOG_HOLD_BOUND] = bound
     if any_resting(stops):
         release(system, stops, s, scratch, ds, forces, False)
-    return lost
+    return lost, removed, 1.0 if holds != HOLD_NONE else 0.0
 
 
 @dataclass(frozen=True)
@@ -417,8 +516,11 @@ class Impact:
     stop: str              # "lower" or "upper"
     ld_before: float       # l̇_k before (m/s)
     ld_after: float        # l̇_k after (m/s)
-    energy_lost: float     # J: T⁻ − T⁺
-    resting: bool          # held at the stop afterwards
+    energy_lost: float     # J: what the impact law removed (T⁻ − T⁺ of the law)
+    resting: bool          # resting at the stop afterwards
+    held: bool = False     # held by the engine (the Zeno guard, or found at its stop not moving
+                           # into it) rather than left to the law alone
+    hold_energy: float = 0.0   # J: what the hold removed beyond the law (on the impact's first row)
 
     def as_dict(self) -> dict:
         return dict(self.__dict__)
@@ -428,4 +530,5 @@ class Impact:
         # Plain Python numbers (not numpy scalars), so records serialise anywhere (CSV, YAML, bags).
         return Impact(float(row[LOG_TIME]), int(row[LOG_LINK]),
                       "lower" if row[LOG_SIDE] < 0 else "upper", float(row[LOG_LD_BEFORE]),
-                      float(row[LOG_LD_AFTER]), float(row[LOG_LOST]), bool(row[LOG_RESTING]))
+                      float(row[LOG_LD_AFTER]), float(row[LOG_LOST]), bool(row[LOG_RESTING]),
+                      bool(row[LOG_HELD]), float(row[LOG_HOLD_LOST]))

@@ -36,6 +36,10 @@ from .arm_reference import WIDTH
  ARM_CONTROL_STAGE) = range(6)
 N_COUNTERS = 6
 
+# holding[...] entries: the resting rods' holding forces watched at every evaluation
+# (`watch_holding`): on while a rod rests; the smallest margin (N) since `clear_holding`
+WATCH_ON, LEAST_MARGIN = range(2)
+
 # control[...] entries: the wheel-speed PI loop (`wheel_speed_loop`); each wheel its own limit
 VELOCITY_MODE, KP, KI, LIMIT_R, LIMIT_L, TARGET_R, TARGET_L = range(7)
 N_CONTROL = 7
@@ -51,6 +55,9 @@ SystemData = namedtuple("SystemData", [
     "ws",        # the dynamics workspace (`dynamics.records.Workspace`)
     "Q",         # (n_u,) scratch: applied generalized forces of the current evaluation
     "counters",  # (N_COUNTERS,) stage counters
+    "resting",   # (n,) int64: −1 / +1 rod held at its lower / upper stop, 0 free (the stops'
+                 # own array, `stops.StopsData.resting`)
+    "holding",   # (2,) the holding forces' watch: WATCH_ON, LEAST_MARGIN (`watch_holding`)
     # the arm controller (`arm_control.py`; empty arrays, and arm[ARM_ON] = 0, in effort mode)
     "arm",          # (N_ARM_SETTINGS,) on, feedforward kind, reference segments in use
     "arm_gains",    # (3, n_arm) kp, ki, kd
@@ -150,6 +157,38 @@ def derivative(system, s, ds):
     articulated_forward_dynamics(system.model, q, u, system.Q, system.gravity, system.free,
                                  system.ws, ds[nq:nq + nu])
     ds[layout.work(nq, nu)] = power
+    if system.holding[WATCH_ON] != 0.0:
+        watch_holding(system)
+
+
+@jit_inline
+def holding_margin_now(system):
+    """min over resting rods of the force (N) its stop pushes with, right after a `derivative`
+    (> 0 while every stop pushes; +inf when none rests)."""
+    margin = math.inf
+    resting = system.resting
+    for k in range(1, resting.shape[0] + 1):
+        if resting[k - 1] != 0:
+            # The stop pushes outward only: +l at the lower stop (side −1), −l at the upper (+1).
+            j = layout.u_slide(k)
+            margin = min(margin, -resting[k - 1] * (system.ws.slide_force[k] - system.Q[j]))
+    return margin
+
+
+@jit_inline
+def watch_holding(system):
+    """While a rod rests, every evaluation of the right-hand side — each stage of every step —
+    samples the holding forces: holding[LEAST_MARGIN] keeps the smallest margin since
+    `clear_holding`, so that a pull inside a step is noticed where a stage saw it (the steppers
+    then locate it on the step itself, `events.first_release`). Costs nothing while none rests."""
+    margin = holding_margin_now(system)
+    if margin < system.holding[LEAST_MARGIN]:
+        system.holding[LEAST_MARGIN] = margin
+
+
+@jit_inline
+def clear_holding(system):
+    system.holding[LEAST_MARGIN] = math.inf
 
 
 @jit
@@ -202,7 +241,8 @@ class System:
         self.arm_ref = np.zeros((5, n_arm))
         self.data = SystemData(dynamics.model_record, float(dynamics.gravity), self.damping,
                                self.free, self.Q_cmd, self.control, dynamics.ws, np.zeros(nu),
-                               self.counters, settings, gains, limits, np.zeros(1),
+                               self.counters, np.zeros(dynamics.model.n_links, dtype=np.int64),
+                               np.array([0.0, math.inf]), settings, gains, limits, np.zeros(1),
                                np.zeros((1, n_arm, WIDTH)), self.arm_ref,
                                np.zeros((5, nu if arm is not None else 0)),
                                dynamics.model_record if ff_model is None else ff_model)

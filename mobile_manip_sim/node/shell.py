@@ -41,6 +41,7 @@ from ..ros.topics import (
 )
 from ..runtime import cli
 from ..runtime.compiles import CompileWatch
+from ..runtime.headless import hold_ledger
 from ..runtime.memory import CompilerPages, release_compiler_pages
 from ..runtime.pacing import Pacer
 from ..runtime.timeline import Grid, apply_commands, start_node_time_line
@@ -80,6 +81,7 @@ class SimulatorNode(Node):
         self.arm_controller = for_robot(p.arm_controller, self.scene.robot)
         self.sim = Simulation(self.scene, self._settings, arm_controller=self.arm_controller)
         self.sim.set_wheel_speed_gains(*p.wheel_speed_gains)
+        self.sim.hold_warning = self.get_logger().warning   # a hold over its bound: one line
         self.joint_names = self.scene.robot.joint_names()
         self.grid = Grid(p.publish_rate)   # publication k at t_k, segment k → k + 1
         self._compiler_pages = CompilerPages()   # given back after a segment loaded a kernel
@@ -354,6 +356,7 @@ class SimulatorNode(Node):
         self._generation += 1
         self.sim = Simulation(self.scene, self._settings, arm_controller=self.arm_controller)
         self.sim.set_wheel_speed_gains(*self.params.wheel_speed_gains)
+        self.sim.hold_warning = self.get_logger().warning
         if self._recording is not None:
             self._recording.sim = self.sim
 
@@ -403,6 +406,9 @@ class SimulatorNode(Node):
         first (its summary and metadata.yaml), then the live view, whose stop waits on no
         client (live_view.CLOSE_WAIT)."""
         self._compiles.stop()
+        if self.sim.holds:   # the energy the engine removed beyond the impact law, said once
+            rclpy.logging.get_logger(NODE_NAME).info(f"end stops: {hold_ledger(self.sim)} "
+                                                     f"beyond the impact law")
         if self._recording is not None:
             # While the context is up the node's logger; after SIGINT/SIGTERM shut it down, one
             # without /rosout (the node's would fail to publish and say so).

@@ -11,7 +11,12 @@ Beside the recorded topics (``topics.recorded_topics``) a bag of ours holds:
   ``repr`` (exact). `run_metadata` writes it,
   `checked_run_metadata` checks it on the way back in;
 - attachment ``impacts.json`` (IMPACTS_ATTACHMENT): the end-stop impacts, one record of
-  IMPACT_FIELDS each (`read_impacts`).
+  IMPACT_FIELDS each (`read_impacts`), and since the energy ledger also ``held`` and
+  ``hold_energy`` (J) per record;
+- MCAP metadata ``mobile_manip_sim_energy`` (LEDGER_NAME), written when the bag closes: the
+  run's energy ledger (`energy_ledger`) — impacts, the energy the impact law removed, how many
+  impacts the engine held and the energy those holds removed beyond the law (J, ``repr``);
+  `checked_energy_ledger` checks it.
 
 `RecordedRun` is what such a bag says about its run: scene, integrator, source, rates, its time
 line and the recorded commands (starting a re-run from it is replay's:
@@ -67,6 +72,37 @@ RUN_METADATA_NUMBERS = {"dt": limits.DT, "rtol": limits.RTOL, "atol": limits.ATO
                         "wheel_speed_kp": limits.WHEEL_SPEED_GAIN,
                         "wheel_speed_ki": limits.WHEEL_SPEED_GAIN}
 IMPACT_FIELDS = ("time", "link", "stop", "ld_before", "ld_after", "energy_lost", "resting")
+LEDGER_NAME = "mobile_manip_sim_energy"
+LEDGER_KEYS = ("impacts", "impact_energy_lost", "holds", "hold_energy")
+
+
+def energy_ledger(impacts: list[dict]) -> dict:
+    """The ``mobile_manip_sim_energy`` metadata map of a run's impact records (`Impact.as_dict`):
+    counts and joules (the law's losses, the holds' energy) as strings, floats as ``repr``."""
+    return {"impacts": str(len(impacts)),
+            "impact_energy_lost": repr(float(sum(i["energy_lost"] for i in impacts))),
+            "holds": str(sum(1 for i in impacts if i.get("held"))),
+            "hold_energy": repr(float(sum(i.get("hold_energy", 0.0) for i in impacts)))}
+
+
+def checked_energy_ledger(value, path: str = LEDGER_NAME) -> dict:
+    """A bag's energy ledger checked (its four keys, counts and finite joules ≥ 0), parsed."""
+    value = schema.string_map(value, path, max_entries=len(LEDGER_KEYS), max_length=40)
+    schema.keys(value, path, required=LEDGER_KEYS, optional=[])
+    parsed = {}
+    for key in LEDGER_KEYS:
+        try:
+            number = float(value[key])
+        except ValueError:
+            raise UserError(f"{path}.{key}",
+                            f"expected a number, got {schema.short(value[key])}") from None
+        number = schema.number(number, f"{path}.{key}", nonnegative=True)
+        if key in ("impacts", "holds"):
+            if number != int(number):
+                raise UserError(f"{path}.{key}", f"expected a count, got {value[key]}")
+            number = int(number)
+        parsed[key] = number
+    return parsed
 
 
 # --- the run metadata ------------------------------------------------------------------------

@@ -29,8 +29,10 @@ import numpy as np
 
 from mobile_manip_sim.recording.bag_format import (
     IMPACTS_ATTACHMENT,
+    LEDGER_NAME,
     METADATA_NAME,
     SCENE_ATTACHMENT,
+    energy_ledger,
     run_metadata,
 )
 from mobile_manip_sim.recording.bag_writer import DEFAULT_CHUNK_SIZE, BagWriter, qos_yaml
@@ -147,13 +149,15 @@ class RunRecorder:
         return list(self._impacts)
 
     def close(self) -> None:
-        """Attach ``impacts.json``, then finish the bag (summary, metadata.yaml). Idempotent."""
+        """Attach ``impacts.json`` and the energy ledger, then finish the bag (summary,
+        metadata.yaml). Idempotent."""
         if self.writer is None:
             return
         writer, self.writer = self.writer, None
         try:
             writer.add_attachment(IMPACTS_ATTACHMENT, "application/json",
                                   json.dumps(self._impacts, indent=1).encode(), self._last_stamp)
+            writer.add_metadata(LEDGER_NAME, energy_ledger(self._impacts))
         except BaseException:
             with contextlib.suppress(Exception):
                 writer.close()

@@ -56,14 +56,22 @@ class Tracking:
         return f"arm tracking error RMS {values(self.rms)}, max {values(self.max)} (rad, m)"
 
 
+def hold_ledger(sim: Simulation) -> str:
+    """"N holds removing E J" when the engine held impacts (`Simulation.holds`), else ""."""
+    return f"{sim.holds} holds removing {sim.hold_energy:.3e} J" if sim.holds else ""
+
+
 def summary_line(sim: Simulation, wall: float, simulated: float | None = None) -> str:
-    """`wall` s of wall time spent on `simulated` s of simulated time (default: all of it); with
-    an arm controller, how well it tracked (`Tracking`)."""
+    """`wall` s of wall time spent on `simulated` s of simulated time (default: all of it); the
+    impacts and, when the engine held any (`Simulation.holds`), how many and the energy they
+    removed beyond the impact law — which the energy error then shows; with an arm controller,
+    how well it tracked (`Tracking`)."""
     simulated = sim.t if simulated is None else simulated
     rtf = simulated / wall if wall > 0 else float("inf")
+    holds = f"{hold_ledger(sim)}, " if sim.holds else ""
     line = (f"simulated {sim.t:.6g} s in {wall:.4g} s wall (real-time factor {rtf:.1f}), "
             f"{sim.steps} steps, {sim.rhs_evaluations} rhs evaluations, "
-            f"{len(sim.impacts)} impacts, energy error {sim.energy_error():.3e} J")
+            f"{len(sim.impacts)} impacts, {holds}energy error {sim.energy_error():.3e} J")
     tracking = getattr(sim, "tracking", None)
     return line if tracking is None else f"{line}; {tracking.line()}"
 

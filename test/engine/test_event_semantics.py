@@ -180,37 +180,41 @@ def test_a_bouncing_rods_impact_count_does_not_depend_on_the_tolerance():
     assert set(counts.values()) == {expected}, counts
 
 
-# --- the Zeno guard on the impact times ---------------------------------------------------
+# --- the Zeno guard on the impacts (its evidence; the energy test is test_zeno_guard.py's) ----
 
-def guard_calls(times, k=1, side=-1, n_links=2):
-    run = np.zeros((n_links, 2, 3))
-    return [bool(events.zeno_guard(run, k, side, t)) for t in times]
+def guard_calls(times, speeds=None, k=1, side=-1, n_links=2):
+    """Whether the guard sees an accumulation at each impact (rod k at its stop ``side``)."""
+    run = np.zeros((n_links, 2, events.RUN_FIELDS))
+    speeds = np.ones(len(times)) if speeds is None else speeds
+    return [events.zeno_guard(run, k, side, t, v, 1.0) >= 0.0
+            for t, v in zip(times, speeds, strict=True)]
 
 
-def test_the_zeno_guard_holds_where_the_tail_of_a_geometric_run_fits_in_its_time():
+def test_the_zeno_guard_sees_an_accumulation_where_the_tail_of_a_geometric_run_fits():
     ratio = 0.5
     intervals = 0.1 * ratio ** np.arange(40)
     times = np.concatenate([[0.0], np.cumsum(intervals)])
-    held = guard_calls(times)
+    held = guard_calls(times, 2.0 * ratio ** np.arange(41))
     first = held.index(True)
     tail = intervals[first - 1] * ratio / (1.0 - ratio)    # what the guard estimates there
     assert tail <= events.ZENO_TAIL < tail / ratio
     assert not any(held[:first])
 
 
-def test_the_zeno_guard_never_holds_runs_that_do_not_shrink():
+def test_the_zeno_guard_never_sees_an_accumulation_in_runs_that_do_not_shrink():
     assert not any(guard_calls(0.02 * np.arange(500)))                    # regular bounces
     assert not any(guard_calls(np.cumsum(1e-5 * 1.01 ** np.arange(300))))  # growing intervals
 
 
 def test_the_zeno_guard_keeps_one_record_per_rod_and_stop():
-    run = np.zeros((2, 2, 3))
+    run = np.zeros((2, 2, events.RUN_FIELDS))
     t = np.cumsum(0.1 * 0.5 ** np.arange(30))
+    v = 2.0 * 0.5 ** np.arange(30)
     held = []
     for i, ti in enumerate(t):   # rod 1's accumulating run, rod 2 hitting its upper stop
-        held.append(bool(events.zeno_guard(run, 1, -1, ti)))   # regularly in between
-        assert not events.zeno_guard(run, 2, 1, 1.0 + 0.05 * i)
-    assert held == guard_calls(t)
+        held.append(events.zeno_guard(run, 1, -1, ti, v[i], 1.0) >= 0.0)   # regularly between
+        assert events.zeno_guard(run, 2, 1, 1.0 + 0.05 * i, 1.0, 1.0) < 0.0
+    assert held == guard_calls(t, v)
 
 
 # --- no stop ever pulls -------------------------------------------------------------------
