@@ -47,7 +47,7 @@ def test_ten_minutes_at_one_kilohertz_end_exactly_on_steps_times_dt():
 @pytest.mark.parametrize("method, n_links", RANDOM_ELASTIC, ids=RANDOM_IDS)
 def test_random_elastic_robots_hold_nothing_beyond_the_bound(method, n_links):
     """Random 3–4-link robots (seeded), e = 1 and rest_speed 0 for 10 s: a hold (if any) removes
-    no more than docs/model.md's bound, and the energy stays within the promise."""
+    no more than docs/model.md's bound (the energy drift is reported: `random_elastic`)."""
     assert_within_bounds(hard_cases.random_elastic(method, n_links, n_links, 10.0))
 
 
