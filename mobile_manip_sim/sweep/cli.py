@@ -130,7 +130,9 @@ def _connect(args):
         cluster = LocalCluster(n_workers=args.workers or os.cpu_count() or 1, threads_per_worker=1,
                                processes=True, dashboard_address=None, silence_logs=logging.ERROR)
         client = Client(cluster)
-    from .runner import WarmKernels
+    from .runner import IgnoreInterrupts, WarmKernels
+    if cluster is not None:
+        client.register_plugin(IgnoreInterrupts())
     client.register_plugin(WarmKernels())
     return client, cluster
 

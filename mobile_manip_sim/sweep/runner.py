@@ -249,3 +249,18 @@ class WarmKernels(WorkerPlugin):
 
     def teardown(self, worker):
         pass
+
+
+class IgnoreInterrupts(WorkerPlugin):
+    """A worker of the sweep's own LocalCluster: Ctrl-C on the terminal reaches the whole
+    process group, and the sweep answers it (keeps every finished run, closes the cluster); its
+    workers ignore it rather than each dying with a traceback. Workers of a scheduler given
+    with --scheduler are the user's, and keep their Ctrl-C."""
+
+    name = "mobile_manip_sim-ignore-interrupts"
+
+    def setup(self, worker):
+        import signal
+        import threading
+        if threading.current_thread() is threading.main_thread():
+            signal.signal(signal.SIGINT, signal.SIG_IGN)
