@@ -121,7 +121,7 @@ def run_block(document: dict, runs: list, duration: float, sample_rate: float | 
 
 def _tracking(sim, states: np.ndarray):
     """The arm's `headless.Tracking` over the samples, as `headless.run` measures it, or None."""
-    if not sim.arm_control.active:
+    if not sim.arm_controller.active:
         return None
     tracking = headless.Tracking(sim.nu - 2)
     now = sim.s
