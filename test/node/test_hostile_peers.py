@@ -280,7 +280,7 @@ def test_a_watchdog_abandon_never_lets_the_old_thread_touch_the_new_engine():
         rclpy.init(context=context, domain_id=DOMAIN_ID)
         node = SimulatorNode(context=context, parameter_overrides=[
             Parameter("integrator.method", value="rk4"), Parameter("integrator.dt", value=0.001),
-            Parameter("real_time_factor", value=0.0), Parameter("publish_clock", value=False)])
+            Parameter("real_time_factor", value=0.0), Parameter("publish_clock", value=True)])
     gate, inside = threading.Event(), threading.Event()
     held, start_ns = node.commands.held, 5 * node.grid.stamp(1)
 
