@@ -96,8 +96,9 @@ def test_a_follower_is_never_stamped_ahead_of_the_clock_it_hears(warm_kernels, t
                 stamps = [stamp for stamp, _ in robot2]
                 assert stamps == sorted(stamps) and len(set(stamps)) == len(stamps)
             # the start-up line says the mode: how it is driven, how it is paced
-            assert re.search(r"mode: base effort, arm_controller \w+; following the /clock it hears",
-                             follower.output()), follower.output()
+            assert re.search(r"mode: base effort, arm_controller \w+; "
+                             r"following the /clock it hears", follower.output()), \
+                follower.output()
             assert re.search(r"mode: base effort, arm \w+; paced by the wall clock",
                              owner.output()), owner.output()
         finally:

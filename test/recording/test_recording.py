@@ -331,7 +331,8 @@ def test_a_node_bag_reads_back_with_mcap_and_is_complete(node_run):
     impacts = json.loads(attachments["impacts.json"].data)
     assert isinstance(impacts, list)
     assert all(set(i) == {"time", "link", "stop", "ld_before", "ld_after", "energy_lost",
-                          "resting", "held", "hold_energy"} and 0 <= i["time"] * 1e9 <= last for i in impacts)
+                          "resting", "held", "hold_energy"}
+               and 0 <= i["time"] * 1e9 <= last for i in impacts)
     run = metadata["mobile_manip_sim"]
     assert run == {"version": __version__, "integrator_method": "rk4", "dt": "0.001",
                    "rtol": repr(load_scene(None).integrator.rtol),
