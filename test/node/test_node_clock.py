@@ -99,7 +99,7 @@ def test_a_follower_is_never_stamped_ahead_of_the_clock_it_hears(warm_kernels, t
             assert re.search(r"mode: base effort, arm_controller \w+; "
                              r"following the /clock it hears", follower.output()), \
                 follower.output()
-            assert re.search(r"mode: base effort, arm \w+; paced by the wall clock",
+            assert re.search(r"mode: base effort, arm_controller \w+; paced by the wall clock",
                              owner.output()), owner.output()
         finally:
             assert owner.stop() == 0, owner.output()
