@@ -24,6 +24,7 @@ from ..batch.lanes import configuration_rates
 from ..dynamics import constraint_residuals
 from ..runtime import headless
 from ..runtime.timeline import sample_times
+from ..scene.coordinates import arm_width
 from ..scene.errors import UserError
 from ..scene.loading import check_work
 from ..scene.methods import METHODS
@@ -123,7 +124,7 @@ def _tracking(sim, states: np.ndarray):
     """The arm's `headless.Tracking` over the samples, as `headless.run` measures it, or None."""
     if not sim.arm_controller.active:
         return None
-    tracking = headless.Tracking(sim.nu - 2)
+    tracking = headless.Tracking(arm_width(sim.nu))
     now = sim.s
     try:
         for s in states:

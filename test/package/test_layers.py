@@ -26,9 +26,10 @@ PACKAGE = "mobile_manip_sim"
 ADAPTERS = 6
 # batch/ (many runs stepped together) builds on the engine and the runtime, and sweep/ and
 # bench/ use it: below the adapters, beside recording/ (neither imports the other)
+# bench/ measures every other program (a sweep among them): the top floor
 LAYERS = {"scene": 0, "dynamics": 1, "engine": 2, "runtime": 3, "ros": 4, "recording": 5,
           "batch": 5, "node": ADAPTERS, "replay": ADAPTERS, "plot": ADAPTERS, "sweep": ADAPTERS,
-          "bench": ADAPTERS, "programs": ADAPTERS}
+          "bench": ADAPTERS + 1, "programs": ADAPTERS}
 
 
 def modules(root: Path, package: str) -> dict[str, Path]:
