@@ -106,7 +106,7 @@ class Spec:
 def _unused(point: dict, document: dict) -> set:
     """The integrator settings of ``point`` that its method ignores."""
     method = point.get("integrator.method", document.get("integrator", {}).get("method"))
-    entry = METHODS.get(method)
+    entry = METHODS.get(method) if isinstance(method, str) else None   # else refused later
     if entry is None:
         return set()
     return {"integrator.rtol", "integrator.atol"} if entry.fixed_step else {"integrator.dt"}
