@@ -57,15 +57,16 @@ def arm(sim):
              "effects.joint_damping=0.1", "--set", "effects.effort_limits.joints=5"]),
 ])
 def test_effort_mode_runs_are_bit_identical_to_main(tmp_path, name, flags):
-    """test/data/main_f0c3864_*: `simulate` of main at f0c3864 (before the arm controller) on
-    the paper scene — samples and impacts, byte for byte. (Regenerate them only for a change
-    of the physics that is meant.)"""
+    """test/engine/data/recorded_paper_*: `simulate` of the paper scene in effort mode, samples
+    and impacts, byte for byte. Recorded before the arm controller existed, and again when the
+    release watch inside steps came (its evaluations moved the last digits: 4e-14 at most).
+    Regenerate them only for a change of the physics that is meant."""
     out = tmp_path / f"paper_{name}.csv"
     subprocess.run([executable("simulate"), *flags, "--out", str(out)], check=True,
                    capture_output=True, timeout=600)
     for suffix in (".csv", ".impacts.csv"):
         mine = out.with_name(f"paper_{name}{suffix}").read_bytes()
-        assert mine == (DATA / f"main_f0c3864_paper_{name}{suffix}").read_bytes()
+        assert mine == (DATA / f"recorded_paper_{name}{suffix}").read_bytes()
 
 
 def test_effort_mode_has_no_controller_states_and_runs_no_controller_stage():
