@@ -40,7 +40,7 @@ def run_built(workspace, command, **kwargs):
     script = f". install/setup.sh && {command}"
     env = dict(os.environ, PATH=f"{BIN}:{os.environ['PATH']}")
     return subprocess.run(["bash", "-c", script], cwd=workspace, env=env, capture_output=True,
-                          text=True, timeout=300, **kwargs)
+                          text=True, timeout=600, **kwargs)   # an unwarmed build compiles first
 
 
 def test_colcon_build_installs_every_executable_under_lib(workspace):
