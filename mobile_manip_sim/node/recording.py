@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING, Callable
 
-from ..recording.bag_format import arm_controller_metadata
+from ..recording.arm_metadata import arm_controller_metadata
 from ..recording.rotation import RotatingRecorder
 from ..scene.errors import UserError
 from ..scene.limits import RECORDING_BAGS

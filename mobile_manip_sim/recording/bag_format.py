@@ -27,6 +27,11 @@ impacts are checked here too (`impact_record`) without it.
 from __future__ import annotations
 
 from mobile_manip_sim import __version__
+from mobile_manip_sim.recording.arm_metadata import (
+    MODEL_ERROR_FIELDS,
+    arm_controller_from_metadata,
+    check_gain_counts,
+)
 from mobile_manip_sim.ros.imu import METADATA_KEYS, METADATA_SEED, ImuNoise
 from mobile_manip_sim.ros.message_types import message_class
 from mobile_manip_sim.ros.topics import (
@@ -39,14 +44,6 @@ from mobile_manip_sim.ros.topics import (
 )
 from mobile_manip_sim.runtime.timeline import NS, CommandHistory, Grid
 from mobile_manip_sim.scene import limits, schema
-from mobile_manip_sim.scene.arm_controller import (
-    DEFAULT_FEEDFORWARD,
-    EFFORT,
-    GAINS,
-    MODES,
-    ArmController,
-    ModelError,
-)
 from mobile_manip_sim.scene.coordinates import ARM_U, arm_width
 from mobile_manip_sim.scene.errors import UserError
 from mobile_manip_sim.scene.methods import METHODS
@@ -62,7 +59,6 @@ RUN_METADATA_KEYS = ("version", "integrator_method", "dt", "rtol", "atol", "scen
 # An arm controller's settings (a run not in effort mode): its mode, feedforward and gains per
 # arm joint (space-separated reprs, exact), and its feed-forward's model error when it has one.
 # An effort-mode bag has none of them.
-MODEL_ERROR_FIELDS = ("mass", "inertia", "payload")   # `ModelError`'s, when not the default
 ARM_METADATA_KEYS = ("arm_controller", "arm_feedforward", "arm_kp", "arm_ki", "arm_kd",
                      *(f"arm_model_error_{name}" for name in MODEL_ERROR_FIELDS))
 RUN_METADATA_KEYS += ARM_METADATA_KEYS
@@ -152,69 +148,8 @@ def checked_run_metadata(value, path: str = METADATA_NAME) -> dict:
     for key in needed:
         if key not in value:
             raise UserError(f"{path}.{key}", f"missing (a {value['source']} run records it)")
-    parsed["arm_controller"] = _arm_controller(value, path)
+    parsed["arm_controller"] = arm_controller_from_metadata(value, path)
     return parsed
-
-
-def arm_controller_metadata(controller) -> dict:
-    """The metadata entries of an `ArmController` resolved for its robot: none in effort mode
-    (such a bag is what it was before arm controllers existed); the model error's only when the
-    feed-forward's model is not the plant's."""
-    if not controller.active:
-        return {}
-    entries = {"arm_controller": controller.mode, "arm_feedforward": controller.feedforward,
-               **{f"arm_{name}": " ".join(repr(float(v)) for v in getattr(controller, name))
-                  for name in GAINS}}
-    error = controller.model_error
-    for name in MODEL_ERROR_FIELDS:
-        value = getattr(error, name)
-        if value != getattr(ModelError(), name):
-            entries[f"arm_model_error_{name}"] = repr(float(value))
-    return entries
-
-
-def _arm_controller(value: dict, path: str):
-    """The `ArmController` a bag's metadata records (effort mode without arm_controller)."""
-    mode = value.get("arm_controller", EFFORT)
-    if mode not in MODES:
-        raise UserError(f"{path}.arm_controller", f"unknown mode {schema.short(mode)} (choose "
-                                                  f"one of: {', '.join(MODES)})")
-    if not MODES[mode].controlled:
-        return ArmController()
-    gains = []
-    for name in GAINS:
-        key = f"arm_{name}"
-        if key not in value:
-            raise UserError(f"{path}.{key}", f"missing (arm_controller {mode} records its "
-                                             f"gains)")
-        try:
-            gains.append(tuple(float(v) for v in value[key].split()))
-        except ValueError:
-            raise UserError(f"{path}.{key}", f"expected numbers, got "
-                                             f"{schema.short(value[key])}") from None
-    error = {}
-    for name in MODEL_ERROR_FIELDS:
-        key = f"arm_model_error_{name}"
-        if key in value:
-            try:
-                error[name] = float(value[key])
-            except ValueError:
-                raise UserError(f"{path}.{key}", f"expected a number, got "
-                                                 f"{schema.short(value[key])}") from None
-    try:
-        return ArmController(mode, *gains, value.get("arm_feedforward", DEFAULT_FEEDFORWARD),
-                             ModelError(**error))
-    except UserError as error:
-        raise UserError(f"{path}.{error.key}", error.problem) from None
-
-
-def _check_gain_counts(controller, n_arm: int) -> None:
-    """A bag records its controller's gains resolved: one per arm joint of its scene."""
-    for name in GAINS if controller.active else ():
-        if len(getattr(controller, name)) != n_arm:
-            raise UserError(f"{METADATA_NAME}.arm_{name}", f"expected {n_arm} numbers (one per "
-                                                           f"arm joint of the bag's scene), got "
-                                                           f"{len(getattr(controller, name))}")
 
 
 # --- messages ---------------------------------------------------------------------------------
@@ -405,7 +340,7 @@ class RecordedRun:
                       else None)
         self.names = self.scene.robot.joint_names()
         self.arm_controller = metadata["arm_controller"]
-        _check_gain_counts(self.arm_controller, arm_width(len(self.names)))
+        check_gain_counts(self.arm_controller, arm_width(len(self.names)), METADATA_NAME)
         self.imu_noise = ImuNoise.from_metadata(metadata, METADATA_NAME)   # a node's /imu
 
     def check_robot(self) -> None:

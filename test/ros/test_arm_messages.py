@@ -8,7 +8,8 @@ from rclpy.serialization import deserialize_message, serialize_message
 from std_msgs.msg import Float64MultiArray
 from trajectory_msgs.msg import JointTrajectory
 
-from mobile_manip_sim.recording.bag_format import arm_controller_metadata, checked_run_metadata
+from mobile_manip_sim.recording.arm_metadata import arm_controller_metadata
+from mobile_manip_sim.recording.bag_format import checked_run_metadata
 from mobile_manip_sim.ros.messages import arm_command_message, arm_command_values
 from mobile_manip_sim.ros.trajectory_goals import HOLD, Trajectory
 from mobile_manip_sim.scene.arm_controller import ArmController, ModelError
