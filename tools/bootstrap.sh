@@ -31,7 +31,9 @@ fi
 echo "bootstrap: upgrading pip"
 talking "upgrading pip" .venv/bin/python -m pip install --quiet --upgrade pip
 echo "bootstrap: installing the package and its test dependencies (a few minutes the first time)"
-talking "installing" .venv/bin/python -m pip install --quiet -e '.[test]'
+# --no-compile: no byte-compiling of every installed module up front (tens of seconds); Python
+# writes the .pyc of what it imports on first use.
+talking "installing" .venv/bin/python -m pip install --quiet --no-compile -e '.[test]'
 # Compile every numba kernel now, so that no run — the node above all — compiles at run time;
 # the warm-up says how long it takes and names each kernel as it starts.
 echo "bootstrap: compiling the numba kernels"
