@@ -49,7 +49,7 @@ from .stops import (
     release,
     relock,
 )
-from .system import LEAST_MARGIN, RHS_EVALS, VELOCITY_MODE, System
+from .system import HOLDING_LEAST_MARGIN, RHS_EVALS, WHEEL_VELOCITY_MODE, System
 
 
 def scipy_solver(method: str):
@@ -112,7 +112,7 @@ class Simulation(ArmCommands, BaseCommands):
         self._scratch = stepping.make_scratch(size, model.n_links,
                                               make_impact_scratch(self.nu, model.n_links))
         self._clock = np.zeros(stepping.CLOCK_SIZE)
-        self._clock[stepping.DT] = self.settings.dt
+        self._clock[stepping.CLOCK_DT] = self.settings.dt
         # The compiled core that runs the method (stepping.py, adaptive_stepping.py; None: SciPy's
         # radau/bdf, stepped from Python) and its leading arguments. Steps per compiled call:
         # about 20 ms of work, so signals, pause and reset act promptly (an adaptive step costs
@@ -156,9 +156,9 @@ class Simulation(ArmCommands, BaseCommands):
         u0 = np.array(self.scene.initial_u, dtype=float)
         u0[list(self.system.permanently_locked)] = 0.0
         self.s = self.system.state(self.scene.initial_q, u0)
-        self.system.control[VELOCITY_MODE] = 0.0
+        self.system.control[WHEEL_VELOCITY_MODE] = 0.0
         self._clock[:] = 0.0
-        self._clock[stepping.DT] = self.settings.dt
+        self._clock[stepping.CLOCK_DT] = self.settings.dt
         if self._solve is not None:
             adaptive_stepping.new_solve(self._solve)
         self.resting[:] = 0
@@ -249,29 +249,30 @@ class Simulation(ArmCommands, BaseCommands):
 
     @property
     def t(self) -> float:
-        # the adaptive methods keep their time in T0 (K stays 0)
-        return float(self._clock[stepping.T0] + self._clock[stepping.K] * self.settings.dt)
+        # the adaptive methods keep their time in CLOCK_T0 (CLOCK_K stays 0)
+        clock = self._clock
+        return float(clock[stepping.CLOCK_T0] + clock[stepping.CLOCK_K] * self.settings.dt)
 
     @property
     def steps(self) -> int:
-        return int(self._clock[stepping.STEPS])
+        return int(self._clock[stepping.CLOCK_STEPS])
 
     @property
     def impact_energy_lost(self) -> float:
         """Energy the impact law removed since t = 0 (J): restitution < 1 and rests."""
-        return float(self._clock[stepping.LOST])
+        return float(self._clock[stepping.CLOCK_LOST])
 
     @property
     def hold_energy(self) -> float:
         """Energy the engine's holds removed beyond the impact law since t = 0 (J): not physics,
         so `energy_error` counts it as error (docs/model.md, "Resting, leaving, and no Zeno")."""
-        return float(self._clock[stepping.HELD])
+        return float(self._clock[stepping.CLOCK_HELD])
 
     @property
     def holds(self) -> int:
         """How many impacts the engine held (the Zeno guard, or a rod found at its stop not
         moving into it) since t = 0."""
-        return int(self._clock[stepping.HOLDS])
+        return int(self._clock[stepping.CLOCK_HOLDS])
 
     @property
     def q(self) -> np.ndarray:
@@ -328,7 +329,7 @@ class Simulation(ArmCommands, BaseCommands):
             joint_efforts = self.effects.saturate(command(joints, arm_width(self.nu), "joints"), 2)
         self.wheel_efforts, self.joint_efforts = wheel_efforts, joint_efforts
         if wheels is not None:
-            self.system.control[VELOCITY_MODE] = 0.0
+            self.system.control[WHEEL_VELOCITY_MODE] = 0.0
         Q[V], Q[OMEGA] = self.dynamics.wheel_forces(*self.wheel_efforts)
         Q[ARM_U] = self.joint_efforts
         if not np.array_equal(before[0], Q) or before[1] != self.velocity_mode:
@@ -450,7 +451,8 @@ class Simulation(ArmCommands, BaseCommands):
         solve = self._solve
         in_hand = adaptive_stepping.step_in_hand(solve)[1] != 0.0
         t_before = self._solver.t if in_hand else self.t
-        self.system.data.holding[LEAST_MARGIN] = math.inf   # its evaluations sample them anew
+        # its evaluations sample them anew
+        self.system.data.holding[HOLDING_LEAST_MARGIN] = math.inf
         try:   # overflows are ours to report in one line, not numpy's warnings on stderr
             with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
                 solver, message = self._scipy_step(t_before)
@@ -458,7 +460,7 @@ class Simulation(ArmCommands, BaseCommands):
             adaptive_stepping.drop_step(solve)
             self._cannot_follow(t_before, f"its linear algebra failed ({error})")
         self._check_scipy_step(solver, t_before, message)
-        self._clock[stepping.STEPS] += 1
+        self._clock[stepping.CLOCK_STEPS] += 1
         if not np.all(np.isfinite(solver.y)):
             self._fail(solver.y)
         series = dense.from_scipy(solver.dense_output()).coeffs

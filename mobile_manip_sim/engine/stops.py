@@ -28,7 +28,7 @@ from ..dynamics import kernels
 from ..dynamics.jit import jit, jit_inline
 from . import layout
 from .events import RUN_ENERGY, RUN_FIELDS, ZENO_SHARE, simultaneous_hits, zeno_guard
-from .system import WATCH_ON, derivative, slide_holding_forces
+from .system import HOLDING_ON, derivative, slide_holding_forces
 
 IMPULSE, REFLECT = 0, 1
 LAW_IDS = {"impulse": IMPULSE, "reflect": REFLECT}
@@ -122,7 +122,7 @@ def relock(system, stops):
     """system.free = the pseudo-velocities neither locked by the scene nor held at a stop; the
     holding forces are watched at every evaluation while a rod rests (`system.watch_holding`)."""
     nu = system.free.shape[0]
-    system.holding[WATCH_ON] = 1.0 if any_resting(stops) else 0.0
+    system.holding[HOLDING_ON] = 1.0 if any_resting(stops) else 0.0
     m = 0
     for j in range(nu):
         locked = stops.permanent[j]
