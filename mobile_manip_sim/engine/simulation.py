@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import math
 import warnings
-from collections import namedtuple
 
 import numpy as np
 
@@ -39,16 +38,8 @@ from .arm_commands import ArmCommands
 from .arm_control import arm_settings, feedforward_model, for_robot, scene_arm_controller
 from .base_commands import BaseCommands, command, finite_forces
 from .events import holding_margin
-from .stops import (
-    LOG_HELD,
-    LOG_HOLD_BOUND,
-    LOG_HOLD_LOST,
-    Impact,
-    make_impact_scratch,
-    make_stops,
-    release,
-    relock,
-)
+from .impact_log import Impact, ImpactDetail, collect
+from .stops import make_impact_scratch, make_stops, release, relock
 from .system import HOLDING_LEAST_MARGIN, RHS_EVALS, WHEEL_VELOCITY_MODE, System
 
 
@@ -75,9 +66,6 @@ SCIPY_MIN_RTOL = 100 * np.finfo(float).eps   # SciPy's own floor; passed as is, 
 
 def hold_warning(line: str) -> None:
     warnings.warn(line, RuntimeWarning, stacklevel=4)
-
-
-ImpactDetail = namedtuple("ImpactDetail", "q u_before u_after free held")
 
 
 class Simulation(ArmCommands, BaseCommands):
@@ -415,24 +403,9 @@ class Simulation(ArmCommands, BaseCommands):
                               f"tolerances")
 
     def _collect_impacts(self) -> None:
-        """Move the compiled stop log into `impacts` (and `impact_details`); a hold that removed
-        more than the Zeno guard's bound is reported on one line (`hold_warning`)."""
-        stops = self.stops
-        for row in range(int(stops.count[0])):
-            log = stops.log[row]
-            if log[LOG_HOLD_LOST] > log[LOG_HOLD_BOUND]:
-                impact = Impact.from_log(log)
-                self.hold_warning(
-                    f"t = {impact.time:.9g} s: rod {impact.link} held at its {impact.stop} stop "
-                    f"(arriving at {abs(impact.ld_before):.3g} m/s), removing "
-                    f"{impact.hold_energy:.3g} J beyond the impact law (the bound is "
-                    f"{log[LOG_HOLD_BOUND]:.3g} J)")
-            self.impacts.append(Impact.from_log(log))
-            self.impact_details.append(ImpactDetail(
-                stops.log_q[row].copy(), stops.log_u[row, 0].copy(), stops.log_u[row, 1].copy(),
-                [int(i) for i in np.flatnonzero(stops.log_free[row])],
-                bool(stops.log[row, LOG_HELD])))
-        stops.count[0] = 0
+        """Move the compiled stop log into `impacts` and `impact_details`; a hold that
+        removed more than the Zeno guard's bound is said on one line (`hold_warning`)."""
+        collect(self.stops, self.impacts, self.impact_details, self.hold_warning)
 
     # --- radau, bdf: a SciPy solver kept across samples until a discontinuity ----------------
     def _advance_scipy(self, t_end: float) -> None:
