@@ -14,7 +14,8 @@ error type or an error matched by its name) is reported anywhere outside that ow
 
 And the engine's positional bookkeeping reads one way: a name bound by a family of indices
 (``A, B = range(n)``, or a tuple of integer literals) is bound at the top of no other module, so
-``KP`` cannot mean a wheel gain here and an arm gain there (`family_clashes`).
+``KP`` cannot mean a wheel gain here and an arm gain there (`family_clashes`). And every module
+has one job, at most MAX_LINES lines long (`long_modules`).
 
 The checkers are tested on small fake trees that hold each kind of violation, so a check that
 cannot fail would show here.
@@ -275,6 +276,30 @@ def test_the_family_check_finds_a_shared_name(tmp_path):
         "KI: engine/system.py:1, scene/limits.py:1",
         "KP: engine/arm.py:1, engine/system.py:1",
         "MODE: bench/runs.py:2, engine/system.py:1"]
+
+
+# --- module size --------------------------------------------------------------------------------
+
+MAX_LINES = 450
+
+
+def long_modules(root: Path, package: str, limit: int = MAX_LINES) -> list[str]:
+    """One line per module of more than ``limit`` lines."""
+    found = []
+    for path in sorted((root / package).rglob("*.py")):
+        lines = len(path.read_text(encoding="utf-8").splitlines())
+        if lines > limit:
+            found.append(f"{path.relative_to(root / package).as_posix()}: {lines} lines")
+    return found
+
+
+def test_every_module_is_at_most_450_lines():
+    assert long_modules(ROOT, PACKAGE) == []
+
+
+def test_the_size_check_finds_a_long_module(tmp_path):
+    fake_tree(tmp_path, {"engine/long.py": "x = 1\n" * 451, "engine/short.py": "x = 1\n" * 450})
+    assert long_modules(tmp_path, "pkg") == ["engine/long.py: 451 lines"]
 
 
 # --- the checker on planted violations --------------------------------------------------------
