@@ -19,7 +19,16 @@ import numpy as np
 
 from ..dynamics import kernels
 from ..dynamics.jit import ENABLED, jit
-from ..engine.stepping import BUDGET, DONE, DT, LOG_FULL, T0, K, advance, total_energy
+from ..engine.stepping import (
+    BUDGET,
+    CLOCK_DT,
+    CLOCK_K,
+    CLOCK_T0,
+    DONE,
+    LOG_FULL,
+    advance,
+    total_energy,
+)
 
 # a lane's outcome after a call (`code`)
 LANE_DONE, LANE_PAUSED, LANE_FAILED = 0, 1, 2
@@ -73,7 +82,7 @@ def fixed_lane(method, system, stops, scr, s, clock, times, first, last, rows, r
                 for j in range(size):
                     rows[i, j] = s[j]
                 rows[i, size] = total_energy(system, s)
-                rows_t[i] = clock[T0] + clock[K] * clock[DT]
+                rows_t[i] = clock[CLOCK_T0] + clock[CLOCK_K] * clock[CLOCK_DT]
             i += 1
         elif status != BUDGET and status != LOG_FULL:
             return LANE_FAILED, i, status

@@ -19,7 +19,7 @@ import numpy as np
 
 from ..dynamics import Dynamics
 from ..engine import arm_reference, layout
-from ..engine.arm_control import SEGMENTS
+from ..engine.arm_control import ARM_SEGMENTS
 from ..engine.simulation import Simulation
 from ..scene.arm_controller import ArmController
 from ..scene.coordinates import arm_width
@@ -76,8 +76,8 @@ def tracking(sim: Simulation, times, rows) -> tuple[float, float]:
     data, out = sim.system.data, np.zeros((3, arm_width(sim.nu)))
     errors = []
     for t, row in zip(times, rows, strict=True):
-        arm_reference.reference(data.ref_starts, data.ref_coeffs, int(data.arm[SEGMENTS]), t, out,
-                                0)
+        arm_reference.reference(data.ref_starts, data.ref_coeffs, int(data.arm[ARM_SEGMENTS]), t,
+                                out, 0)
         errors.append(row[layout.arm_q(0):layout.arm_q(0) + arm_width(sim.nu)] - out[0])
     errors = np.array(errors)
     return float(np.sqrt(np.mean(errors ** 2))), float(np.abs(errors).max())

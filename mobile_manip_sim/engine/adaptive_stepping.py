@@ -20,8 +20,8 @@ SciPy step, its interpolant a `dense.POWER` series, becomes the step in hand (`r
 The Zeno guard is `events.zeno_guard`, the fixed-step core's too (called by `stops.impact`): it
 reads the impact times alone, never the step.
 
-The simulated time is clock[T0] of `stepping.py`'s clock (K stays 0); STEPS and the energy ledger
-(LOST, HELD, HOLDS) as there.
+The simulated time is clock[CLOCK_T0] of `stepping.py`'s clock (CLOCK_K stays 0); CLOCK_STEPS
+and the energy ledger (CLOCK_LOST, CLOCK_HELD, CLOCK_HOLDS) as there.
 """
 import math
 from collections import namedtuple
@@ -36,8 +36,8 @@ from .events import crossing_in_step, first_crossing, first_release
 from .status import BUDGET, CONTACT_FAILED, CRAWLING, DONE, LOG_FULL, NOT_FINITE, STALLED
 from .step_watch import clear, make_watch, watch_step
 from .stepping import (
-    STEPS,
-    T0,
+    CLOCK_STEPS,
+    CLOCK_T0,
     any_watched,
     book,
     copy_into,
@@ -45,7 +45,7 @@ from .stepping import (
     total_energy,
 )
 from .stops import any_resting, impact, release
-from .system import LEAST_MARGIN, clear_holding, derivative
+from .system import HOLDING_LEAST_MARGIN, clear_holding, derivative
 
 # Solve.status[...] entries
 (STEP_T0,     # start of the step in hand (s)
@@ -167,7 +167,7 @@ def locate_event(method, system, stops, scr, solve):
     y1, h = work[rk.WORK_Y1], status[STEP_H]
     # Every evaluation of the step (its stages, f(y₁)) sampled the holding forces
     # (`system.watch_holding`): read before the interpolant's stages evaluate anything else.
-    pulled = any_resting(stops) and system.holding[LEAST_MARGIN] < 0.0
+    pulled = any_resting(stops) and system.holding[HOLDING_LEAST_MARGIN] < 0.0
     if any_watched(stops) and crossing_in_step(start, y1, h, system, stops.watched, stops.stroke):
         dense = interpolant(method, system, solve, True)
         h_hit, k, side = first_crossing(method, system, start, h, stops.watched, stops.resting,
@@ -201,7 +201,7 @@ def take_step(method, system, stops, scr, solve, s, clock):
         copy_into(y1, start)
         copy_into(f1, f0)   # FSAL: f(y₁) is the next step's first stage
     else:
-        status[STEP_T0] = clock[T0]
+        status[STEP_T0] = clock[CLOCK_T0]
         copy_into(s, start)
         derivative(system, start, f0)
         if status[H_NEXT] <= 0.0:
@@ -213,7 +213,7 @@ def take_step(method, system, stops, scr, solve, s, clock):
     if h < 0.0:
         status[STEP_H] = 0.0
         return STALLED
-    clock[STEPS] += 1.0
+    clock[CLOCK_STEPS] += 1.0
     status[STEP_H], status[H_NEXT], status[DENSE], status[EVENT] = h, h_next, 0.0, NO_EVENT
     if not finite(y1):
         copy_into(y1, scr.out)
@@ -230,7 +230,7 @@ def apply_event(system, stops, scr, solve, s, clock):
     status = solve.status
     t = status[STEP_T0] + status[EVENT_H]
     copy_into(solve.event, s)
-    clock[T0] = t
+    clock[CLOCK_T0] = t
     if status[EVENT] == IMPACT:
         book(clock, impact(system, stops, s, int(status[EVENT_K]), int(status[EVENT_SIDE]), t,
                            scr.impact, scr.stages[3], scr.forces))
@@ -246,7 +246,7 @@ def inside_step(method, solve, s, clock, t_end):
     It takes none of the system's records, so that Python can call it cheaply for a target
     inside the step (a call from Python unboxes every array it is given)."""
     status = solve.status
-    if t_end <= clock[T0]:
+    if t_end <= clock[CLOCK_T0]:
         return True
     h, t0 = status[STEP_H], status[STEP_T0]
     event = status[EVENT] != NO_EVENT
@@ -259,7 +259,7 @@ def inside_step(method, solve, s, clock, t_end):
     else:
         dense = Interpolant(method, solve.work[rk.WORK_COEFFS:rk.WORK_COEFFS + rk.MAX_DENSE], h)
         interpolate(dense, solve.start, t_end - t0, s)
-    clock[T0] = t_end
+    clock[CLOCK_T0] = t_end
     return True
 
 
@@ -309,10 +309,10 @@ def advance_samples(method, system, stops, scr, solve, s, clock, times, rows, fi
     """`advance` to each of times[first:], writing (s, T + V) into rows[i]; returns (status,
     next sample index) — the caller calls again after BUDGET or LOG_FULL. The budget counts
     steps only: a sample inside the step in hand costs none."""
-    steps = clock[STEPS]
+    steps = clock[CLOCK_STEPS]
     for i in range(first, times.shape[0]):
         status = advance(method, system, stops, scr, solve, s, clock, times[i],
-                         max_steps - int(clock[STEPS] - steps))
+                         max_steps - int(clock[CLOCK_STEPS] - steps))
         if status != DONE:
             return status, i
         copy_into(s, rows[i])

@@ -17,7 +17,7 @@ from ..scene.coordinates import ARM_U, arm_u, arm_width
 from ..scene.errors import UserError
 from ..scene.limits import DURATION, REVOLUTE_TARGET, SPEED, TRAJECTORY_POINTS
 from . import arm_reference, layout
-from .arm_control import SEGMENTS, TAU
+from .arm_control import ARM_SEGMENTS, LAST_TAU
 from .arm_reference import Q_REF, QD_REF, QDD_REF
 
 
@@ -70,8 +70,8 @@ class ArmCommands:
         out = np.zeros((3, n_arm))
         data = self.system.data
         tau = self.s[layout.reference_clock(self.nq, self.nu)] + float(t_ahead)
-        arm_reference.reference(data.ref_starts, data.ref_coeffs, int(data.arm[SEGMENTS]), tau, out,
-                                0)
+        arm_reference.reference(data.ref_starts, data.ref_coeffs, int(data.arm[ARM_SEGMENTS]), tau,
+                                out, 0)
         return out[Q_REF].copy(), out[QD_REF].copy(), out[QDD_REF].copy()
 
     def joint_efforts_applied(self) -> np.ndarray:
@@ -80,7 +80,7 @@ class ArmCommands:
         if not self.arm_controller.active:
             return np.array(self.joint_efforts, dtype=float)
         self.acceleration()   # one evaluation at s (uncounted): leaves the efforts in arm_ref
-        return self.system.arm_ref[TAU].copy()
+        return self.system.arm_ref[LAST_TAU].copy()
 
     # --- helpers ----------------------------------------------------------------------------
     def _start_arm(self) -> None:

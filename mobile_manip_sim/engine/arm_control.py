@@ -63,16 +63,18 @@ from .arm_reference import (
     shortest_angle_jit,
 )
 
-# system.arm[...] entries (SEGMENT: the reference segment of the last evaluation, a search hint)
-ARM_ON, FEEDFORWARD, SEGMENTS, SEGMENT = range(4)
+# system.arm[...] entries (ARM_SEGMENT: the reference segment of the last evaluation, a search hint)
+ARM_ON, ARM_FEEDFORWARD, ARM_SEGMENTS, ARM_SEGMENT = range(4)
 N_ARM_SETTINGS = 4
-NO_FEEDFORWARD, GRAVITY, COMPUTED_TORQUE = (int(kind) for kind in Feedforward)
+# the feed-forward kinds (system.arm[ARM_FEEDFORWARD])
+FEEDFORWARD_NONE, FEEDFORWARD_GRAVITY, FEEDFORWARD_COMPUTED_TORQUE = (
+    int(kind) for kind in Feedforward)
 # system.arm_gains rows
-KP, KI, KD = range(3)
+GAIN_KP, GAIN_KI, GAIN_KD = range(3)
 # system.arm_ref rows: the reference (arm_reference.Q_REF, QD_REF, QDD_REF), then
-FF, TAU = 3, 4        # the feedforward and the applied efforts of the last evaluation
+LAST_FF, LAST_TAU = 3, 4   # the feedforward and the applied efforts of the last evaluation
 # system.arm_scratch rows (n_u each)
-UD, QA, COL_V, COL_W, ZERO = range(5)
+SCRATCH_UD, SCRATCH_QA, SCRATCH_COL_V, SCRATCH_COL_W, SCRATCH_ZERO = range(5)
 
 # Default gains (`default_controller`): each joint alone, with its diagonal inertia M_jj at the
 # robot's reference pose (every q_k = 0, every rod at mid-stroke), is a critically damped PD of
@@ -154,11 +156,12 @@ def round_2(values) -> np.ndarray:
 
 def arm_settings(control: ArmController, effort_limits) -> tuple:
     """The compiled records' arrays for `control` (resolved, `for_robot`): settings (ARM_ON,
-    FEEDFORWARD, SEGMENTS, SEGMENT), gains (3, n_arm) and effort limits (n_arm; inf where none)."""
+    ARM_FEEDFORWARD, ARM_SEGMENTS, ARM_SEGMENT), gains (3, n_arm) and effort limits (n_arm; inf
+    where none)."""
     n_arm = len(control.kp)
     settings = np.zeros(N_ARM_SETTINGS)
     settings[ARM_ON] = 1.0 if control.active else 0.0
-    settings[FEEDFORWARD] = control.feedforward_id
+    settings[ARM_FEEDFORWARD] = control.feedforward_id
     gains = np.array([control.kp, control.ki, control.kd], dtype=float).reshape(3, n_arm)
     limits = np.full(n_arm, np.inf) if effort_limits is None else np.array(effort_limits[ARM_U])
     return settings, gains, limits
@@ -167,17 +170,17 @@ def arm_settings(control: ArmController, effort_limits) -> tuple:
 @jit_inline
 def feedforward(system, s, ff):
     """The feedforward efforts (module doc) into ff (n_arm). Needs `kernels.frames` of s."""
-    kind = system.arm[FEEDFORWARD]
+    kind = system.arm[ARM_FEEDFORWARD]
     n_arm = ff.shape[0]
-    if kind == NO_FEEDFORWARD or (kind == GRAVITY and system.gravity == 0.0):
+    if kind == FEEDFORWARD_NONE or (kind == FEEDFORWARD_GRAVITY and system.gravity == 0.0):
         for j in range(n_arm):
             ff[j] = 0.0
         return
     model, ws, scratch, damping = system.ff_model, system.ws, system.arm_scratch, system.damping
     nq, nu = layout.sizes(system)
     q, u = s[:nq], s[nq:nq + nu]
-    ud, Q_id = scratch[UD], scratch[QA]
-    if kind == GRAVITY:
+    ud, Q_id = scratch[SCRATCH_UD], scratch[SCRATCH_QA]
+    if kind == FEEDFORWARD_GRAVITY:
         gravity_efforts(model, q, system.gravity, ws, ff)
         return
     set_moving(system.free, ws.moving)
@@ -189,37 +192,39 @@ def feedforward(system, s, ff):
     if damping.shape[0] > 0:
         Qb0 -= damping[0] * u[0]
         Qb1 -= damping[1] * u[1]
-    vd, omd = base_acceleration(model, ws, q, Qb0, Qb1, Q_id, scratch[UD], scratch[ZERO],
-                                scratch[COL_V], scratch[COL_W])
+    vd, omd = base_acceleration(model, ws, q, Qb0, Qb1, Q_id, scratch[SCRATCH_UD],
+                                scratch[SCRATCH_ZERO], scratch[SCRATCH_COL_V],
+                                scratch[SCRATCH_COL_W])
     for j in range(n_arm):
         ff[j] = Q_id[indices.arm_u(j)]
         if vd != 0.0 or omd != 0.0:
             i = indices.arm_u(j)
-            ff[j] += scratch[COL_V, i] * vd + scratch[COL_W, i] * omd
+            ff[j] += scratch[SCRATCH_COL_V, i] * vd + scratch[SCRATCH_COL_W, i] * omd
         if damping.shape[0] > 0:
             ff[j] += damping[indices.arm_u(j)] * u[indices.arm_u(j)]
 
 
 @jit_inline
 def arm_efforts(system, s, ds):
-    """The arm's efforts into system.Q[2:] (and system.arm_ref[TAU]), ż and τ̇ into ds (module
+    """The arm's efforts into system.Q[2:] (and system.arm_ref[LAST_TAU]), ż and τ̇ into ds (module
     doc). Needs `kernels.frames` of s and the base's applied forces in system.Q[0:2]."""
     nq, nu = layout.sizes(system)
     i_z, i_clock = layout.arm_integrals(nq, nu), layout.reference_clock(nq, nu)
     ref, gains, limits = system.arm_ref, system.arm_gains, system.arm_limits
     arm = system.arm
-    arm[SEGMENT] = reference(system.ref_starts, system.ref_coeffs, int(arm[SEGMENTS]), s[i_clock],
-                             ref, int(arm[SEGMENT]))
-    feedforward(system, s, ref[FF])
+    arm[ARM_SEGMENT] = reference(system.ref_starts, system.ref_coeffs, int(arm[ARM_SEGMENTS]),
+                                 s[i_clock], ref, int(arm[ARM_SEGMENT]))
+    feedforward(system, s, ref[LAST_FF])
     for j in range(indices.arm_width(nu)):
         q_j = s[layout.arm_q(j)]
         e = (shortest_angle_jit(q_j, ref[Q_REF, j]) if is_continuous_jit(j)
              else ref[Q_REF, j] - q_j)
         ed = ref[QD_REF, j] - s[layout.arm_u(nq, j)]
-        raw = ref[FF, j] + gains[KP, j] * e + gains[KD, j] * ed + gains[KI, j] * s[i_z + j]
+        raw = (ref[LAST_FF, j] + gains[GAIN_KP, j] * e + gains[GAIN_KD, j] * ed
+               + gains[GAIN_KI, j] * s[i_z + j])
         limit = limits[j]
         tau = min(max(raw, -limit), limit)
         system.Q[indices.arm_u(j)] = tau
-        ref[TAU, j] = tau
+        ref[LAST_TAU, j] = tau
         ds[i_z + j] = 0.0 if (raw > limit and e > 0.0) or (raw < -limit and e < 0.0) else e
     ds[i_clock] = 1.0

@@ -11,13 +11,13 @@ import numpy as np
 from ..scene.errors import UserError
 from . import layout
 from .system import (
-    KI,
-    KP,
-    LIMIT_L,
-    LIMIT_R,
-    TARGET_L,
-    TARGET_R,
-    VELOCITY_MODE,
+    WHEEL_KI,
+    WHEEL_KP,
+    WHEEL_LIMIT_L,
+    WHEEL_LIMIT_R,
+    WHEEL_TARGET_L,
+    WHEEL_TARGET_R,
+    WHEEL_VELOCITY_MODE,
     wheel_speed_torques,
 )
 
@@ -40,14 +40,15 @@ class BaseCommands:
         wheel_speeds = finite_forces(lambda: ((v + b * omega) / r, (v - b * omega) / r),
                                       "cmd_vel", target)
         # the PI loop's forces at rest, kp times the wheel speeds: finite, or refused
-        finite_forces(lambda: self.dynamics.wheel_forces(*(control[KP] * w for w in wheel_speeds)),
-                       "cmd_vel", target)
+        finite_forces(
+            lambda: self.dynamics.wheel_forces(*(control[WHEEL_KP] * w for w in wheel_speeds)),
+            "cmd_vel", target)
         before = control.copy()
-        control[TARGET_R], control[TARGET_L] = wheel_speeds
-        if not control[VELOCITY_MODE]:
+        control[WHEEL_TARGET_R], control[WHEEL_TARGET_L] = wheel_speeds
+        if not control[WHEEL_VELOCITY_MODE]:
             e = layout.controller(self.nq, self.nu)
             self.s[e:e + 2] = 0.0   # a fresh loop: no integral carried over from an earlier one
-            control[VELOCITY_MODE] = 1.0
+            control[WHEEL_VELOCITY_MODE] = 1.0
         if not np.array_equal(before, control):
             self._command_changed()
 
@@ -65,8 +66,8 @@ class BaseCommands:
         if self.effects.effort_limits is not None:   # (τ_R, τ_L, …): each wheel its own
             limits = [min(torque_limit, float(w)) for w in self.effects.effort_limits[:2]]
         control = self.system.control
-        control[KP], control[KI] = kp, ki
-        control[LIMIT_R], control[LIMIT_L] = limits
+        control[WHEEL_KP], control[WHEEL_KI] = kp, ki
+        control[WHEEL_LIMIT_R], control[WHEEL_LIMIT_L] = limits
         self._restart()
 
     def wheel_torques(self) -> np.ndarray:
@@ -77,7 +78,7 @@ class BaseCommands:
 
     @property
     def velocity_mode(self) -> bool:
-        return bool(self.system.control[VELOCITY_MODE])
+        return bool(self.system.control[WHEEL_VELOCITY_MODE])
 
 
 def finite_forces(compute, group, values) -> tuple:

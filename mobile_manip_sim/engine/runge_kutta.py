@@ -37,11 +37,14 @@ import math
 import numpy as np
 
 from ..dynamics.jit import jit
-from ..scene.methods import IDS
 from .system import derivative
-from .tableaus import DOP853_TABLEAU, RK45_TABLEAU, TABLEAUS  # noqa: F401 (TABLEAUS: for Python callers)
-
-RK45, DOP853 = IDS["rk45"], IDS["dop853"]
+from .tableaus import (  # noqa: F401 (TABLEAUS: for Python callers)
+    DOP853,
+    DOP853_TABLEAU,
+    RK45,
+    RK45_TABLEAU,
+    TABLEAUS,
+)
 
 SAFETY = 0.9        # of the asymptotically optimal step
 MIN_FACTOR = 0.2    # the most a step can shrink after a rejection

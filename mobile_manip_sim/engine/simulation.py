@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import math
 import warnings
-from collections import namedtuple
 
 import numpy as np
 
@@ -39,24 +38,10 @@ from .arm_commands import ArmCommands
 from .arm_control import arm_settings, feedforward_model, for_robot, scene_arm_controller
 from .base_commands import BaseCommands, command, finite_forces
 from .events import holding_margin
-from .stops import (
-    LOG_HELD,
-    LOG_HOLD_BOUND,
-    LOG_HOLD_LOST,
-    Impact,
-    make_impact_scratch,
-    make_stops,
-    release,
-    relock,
-)
-from .system import LEAST_MARGIN, RHS_EVALS, VELOCITY_MODE, System
-
-
-def scipy_solver(method: str):
-    """SciPy's solver class for an adaptive method, imported only when one is used (~56 MB)."""
-    from scipy import integrate
-    return getattr(integrate, METHODS[method].stepper.split(":")[1])
-
+from .impact_log import Impact, ImpactDetail, collect
+from .scipy_steps import ScipySteps
+from .stops import make_impact_scratch, make_stops, release, relock
+from .system import RHS_EVALS, WHEEL_VELOCITY_MODE, System
 
 # The compiled core of each `Method.stepper` (SciPy's solvers have none: stepped from Python).
 CORES = dict(zip(COMPILED_STEPPERS, (stepping, adaptive_stepping), strict=True))
@@ -70,17 +55,13 @@ ELASTIC_SEMI_IMPLICIT = ("semi_implicit_euler with end stops that rebound (resti
 # mode, cmd_vel (0.3 m/s, 0.5 rad/s) is within 1e-4 of its target from 1 s on (with 0.5, 5.0 it is
 # 8 % off at 1 s)
 DEFAULT_WHEEL_SPEED_GAINS = (2.0, 20.0)
-SCIPY_MIN_RTOL = 100 * np.finfo(float).eps   # SciPy's own floor; passed as is, it warns on stderr
 
 
 def hold_warning(line: str) -> None:
     warnings.warn(line, RuntimeWarning, stacklevel=4)
 
 
-ImpactDetail = namedtuple("ImpactDetail", "q u_before u_after free held")
-
-
-class Simulation(ArmCommands, BaseCommands):
+class Simulation(ArmCommands, BaseCommands, ScipySteps):
     def __init__(self, scene: Scene, integrator: IntegratorSettings | None = None,
                  arm_controller: ArmController | None = None):
         """`arm_controller`: how the arm is driven; None takes the scene's ``controller:``
@@ -112,7 +93,7 @@ class Simulation(ArmCommands, BaseCommands):
         self._scratch = stepping.make_scratch(size, model.n_links,
                                               make_impact_scratch(self.nu, model.n_links))
         self._clock = np.zeros(stepping.CLOCK_SIZE)
-        self._clock[stepping.DT] = self.settings.dt
+        self._clock[stepping.CLOCK_DT] = self.settings.dt
         # The compiled core that runs the method (stepping.py, adaptive_stepping.py; None: SciPy's
         # radau/bdf, stepped from Python) and its leading arguments. Steps per compiled call:
         # about 20 ms of work, so signals, pause and reset act promptly (an adaptive step costs
@@ -156,9 +137,9 @@ class Simulation(ArmCommands, BaseCommands):
         u0 = np.array(self.scene.initial_u, dtype=float)
         u0[list(self.system.permanently_locked)] = 0.0
         self.s = self.system.state(self.scene.initial_q, u0)
-        self.system.control[VELOCITY_MODE] = 0.0
+        self.system.control[WHEEL_VELOCITY_MODE] = 0.0
         self._clock[:] = 0.0
-        self._clock[stepping.DT] = self.settings.dt
+        self._clock[stepping.CLOCK_DT] = self.settings.dt
         if self._solve is not None:
             adaptive_stepping.new_solve(self._solve)
         self.resting[:] = 0
@@ -249,29 +230,30 @@ class Simulation(ArmCommands, BaseCommands):
 
     @property
     def t(self) -> float:
-        # the adaptive methods keep their time in T0 (K stays 0)
-        return float(self._clock[stepping.T0] + self._clock[stepping.K] * self.settings.dt)
+        # the adaptive methods keep their time in CLOCK_T0 (CLOCK_K stays 0)
+        clock = self._clock
+        return float(clock[stepping.CLOCK_T0] + clock[stepping.CLOCK_K] * self.settings.dt)
 
     @property
     def steps(self) -> int:
-        return int(self._clock[stepping.STEPS])
+        return int(self._clock[stepping.CLOCK_STEPS])
 
     @property
     def impact_energy_lost(self) -> float:
         """Energy the impact law removed since t = 0 (J): restitution < 1 and rests."""
-        return float(self._clock[stepping.LOST])
+        return float(self._clock[stepping.CLOCK_LOST])
 
     @property
     def hold_energy(self) -> float:
         """Energy the engine's holds removed beyond the impact law since t = 0 (J): not physics,
         so `energy_error` counts it as error (docs/model.md, "Resting, leaving, and no Zeno")."""
-        return float(self._clock[stepping.HELD])
+        return float(self._clock[stepping.CLOCK_HELD])
 
     @property
     def holds(self) -> int:
         """How many impacts the engine held (the Zeno guard, or a rod found at its stop not
         moving into it) since t = 0."""
-        return int(self._clock[stepping.HOLDS])
+        return int(self._clock[stepping.CLOCK_HOLDS])
 
     @property
     def q(self) -> np.ndarray:
@@ -328,7 +310,7 @@ class Simulation(ArmCommands, BaseCommands):
             joint_efforts = self.effects.saturate(command(joints, arm_width(self.nu), "joints"), 2)
         self.wheel_efforts, self.joint_efforts = wheel_efforts, joint_efforts
         if wheels is not None:
-            self.system.control[VELOCITY_MODE] = 0.0
+            self.system.control[WHEEL_VELOCITY_MODE] = 0.0
         Q[V], Q[OMEGA] = self.dynamics.wheel_forces(*self.wheel_efforts)
         Q[ARM_U] = self.joint_efforts
         if not np.array_equal(before[0], Q) or before[1] != self.velocity_mode:
@@ -414,81 +396,9 @@ class Simulation(ArmCommands, BaseCommands):
                               f"tolerances")
 
     def _collect_impacts(self) -> None:
-        """Move the compiled stop log into `impacts` (and `impact_details`); a hold that removed
-        more than the Zeno guard's bound is reported on one line (`hold_warning`)."""
-        stops = self.stops
-        for row in range(int(stops.count[0])):
-            log = stops.log[row]
-            if log[LOG_HOLD_LOST] > log[LOG_HOLD_BOUND]:
-                impact = Impact.from_log(log)
-                self.hold_warning(
-                    f"t = {impact.time:.9g} s: rod {impact.link} held at its {impact.stop} stop "
-                    f"(arriving at {abs(impact.ld_before):.3g} m/s), removing "
-                    f"{impact.hold_energy:.3g} J beyond the impact law (the bound is "
-                    f"{log[LOG_HOLD_BOUND]:.3g} J)")
-            self.impacts.append(Impact.from_log(log))
-            self.impact_details.append(ImpactDetail(
-                stops.log_q[row].copy(), stops.log_u[row, 0].copy(), stops.log_u[row, 1].copy(),
-                [int(i) for i in np.flatnonzero(stops.log_free[row])],
-                bool(stops.log[row, LOG_HELD])))
-        stops.count[0] = 0
-
-    # --- radau, bdf: a SciPy solver kept across samples until a discontinuity ----------------
-    def _advance_scipy(self, t_end: float) -> None:
-        """Step SciPy's solver from Python; everything else is the compiled adaptive core's
-        (`adaptive_stepping.reach`, `locate_event`: samples, events, the Zeno guard, restarts),
-        on the solver's interpolant as a power series (`dense.from_scipy`)."""
-        while not self._reach(*self._core_args, self.s, self._clock, t_end):
-            self._collect_impacts()
-            if self.stops.failed[0]:
-                self._contact_failed()
-            self._take_scipy_step()
-        self._collect_impacts()
-
-    def _take_scipy_step(self) -> None:
-        """One step of the SciPy solver into the adaptive core's step in hand (`Solve`)."""
-        solve = self._solve
-        in_hand = adaptive_stepping.step_in_hand(solve)[1] != 0.0
-        t_before = self._solver.t if in_hand else self.t
-        self.system.data.holding[LEAST_MARGIN] = math.inf   # its evaluations sample them anew
-        try:   # overflows are ours to report in one line, not numpy's warnings on stderr
-            with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-                solver, message = self._scipy_step(t_before)
-        except (ValueError, np.linalg.LinAlgError) as error:   # lu_factor of infinities
-            adaptive_stepping.drop_step(solve)
-            self._cannot_follow(t_before, f"its linear algebra failed ({error})")
-        self._check_scipy_step(solver, t_before, message)
-        self._clock[stepping.STEPS] += 1
-        if not np.all(np.isfinite(solver.y)):
-            self._fail(solver.y)
-        series = dense.from_scipy(solver.dense_output()).coeffs
-        adaptive_stepping.hand_in_step(solve, solver.t - t_before, solver.y, series)
-        if self.resting.any():   # the release check needs f(y₁) evaluated (and watched)
-            adaptive_stepping.set_step_end_derivative(
-                solve, self.system.derivative(adaptive_stepping.step_end(solve)))
-        self._locate_event(*self._core_args)
-
-    def _scipy_step(self, t_before: float):
-        """The SciPy solver's next step (a new solver for a new solve): (solver, its message)."""
-        if adaptive_stepping.step_in_hand(self._solve)[1] == 0.0:   # a new solve at (t, s)
-            derivative = self.system.derivative
-            settings = self.settings
-            self._solver = scipy_solver(settings.method)(
-                lambda _t, y: derivative(y), self.t, self.s.copy(), math.inf,
-                rtol=max(settings.rtol, SCIPY_MIN_RTOL), atol=settings.atol,
-                first_step=adaptive_stepping.next_step(self._solve) or None)
-        solver = self._solver
-        adaptive_stepping.begin_step(self._solve, t_before, solver.y)
-        return solver, solver.step()
-
-    def _check_scipy_step(self, solver, t_before: float, message) -> None:
-        """radau/bdf: a failed step (below ten spacings of t) or a crawl (`step_watch`) is one
-        StepLimitError naming the tolerances, instead of steps of 1e-18 s for ever."""
-        if solver.status == "failed":
-            self._cannot_follow(t_before, message)
-        h = solver.t - t_before
-        if self._watch_step(self._solve.watch, t_before, h):
-            self._cannot_follow(t_before, step_watch.describe(self._solve.watch, t_before, h))
+        """Move the compiled stop log into `impacts` and `impact_details`; a hold that
+        removed more than the Zeno guard's bound is said on one line (`hold_warning`)."""
+        collect(self.stops, self.impacts, self.impact_details, self.hold_warning)
 
     def _cannot_follow(self, t_before: float, problem: str) -> None:
         s = self.settings

@@ -30,11 +30,11 @@ from .events import (
 from .fixed_step import step
 from .status import BUDGET, CHATTER, CONTACT_FAILED, DONE, LOG_FULL, NOT_FINITE  # why it returned
 from .stops import any_resting, impact, release
-from .system import LEAST_MARGIN, clear_holding
+from .system import HOLDING_LEAST_MARGIN, clear_holding
 
-# clock[...] entries: LOST the energy the impact law removed (J), HELD the energy holds removed
-# beyond it (J), HOLDS how many impacts were held (`stops.impact`)
-T0, DT, K, STEPS, LOST, HELD, HOLDS = range(7)
+# clock[...] entries: CLOCK_LOST the energy the impact law removed (J), CLOCK_HELD the energy holds
+# removed beyond it (J), CLOCK_HOLDS how many impacts were held (`stops.impact`)
+CLOCK_T0, CLOCK_DT, CLOCK_K, CLOCK_STEPS, CLOCK_LOST, CLOCK_HELD, CLOCK_HOLDS = range(7)
 CLOCK_SIZE = 7
 
 StepScratch = namedtuple("StepScratch", [
@@ -80,9 +80,9 @@ def any_watched(stops):
 def book(clock, ledger):
     """Add an impact's (law, hold, held) energies and count (`stops.impact`) to the ledger."""
     lost, removed, held = ledger
-    clock[LOST] += lost
-    clock[HELD] += removed
-    clock[HOLDS] += held
+    clock[CLOCK_LOST] += lost
+    clock[CLOCK_HELD] += removed
+    clock[CLOCK_HOLDS] += held
 
 
 @jit
@@ -92,7 +92,7 @@ def step_with_events(method, system, stops, scr, s, h, t, clock):
     (`first_crossing`) or the instant a resting rod's stop would start to pull (`locate`
     RELEASE) — is located on the integrator's own step, applied there (`impact`, `release`),
     and the step goes on from it. CHATTER when the impact log has no room for the next impact."""
-    dt = clock[DT]
+    dt = clock[CLOCK_DT]
     capacity = stops.log.shape[0]
     n = stops.resting.shape[0]
     for _ in range(2 * capacity):
@@ -109,7 +109,7 @@ def step_with_events(method, system, stops, scr, s, h, t, clock):
         h_leave = -1.0
         if any_resting(stops) and (holding_margin(system, scr.out, stops.resting, scr.stages[0],
                                                   scr.forces) < 0.0
-                                   or system.holding[LEAST_MARGIN] < 0.0):
+                                   or system.holding[HOLDING_LEAST_MARGIN] < 0.0):
             # a stage (or the end) saw a stop pull: find the first pull on the step itself
             h_leave = first_release(method, system, s, h, stops.resting, scr.trial, scr.stages,
                                     scr.forces)
@@ -148,8 +148,8 @@ def step_with_events(method, system, stops, scr, s, h, t, clock):
 def grid_step(method, system, stops, scr, s, clock, k1_ready):
     """One whole step dt on the grid, events and releases included. Returns the status and
     whether scr.stages[0] now holds f(s) for the next step (the release check computed it)."""
-    dt = clock[DT]
-    t = clock[T0] + clock[K] * dt
+    dt = clock[CLOCK_DT]
+    t = clock[CLOCK_T0] + clock[CLOCK_K] * dt
     clear_holding(system)
     step(method, system, s, dt, scr.out, scr.stages, k1_ready)
     if not finite(scr.out):
@@ -160,7 +160,7 @@ def grid_step(method, system, stops, scr, s, clock, k1_ready):
                                                 stops.stroke)
             or any_resting(stops) and (holding_margin(system, scr.out, stops.resting,
                                                       scr.stages[0], scr.forces) < 0.0
-                                       or system.holding[LEAST_MARGIN] < 0.0)):
+                                       or system.holding[HOLDING_LEAST_MARGIN] < 0.0)):
         return step_with_events(method, system, stops, scr, s, dt, t, clock), False
     copy_into(scr.out, s)
     return DONE, any_resting(stops)
@@ -170,13 +170,13 @@ def grid_step(method, system, stops, scr, s, clock, k1_ready):
 def advance(method, system, stops, scr, s, clock, t_end, max_steps):
     """Advance s to exactly t_end (s). Returns DONE, or BUDGET after max_steps steps, LOG_FULL
     when the impact log needs emptying, NOT_FINITE (s then holds the last finite state)."""
-    dt = clock[DT]
-    steps = (t_end - clock[T0]) / dt
+    dt = clock[CLOCK_DT]
+    steps = (t_end - clock[CLOCK_T0]) / dt
     whole = math.floor(steps + 1e-9)
     room = stops.log.shape[0] // 2
     taken = 0
     k1_ready = False
-    while clock[K] < whole:
+    while clock[CLOCK_K] < whole:
         if taken >= max_steps:
             return BUDGET
         if stops.count[0] > room:
@@ -184,18 +184,18 @@ def advance(method, system, stops, scr, s, clock, t_end, max_steps):
         status, k1_ready = grid_step(method, system, stops, scr, s, clock, k1_ready)
         if status != DONE:
             return status
-        clock[K] += 1.0
-        clock[STEPS] += 1.0
+        clock[CLOCK_K] += 1.0
+        clock[CLOCK_STEPS] += 1.0
         taken += 1
     if steps - whole > 1e-9:  # t_end is off the grid: a last, shorter step
         if stops.count[0] > room:
             return LOG_FULL
-        t = clock[T0] + clock[K] * dt
+        t = clock[CLOCK_T0] + clock[CLOCK_K] * dt
         status = step_with_events(method, system, stops, scr, s, t_end - t, t, clock)
         if status != DONE:
             return status
-        clock[STEPS] += 1.0
-        clock[T0], clock[K] = t_end, 0.0
+        clock[CLOCK_STEPS] += 1.0
+        clock[CLOCK_T0], clock[CLOCK_K] = t_end, 0.0
     return DONE
 
 
@@ -216,9 +216,9 @@ def advance_samples(method, system, stops, scr, s, clock, times, rows, first, ma
     i = first
     budget = max_steps
     while i < times.shape[0]:
-        before = clock[STEPS]
+        before = clock[CLOCK_STEPS]
         status = advance(method, system, stops, scr, s, clock, times[i], budget)
-        budget -= int(clock[STEPS] - before)
+        budget -= int(clock[CLOCK_STEPS] - before)
         if status != DONE:
             return status, i
         for j in range(size):

@@ -6,7 +6,8 @@ in docs/model.md, "Resting, leaving, and no Zeno").
   with its restitution, 0 for one arriving slower than rebounds are kept) and those resting
   (e = 0), each stop only pushing (`contact_impulses`, `solve_contacts`) — or the paper's
   `reflect` law; one row per rod hit goes to the stop log (`StopsData.log`), from which
-  `Simulation` builds its `Impact` list.
+  `Simulation` builds its `Impact` list (`impact_log.py`). The contact problem itself, at the
+  level of impulses or of accelerations, is contacts.py's.
 - Resting: a rod whose rebound would be slower than ``rest_speed`` stops dead at its stop (e = 0)
   and is held there (its l̇ degree of freedom is locked, not stiffly pushed back). At an
   accumulation point of impacts (the Zeno guard, `events.zeno_guard`, on the impact times alone)
@@ -18,24 +19,32 @@ in docs/model.md, "Resting, leaving, and no Zeno").
 """
 from __future__ import annotations
 
-import math
 from collections import namedtuple
-from dataclasses import dataclass
 
 import numpy as np
 
 from ..dynamics import kernels
 from ..dynamics.jit import jit, jit_inline
 from . import layout
+from .contacts import contact_matrix, solve_contacts
 from .events import RUN_ENERGY, RUN_FIELDS, ZENO_SHARE, simultaneous_hits, zeno_guard
-from .system import WATCH_ON, derivative, slide_holding_forces
+from .impact_log import (
+    LOG_COLUMNS,
+    LOG_HELD,
+    LOG_HOLD_BOUND,
+    LOG_HOLD_LOST,
+    LOG_LD_AFTER,
+    LOG_LD_BEFORE,
+    LOG_LINK,
+    LOG_LOST,
+    LOG_RESTING,
+    LOG_SIDE,
+    LOG_TIME,
+)
+from .system import HOLDING_ON, derivative, slide_holding_forces
 
 IMPULSE, REFLECT = 0, 1
 LAW_IDS = {"impulse": IMPULSE, "reflect": REFLECT}
-# log[i, ...] columns
-(LOG_TIME, LOG_LINK, LOG_SIDE, LOG_LD_BEFORE, LOG_LD_AFTER, LOG_LOST, LOG_RESTING,
- LOG_HELD, LOG_HOLD_LOST, LOG_HOLD_BOUND) = range(10)
-LOG_COLUMNS = 10
 # StopsData.failed[0]: why the stops failed the run (0: they did not)
 CONTACT_SOLVE_FAILED = 1
 # which contacts an impact solve holds (bilateral): none (the law), the rods found at their stop
@@ -122,7 +131,7 @@ def relock(system, stops):
     """system.free = the pseudo-velocities neither locked by the scene nor held at a stop; the
     holding forces are watched at every evaluation while a rod rests (`system.watch_holding`)."""
     nu = system.free.shape[0]
-    system.holding[WATCH_ON] = 1.0 if any_resting(stops) else 0.0
+    system.holding[HOLDING_ON] = 1.0 if any_resting(stops) else 0.0
     m = 0
     for j in range(nu):
         locked = stops.permanent[j]
@@ -201,113 +210,6 @@ def kinetic_energy(system, s):
     nq, nu = layout.sizes(system)
     kernels.frames(system.model, s[:nq], system.ws)
     return kernels.kinetic_energy(system.model, s[:nq], s[nq:nq + nu], system.ws)
-
-
-@jit
-def solve_contacts(W, q, bilateral, active, P, w, scratch, idx):
-    """The impact LCP of docs/model.md, exactly: P ≥ 0, w = W P + q ≥ 0, Pᵀw = 0 (W m×m symmetric
-    positive definite, so the solution is unique), by Murty's least-index principal pivoting:
-    solve on the active set, toggle the first contact that is wrong (a negative impulse, or an
-    inactive one moving into its stop), repeat — finite for a P-matrix. A ``bilateral`` contact
-    is always active with an impulse of either sign (a rod held by the Zeno guard). ``scratch`` is
-    (m, m + 1), ``idx`` (m,) int64. Returns the pivots taken."""
-    m = q.shape[0]
-    for i in range(m):
-        active[i] = bilateral[i]
-    scale = 0.0
-    for i in range(m):
-        scale = max(scale, abs(q[i]))
-    tol = 1e-13 * scale
-    for pivots in range(1 << min(m + 4, 30)):
-        # P_A = −W_AA⁻¹ q_A by Cholesky on the active rows, zero elsewhere
-        L = scratch
-        n = 0
-        for i in range(m):
-            if active[i]:
-                idx[n] = i
-                n += 1
-        for a in range(n):
-            for c in range(a + 1):
-                s = W[idx[a], idx[c]]
-                for k in range(c):
-                    s -= L[a, k] * L[c, k]
-                if a == c:
-                    L[a, a] = math.sqrt(s) if s > 0.0 else math.nan
-                else:
-                    L[a, c] = s / L[c, c]
-        y = L[:, m]
-        for a in range(n):
-            s = -q[idx[a]]
-            for k in range(a):
-                s -= L[a, k] * y[k]
-            y[a] = s / L[a, a]
-        for a in range(n - 1, -1, -1):
-            s = y[a]
-            for k in range(a + 1, n):
-                s -= L[k, a] * y[k]
-            y[a] = s / L[a, a]
-        for i in range(m):
-            P[i] = 0.0
-        for a in range(n):
-            P[idx[a]] = y[a]
-        for i in range(m):
-            s = q[i]
-            for j in range(m):
-                s += W[i, j] * P[j]
-            w[i] = s
-        wrong = -1
-        for i in range(m):
-            if bilateral[i]:
-                continue
-            if active[i] and P[i] < -tol or not active[i] and w[i] < -tol:
-                wrong = i
-                break
-        if wrong < 0:
-            for i in range(m):
-                if not active[i]:
-                    P[i] = 0.0
-            return pivots
-        active[wrong] = not active[wrong]
-    return -1
-
-
-@jit
-def contact_matrix(system, stops, s, m, scratch):
-    """W = Eᵀ M⁻¹ E (into scratch.W[:m, :m]) and M⁻¹ E (scratch.MinvE, one row per contact, over
-    the free DOFs in free order) for the m contacts scratch.rods[:m] with directions σ in
-    scratch.contact[0], every DOF free but the scene's locked ones (into scratch.free). Returns
-    how many DOFs are free."""
-    nq, nu = layout.sizes(system)
-    q = s[:nq]
-    rods, free, sigma = scratch.rods, scratch.free, scratch.contact[0]
-    for j in range(nu):
-        free[j] = -1
-    n_free = 0
-    for j in range(nu):
-        if not stops.permanent[j]:
-            free[n_free] = j
-            n_free += 1
-    zeros, unit, column = scratch.vectors[0], scratch.vectors[1], scratch.vectors[2]
-    kernels.frames(system.model, q, system.ws)
-    for i in range(nu):
-        zeros[i] = 0.0
-    kernels.mass_matrix(system.model, q, system.ws, zeros, unit, column, scratch.M)
-    MinvE = scratch.MinvE
-    for c in range(m):
-        for i in range(nu):
-            unit[i] = 0.0
-        unit[layout.u_slide(rods[c])] = sigma[c]
-        kernels.cholesky_solve(scratch.M, unit, free, n_free, scratch.L, MinvE[c])
-    W = scratch.W
-    for a in range(m):
-        # W_ab = E_aᵀ M⁻¹ E_b: row a of E picks DOF j_a, which sits at position pos in free
-        j = layout.u_slide(rods[a])
-        pos = 0
-        while free[pos] != j:
-            pos += 1
-        for b in range(m):
-            W[a, b] = sigma[a] * MinvE[b, pos]
-    return n_free
 
 
 @jit
@@ -505,30 +407,3 @@ def impact(system, stops, s, k, side, t, scratch, ds, forces):
     if any_resting(stops):
         release(system, stops, s, scratch, ds, forces, False)
     return lost, removed, 1.0 if holds != HOLD_NONE else 0.0
-
-
-@dataclass(frozen=True)
-class Impact:
-    """One end-stop impact, as runs and bags report it."""
-
-    time: float            # s
-    link: int              # 1-based
-    stop: str              # "lower" or "upper"
-    ld_before: float       # l̇_k before (m/s)
-    ld_after: float        # l̇_k after (m/s)
-    energy_lost: float     # J: what the impact law removed (T⁻ − T⁺ of the law)
-    resting: bool          # resting at the stop afterwards
-    held: bool = False     # held by the engine (the Zeno guard, or found at its stop not moving
-                           # into it) rather than left to the law alone
-    hold_energy: float = 0.0   # J: what the hold removed beyond the law (on the impact's first row)
-
-    def as_dict(self) -> dict:
-        return dict(self.__dict__)
-
-    @staticmethod
-    def from_log(row) -> "Impact":
-        # Plain Python numbers (not numpy scalars), so records serialise anywhere (CSV, YAML, bags).
-        return Impact(float(row[LOG_TIME]), int(row[LOG_LINK]),
-                      "lower" if row[LOG_SIDE] < 0 else "upper", float(row[LOG_LD_BEFORE]),
-                      float(row[LOG_LD_AFTER]), float(row[LOG_LOST]), bool(row[LOG_RESTING]),
-                      bool(row[LOG_HELD]), float(row[LOG_HOLD_LOST]))

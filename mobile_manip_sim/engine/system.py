@@ -28,7 +28,7 @@ from ..dynamics.articulated import articulated_forward_dynamics
 from ..dynamics.jit import jit, jit_inline
 from ..scene.coordinates import OMEGA, V, arm_width
 from . import layout
-from .arm_control import ARM_ON, N_ARM_SETTINGS, SEGMENT, SEGMENTS, arm_efforts
+from .arm_control import ARM_ON, ARM_SEGMENT, ARM_SEGMENTS, N_ARM_SETTINGS, arm_efforts
 from .arm_reference import WIDTH
 
 # counters[...] indices
@@ -38,10 +38,11 @@ N_COUNTERS = 6
 
 # holding[...] entries: the resting rods' holding forces watched at every evaluation
 # (`watch_holding`): on while a rod rests; the smallest margin (N) since `clear_holding`
-WATCH_ON, LEAST_MARGIN = range(2)
+HOLDING_ON, HOLDING_LEAST_MARGIN = range(2)
 
 # control[...] entries: the wheel-speed PI loop (`wheel_speed_loop`); each wheel its own limit
-VELOCITY_MODE, KP, KI, LIMIT_R, LIMIT_L, TARGET_R, TARGET_L = range(7)
+(WHEEL_VELOCITY_MODE, WHEEL_KP, WHEEL_KI, WHEEL_LIMIT_R, WHEEL_LIMIT_L, WHEEL_TARGET_R,
+ WHEEL_TARGET_L) = range(7)
 N_CONTROL = 7
 
 SystemData = namedtuple("SystemData", [
@@ -57,7 +58,8 @@ SystemData = namedtuple("SystemData", [
     "counters",  # (N_COUNTERS,) stage counters
     "resting",   # (n,) int64: −1 / +1 rod held at its lower / upper stop, 0 free (the stops'
                  # own array, `stops.StopsData.resting`)
-    "holding",   # (2,) the holding forces' watch: WATCH_ON, LEAST_MARGIN (`watch_holding`)
+    "holding",   # (2,) the holding forces' watch: HOLDING_ON, HOLDING_LEAST_MARGIN
+                 # (`watch_holding`)
     # the arm controller (`arm_control.py`; empty arrays, and arm[ARM_ON] = 0, in effort mode)
     "arm",          # (N_ARM_SETTINGS,) on, feedforward kind, reference segments in use
     "arm_gains",    # (3, n_arm) kp, ki, kd
@@ -65,7 +67,7 @@ SystemData = namedtuple("SystemData", [
     "ref_starts",   # (capacity,) s: the reference's segment starts (`arm_reference.py`)
     "ref_coeffs",   # (capacity, n_arm, arm_reference.WIDTH) their coefficients
     "arm_ref",      # (5, n_arm) scratch: q_ref, q̇_ref, q̈_ref, feedforward, applied efforts
-    "arm_scratch",  # (5, n_u) scratch of the inverse-dynamics passes (row ZERO stays zero)
+    "arm_scratch",  # (5, n_u) scratch of the inverse-dynamics passes (row SCRATCH_ZERO stays zero)
     "ff_model",     # the feed-forward's model record: ``model`` itself unless it has a model
                     # error (`arm_control.feedforward_model`)
 ])
@@ -92,11 +94,11 @@ def wheel_speed_loop(system, s):
     nq, nu = layout.sizes(system)
     v, om = s[nq + V], s[nq + OMEGA]
     i_e = layout.controller(nq, nu)
-    kp, ki = control[KP], control[KI]
-    tau_R, rate_R = wheel_drive(kp, ki, control[TARGET_R], (v + b * om) / r, s[i_e],
-                                control[LIMIT_R])
-    tau_L, rate_L = wheel_drive(kp, ki, control[TARGET_L], (v - b * om) / r, s[i_e + 1],
-                                control[LIMIT_L])
+    kp, ki = control[WHEEL_KP], control[WHEEL_KI]
+    tau_R, rate_R = wheel_drive(kp, ki, control[WHEEL_TARGET_R], (v + b * om) / r, s[i_e],
+                                control[WHEEL_LIMIT_R])
+    tau_L, rate_L = wheel_drive(kp, ki, control[WHEEL_TARGET_L], (v - b * om) / r, s[i_e + 1],
+                                control[WHEEL_LIMIT_L])
     return tau_R, tau_L, rate_R, rate_L
 
 
@@ -120,7 +122,7 @@ def applied_forces(system, s, ds):
         Q[k] = Q_cmd[k]
     ds[i_e] = 0.0
     ds[i_e + 1] = 0.0
-    if control[VELOCITY_MODE] != 0.0:
+    if control[WHEEL_VELOCITY_MODE] != 0.0:
         system.counters[CONTROL_STAGE] += 1
         tau_R, tau_L, ds[i_e], ds[i_e + 1] = wheel_speed_loop(system, s)
         r, b = model.base.wheel_radius, model.base.half_track
@@ -157,7 +159,7 @@ def derivative(system, s, ds):
     articulated_forward_dynamics(system.model, q, u, system.Q, system.gravity, system.free,
                                  system.ws, ds[nq:nq + nu])
     ds[layout.work(nq, nu)] = power
-    if system.holding[WATCH_ON] != 0.0:
+    if system.holding[HOLDING_ON] != 0.0:
         watch_holding(system)
 
 
@@ -178,17 +180,17 @@ def holding_margin_now(system):
 @jit_inline
 def watch_holding(system):
     """While a rod rests, every evaluation of the right-hand side — each stage of every step —
-    samples the holding forces: holding[LEAST_MARGIN] keeps the smallest margin since
+    samples the holding forces: holding[HOLDING_LEAST_MARGIN] keeps the smallest margin since
     `clear_holding`, so that a pull inside a step is noticed where a stage saw it (the steppers
     then locate it on the step itself, `events.first_release`). Costs nothing while none rests."""
     margin = holding_margin_now(system)
-    if margin < system.holding[LEAST_MARGIN]:
-        system.holding[LEAST_MARGIN] = margin
+    if margin < system.holding[HOLDING_LEAST_MARGIN]:
+        system.holding[HOLDING_LEAST_MARGIN] = margin
 
 
 @jit_inline
 def clear_holding(system):
-    system.holding[LEAST_MARGIN] = math.inf
+    system.holding[HOLDING_LEAST_MARGIN] = math.inf
 
 
 @jit
@@ -234,7 +236,7 @@ class System:
         self.free = np.full(nu, -1, dtype=np.int64)
         self.counters = np.zeros(N_COUNTERS, dtype=np.int64)
         self.control = np.zeros(N_CONTROL)
-        self.control[LIMIT_R] = self.control[LIMIT_L] = math.inf
+        self.control[WHEEL_LIMIT_R] = self.control[WHEEL_LIMIT_L] = math.inf
         self.permanently_locked = tuple(sorted(locked))
         settings, gains, limits = arm if arm is not None else (
             np.zeros(N_ARM_SETTINGS), np.zeros((3, 0)), np.zeros(0))
@@ -260,8 +262,8 @@ class System:
                                            ref_coeffs=np.zeros((capacity,) + coeffs.shape[1:]))
         self.data.ref_starts[:count] = starts
         self.data.ref_coeffs[:count] = coeffs
-        self.data.arm[SEGMENTS] = count
-        self.data.arm[SEGMENT] = 0
+        self.data.arm[ARM_SEGMENTS] = count
+        self.data.arm[ARM_SEGMENT] = 0
 
     def set_locked(self, extra: tuple) -> None:
         """Lock the scene's locked DOFs plus `extra` (rods resting at a stop)."""

@@ -1,7 +1,7 @@
 """`simulator`: the ROS 2 node. shell.py is its ROS side (publishers, subscriptions, services,
-`main`); loop.py the stepping state machine, parameters.py the parameters, commands.py the
-command intake, lockstep.py synchronous mode, recording.py its bags; only shell.py and
-commands.py import rclpy."""
+`main`); loop.py the stepping state machine, parameters.py the parameters (declare.py declares
+them with rclpy), commands.py the command intake, lockstep.py synchronous mode, recording.py its
+bags. loop.py, parameters.py and lockstep.py import no ROS."""
 from .parameters import PARAMETERS  # noqa: F401  (the one table of the node's parameters)
 
 

@@ -11,18 +11,7 @@ import warnings
 import rclpy
 import rclpy.logging
 from nav_msgs.msg import Odometry
-from rcl_interfaces.msg import (
-    FloatingPointRange,
-    IntegerRange,
-    ParameterDescriptor,
-    SetParametersResult,
-)
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup
-from rclpy.exceptions import (
-    InvalidParameterTypeException,
-    InvalidParameterValueException,
-    ParameterUninitializedException,
-)
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from rosgraph_msgs.msg import Clock
@@ -48,12 +37,12 @@ from ..runtime.timeline import Grid, apply_commands, start_node_time_line
 from ..scene.coordinates import ARM_Q, ARM_U, arm_size
 from ..scene.errors import UserError
 from ..scene.loading import load_scene, make_integrator
-from . import arguments, parameters, qos
+from . import arguments, declare, parameters, qos
 from .arm import ArmDriver, arm_array_topic
 from .commands import CommandIntake
 from .lockstep import ClockFollower, Lockstep
 from .loop import Abandoned, SteppingLoop
-from .parameters import ARM_GAIN_PARAMETERS, NODE_NAME, PARAMETERS
+from .parameters import NODE_NAME
 from .recording import BAG_FLUSH_INTERVAL, NodeRecording
 from .throttle import Throttle
 from .view import NodeView
@@ -73,7 +62,7 @@ class SimulatorNode(Node):
 
     def __init__(self, **node_options):
         super().__init__(NODE_NAME, **node_options)
-        self.params = p = parameters.read(self._declared_parameters())
+        self.params = p = parameters.read(declare.declare(self))
         self.scene = load_scene(p.scene or None)
         self._settings = make_integrator(self.scene.integrator, p.method, p.dt, p.rtol, p.atol,
                                          prefix="integrator")
@@ -136,7 +125,7 @@ class SimulatorNode(Node):
                             callback_group=MutuallyExclusiveCallbackGroup())
         self._namesakes = False   # another node has our name and namespace (said once)
         self.create_timer(WATCH_PERIOD, self._every_second)
-        self.add_on_set_parameters_callback(self._validate_parameters)
+        self.add_on_set_parameters_callback(declare.validate)
         self.add_post_set_parameters_callback(self._apply_parameters)
         self._thread = threading.Thread(target=self.loop.run, name="stepping", daemon=True)
         # Every kernel the run may call, loaded (or compiled) before the start-up line: none
@@ -190,51 +179,7 @@ class SimulatorNode(Node):
                     wheel_radius=base.wheel_radius, half_track=base.half_track,
                     arm_initial=self.scene.initial_q[ARM_Q])
 
-    # --- parameters ------------------------------------------------------------------------
-    def _declared_parameters(self) -> dict:
-        """Declare PARAMETERS; their values (rclpy checks types and ranges: UserError)."""
-        for name, spec in PARAMETERS.items():
-            descriptor = ParameterDescriptor(description=spec.description,
-                                             read_only=not spec.dynamic,
-                                             dynamic_typing=name in ARM_GAIN_PARAMETERS)
-            if spec.range and isinstance(spec.default, int):
-                descriptor.integer_range = [IntegerRange(
-                    from_value=spec.range[0], to_value=spec.range[1], step=1)]
-            elif spec.range:
-                descriptor.floating_point_range = [FloatingPointRange(
-                    from_value=spec.range[0], to_value=spec.range[1], step=0.0)]
-            try:
-                self.declare_parameter(name, spec.default, descriptor)
-            except InvalidParameterTypeException:
-                raise UserError(name, f"expected {parameters.expected_kind(name)}") from None
-            except InvalidParameterValueException:
-                override = self._parameter_overrides.get(name)
-                value = override.value if override is not None else spec.default
-                raise UserError(name, f"{value} is outside {parameters.bounds(name)}"
-                                ) from None
-        # A parameter given for this node that it does not declare is a mistake (a typo such
-        # as real_time_facter would otherwise be silently ignored). QoS overrides: qos.py's.
-        unknown = sorted(name for name in set(self._parameter_overrides) - set(self._parameters)
-                         if not name.startswith(qos.QOS_OVERRIDES))
-        if unknown:
-            raise UserError(unknown[0], f"unknown parameter of {NODE_NAME} (known: "
-                                        f"{', '.join(PARAMETERS)})")
-        values = {}
-        for name in PARAMETERS:
-            try:
-                values[name] = self.get_parameter(name).value
-            except ParameterUninitializedException:   # -p NAME:=[]: rclpy cannot type it
-                raise UserError(name, f"expected {parameters.expected_kind(name)}, got an "
-                                      f"empty list") from None
-        return values
-
-    def _validate_parameters(self, changes) -> SetParametersResult:
-        for change in changes:
-            problem = parameters.value_problem(change.name, change.value)
-            if problem is not None:
-                return SetParametersResult(successful=False, reason=f"{change.name} {problem}")
-        return SetParametersResult(successful=True)
-
+    # --- parameters (declared and validated by declare.py) ---------------------------------
     def _apply_parameters(self, changes) -> None:
         for change in changes:
             if change.name == "real_time_factor":

@@ -12,7 +12,7 @@ from mcap.reader import make_reader
 
 from engine_cases import one_link_doc, simulation
 from mobile_manip_sim.engine import events
-from mobile_manip_sim.engine.stops import (
+from mobile_manip_sim.engine.impact_log import (
     LOG_HELD,
     LOG_HOLD_BOUND,
     LOG_HOLD_LOST,

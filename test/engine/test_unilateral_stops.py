@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 
 from mobile_manip_sim.engine import layout
+from mobile_manip_sim.engine.contacts import solve_contacts
 from mobile_manip_sim.engine.simulation import Simulation
-from mobile_manip_sim.engine.stops import solve_contacts
 from mobile_manip_sim.scene.loading import make_integrator, parse_scene, scene_from_text
 
 L_1 = layout.q_slide(1)   # l_1 in q

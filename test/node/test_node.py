@@ -326,10 +326,14 @@ def test_pause_stops_time_and_resume_continues_without_a_gap(fresh):
     stop = paused_at(response)
     wait_for(lambda: fresh.snapshot("clock")[-1] == stop, "/clock to reach the pause time")
     count = len(fresh.snapshot("clock"))
-    time.sleep(0.3)   # at real_time_factor 5 that is 150 periods in which nothing may arrive
-    assert fresh.snapshot("clock")[count - 1:] == [stop]
-    assert "already paused" in fresh.pause(True).message
-    assert fresh.pause(False).success
+    # While paused the node's time stands: a second ~/pause and the resume both report it, and
+    # nothing arrived in between; after the resume /clock goes on from it without a gap.
+    again = fresh.pause(True)
+    assert "already paused" in again.message and paused_at(again) == stop
+    quiet = fresh.snapshot("clock")[count - 1:]
+    resumed = fresh.pause(False)
+    assert resumed.success and "resumed" in resumed.message and paused_at(resumed) == stop
+    assert quiet == [stop]
     wait_for(lambda: len(fresh.snapshot("clock")) > count + 5, "/clock to run again")
     assert fresh.snapshot("clock")[count - 1:count + 5] == [stop + k * PERIOD_NS for k in range(6)]
 
@@ -401,11 +405,13 @@ def test_a_non_finite_state_pauses_the_node_until_reset(fresh, simulator):
     stop = paused_at(fresh.pause(True))   # already stopped: this only reports where
     wait_for(lambda: fresh.snapshot("clock")[-1] == stop, "/clock to reach the failure time")
     count = len(fresh.snapshot("clock"))
-    time.sleep(0.2)   # 100 periods at real_time_factor 5
-    assert len(fresh.snapshot("clock")) == count
-    assert all(math.isfinite(v) for r in fresh.run("joints") for v in r[1] + r[2])
     response = fresh.pause(False)
     assert not response.success and "call ~/reset" in response.message
+    # The failed node's time stands: ~/pause reports the failure time again after the refused
+    # resume, and no /clock arrived in between.
+    assert paused_at(fresh.pause(True)) == stop
+    assert len(fresh.snapshot("clock")) == count
+    assert all(math.isfinite(v) for r in fresh.run("joints") for v in r[1] + r[2])
     fresh.reset()
     assert fresh.pause(False).success
     fresh.wait_run("joints", lambda run: len(run) >= 20, "publishing after the reset")
@@ -575,7 +581,8 @@ def test_ten_steps_while_paused_publish_ten_states_one_period_apart(fresh):
             assert response.success, response.message
             assert paused_at(response) == stop + k * PERIOD_NS
         wait_for(lambda: len(fresh.snapshot("joints")) >= before + 10, "ten stepped states")
-        time.sleep(0.3)   # paused: nothing more may come
+        # still paused where the tenth step left it: nothing more was stepped
+        assert paused_at(fresh.pause(True)) == stop + 10 * PERIOD_NS
         stamps = [record[0] for record in fresh.snapshot("joints")[before:]]
         assert stamps == [stop + k * PERIOD_NS for k in range(1, 11)]
         assert fresh.snapshot("clock")[-10:] == stamps
@@ -588,21 +595,26 @@ def lockstep_run(tmp_path, name: str, states: int):
     their own; the node's bag as (topic, stamp, raw bytes), and the node's output."""
     from rosbags.rosbag2 import Reader
     env = ros_child_env(DOMAIN_ID + 1 if DOMAIN_ID < 199 else 1)   # not the probe's
-    bag = tmp_path / name
-    node = subprocess.Popen([SIMULATOR, "--ros-args", "-p", "integrator.method:=rk4",
-                             "-p", "integrator.dt:=0.001", "-p", "real_time_factor:=0.0",
-                             "-p", "synchronous:=true", "-p", "sync_timeout:=5.0",
-                             "-p", "command_timeout:=0.0", "-p", f"record:={bag}", *EFFORT_ARM],
-                            env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    bag, log = tmp_path / name, tmp_path / f"{name}.log"
+    with open(log, "w") as out:
+        node = subprocess.Popen([SIMULATOR, "--ros-args", "-p", "integrator.method:=rk4",
+                                 "-p", "integrator.dt:=0.001", "-p", "real_time_factor:=0.0",
+                                 "-p", "synchronous:=true", "-p", "sync_timeout:=5.0",
+                                 "-p", "command_timeout:=0.0", "-p", f"record:={bag}",
+                                 *EFFORT_ARM], env=env, stdout=out, stderr=subprocess.STDOUT)
     try:
-        time.sleep(0.5)   # the controller starts after the node
+        # the controller starts after the node: once its start-up line is out
+        wait_for(lambda: node.poll() is not None or "publishing at" in log.read_text(),
+                 "the node's start-up line", STARTUP_TIMEOUT)
+        assert node.poll() is None, log.read_text()
         controller = subprocess.run(
             [os.sys.executable, os.path.join(HELPERS, "pd_controller.py"),
              str(states)], env=env, timeout=STARTUP_TIMEOUT + 60, capture_output=True, text=True)
         assert controller.returncode == 0, controller.stderr
     finally:
         node.send_signal(signal.SIGTERM)
-        output = node.communicate(timeout=30)[0]
+        node.wait(timeout=30)
+    output = log.read_text()
     assert node.returncode == 0, output
     with Reader(bag) as reader:
         records = [(connection.topic, stamp, bytes(data))
@@ -771,9 +783,14 @@ def test_a_10_khz_command_flood_neither_stalls_the_node_nor_its_services(probe, 
                              text=True)
     try:
         wait_for(pause.service_is_ready, "the flooded node's ~/pause")
-        time.sleep(1.0)   # the flood is on
+        flooded = {(0.01, 0.02), (0.02, 0.01)}
+        probe.wait_run("joints", lambda run: index_of(run, lambda r: r[3][:2] in flooded),
+                       "the flood's commands in the node's efforts")   # the flood is on
         clock0, wall0, cpu0 = probe.snapshot("clock")[-1], time.monotonic(), cpu_seconds(node)
-        time.sleep(2.0)
+        # under the flood the clock moves: half a second of simulated time (a full second of
+        # wall time at real_time_factor 1 on a quiet machine)
+        wait_for(lambda: probe.snapshot("clock")[-1] >= clock0 + 5 * 10 ** 8,
+                 "/clock to move 0.5 s under the flood")
         clock1, wall1, cpu1 = probe.snapshot("clock")[-1], time.monotonic(), cpu_seconds(node)
         factor = (clock1 - clock0) / 1e9 / (wall1 - wall0)
         load = (cpu1 - cpu0) / (wall1 - wall0)
@@ -784,7 +801,11 @@ def test_a_10_khz_command_flood_neither_stalls_the_node_nor_its_services(probe, 
             wait_for(future.done, "a ~/pause answer")
             latencies.append(time.monotonic() - begin)
             assert future.result().success
-            time.sleep(0.2)
+            at = paused_at(future.result())
+            if paused:   # the clock stops where ~/pause said, and runs on after the resume
+                wait_for(lambda at=at: probe.snapshot("clock")[-1] == at, "/clock to stop")
+            else:
+                wait_for(lambda at=at: probe.snapshot("clock")[-1] > at, "/clock to run again")
         assert flood.poll() is None, "the flood ended before the measurements"
         sent = flood.communicate(timeout=seconds + 30)[0]
         count = int(re.search(r"sent (\d+) in ([\d.]+) s", sent).group(1))
@@ -830,8 +851,10 @@ def test_at_real_time_factor_1_the_node_holds_at_most_200_mb_and_none_of_llvm(pr
     try:
         scene = load_scene(None)
         probe.send(scene.wheel_efforts.tolist(), scene.joint_efforts.tolist())
-        time.sleep(4.0)   # past the first impacts (the shared node's /clock is heard too: no
-        #                   stamp tells this node's time apart, so its 4 s at real time)
+        # past the first impacts (at 1.5 s the paper scene has had them): 4 s of this node's
+        # simulated time (the shared node, paused, publishes nothing)
+        probe.wait_run("joints", lambda run: run and run[-1][0] >= 4 * 10 ** 9,
+                       "4 s of simulated time", STARTUP_TIMEOUT)
         total, llvm = resident_mb(node.process.pid)
         print(f"node VmRSS {total:.1f} MB, of it LLVM {llvm:.1f} MB")
         assert llvm <= 8.0, f"LLVM's library holds {llvm:.1f} MB of the node's {total:.1f} MB"

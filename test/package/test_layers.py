@@ -12,6 +12,11 @@ Beside the arrows, one owner per fact, checked as a grep would: a literal that r
 owner module holds (a node parameter's range, the arm's offsets in q and u, a frame name, an
 error type or an error matched by its name) is reported anywhere outside that owner.
 
+And the engine's positional bookkeeping reads one way: a name bound by a family of indices
+(``A, B = range(n)``, or a tuple of integer literals) is bound at the top of no other module, so
+``KP`` cannot mean a wheel gain here and an arm gain there (`family_clashes`). And every module
+has one job, at most MAX_LINES lines long (`long_modules`).
+
 The checkers are tested on small fake trees that hold each kind of violation, so a check that
 cannot fail would show here.
 """
@@ -210,6 +215,91 @@ def test_the_owner_check_finds_planted_literals(tmp_path):
         ["engine/run.py:1", "an error type belongs to scene/errors.py"],
         ["node/loop.py:1", "an error matched by its name belongs to scene/errors.py"],
     ]
+
+
+# --- positional families ------------------------------------------------------------------------
+
+def is_family(value: ast.expr) -> bool:
+    """``range(n)``, a tuple of integer literals, or a generator of ids: positions in an array."""
+    if isinstance(value, ast.Call):
+        return isinstance(value.func, ast.Name) and value.func.id == "range"
+    if isinstance(value, ast.Tuple):
+        return all(isinstance(e, ast.Constant) and type(e.value) is int for e in value.elts)
+    return isinstance(value, ast.GeneratorExp)
+
+
+def top_level_names(path: Path) -> list[tuple[str, int, bool]]:
+    """(name, line, bound by a positional family) for every name a module binds at its top."""
+    found = []
+    for node in ast.parse(path.read_text(encoding="utf-8"), str(path)).body:
+        if isinstance(node, ast.Assign):
+            targets, value = node.targets, node.value
+        elif isinstance(node, ast.AnnAssign) and node.value is not None:
+            targets, value = [node.target], node.value
+        else:
+            continue
+        for target in targets:
+            if isinstance(target, ast.Name):
+                found.append((target.id, node.lineno, False))
+            elif isinstance(target, ast.Tuple):
+                family = is_family(value)
+                found += [(e.id, node.lineno, family) for e in target.elts
+                          if isinstance(e, ast.Name)]
+    return found
+
+
+def family_clashes(root: Path, package: str) -> list[str]:
+    """One line per name that a positional family binds in one module and another module binds
+    at its top too (in a family or not)."""
+    bound: dict[str, list[tuple[str, int, bool]]] = {}
+    for path in sorted((root / package).rglob("*.py")):
+        relative = path.relative_to(root / package).as_posix()
+        for name, line, family in top_level_names(path):
+            bound.setdefault(name, []).append((relative, line, family))
+    found = []
+    for name, where in sorted(bound.items()):
+        if len({module for module, _, _ in where}) > 1 and any(f for _, _, f in where):
+            found.append(f"{name}: " + ", ".join(f"{module}:{line}" for module, line, _ in where))
+    return found
+
+
+def test_no_two_modules_share_a_positional_name():
+    assert family_clashes(ROOT, PACKAGE) == []
+
+
+def test_the_family_check_finds_a_shared_name(tmp_path):
+    fake_tree(tmp_path, {"engine/system.py": "MODE, KP, KI = range(3)\nSIZE = 3\n",
+                         "engine/arm.py": "KP, KD = 0, 1\nLIMIT = (0.0, 1.0)\n",
+                         "scene/limits.py": "KI = (0.0, 1e6)\nSIZE = 4\nLIMIT = 2\n",
+                         "bench/runs.py": "DT, DURATION = 0.01, 2.0\nMODE = 'x'\n"})
+    assert family_clashes(tmp_path, "pkg") == [
+        "KI: engine/system.py:1, scene/limits.py:1",
+        "KP: engine/arm.py:1, engine/system.py:1",
+        "MODE: bench/runs.py:2, engine/system.py:1"]
+
+
+# --- module size --------------------------------------------------------------------------------
+
+MAX_LINES = 450
+
+
+def long_modules(root: Path, package: str, limit: int = MAX_LINES) -> list[str]:
+    """One line per module of more than ``limit`` lines."""
+    found = []
+    for path in sorted((root / package).rglob("*.py")):
+        lines = len(path.read_text(encoding="utf-8").splitlines())
+        if lines > limit:
+            found.append(f"{path.relative_to(root / package).as_posix()}: {lines} lines")
+    return found
+
+
+def test_every_module_is_at_most_450_lines():
+    assert long_modules(ROOT, PACKAGE) == []
+
+
+def test_the_size_check_finds_a_long_module(tmp_path):
+    fake_tree(tmp_path, {"engine/long.py": "x = 1\n" * 451, "engine/short.py": "x = 1\n" * 450})
+    assert long_modules(tmp_path, "pkg") == ["engine/long.py: 451 lines"]
 
 
 # --- the checker on planted violations --------------------------------------------------------
