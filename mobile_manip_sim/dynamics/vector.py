@@ -311,26 +311,30 @@ _binary(operator.imul, "fmul")
 _binary(operator.itruediv, "fdiv")
 
 
-@intrinsic
-def _negate(typingctx, x):
-    def codegen(context, builder, sig, args):
-        # numba's own negation of a float: −0.0 − x (keeps signed zeros)
-        return builder.fsub(_broadcast(builder, ir.Constant(ir.DoubleType(), -0.0)), args[0])
-    return vec4(x), codegen
+def _unary(key, emit):
+    """operator or math function `key` of a Vec4: the vector instruction(s) `emit` builds."""
+    @intrinsic
+    def vector_op(typingctx, x):
+        def codegen(context, builder, sig, args):
+            return emit(builder, args[0])
+        return vec4(x), codegen
+
+    def implementation(x):
+        if x is vec4:
+            return lambda x: vector_op(x)
+        return None
+
+    overload(key)(implementation)
+    return vector_op
 
 
-@overload(operator.neg)
-def _vec4_neg(x):
-    if x is vec4:
-        return lambda x: _negate(x)
-    return None
-
-
-@overload(operator.pos)
-def _vec4_pos(x):
-    if x is vec4:
-        return lambda x: x
-    return None
+# numba's own negation of a float is −0.0 − x (it keeps signed zeros)
+_unary(operator.neg, lambda builder, x: builder.fsub(
+    _broadcast(builder, ir.Constant(ir.DoubleType(), -0.0)), x))
+_unary(operator.pos, lambda builder, x: x)
+# LLVM's vector square root, correctly rounded as the scalar one is
+_unary(math.sqrt, lambda builder, x: builder.call(cgutils.get_or_insert_function(
+    builder.module, ir.FunctionType(_VECTOR, [_VECTOR]), "llvm.sqrt.v4f64"), [x]))
 
 
 @intrinsic(prefer_literal=True)
@@ -364,22 +368,6 @@ def _vec4_pow(x, k):
     if isinstance(k, (types.Float, types.Integer)):
         return lambda x, k: make_vec4(lane(x, 0) ** k, lane(x, 1) ** k, lane(x, 2) ** k,
                                       lane(x, 3) ** k)
-    return None
-
-
-@intrinsic
-def _vector_sqrt(typingctx, x):
-    def codegen(context, builder, sig, args):
-        function = cgutils.get_or_insert_function(
-            builder.module, ir.FunctionType(_VECTOR, [_VECTOR]), "llvm.sqrt.v4f64")
-        return builder.call(function, args)
-    return vec4(x), codegen
-
-
-@overload(math.sqrt)
-def _vec4_sqrt(x):
-    if x is vec4:
-        return lambda x: _vector_sqrt(x)
     return None
 
 
