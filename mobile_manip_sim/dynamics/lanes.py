@@ -34,10 +34,26 @@ from .kernels import configuration_rate, frames
 from .records import BaseParameters, Model, Workspace, make_workspace
 from .vector import WIDTH, LaneArray, Lanes
 
+ALIGNMENT = 64   # bytes: a lane vector (32 bytes) never straddles two cache lines
+
+
+def lane_zeros(shape) -> np.ndarray:
+    """Zeros of ``shape`` + (4,), C-contiguous, starting on a cache line (numpy's own arrays are
+    only 16-byte aligned, and a 32-byte load across two cache lines costs more)."""
+    shape = tuple(shape) + (WIDTH,)
+    size = int(np.prod(shape))
+    buffer = np.zeros(size + ALIGNMENT // 8)
+    start = (-buffer.ctypes.data % ALIGNMENT) // 8
+    return buffer[start:start + size].reshape(shape)
+
 
 def _stack(values) -> np.ndarray:
-    """Lanes innermost: the (…, 4) C-contiguous array of four equally shaped values."""
-    return np.ascontiguousarray(np.stack([np.asarray(v, dtype=float) for v in values], axis=-1))
+    """Lanes innermost: the (…, 4) aligned array of four equally shaped values."""
+    values = [np.asarray(v, dtype=float) for v in values]
+    out = lane_zeros(values[0].shape)
+    for j, value in enumerate(values):
+        out[..., j] = value
+    return out
 
 
 def lanes_model(models) -> Model:
@@ -65,7 +81,7 @@ def lanes_workspace(n_links: int) -> Workspace:
     scalar = make_workspace(n_links)
     return Workspace(**{
         name: (value if name == "moving"
-               else LaneArray(np.zeros(value.shape + (WIDTH,))))
+               else LaneArray(lane_zeros(value.shape)))
         for name, value in scalar._asdict().items()})
 
 
