@@ -34,6 +34,7 @@ from ..dynamics import lanes
 from ..dynamics.jit import ENABLED, jit
 from ..scene.loading import load_scene
 from . import loops
+from .batch import clock_ghz
 from .tables import table, verdict
 
 PEAK_VECTOR = 16.0   # double flops per cycle: 2 × 4-wide multiply + 2 × 4-wide add (or 2 FMA)
@@ -202,16 +203,6 @@ def peak_flops_per_ns(target: float) -> float:
     seconds = loops.per_call(mul_add_loop, Lanes((1.0, 1.1, 1.2, 1.3)),
                              Lanes((1.0000001, 0.9999999, 1.0, 1.0)), target=target)
     return 12 * 4 / (seconds * 1e9)
-
-
-def clock_ghz() -> float:
-    """The clock /proc/cpuinfo reports (the first core's), GHz; NaN where there is none."""
-    try:
-        with open("/proc/cpuinfo") as handle:
-            found = re.search(r"cpu MHz\s*:\s*([\d.]+)", handle.read())
-        return float(found.group(1)) / 1e3 if found else math.nan
-    except OSError:
-        return math.nan
 
 
 def instruction_counts(args) -> dict:
