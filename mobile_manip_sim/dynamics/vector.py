@@ -332,9 +332,11 @@ def _unary(key, emit):
 _unary(operator.neg, lambda builder, x: builder.fsub(
     _broadcast(builder, ir.Constant(ir.DoubleType(), -0.0)), x))
 _unary(operator.pos, lambda builder, x: x)
+_unary(abs, lambda builder, x: builder.call(cgutils.get_or_insert_function(
+    builder.module, ir.FunctionType(_VECTOR, [_VECTOR]), f"llvm.fabs.v{WIDTH}f64"), [x]))
 # LLVM's vector square root, correctly rounded as the scalar one is
 _unary(math.sqrt, lambda builder, x: builder.call(cgutils.get_or_insert_function(
-    builder.module, ir.FunctionType(_VECTOR, [_VECTOR]), "llvm.sqrt.v4f64"), [x]))
+    builder.module, ir.FunctionType(_VECTOR, [_VECTOR]), f"llvm.sqrt.v{WIDTH}f64"), [x]))
 
 
 @intrinsic(prefer_literal=True)
@@ -361,22 +363,64 @@ def _static_power(typingctx, x, k):
 
 @overload(operator.pow, prefer_literal=True)
 def _vec4_pow(x, k):
-    if x is not vec4:
-        return None
-    if isinstance(k, types.IntegerLiteral) and 0 <= k.literal_value <= 0x10000:
+    if isinstance(k, types.IntegerLiteral) and x is vec4 and 0 <= k.literal_value <= 0x10000:
         return lambda x, k: _static_power(x, k)
-    if isinstance(k, (types.Float, types.Integer)):
-        return lambda x, k: make_vec4(lane(x, 0) ** k, lane(x, 1) ** k, lane(x, 2) ** k,
-                                      lane(x, 3) ** k)
+    if (x is vec4 or k is vec4) and _operand(x) and _operand(k):
+        return lambda x, k: _power_per_lane(x, k)
     return None
 
 
+@intrinsic
+def _power_per_lane(typingctx, x, k):
+    """x ** k lane by lane, through numba's own scalar power of the lanes' numbers."""
+    def scalar_type(t):
+        return types.float64 if t is vec4 else t
+    scalar = typingctx.resolve_function_type(operator.pow, (scalar_type(x), scalar_type(k)), {})
+
+    def codegen(context, builder, sig, args):
+        power = context.get_function(operator.pow, scalar)
+
+        def operand(value, typ, index, target):
+            if typ is vec4:
+                value, typ = builder.extract_element(value, index), types.float64
+            return context.cast(builder, value, typ, target)
+
+        result = ir.Constant(_VECTOR, None)
+        for i in range(WIDTH):
+            index = ir.Constant(ir.IntType(32), i)
+            value = power(builder, [operand(args[0], sig.args[0], index, scalar.args[0]),
+                                    operand(args[1], sig.args[1], index, scalar.args[1])])
+            result = builder.insert_element(
+                result, context.cast(builder, value, scalar.return_type, types.float64), index)
+        return result
+    return vec4(x, k), codegen
+
+
+def _each_lane(builder, vector, scalar_function):
+    """The Vec4 of scalar_function (LLVM double → double) applied to each lane of vector."""
+    result = ir.Constant(_VECTOR, None)
+    for i in range(WIDTH):
+        index = ir.Constant(ir.IntType(32), i)
+        result = builder.insert_element(
+            result, scalar_function(builder.extract_element(vector, index)), index)
+    return result
+
+
 def _per_lane(function):
-    """math.`function` of a Vec4, lane by lane through numba's scalar implementation."""
+    """math.`function` of a Vec4, lane by lane through numba's own scalar implementation of it
+    (for sin and cos, the C library's, as the scalar kernels call it)."""
+    @intrinsic
+    def mapped(typingctx, x):
+        scalar = typingctx.resolve_function_type(function, (types.float64,), {})
+
+        def codegen(context, builder, sig, args):
+            implementation = context.get_function(function, scalar)
+            return _each_lane(builder, args[0], lambda value: implementation(builder, [value]))
+        return vec4(x), codegen
+
     def implementation(x):
         if x is vec4:
-            return lambda x: make_vec4(function(lane(x, 0)), function(lane(x, 1)),
-                                       function(lane(x, 2)), function(lane(x, 3)))
+            return lambda x: mapped(x)
         return None
     overload(function)(implementation)
 

@@ -39,7 +39,7 @@ def formula(a, b):
     d *= b
     d /= 7
     return (c, d, a ** 2, b ** 3, (a - b) ** 3, math.sqrt(a * a + b * b), math.sin(a),
-            math.cos(b), 1.0 / b, 2 - a, b ** 0)
+            math.cos(b), 1.0 / b, 2 - a, b ** 0, (a * a) ** b, math.exp(-abs(b)))
 
 
 scalar_formula = numba.njit(error_model="numpy")(formula)
