@@ -431,25 +431,48 @@ for _function in (math.sin, math.cos, math.tan, math.exp, math.log, math.atan, m
 
 # ----------------------------------------------------------------------- arrays of lanes
 
+def _lane_pointer(context, builder, lanes_type, lanes_value, index_type, index_value):
+    """Pointer to the Vec4 at a full index of a LaneArray: the flat C-order offset of the index
+    over the leading axes (negative indices counted from the end, as numpy does), times the
+    four lanes. One multiply per axis after the first, as the scalar kernels' own indexing."""
+    proxy = cgutils.create_struct_proxy(lanes_type)(context, builder, value=lanes_value)
+    array = context.make_array(lanes_type.array)(context, builder, value=proxy.array)
+    shape = cgutils.unpack_tuple(builder, array.shape, lanes_type.ndim + 1)
+    if isinstance(index_type, types.BaseTuple):
+        indices = zip(cgutils.unpack_tuple(builder, index_value, len(index_type)), index_type,
+                      strict=True)
+    else:
+        indices = [(index_value, index_type)]
+    flat = None
+    zero = ir.Constant(context.get_value_type(types.intp), 0)
+    for axis, (value, typ) in enumerate(indices):
+        value = context.cast(builder, value, typ, types.intp)
+        if typ.signed:
+            value = builder.select(builder.icmp_signed("<", value, zero),
+                                   builder.add(value, shape[axis]), value)
+        flat = value if flat is None else builder.add(builder.mul(flat, shape[axis]), value)
+    offset = builder.mul(flat, ir.Constant(flat.type, WIDTH))
+    return builder.bitcast(builder.gep(array.data, [offset], inbounds=True),
+                           _VECTOR.as_pointer())
+
+
 @intrinsic
-def _load(typingctx, view):
-    """The Vec4 at the start of a (4,) float64 view."""
+def _load(typingctx, lanes, index):
+    """The Vec4 at a full index of a LaneArray."""
     def codegen(context, builder, sig, args):
-        array = context.make_array(sig.args[0])(context, builder, value=args[0])
-        pointer = builder.bitcast(array.data, _VECTOR.as_pointer())
+        pointer = _lane_pointer(context, builder, sig.args[0], args[0], sig.args[1], args[1])
         return builder.load(pointer, align=8)
-    return vec4(view), codegen
+    return vec4(lanes, index), codegen
 
 
 @intrinsic
-def _store(typingctx, view, value):
-    """Store the Vec4 `value` at the start of a (4,) float64 view."""
+def _store(typingctx, lanes, index, value):
+    """Store a Vec4 (or a number, broadcast) at a full index of a LaneArray."""
     def codegen(context, builder, sig, args):
-        array = context.make_array(sig.args[0])(context, builder, value=args[0])
-        pointer = builder.bitcast(array.data, _VECTOR.as_pointer())
-        builder.store(context.cast(builder, args[1], sig.args[1], vec4), pointer, align=8)
+        pointer = _lane_pointer(context, builder, sig.args[0], args[0], sig.args[1], args[1])
+        builder.store(context.cast(builder, args[2], sig.args[2], vec4), pointer, align=8)
         return context.get_dummy_value()
-    return types.none(view, value), codegen
+    return types.none(lanes, index, value), codegen
 
 
 @intrinsic
@@ -483,7 +506,7 @@ def _lane_array_getitem(a, index):
         return None
     count = _index_count(index)
     if count == a.ndim:
-        return lambda a, index: _load(a.array[index])
+        return lambda a, index: _load(a, index)
     if count is not None and count < a.ndim:
         return lambda a, index: wrap(a.array[index])
     return None
@@ -493,7 +516,7 @@ def _lane_array_getitem(a, index):
 def _lane_array_setitem(a, index, value):
     if isinstance(a, LaneArrayType) and _index_count(index) == a.ndim and _operand(value):
         def implementation(a, index, value):
-            _store(a.array[index], value)
+            _store(a, index, value)
         return implementation
     return None
 
