@@ -6,7 +6,10 @@ dynamics equal its scalar runs. The values include signed zeros, subnormals, inf
 NaN, where an operation that is "almost" IEEE shows.
 """
 import math
+import os
 import re
+import subprocess
+import sys
 
 import numba
 import numpy as np
@@ -135,3 +138,39 @@ def test_the_machine_code_is_vector_arithmetic_without_fused_multiply_adds():
         assert re.search(rf"\b{instruction}\b", body), instruction
     for instruction in ("vmulsd", "vaddsd", "vdivsd", "vfmadd"):
         assert not re.search(rf"\b{instruction}", body), instruction
+
+
+CACHED_KERNELS = '''
+import math
+from mobile_manip_sim.dynamics.jit import jit, jit_inline
+
+@jit_inline
+def inner(x):
+    return math.cos(x) * 2.0
+
+@jit
+def helper(x):
+    return x + 1.0
+
+@jit
+def outer(x):
+    return inner(x) + helper(x)
+'''
+
+
+def test_a_cache_holding_lanes_does_not_break_a_later_scalar_compile(tmp_path):
+    """A kernel's on-disk cache that also holds a lanes specialization imports the lane types
+    when numba reads it. If that happened in the middle of typing another kernel (one that calls
+    math.cos), numba would see two different types of math.cos and fail; so the lane types are
+    registered as soon as the kernels' compiler is set up (`jit.py`). Two processes: the first
+    caches `helper` for lanes, the second compiles `outer` (math.cos, then `helper`)."""
+    (tmp_path / "kernels_with_lanes.py").write_text(CACHED_KERNELS)
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(tmp_path)] + sys.path))
+    first = ("from mobile_manip_sim.dynamics.vector import Lanes; import kernels_with_lanes as k;"
+             " print(k.helper(Lanes((1, 2, 3, 4))))")
+    second = "import kernels_with_lanes as k; print(k.outer(0.0))"
+    for code, expected in ((first, "Lanes((2.0, 3.0, 4.0, 5.0))"), (second, "3.0")):
+        done = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                              text=True, timeout=600)
+        assert done.returncode == 0, done.stderr[-2000:]
+        assert done.stdout.strip() == expected
