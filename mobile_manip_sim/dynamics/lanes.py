@@ -22,17 +22,24 @@ or wait for a lane mask.
     ws = lanes_workspace(n)
     rates(model, LaneArray(q), LaneArray(u), LaneArray(Q), Lanes(g), free, ws,
           LaneArray(qdot), LaneArray(ud))
+
+Many blocks in one compiled call: `model_stack` and `block_states` lay N = 4 × blocks runs out as
+(blocks, …, 4) arrays (run i in lane i % 4 of block i // 4), and `rates_blocks` evaluates them
+all, block after block, reusing one workspace; compiled code reads block b's model with
+`block_model` and its states with ``vector.wrap(q[b])``.
 """
 from __future__ import annotations
+
+from collections import namedtuple
 
 import numpy as np
 
 from ..scene.coordinates import u_size
 from .articulated import articulated_forward_dynamics
-from .jit import jit
+from .jit import jit, jit_inline
 from .kernels import configuration_rate, frames
 from .records import BaseParameters, Model, Workspace, make_workspace
-from .vector import WIDTH, LaneArray, Lanes
+from .vector import WIDTH, LaneArray, Lanes, wrap
 
 ALIGNMENT = 64   # bytes: a lane vector (32 bytes) never straddles two cache lines
 
@@ -103,3 +110,60 @@ def rates(model, q, u, Q, g, free, ws, qdot, ud):
     frames(model, q, ws)
     configuration_rate(model, q, u, qdot)
     articulated_forward_dynamics(model, q, u, Q, g, free, ws, ud)
+
+
+# ------------------------------------------------------------------- many blocks in one call
+
+ModelStack = namedtuple("ModelStack", [
+    "base",      # (blocks, 6, 4) BaseParameters' six fields, lanes innermost
+    "mount",     # (blocks, 3, 4)
+    "R0",        # (blocks, n, 3, 3, 4)
+    "L",         # (blocks, n, 4)
+    "mu",        # (blocks, n, 4)
+    "J",         # (blocks, n, 3, 3, 4)
+    "tip_mass",  # (blocks, 1, 4)
+])
+
+
+def model_stack(models) -> ModelStack:
+    """The models of N = 4 × blocks runs (`records.make_model`, one topology), as blocks of
+    four lanes: run i is lane i % 4 of block i // 4 (`block_model` reads one block)."""
+    models = list(models)
+    if not models or len(models) % WIDTH:
+        raise ValueError(f"model_stack takes a multiple of {WIDTH} models, not {len(models)}")
+    blocks = [lanes_model(models[i:i + WIDTH]) for i in range(0, len(models), WIDTH)]
+    return ModelStack(
+        base=np.stack([_stack([[m.base[f] for f in range(6)] for m in models[i:i + WIDTH]])
+                       for i in range(0, len(models), WIDTH)]),
+        mount=np.stack([b.mount.array for b in blocks]),
+        R0=np.stack([b.R0.array for b in blocks]), L=np.stack([b.L.array for b in blocks]),
+        mu=np.stack([b.mu.array for b in blocks]), J=np.stack([b.J.array for b in blocks]),
+        tip_mass=np.stack([[b.tip_mass.values] for b in blocks]))
+
+
+def block_states(vectors) -> np.ndarray:
+    """(blocks, size, 4) of N = 4 × blocks equally long vectors: run i in lane i % 4 of block
+    i // 4 (the layout `rates_blocks` takes for q, u, Q and their rates)."""
+    vectors = [np.asarray(v, dtype=float) for v in vectors]
+    if not vectors or len(vectors) % WIDTH:
+        raise ValueError(f"block_states takes a multiple of {WIDTH} vectors, not {len(vectors)}")
+    return np.stack([_stack(vectors[i:i + WIDTH]) for i in range(0, len(vectors), WIDTH)])
+
+
+@jit_inline
+def block_model(stack, b):
+    """The `records.Model` of block b of a `ModelStack`, as lanes, in compiled code."""
+    base = wrap(stack.base[b])
+    return Model(BaseParameters(base[0], base[1], base[2], base[3], base[4], base[5]),
+                 wrap(stack.mount[b]), wrap(stack.R0[b]), wrap(stack.L[b]), wrap(stack.mu[b]),
+                 wrap(stack.J[b]), wrap(stack.tip_mass[b])[0])
+
+
+@jit
+def rates_blocks(stack, q, u, Q, g, free, ws, qdot, ud):
+    """`rates` for every block of runs: q, u, Q, qdot, ud are (blocks, size, 4) (`block_states`),
+    g (blocks, 1, 4); ``ws`` (`lanes_workspace`) is scratch shared by the blocks, ``free`` the
+    locks of them all."""
+    for b in range(q.shape[0]):
+        rates(block_model(stack, b), wrap(q[b]), wrap(u[b]), wrap(Q[b]), wrap(g[b])[0], free, ws,
+              wrap(qdot[b]), wrap(ud[b]))
