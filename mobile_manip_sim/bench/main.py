@@ -6,6 +6,7 @@ and how the hard cases behave; write ``REPORT.md`` and PNG plots.
     bench --out /tmp/m --only mujoco --quick   # the MuJoCo section alone, under a minute
     bench --out /tmp/c --only controllers      # the arm controllers' section alone
     bench --out /tmp/b --only batch            # many runs in one call (the batch) alone
+    bench --out /tmp/l --only lanes_fd         # one dynamics evaluation in vector lanes alone
 """
 from __future__ import annotations
 
@@ -48,7 +49,7 @@ def _main(argv) -> int:
                         help="directory for REPORT.md and the plots (default bench)")
     parser.add_argument("--quick", action="store_true",
                         help="a smoke run: short sweeps, one repeat")
-    parser.add_argument("--only", choices=("mujoco", "controllers", "batch"),
+    parser.add_argument("--only", choices=("mujoco", "controllers", "batch", "lanes_fd"),
                         help="run one section alone (REPORT.md holds only it)")
     args = parser.parse_args(argv)
     out = Path(args.out)
@@ -85,7 +86,11 @@ def _main(argv) -> int:
         progress = Progress(1)
         _batch_section(results, progress, args.quick)
         return _write(report, results, out, progress)
-    progress = Progress(11)
+    if args.only == "lanes_fd":
+        progress = Progress(1)
+        _lanes_fd_section(results, progress, args.quick)
+        return _write(report, results, out, progress)
+    progress = Progress(12)
 
     progress.section("warming up the compiled kernels")
     versus.realtime(lambda _line: None, quick=True)
@@ -131,7 +136,14 @@ def _main(argv) -> int:
     results["controllers"] = controllers.measure(progress, quick=args.quick)
 
     _batch_section(results, progress, args.quick)
+    _lanes_fd_section(results, progress, args.quick)
     return _write(report, results, out, progress)
+
+
+def _lanes_fd_section(results, progress, quick: bool) -> None:
+    from . import lanes_fd
+    progress.section("one dynamics evaluation per lane: vector lanes against the scalar kernel")
+    results["lanes_fd"] = lanes_fd.measure(progress, quick=quick)
 
 
 def _batch_section(results, progress, quick: bool) -> None:

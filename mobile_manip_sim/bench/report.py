@@ -165,6 +165,8 @@ def write(results, out: Path) -> Path:
         return _write_parts(parts + [_controllers_section(results)], out)
     if results.get("only") == "batch":
         return _write_parts(parts + [_batch_section(results)], out)
+    if results.get("only") == "lanes_fd":
+        return _write_parts(parts + [_lanes_fd_section(results)], out)
     targets, _ = _targets(results)
     parts += ["## Speed targets", "", targets, "",
               "Ratios are between runs of this same bench invocation. Where a target is missed, "
@@ -301,6 +303,8 @@ def write(results, out: Path) -> Path:
         parts.append(_controllers_section(results))
     if results.get("batch"):
         parts.append(_batch_section(results))
+    if results.get("lanes_fd"):
+        parts.append(_lanes_fd_section(results))
     return _write_parts(parts, out)
 
 
@@ -312,6 +316,11 @@ def _controllers_section(results) -> str:
 def _batch_section(results) -> str:
     from .batch import section
     return section(results["batch"], number=9)
+
+
+def _lanes_fd_section(results) -> str:
+    from .lanes_fd import section
+    return section(results["lanes_fd"], number=10)
 
 
 def _mujoco_section(results) -> str:
