@@ -162,8 +162,9 @@ def _load_implementations_without_blas() -> None:
 if ENABLED:
     _drop_stale_caches()
     _load_implementations_without_blas()
-    # The four-lane number types (`vector.py`), registered with numba in every process before
-    # any kernel is typed: a kernel's cache index that also holds lane specializations imports
-    # them when it is read, and overloads of math.sin & co. registered halfway through typing a
-    # kernel make numba fail on it ("Cannot unify Function(cos) and Function(cos)").
-    from . import vector  # noqa: E402, F401
+    # The four-lane number types (`vector.py`, `lane_arrays.py`), registered with numba in every
+    # process before any kernel is typed: a kernel's cache index that also holds lane
+    # specializations imports them when it is read, and overloads of math.sin & co. registered
+    # halfway through typing a kernel make numba fail on it ("Cannot unify Function(cos) and
+    # Function(cos)").
+    from . import lane_arrays, vector  # noqa: E402, F401

@@ -26,7 +26,7 @@ or wait for a lane mask.
 Many blocks in one compiled call: `model_stack` and `block_states` lay N = 4 × blocks runs out as
 (blocks, …, 4) arrays (run i in lane i % 4 of block i // 4), and `rates_blocks` evaluates them
 all, block after block, reusing one workspace; compiled code reads block b's model with
-`block_model` and its states with ``vector.wrap(q[b])``.
+`block_model` and its states with ``lane_arrays.wrap(q[b])``.
 """
 from __future__ import annotations
 
@@ -38,8 +38,9 @@ from ..scene.coordinates import u_size
 from .articulated import articulated_forward_dynamics
 from .jit import jit, jit_inline
 from .kernels import configuration_rate, frames
+from .lane_arrays import LaneArray, wrap
 from .records import BaseParameters, Model, Workspace, make_workspace
-from .vector import WIDTH, LaneArray, Lanes, wrap
+from .vector import WIDTH, Lanes
 
 ALIGNMENT = 64   # bytes: a lane vector (32 bytes) never straddles two cache lines
 

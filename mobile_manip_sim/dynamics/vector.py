@@ -2,8 +2,9 @@
 
 `Vec4` is a number that holds four float64 *lanes*, one per run, compiled to LLVM's
 ``<4 x double>``: on an AVX2 CPU one ``vaddpd``/``vmulpd``/``vdivpd`` does the four runs' operation
-at once. `LaneArray` is an array of such numbers: a float64 array whose last axis (length 4) is
-the lanes, read and written 32 bytes at a time (structure of arrays, lanes innermost).
+at once. `LaneArray` (`lane_arrays.py`) is an array of such numbers: a float64 array whose last
+axis (length 4) is the lanes, read and written 32 bytes at a time (structure of arrays, lanes
+innermost).
 
 The point of the types is that the dynamics kernels need no second copy. Numba compiles a kernel
 for the types it is called with, so the very source of `kernels.frames` or
@@ -48,10 +49,8 @@ from numba.core.extending import (
     box,
     intrinsic,
     lower_cast,
-    make_attribute_wrapper,
     models,
     overload,
-    overload_attribute,
     register_model,
     typeof_impl,
     unbox,
@@ -59,7 +58,7 @@ from numba.core.extending import (
 from numba.core.typeconv import Conversion
 
 WIDTH = 4   # lanes per vector: four float64 in a 256-bit AVX register
-_VECTOR = ir.VectorType(ir.DoubleType(), WIDTH)
+VECTOR = ir.VectorType(ir.DoubleType(), WIDTH)
 
 
 class Lanes:
@@ -80,25 +79,6 @@ class Lanes:
         return isinstance(other, Lanes) and np.array_equal(self.values, other.values)
 
     __hash__ = None
-
-
-class LaneArray:
-    """An (…, 4) C-contiguous float64 array seen by compiled code as an array of `Vec4`:
-    ``a[i, j]`` is the four lanes ``array[i, j, :]``; ``a.shape`` leaves the lane axis out."""
-
-    __slots__ = ("array",)
-
-    def __init__(self, array):
-        if not (isinstance(array, np.ndarray) and array.dtype == np.float64
-                and array.ndim >= 2 and array.shape[-1] == WIDTH
-                and array.flags.c_contiguous):
-            raise ValueError(f"LaneArray takes a C-contiguous float64 array of at least two axes, "
-                             f"the last of length {WIDTH}")
-        self.array = array
-
-    @property
-    def shape(self):
-        return self.array.shape[:-1]
 
 
 # ------------------------------------------------------------------------------------ the types
@@ -123,32 +103,10 @@ class Vec4Type(types.Type):
 vec4 = Vec4Type()
 
 
-class LaneArrayType(types.Type):
-    """An array of `Vec4` of ``ndim`` axes, stored as a C-contiguous float64 array of ndim + 1."""
-
-    def __init__(self, ndim):
-        self.ndim = ndim
-        self.array = types.Array(types.float64, ndim + 1, "C")
-        super().__init__(name=f"LaneArray({ndim})")
-
-    @property
-    def key(self):
-        return self.ndim
-
-
 @register_model(Vec4Type)
 class _Vec4Model(models.PrimitiveModel):
     def __init__(self, dmm, fe_type):
-        super().__init__(dmm, fe_type, _VECTOR)
-
-
-@register_model(LaneArrayType)
-class _LaneArrayModel(models.StructModel):
-    def __init__(self, dmm, fe_type):
-        super().__init__(dmm, fe_type, [("array", fe_type.array)])
-
-
-make_attribute_wrapper(LaneArrayType, "array", "array")
+        super().__init__(dmm, fe_type, VECTOR)
 
 
 @typeof_impl.register(Lanes)
@@ -156,15 +114,10 @@ def _typeof_lanes(value, c):
     return vec4
 
 
-@typeof_impl.register(LaneArray)
-def _typeof_lane_array(value, c):
-    return LaneArrayType(value.array.ndim - 1)
-
-
 @unbox(Vec4Type)
 def _unbox_vec4(typ, obj, c):
     values = c.pyapi.object_getattr_string(obj, "values")
-    vector = ir.Constant(_VECTOR, None)
+    vector = ir.Constant(VECTOR, None)
     for i in range(WIDTH):
         item = c.pyapi.tuple_getitem(values, i)   # borrowed
         vector = c.builder.insert_element(vector, c.pyapi.float_as_double(item),
@@ -186,22 +139,12 @@ def _box_vec4(typ, val, c):
     return result
 
 
-@unbox(LaneArrayType)
-def _unbox_lane_array(typ, obj, c):
-    array = c.pyapi.object_getattr_string(obj, "array")
-    native = c.unbox(typ.array, array)
-    c.pyapi.decref(array)
-    lanes = cgutils.create_struct_proxy(typ)(c.context, c.builder)
-    lanes.array = native.value
-    return NativeValue(lanes._getvalue(), is_error=native.is_error, cleanup=native.cleanup)
-
-
 # ------------------------------------------------------------------------- conversions, lanes
 
 def _broadcast(builder, scalar):
-    vector = builder.insert_element(ir.Constant(_VECTOR, None), scalar,
+    vector = builder.insert_element(ir.Constant(VECTOR, None), scalar,
                                     ir.Constant(ir.IntType(32), 0))
-    return builder.shuffle_vector(vector, ir.Constant(_VECTOR, None),
+    return builder.shuffle_vector(vector, ir.Constant(VECTOR, None),
                                   ir.Constant(ir.VectorType(ir.IntType(32), WIDTH), [0] * WIDTH))
 
 
@@ -227,7 +170,7 @@ def make_vec4(typingctx, a, b, c, d):
     """The Vec4 (a, b, c, d) of four numbers."""
     if all(isinstance(t, (types.Float, types.Integer)) for t in (a, b, c, d)):
         def codegen(context, builder, sig, args):
-            vector = ir.Constant(_VECTOR, None)
+            vector = ir.Constant(VECTOR, None)
             for i, (value, typ) in enumerate(zip(args, sig.args, strict=True)):
                 vector = builder.insert_element(
                     vector, context.cast(builder, value, typ, types.float64),
@@ -271,14 +214,14 @@ def _mixed_tuple_getitem(items, i):
     """``t[i]`` of a tuple that mixes numbers and Vec4 (``(0.0, 0.0, ω)``) with an index known
     only at run time: the item as a Vec4 (numba indexes such tuples only by constants)."""
     if (isinstance(items, types.Tuple) and isinstance(i, types.Integer)
-            and any(t is vec4 for t in items) and all(_operand(t) for t in items)):
+            and any(t is vec4 for t in items) and all(lane_operand(t) for t in items)):
         return lambda items, i: _as_vec4_tuple(items)[i]
     return None
 
 
 # ------------------------------------------------------------------------------- arithmetic
 
-def _operand(t):
+def lane_operand(t):
     return t is vec4 or isinstance(t, (types.Float, types.Integer))
 
 
@@ -293,7 +236,7 @@ def _binary(key, method):
         return vec4(a, b), codegen
 
     def implementation(a, b):
-        if (a is vec4 or b is vec4) and _operand(a) and _operand(b):
+        if (a is vec4 or b is vec4) and lane_operand(a) and lane_operand(b):
             return lambda a, b: vector_op(a, b)
         return None
 
@@ -333,10 +276,10 @@ _unary(operator.neg, lambda builder, x: builder.fsub(
     _broadcast(builder, ir.Constant(ir.DoubleType(), -0.0)), x))
 _unary(operator.pos, lambda builder, x: x)
 _unary(abs, lambda builder, x: builder.call(cgutils.get_or_insert_function(
-    builder.module, ir.FunctionType(_VECTOR, [_VECTOR]), f"llvm.fabs.v{WIDTH}f64"), [x]))
+    builder.module, ir.FunctionType(VECTOR, [VECTOR]), f"llvm.fabs.v{WIDTH}f64"), [x]))
 # LLVM's vector square root, correctly rounded as the scalar one is
 _unary(math.sqrt, lambda builder, x: builder.call(cgutils.get_or_insert_function(
-    builder.module, ir.FunctionType(_VECTOR, [_VECTOR]), f"llvm.sqrt.v{WIDTH}f64"), [x]))
+    builder.module, ir.FunctionType(VECTOR, [VECTOR]), f"llvm.sqrt.v{WIDTH}f64"), [x]))
 
 
 @intrinsic(prefer_literal=True)
@@ -365,7 +308,7 @@ def _static_power(typingctx, x, k):
 def _vec4_pow(x, k):
     if isinstance(k, types.IntegerLiteral) and x is vec4 and 0 <= k.literal_value <= 0x10000:
         return lambda x, k: _static_power(x, k)
-    if (x is vec4 or k is vec4) and _operand(x) and _operand(k):
+    if (x is vec4 or k is vec4) and lane_operand(x) and lane_operand(k):
         return lambda x, k: _power_per_lane(x, k)
     return None
 
@@ -385,7 +328,7 @@ def _power_per_lane(typingctx, x, k):
                 value, typ = builder.extract_element(value, index), types.float64
             return context.cast(builder, value, typ, target)
 
-        result = ir.Constant(_VECTOR, None)
+        result = ir.Constant(VECTOR, None)
         for i in range(WIDTH):
             index = ir.Constant(ir.IntType(32), i)
             value = power(builder, [operand(args[0], sig.args[0], index, scalar.args[0]),
@@ -398,7 +341,7 @@ def _power_per_lane(typingctx, x, k):
 
 def _each_lane(builder, vector, scalar_function):
     """The Vec4 of scalar_function (LLVM double → double) applied to each lane of vector."""
-    result = ir.Constant(_VECTOR, None)
+    result = ir.Constant(VECTOR, None)
     for i in range(WIDTH):
         index = ir.Constant(ir.IntType(32), i)
         result = builder.insert_element(
@@ -427,100 +370,3 @@ def _per_lane(function):
 
 for _function in (math.sin, math.cos, math.tan, math.exp, math.log, math.atan, math.tanh):
     _per_lane(_function)
-
-
-# ----------------------------------------------------------------------- arrays of lanes
-
-def _lane_pointer(context, builder, lanes_type, lanes_value, index_type, index_value):
-    """Pointer to the Vec4 at a full index of a LaneArray: the flat C-order offset of the index
-    over the leading axes (negative indices counted from the end, as numpy does), times the
-    four lanes. One multiply per axis after the first, as the scalar kernels' own indexing."""
-    proxy = cgutils.create_struct_proxy(lanes_type)(context, builder, value=lanes_value)
-    array = context.make_array(lanes_type.array)(context, builder, value=proxy.array)
-    shape = cgutils.unpack_tuple(builder, array.shape, lanes_type.ndim + 1)
-    if isinstance(index_type, types.BaseTuple):
-        indices = zip(cgutils.unpack_tuple(builder, index_value, len(index_type)), index_type,
-                      strict=True)
-    else:
-        indices = [(index_value, index_type)]
-    flat = None
-    zero = ir.Constant(context.get_value_type(types.intp), 0)
-    for axis, (value, typ) in enumerate(indices):
-        value = context.cast(builder, value, typ, types.intp)
-        if typ.signed:
-            value = builder.select(builder.icmp_signed("<", value, zero),
-                                   builder.add(value, shape[axis]), value)
-        flat = value if flat is None else builder.add(builder.mul(flat, shape[axis]), value)
-    offset = builder.mul(flat, ir.Constant(flat.type, WIDTH))
-    return builder.bitcast(builder.gep(array.data, [offset], inbounds=True),
-                           _VECTOR.as_pointer())
-
-
-@intrinsic
-def _load(typingctx, lanes, index):
-    """The Vec4 at a full index of a LaneArray."""
-    def codegen(context, builder, sig, args):
-        pointer = _lane_pointer(context, builder, sig.args[0], args[0], sig.args[1], args[1])
-        return builder.load(pointer, align=8)
-    return vec4(lanes, index), codegen
-
-
-@intrinsic
-def _store(typingctx, lanes, index, value):
-    """Store a Vec4 (or a number, broadcast) at a full index of a LaneArray."""
-    def codegen(context, builder, sig, args):
-        pointer = _lane_pointer(context, builder, sig.args[0], args[0], sig.args[1], args[1])
-        builder.store(context.cast(builder, args[2], sig.args[2], vec4), pointer, align=8)
-        return context.get_dummy_value()
-    return types.none(lanes, index, value), codegen
-
-
-@intrinsic
-def wrap(typingctx, array):
-    """The LaneArray over a C-contiguous float64 array whose last axis is the lanes."""
-    if (isinstance(array, types.Array) and array.dtype == types.float64 and array.ndim >= 2
-            and array.layout == "C"):
-        result = LaneArrayType(array.ndim - 1)
-
-        def codegen(context, builder, sig, args):
-            if context.enable_nrt:   # the result holds a reference
-                context.nrt.incref(builder, sig.args[0], args[0])
-            lanes = cgutils.create_struct_proxy(sig.return_type)(context, builder)
-            lanes.array = args[0]
-            return lanes._getvalue()
-        return result(array), codegen
-    return None
-
-
-def _index_count(index):
-    if isinstance(index, types.Integer):
-        return 1
-    if isinstance(index, types.BaseTuple) and all(isinstance(i, types.Integer) for i in index):
-        return len(index)
-    return None
-
-
-@overload(operator.getitem)
-def _lane_array_getitem(a, index):
-    if not isinstance(a, LaneArrayType):
-        return None
-    count = _index_count(index)
-    if count == a.ndim:
-        return lambda a, index: _load(a, index)
-    if count is not None and count < a.ndim:
-        return lambda a, index: wrap(a.array[index])
-    return None
-
-
-@overload(operator.setitem)
-def _lane_array_setitem(a, index, value):
-    if isinstance(a, LaneArrayType) and _index_count(index) == a.ndim and _operand(value):
-        def implementation(a, index, value):
-            _store(a, index, value)
-        return implementation
-    return None
-
-
-@overload_attribute(LaneArrayType, "shape")
-def _lane_array_shape(a):
-    return lambda a: a.array.shape[:-1]

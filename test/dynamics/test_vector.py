@@ -1,4 +1,5 @@
-"""dynamics/vector.py: `Vec4`, four float64 lanes in one 256-bit register, and `LaneArray`.
+"""dynamics/vector.py and lane_arrays.py: `Vec4`, four float64 lanes in one 256-bit register, and
+`LaneArray`.
 
 Every operation is checked against the same numba function compiled for plain floats, lane by
 lane, bit for bit (``np.array_equal``, never a tolerance): what makes the lanes body of the
@@ -20,7 +21,8 @@ from mobile_manip_sim.dynamics import jit
 pytestmark = pytest.mark.skipif(not jit.ENABLED, reason="the lanes need numba")
 
 if jit.ENABLED:
-    from mobile_manip_sim.dynamics.vector import LaneArray, Lanes, make_vec4, splat
+    from mobile_manip_sim.dynamics.lane_arrays import LaneArray
+    from mobile_manip_sim.dynamics.vector import Lanes, make_vec4, splat
 
 SPECIAL = [0.0, -0.0, 5e-324, -2.2e-308, 1.0, -1.5, 3.0, 1e308, math.inf, -math.inf, math.nan]
 
