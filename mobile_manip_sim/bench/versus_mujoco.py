@@ -6,7 +6,8 @@ thread; it writes the state after every step) beside our `Simulation.sample` (ev
 state and energy, in one call) — like for like, and the targets' figures. From Python, one call
 per 100 Hz sample: a loop of `mj_step` reading qpos/qvel beside our `Simulation.advance_to`
 (`runs.simulate`), what the node does. All times are CPU time of this thread
-(`time.thread_time`), best of the repeats; wall time is kept beside it.
+(`time.thread_time`), best of the repeats, ours and MuJoCo's timed in turn in each round; wall
+time is kept beside it.
 
 MuJoCo's model has no wheel–ground constraint and no end stops, so it steps a robot with the same
 bodies and inertias but not the same motion: these are costs, not accuracies.
@@ -61,13 +62,17 @@ class Pair:
         return self.ours.cpu / self.rollout.cpu
 
 
-def _best(run, repeats: int) -> Timing:
-    cpu = wall = math.inf
+def _best_of_rounds(runs, repeats: int) -> list[Timing]:
+    """Each of `runs` timed once per round, `repeats` rounds, best of the rounds each: ours and
+    MuJoCo's take turns, so that a spell of load on this shared machine falls on both."""
+    cpu, wall = [math.inf] * len(runs), [math.inf] * len(runs)
     for _ in range(repeats):
-        cpu0, wall0 = time.thread_time(), time.perf_counter()
-        run()
-        cpu, wall = min(cpu, time.thread_time() - cpu0), min(wall, time.perf_counter() - wall0)
-    return Timing(cpu, wall)
+        for i, run in enumerate(runs):
+            cpu0, wall0 = time.thread_time(), time.perf_counter()
+            run()
+            cpu[i] = min(cpu[i], time.thread_time() - cpu0)
+            wall[i] = min(wall[i], time.perf_counter() - wall0)
+    return [Timing(c, w) for c, w in zip(cpu, wall, strict=True)]
 
 
 def _rollout_inputs(scene, integrator: str, dt: float, duration: float):
@@ -86,9 +91,9 @@ def _rollout_inputs(scene, integrator: str, dt: float, duration: float):
     return model, data, initial, control, np.zeros((1, nstep, initial.size))
 
 
-def mujoco_timings(scene, integrator: str, dt: float, duration: float, repeats: int,
-                   sample_rate: float = 100.0) -> tuple[Timing, Timing]:
-    """(rollout, Python mj_step loop) for `duration` s of the scene's peer with its efforts."""
+def mujoco_runs(scene, integrator: str, dt: float, duration: float, sample_rate: float = 100.0):
+    """(rollout, Python mj_step loop): calls that step `duration` s of the scene's peer with its
+    efforts."""
     from mujoco import rollout
 
     mujoco = mujoco_peer.mujoco
@@ -111,7 +116,7 @@ def mujoco_timings(scene, integrator: str, dt: float, duration: float, repeats: 
                 samples[j, :model.nq] = data.qpos
                 samples[j, model.nq:] = data.qvel
 
-    return _best(batch, repeats), _best(loop, repeats)
+    return batch, loop
 
 
 def trajectory(scene, integrator: str, dt: float, sample_rate: float = 100.0, repeats: int = 1):
@@ -126,8 +131,8 @@ def trajectory(scene, integrator: str, dt: float, sample_rate: float = 100.0, re
     per_sample = int(round(1.0 / (sample_rate * dt)))
     if abs(per_sample * dt * sample_rate - 1.0) > 1e-9 or nstep % per_sample:
         raise ValueError(f"dt {dt:g} does not divide the sample interval and the duration")
-    timing = _best(lambda: rollout.rollout(model, data, initial[None, :], control, state=state),
-                   repeats)
+    timing, = _best_of_rounds((lambda: rollout.rollout(model, data, initial[None, :], control,
+                                                      state=state),), repeats)
     sampled = np.vstack([initial[None, :], state[0, per_sample - 1::per_sample]])
     assert np.allclose(sampled[:, 0], np.arange(len(sampled)) / sample_rate)   # column 0 is time
     nq, n = scene.robot.n_q, model.nq
@@ -172,26 +177,26 @@ def work_precision(scene, progress, quick: bool = False) -> dict:
     return {"scene": scene.name, "mujoco": points, "ours": ours}
 
 
-def _ours(scene, method: str, dt: float, duration: float, repeats: int) -> tuple[Timing, Timing]:
-    """(one `sample` call for every 100 Hz sample, one `advance_to` call per sample)."""
+def pair(scene, method: str, mj_method: str, duration: float, repeats: int,
+         dt: float = 1e-3) -> Pair:
+    """Ours two ways (one `sample` call for every 100 Hz sample, from its initial state each time;
+    one `advance_to` call per sample, `runs.simulate`) beside MuJoCo's two, rounds interleaved."""
     settings = make_integrator(scene.integrator, method, dt=dt)
     run = simulate(scene, settings, duration=duration, repeats=repeats, record=False)
-    if not run.ok:
-        return Timing(math.nan, math.nan), Timing(math.nan, math.nan)
     simulation = Simulation(scene, settings)
     times = np.fromiter(sample_times(duration, 100.0), float)[1:]
 
-    def batch():
+    def ours():
         simulation.reset()
         simulation.sample(times)
-    return _best(batch, repeats), Timing(run.cpu, run.wall)
-
-
-def pair(scene, method: str, mj_method: str, duration: float, repeats: int,
-         dt: float = 1e-3) -> Pair:
-    rollout, loop = mujoco_timings(scene, mj_method, dt, duration, repeats)
-    return Pair(scene.name, method, duration, *_ours(scene, method, dt, duration, repeats),
-                rollout, loop)
+    rollout, loop = mujoco_runs(scene, mj_method, dt, duration)
+    if run.ok:
+        ours_t, rollout_t, loop_t = _best_of_rounds((ours, rollout, loop), repeats)
+    else:
+        ours_t = Timing(math.nan, math.nan)
+        rollout_t, loop_t = _best_of_rounds((rollout, loop), repeats)
+    per_sample = Timing(run.cpu, run.wall) if run.ok else Timing(math.nan, math.nan)
+    return Pair(scene.name, method, duration, ours_t, per_sample, rollout_t, loop_t)
 
 
 def random_arm(n_links: int):
@@ -202,7 +207,7 @@ def random_arm(n_links: int):
 
 def measure(progress, quick: bool = False) -> dict:
     """{"paper": [Pair rk4, Pair Euler], "arms": [Pair per n in ARM_LINKS], "order": {...}}"""
-    repeats = 2 if quick else 5
+    repeats = 2 if quick else 15   # rounds: the paper rows cost milliseconds each
     scene = load_scene()
     simulate(scene, make_integrator(scene.integrator, "rk4", dt=1e-3), record=False)  # compile
     paper = []
@@ -213,13 +218,13 @@ def measure(progress, quick: bool = False) -> dict:
                  f"({p.factor(p.ours):.0f}× real time), "
                  f"MuJoCo {mj_method} rollout {p.rollout.cpu * 1e3:.1f} ms, mj_step loop "
                  f"{p.python_loop.cpu * 1e3:.1f} ms: ours / rollout {p.ratio:.2f}")
-    long = pair(scene, "rk4", "RK4", LONG_RUN, 1 if quick else 3)
+    long = pair(scene, "rk4", "RK4", LONG_RUN, 1 if quick else 5)
     progress(f"paper {LONG_RUN:g} s 1 kHz rk4: ours {long.ours.cpu * 1e3:.1f} ms "
              f"({long.factor(long.ours):.0f}× real time), MuJoCo rollout "
              f"{long.rollout.cpu * 1e3:.1f} ms: ours / rollout {long.ratio:.2f}")
     arms = []
     for n in ARM_LINKS:
-        p = pair(random_arm(n), "rk4", "RK4", 1.0, 1 if quick and n == 64 else repeats)
+        p = pair(random_arm(n), "rk4", "RK4", 1.0, 1 if quick and n == 64 else 5)
         arms.append(p)
         progress(f"{n} links 1 s rk4: ours {p.ours.cpu * 1e3:.1f} ms, MuJoCo rollout "
                  f"{p.rollout.cpu * 1e3:.1f} ms, mj_step loop {p.python_loop.cpu * 1e3:.1f} ms: "
@@ -261,7 +266,8 @@ def section(result, number: int = 7) -> str:
              "`Simulation.sample` (state and energy written at every 100 Hz sample). From Python, "
              "one call per 100 Hz sample, as the node steps: a loop of `mj_step` reading the state "
              "beside our `Simulation.advance_to` (last table). CPU time of this thread, best of "
-             "the repeats.", ""]
+             "the repeats; ours and MuJoCo's are timed in turn in each round (15 rounds for the "
+             "paper rows), so that a spell of load on the machine falls on both.", ""]
 
     def speedup(p):
         return p.rollout.cpu / p.ours.cpu
