@@ -31,8 +31,8 @@ from ..engine.stepping import BUDGET
 from ..scene.errors import UserError
 from ..scene.loading import Scene
 from ..scene.methods import METHODS
-from ..scene.overrides import scene_with
 from . import lanes as compiled
+from .build import build_lanes
 
 BLOCK_SECONDS = 0.25   # wall s aimed at per compiled call: progress, limits and Ctrl-C between
 # Threads that finish their lanes first wait for the call's end asleep, not spinning: OpenMP's
@@ -69,21 +69,18 @@ class LaneStatus:
 
 class Batch:
     def __init__(self, scene: Scene | dict, overrides: list[dict] | None = None, *,
-                 threads: int | None = None, time_limit: float | None = None):
+                 threads: int | None = None, time_limit: float | None = None, check=None):
         """`scene`: a `Scene` or a scene document; `overrides`: one {key path: value} per lane
         (default: one lane, the scene itself). `threads`: threads of the compiled calls (default:
         numba's, one per core). `time_limit`: wall s per lane (its share of each call's wall time,
-        call wall × threads / lanes in the call); past it the lane is failed at its next sample."""
+        call wall × threads / lanes in the call); past it the lane is failed at its next sample.
+        `check(scene)`: a further check of each lane's scene (a raise fails the lane with it).
+        Lanes that differ only in numbers are copies of one template (`build.py`)."""
         document = scene.document if isinstance(scene, Scene) else scene
         overrides = [{}] if overrides is None else list(overrides)
-        built = []
-        for values in overrides:
-            try:
-                built.append(scene if isinstance(scene, Scene) and not values
-                             else scene_with(document, values))
-            except Exception as error:   # the lane is failed with its reason; the others go on
-                built.append(error)
-        self._start(built, threads, time_limit)
+        scenes, sims = build_lanes(document, overrides, check,
+                                   scene if isinstance(scene, Scene) else None)
+        self._start(scenes, sims, threads, time_limit)
 
     @classmethod
     def of_scenes(cls, scenes: list, *, threads: int | None = None,
@@ -91,33 +88,37 @@ class Batch:
         """A batch of these scenes, one lane each (an exception in place of a scene: that lane
         is failed from the start with it as its reason)."""
         batch = cls.__new__(cls)
-        batch._start(list(scenes), threads, time_limit)
+        sims = []
+        for i, scene in enumerate(scenes):
+            try:
+                sims.append(None if isinstance(scene, BaseException) else Simulation(scene))
+            except Exception as error:
+                scenes[i] = error
+                sims.append(None)
+        batch._start(list(scenes), sims, threads, time_limit)
         return batch
 
-    def _start(self, built: list, threads: int | None, time_limit: float | None) -> None:
-        self.size = len(built)
+    def _start(self, scenes: list, sims: list, threads: int | None,
+               time_limit: float | None) -> None:
+        self.size = len(scenes)
         self.threads = threads
         self.time_limit = time_limit
-        self.sims: list[Simulation | None] = [None] * self.size
+        self.sims: list[Simulation | None] = list(sims)
         self.errors: list[str | None] = [None] * self.size
         self.wall = np.zeros(self.size)   # each lane's share of wall time (s)
         self.sample_t = np.zeros((self.size, 0))   # each lane's own t at the last samples
         self.compiled_cpu = 0.0   # CPU s (all threads) spent inside the compiled calls
         links = None
-        for i, scene in enumerate(built):
+        for i, scene in enumerate(scenes):
             if isinstance(scene, BaseException):
-                self.errors[i] = error_line(scene)
+                self.errors[i], self.sims[i] = error_line(scene), None
                 continue
             if links is None:
                 links = scene.robot.n_links
             if scene.robot.n_links != links:
                 self.errors[i] = str(UserError("robot.arm.links", "the lanes of a batch have one "
                                                                   "number of links"))
-                continue
-            try:
-                self.sims[i] = Simulation(scene)
-            except Exception as error:
-                self.errors[i] = error_line(error)
+                self.sims[i] = None
         self.compiled = np.array([sim is not None and METHODS[sim.settings.method].fixed_step
                                   for sim in self.sims], dtype=bool)
         self._records = None

@@ -39,7 +39,7 @@ def state_columns(n_links: int) -> list[str]:
 def run_one(document: dict, overrides: dict, duration: float, sample_rate: float | None = None,
             time_limit: float | None = None, csv_path: str | None = None) -> dict:
     """The row of one run: status, error, final state (CSV names), checks and costs."""
-    n_links = len(document["robot"].get("arm", {}).get("links", []))
+    n_links = _links(document)
     rate = sample_rate or DEFAULT_SAMPLE_RATE
     row = {"status": "failed", "error": None}
     samples, csv_rows = [], []
@@ -54,9 +54,7 @@ def run_one(document: dict, overrides: dict, duration: float, sample_rate: float
 
     try:
         scene = scene_with(document, overrides)
-        if scene.robot.n_links != n_links:
-            raise UserError("robot.arm.links", "a sweep cannot change the number of links")
-        check_work(duration, scene.integrator, "duration", "integrator.dt", rate, "sample_rate")
+        check_run(scene, n_links, duration, rate)
         sim = headless.run(scene, duration, rate, None, on_sample)
     except Exception as error:   # recorded as one line (`error_line`): the sweep goes on
         row["error"] = error_line(error)
@@ -69,14 +67,16 @@ def run_one(document: dict, overrides: dict, duration: float, sample_rate: float
     return row
 
 
-def run_scene(document: dict, overrides: dict, duration: float, rate: float):
-    """The run's scene, checked as `run_one` checks it (UserError naming the key)."""
-    n_links = len(document["robot"].get("arm", {}).get("links", []))
-    scene = scene_with(document, overrides)
+def check_run(scene, n_links: int, duration: float, rate: float) -> None:
+    """A run's scene checked as a sweep checks it: its number of links, its work (UserError
+    naming the key)."""
     if scene.robot.n_links != n_links:
         raise UserError("robot.arm.links", "a sweep cannot change the number of links")
     check_work(duration, scene.integrator, "duration", "integrator.dt", rate, "sample_rate")
-    return scene
+
+
+def _links(document: dict) -> int:
+    return len(document["robot"].get("arm", {}).get("links", []))
 
 
 def run_block(document: dict, runs: list, duration: float, sample_rate: float | None = None,
@@ -87,13 +87,10 @@ def run_block(document: dict, runs: list, duration: float, sample_rate: float | 
     `stats`, if given, receives the CPU s inside the compiled calls (``compiled_cpu``)."""
     rate = sample_rate or DEFAULT_SAMPLE_RATE
     start_cpu = time.process_time()
-    scenes = []
-    for _, overrides in runs:
-        try:
-            scenes.append(run_scene(document, overrides, duration, rate))
-        except Exception as error:   # that lane fails with it; the block goes on
-            scenes.append(error)
-    batch = Batch.of_scenes(scenes, threads=threads, time_limit=time_limit)
+    n_links = _links(document)
+    batch = Batch(document, [overrides for _, overrides in runs], threads=threads,
+                  time_limit=time_limit,
+                  check=lambda scene: check_run(scene, n_links, duration, rate))
     times = np.fromiter(sample_times(duration, rate), dtype=float)
     samples = batch.sample(times)
     rows = []
@@ -104,7 +101,7 @@ def run_block(document: dict, runs: list, duration: float, sample_rate: float | 
             try:
                 states = samples[i, :, :-1]
                 sim.tracking = _tracking(sim, states)
-                row.update(_figures(sim, scenes[i], states, residual_of_samples))
+                row.update(_figures(sim, sim.scene, states, residual_of_samples))
                 row["status"] = "ok"
                 if csv_dir:
                     _write_csv(f"{csv_dir}/run-{run_id:06d}.csv", state_columns(sim.model.n_links),
