@@ -26,6 +26,7 @@ every array of a copied lane's records, and its scene, with those of the plain b
 from __future__ import annotations
 
 import dataclasses
+import functools
 import gc
 import math
 from collections import Counter
@@ -99,20 +100,29 @@ def _family(parts: list):
     return None
 
 
+@functools.lru_cache(maxsize=4096)
+def _fast_key(path: str):
+    """(family, index) of a key path of a fast family, or None (another key, or not a path)."""
+    try:
+        parts = parse_path(path)
+    except Exception:
+        return None
+    family = _family(parts)
+    if family is None:
+        return None
+    return family, next((part for part in parts if isinstance(part, int)), 0)
+
+
 def _split(values: dict) -> tuple[dict, dict]:
     """The overrides split into fast ones {(family, index): value} and the rest; no fast ones
     when a path is not a key path, or two paths overlap (one inside the other)."""
     fast, rest = {}, {}
     for path, value in values.items():
-        try:
-            parts = parse_path(path)
-        except Exception:
-            return {}, values
-        family = _family(parts)
-        if family is None:
+        found = _fast_key(path) if isinstance(path, str) else None
+        if found is None:
             rest[path] = value
         else:
-            fast[(family, next((p for p in parts if isinstance(p, int)), 0))] = value
+            fast[found] = value
     prefixes = [str(path) for path in rest]
     for path in values:
         if path not in rest and any(path.startswith(p) or p.startswith(path) for p in prefixes):
@@ -321,7 +331,10 @@ class _Plan:
         self.nodes.append(None)
         if isinstance(node, np.ndarray):
             plain = node.flags.c_contiguous and node.flags.writeable
-            self.steps.append((_ARRAY if plain else _LAYOUT, slot, node))
+            if plain and node.size > 64 and not node.any():   # (the impact logs: pages the
+                self.steps.append((_ZEROS, slot, node))         # lane may never touch)
+            else:
+                self.steps.append((_ARRAY if plain else _LAYOUT, slot, node))
             self.arrays.append(node)
         elif isinstance(node, tuple) and hasattr(node, "_fields"):
             self.steps.append((_RECORD, slot, type(node), [self._walk(item) for item in node]))
@@ -365,6 +378,8 @@ class _Plan:
                 nodes[slot].__dict__.update(state)
             elif kind is _TUPLE:
                 nodes[slot] = tuple([nodes[i] for i in step[2]])
+            elif kind is _ZEROS:
+                nodes[slot] = np.zeros(step[2].shape, step[2].dtype)
             elif kind is _LAYOUT:
                 nodes[slot] = _copy(step[2])
             else:
@@ -372,8 +387,8 @@ class _Plan:
         return nodes[self.root]
 
 
-_ARRAY, _RECORD, _OBJECT, _FILL, _TUPLE, _LAYOUT, _LIST = (
-    "array", "record", "object", "fill", "tuple", "layout", "list")
+_ARRAY, _ZEROS, _RECORD, _OBJECT, _FILL, _TUPLE, _LAYOUT, _LIST = (
+    "array", "zeros", "record", "object", "fill", "tuple", "layout", "list")
 
 
 def _holds_arrays(value) -> bool:

@@ -233,11 +233,13 @@ class Batch:
 
     def _compiled_lanes(self, lanes: np.ndarray, times: np.ndarray, rows, progress) -> None:
         lane_of, lists = self._lists()
-        budget = self.sims[lanes[0]]._step_budget
+        first_sim = self.sims[lanes[0]]
+        budget = first_sim._step_budget
         threads = _set_threads(self.threads or 1 << 30)
         code = np.zeros(self.size, dtype=np.int64)
         failure = np.zeros(self.size, dtype=np.int64)
         next_sample = np.zeros(self.size, dtype=np.int64)
+        logs = compiled.impact_logs(self.size, first_sim.nq, first_sim.nu)
         write = rows is not None
         out = rows if write else compiled.empty_rows(self.size, self._state_size())
         out_t = self.sample_t if write else np.zeros((self.size, 1))
@@ -250,39 +252,44 @@ class Batch:
             while pending.size:
                 cpu = time.process_time()
                 compiled.advance_fixed(*lists, pending, lane_of[pending], times, last, out, out_t,
-                                       write, budget, code, next_sample, failure)
+                                       write, budget, code, next_sample, failure, logs)
                 self.compiled_cpu += time.process_time() - cpu
                 now = time.perf_counter()
                 self.wall[pending] += (now - started) * threads / max(pending.size, threads)
                 started = now
-                pending = self._after_call(pending, code, failure, next_sample, last)
+                pending = self._after_call(pending, code, failure, next_sample, last, logs)
             if progress is not None:
                 progress.update(last, f", {int((~self.ok).sum())} failed")
             block = _next_block(block, last - first, time.perf_counter() - block_start)
             first = last
 
-    def _after_call(self, pending, code, failure, next_sample, last) -> np.ndarray:
-        """After a compiled call: impacts moved into each paused lane's list (as Python does
-        after every call of a run), failed lanes told why, time limits checked; returns the
-        lanes that still have samples to reach in this block."""
-        again = []
-        for i in pending:
-            sim, r = self.sims[i], i
-            if code[r] == compiled.LANE_DONE and self.time_limit is None:
+    def _after_call(self, pending, code, failure, next_sample, last, logs) -> np.ndarray:
+        """After a compiled call: each lane's impacts read from its own log (and, for a paused
+        lane, the stops' log: as Python does after every call of a run), failed lanes told why,
+        time limits checked; returns the lanes that still have samples to reach in this block."""
+        busy = pending[(code[pending] != compiled.LANE_DONE) | (logs.count[pending] > 0)]
+        for i in busy:
+            sim = self.sims[i]
+            if logs.count[i]:
+                sim._collect_impacts(compiled.lane_log(logs, i))
+            if code[i] == compiled.LANE_DONE:
                 continue
             try:
-                if code[r] == compiled.LANE_FAILED:
-                    sim._after_compiled(int(failure[r]))   # raises the run's own error
-                    raise RuntimeError(f"the stepping ended with status {int(failure[r])}")
-                if code[r] == compiled.LANE_PAUSED:
-                    sim._after_compiled(BUDGET)             # empties the log, as after a call
-                self._check_time_limit(i)
+                if code[i] == compiled.LANE_FAILED:
+                    sim._after_compiled(int(failure[i]))   # raises the run's own error
+                    raise RuntimeError(f"the stepping ended with status {int(failure[i])}")
+                sim._after_compiled(BUDGET)                 # paused: its log read, as after a call
             except Exception as error:
                 self.fail(i, error)
-                continue
-            if code[r] == compiled.LANE_PAUSED and next_sample[r] < last:
-                again.append(i)   # (a lane paused on its block's last sample is through)
-        return np.array(again, dtype=np.int64)
+        if self.time_limit is not None:
+            for i in pending:
+                if self.errors[i] is None:
+                    try:
+                        self._check_time_limit(i)
+                    except TimeLimit as error:
+                        self.fail(i, error)
+        again = pending[(code[pending] == compiled.LANE_PAUSED) & (next_sample[pending] < last)]
+        return again[[self.errors[i] is None for i in again]].astype(np.int64)
 
 
 def _set_threads(count: int) -> int:

@@ -413,10 +413,11 @@ class Simulation(ArmCommands, BaseCommands):
                               f"impulses (a singular contact set); try a smaller dt or tighter "
                               f"tolerances")
 
-    def _collect_impacts(self) -> None:
+    def _collect_impacts(self, stops=None) -> None:
         """Move the compiled stop log into `impacts` (and `impact_details`); a hold that removed
-        more than the Zeno guard's bound is reported on one line (`hold_warning`)."""
-        stops = self.stops
+        more than the Zeno guard's bound is reported on one line (`hold_warning`). `stops`: a
+        record with the stops' log fields to read instead (a batch lane's own log)."""
+        stops = self.stops if stops is None else stops
         for row in range(int(stops.count[0])):
             log = stops.log[row]
             if log[LOG_HOLD_LOST] > log[LOG_HOLD_BOUND]:

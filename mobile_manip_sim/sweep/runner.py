@@ -13,6 +13,7 @@ among its runs). `run_chunk_one_by_one` is the path without the batch, kept to c
 from __future__ import annotations
 
 import csv
+import functools
 import time
 from pathlib import Path
 
@@ -32,8 +33,13 @@ from ..scene.overrides import scene_with
 from .spec import DEFAULT_SAMPLE_RATE
 
 
+@functools.cache
+def _state_columns(n_links: int) -> tuple:
+    return tuple(headless.csv_columns(n_links))
+
+
 def state_columns(n_links: int) -> list[str]:
-    return headless.csv_columns(n_links)
+    return list(_state_columns(n_links))
 
 
 def run_one(document: dict, overrides: dict, duration: float, sample_rate: float | None = None,
