@@ -107,7 +107,9 @@ class Batch:
         self.errors: list[str | None] = [None] * self.size
         self.wall = np.zeros(self.size)   # each lane's share of wall time (s)
         self.sample_t = np.zeros((self.size, 0))   # each lane's own t at the last samples
-        self.compiled_cpu = 0.0   # CPU s (all threads) spent inside the compiled calls
+        self.compiled_cpu = 0.0   # CPU s (all threads of the process) during the compiled calls
+        self.python_cpu = 0.0     # CPU s of the stepping thread outside the compiled calls
+        self._caller_in_calls = 0.0   # … and inside them
         links = None
         for i, scene in enumerate(scenes):
             if isinstance(scene, BaseException):
@@ -183,11 +185,13 @@ class Batch:
         return next((sim.s.size for sim in self.sims if sim is not None), 0)
 
     def _run(self, times: np.ndarray, rows, progress) -> None:
+        start, in_calls = time.thread_time(), self._caller_in_calls
         for i in np.flatnonzero(self.ok & ~self.compiled):
             self._scalar_lane(i, times, rows)
         lanes = np.flatnonzero(self.ok & self.compiled)
         if lanes.size:
             self._compiled_lanes(lanes, times, rows, progress)
+        self.python_cpu += (time.thread_time() - start) - (self._caller_in_calls - in_calls)
 
     def _scalar_lane(self, i: int, times: np.ndarray, rows) -> None:
         """A lane the compiled call does not run, stepped by its own Simulation as `simulate`
@@ -250,10 +254,11 @@ class Batch:
             next_sample[pending] = first
             block_start = started = time.perf_counter()
             while pending.size:
-                cpu = time.process_time()
+                cpu, own = time.process_time(), time.thread_time()
                 compiled.advance_fixed(*lists, pending, lane_of[pending], times, last, out, out_t,
                                        write, budget, code, next_sample, failure, logs)
                 self.compiled_cpu += time.process_time() - cpu
+                self._caller_in_calls += time.thread_time() - own
                 now = time.perf_counter()
                 self.wall[pending] += (now - started) * threads / max(pending.size, threads)
                 started = now
@@ -290,6 +295,29 @@ class Batch:
                         self.fail(i, error)
         again = pending[(code[pending] == compiled.LANE_PAUSED) & (next_sample[pending] < last)]
         return again[[self.errors[i] is None for i in again]].astype(np.int64)
+
+
+def overlapped(items: list, build, step):
+    """(item, build(item), step(built)) for each item, in order, with item k stepped in a helper
+    thread while item k + 1 is built, and item k - 1's results are used by the caller (between
+    two of its `next`), in this thread: the compiled calls of a step release the GIL, so a
+    sweep's Python work (building lanes, reading their figures) runs beside them on the cores."""
+    if len(items) < 2:
+        for item in items:
+            built = build(item)
+            yield item, built, step(built)
+        return
+    from concurrent.futures import ThreadPoolExecutor
+    with ThreadPoolExecutor(1, thread_name_prefix="batch-steps") as helper:
+        built = build(items[0])
+        stepping = helper.submit(step, built)
+        for k, item in enumerate(items):
+            following = build(items[k + 1]) if k + 1 < len(items) else None
+            stepped = stepping.result()
+            done = built
+            if following is not None:
+                stepping, built = helper.submit(step, following), following
+            yield item, done, stepped
 
 
 def _set_threads(count: int) -> int:

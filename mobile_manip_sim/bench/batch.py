@@ -1,5 +1,5 @@
 """Many runs in one call (`mobile_manip_sim.batch`): the paper sweep of 10,000 runs (rk4, dt 2 ms,
-1.5 s, rod 1's mass and joint 1's effort varied) as one batch on 1 and 2 threads, beside MuJoCo's
+1.5 s, rod 1's mass and joint 1's effort varied) as one block on 1 core and 2, beside MuJoCo's
 `rollout` with 2 threads on the equivalent model doing the same runs, in the same process; the
 same runs through Dask (a LocalCluster of 2 workers, one batch per task); the cost per lane
 against the number of lanes; and the lanes' arithmetic rate against this CPU's peaks.
@@ -13,6 +13,7 @@ import math
 import os
 import re
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -60,6 +61,24 @@ def paper_runs(count: int, seed: int = 28) -> list[dict]:
     return [{"integrator.method": "rk4", "integrator.dt": DT, "duration": DURATION,
              "robot.arm.links[0].mass_per_length": float(m), "efforts.joints[0]": float(e)}
             for m, e in zip(masses, efforts, strict=True)]
+
+
+@contextmanager
+def on_cores(count: int):
+    """Every thread of this process (and those it starts meanwhile) on `count` of its CPUs: the
+    batch's Python work and its compiled calls then share them (one core: one after the other)."""
+    allowed = sorted(os.sched_getaffinity(0))
+    threads = [int(tid) for tid in os.listdir("/proc/self/task")]
+    for tid in threads:
+        os.sched_setaffinity(tid, set(allowed[:count]))
+    try:
+        yield
+    finally:
+        for tid in os.listdir("/proc/self/task"):
+            try:
+                os.sched_setaffinity(int(tid), set(allowed))
+            except OSError:   # a thread that ended meanwhile
+                pass
 
 
 def _timed(work) -> tuple[Timing, object]:
@@ -228,11 +247,12 @@ def measure(progress, quick: bool = False) -> BatchResult:
     stats = {}
     result.two_threads, rows = _timed(lambda: sweep_block(runs, 2, stats))
     result.compiled_share = stats["compiled_cpu"] / result.two_threads.cpu
-    progress(f"{len(runs)} paper runs as one batch, 2 threads: {result.two_threads.wall:.2f} s "
+    progress(f"{len(runs)} paper runs as one block, 2 threads: {result.two_threads.wall:.2f} s "
              f"wall, {result.two_threads.cpu:.2f} s CPU")
-    result.one_thread, _ = _timed(lambda: sweep_block(runs, 1))
-    progress(f"… 1 thread: {result.one_thread.wall:.2f} s wall, {result.one_thread.cpu:.2f} s CPU "
-             f"(×{result.one_thread.wall / result.two_threads.wall:.2f} from 1 to 2 threads)")
+    with on_cores(1):
+        result.one_thread, _ = _timed(lambda: sweep_block(runs, 1))
+    progress(f"… 1 core: {result.one_thread.wall:.2f} s wall, {result.one_thread.cpu:.2f} s CPU "
+             f"(×{result.one_thread.wall / result.two_threads.wall:.2f} from 1 to 2 cores)")
     checked = [0, len(runs) // 2, len(runs) - 1]
     from ..sweep.runner import run_one
     result.rows_equal = all(
@@ -260,6 +280,11 @@ def measure(progress, quick: bool = False) -> BatchResult:
     return result
 
 
+def _piece() -> int:
+    from ..sweep.runner import PIECE
+    return PIECE
+
+
 def section(result: BatchResult, number: int = 9) -> str:
     two, one = result.two_threads, result.one_thread
     speedup = one.wall / two.wall
@@ -271,8 +296,8 @@ def section(result: BatchResult, number: int = 9) -> str:
     rows = [("runs", f"{result.runs}", ""),
             ("batch, 2 threads: wall / CPU", f"{two.wall:.2f} s / {two.cpu:.2f} s",
              verdict(two.wall <= 5.0 * result.runs / RUNS, "≤ 5 s for 10,000 runs")),
-            ("batch, 1 thread: wall", f"{one.wall:.2f} s",
-             verdict(speedup >= 1.8, f"×{speedup:.2f} from 1 to 2 threads (target ≥ 1.8)")),
+            ("batch, 1 core (process pinned to one CPU): wall", f"{one.wall:.2f} s",
+             verdict(speedup >= 1.8, f"×{speedup:.2f} from 1 to 2 cores (target ≥ 1.8)")),
             ("CPU inside the compiled call", f"{result.compiled_share * 100:.0f} %",
              verdict(result.compiled_share >= 0.75, "target ≥ 75 %")),
             ("rows: a lane = its run alone", "yes" if result.rows_equal else "NO", "")]
@@ -288,7 +313,10 @@ def section(result: BatchResult, number: int = 9) -> str:
     lines = [f"## {number}. Many runs in one call (batch)", "",
              f"{result.runs} runs of the paper scene (rk4, dt 2 ms, 1.5 s, 100 Hz samples; rod "
              "1's mass and joint 1's effort varied), the sweep's whole work per run (scene, "
-             "simulation, stepping, figures), in this process. CPU: all threads of the process.",
+             "simulation, stepping, figures), in this process: batches of "
+             f"{_piece()} lanes, one stepped while the next is built and the last one's figures "
+             "are read. CPU: all threads of the process; inside the compiled calls: the "
+             "process's CPU but that of its Python work.",
              "", table(("", "measured", "verdict"), rows), "",
              "Cost per lane (`Batch.sample` alone, 2 threads, CPU per lane):", "",
              table(("lanes N", "CPU per lane"),

@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 from distributed import WorkerPlugin
 
-from ..batch import Batch, TimeLimit, error_line
+from ..batch import Batch, TimeLimit, error_line, overlapped
 from ..batch.lanes import configuration_rates
 from ..dynamics import constraint_residuals
 from ..runtime import headless
@@ -31,6 +31,10 @@ from ..scene.loading import check_work
 from ..scene.methods import METHODS
 from ..scene.overrides import scene_with
 from .spec import DEFAULT_SAMPLE_RATE
+
+# Lanes per batch of a block: one batch is stepped (its compiled calls on the threads) while
+# the next one is built and the last one's figures are read, in Python, beside it.
+PIECE = 256
 
 
 @functools.cache
@@ -88,17 +92,37 @@ def _links(document: dict) -> int:
 def run_block(document: dict, runs: list, duration: float, sample_rate: float | None = None,
               time_limit: float | None = None, csv_dir: str | None = None,
               threads: int | None = None, stats: dict | None = None) -> list[dict]:
-    """The rows of ``runs`` [(run id, overrides)], run as the lanes of one `Batch` on `threads`
-    threads: each row is `run_one`'s for that run (``cpu_s``: the block's CPU time per run).
-    `stats`, if given, receives the CPU s inside the compiled calls (``compiled_cpu``)."""
+    """The rows of ``runs`` [(run id, overrides)], run as the lanes of batches of up to PIECE
+    lanes on `threads` threads, one batch stepped while the next is built and the last one's
+    figures are read (`batch.overlapped`): each row is `run_one`'s for that run (``cpu_s``: the
+    block's CPU time per run). `stats`, if given, receives the CPU s of the compiled calls
+    (``compiled_cpu``: the process's CPU but that of its Python work, in either thread)."""
     rate = sample_rate or DEFAULT_SAMPLE_RATE
-    start_cpu = time.process_time()
+    start_cpu, start_python = time.process_time(), time.thread_time()
     n_links = _links(document)
-    batch = Batch(document, [overrides for _, overrides in runs], threads=threads,
-                  time_limit=time_limit,
-                  check=lambda scene: check_run(scene, n_links, duration, rate))
     times = np.fromiter(sample_times(duration, rate), dtype=float)
-    samples = batch.sample(times)
+    pieces = [runs[i:i + PIECE] for i in range(0, len(runs), PIECE)]
+
+    def build(piece):
+        return Batch(document, [overrides for _, overrides in piece], threads=threads,
+                     time_limit=time_limit,
+                     check=lambda scene: check_run(scene, n_links, duration, rate))
+
+    rows, stepping_python = [], 0.0
+    for piece, batch, samples in overlapped(pieces, build, lambda batch: batch.sample(times)):
+        rows += _rows(piece, batch, samples, csv_dir)
+        stepping_python += batch.python_cpu
+    if stats is not None:
+        python = time.thread_time() - start_python + stepping_python
+        stats["compiled_cpu"] = time.process_time() - start_cpu - python
+    cpu = (time.process_time() - start_cpu) / max(len(runs), 1)
+    for row in rows:
+        row["cpu_s"] = cpu
+    return rows
+
+
+def _rows(runs: list, batch, samples: np.ndarray, csv_dir: str | None) -> list[dict]:
+    """The rows of a batch's runs [(run id, overrides)] from its samples (`_figures`)."""
     rows = []
     for i, (run_id, _) in enumerate(runs):
         row = {"run": run_id, "status": "failed", "error": batch.errors[i]}
@@ -115,11 +139,6 @@ def run_block(document: dict, runs: list, duration: float, sample_rate: float | 
             except Exception as error:
                 row.update(status="failed", error=error_line(error))
         rows.append(row)
-    if stats is not None:
-        stats["compiled_cpu"] = batch.compiled_cpu
-    cpu = (time.process_time() - start_cpu) / max(len(runs), 1)
-    for row in rows:
-        row["cpu_s"] = cpu
     return rows
 
 
