@@ -59,7 +59,7 @@ def build_lanes(document: dict, overrides: list[dict], check=None,
             template = None
             if shared[key] > 1:   # a template pays from the second lane of its group on
                 if key not in templates:
-                    templates[key] = Template.of(document, rest)
+                    templates[key] = Template.of(document, rest, shared[key])
                 template = templates[key]
             lane = None
             if template is not None and template.accepts(fast):
@@ -148,10 +148,10 @@ def _inside(value, lo: float, hi: float) -> bool:
 class Template:
     """One group's scene and `Simulation`, and the plan to copy its records (`_Plan`)."""
 
-    def __init__(self, raw: dict, scene: Scene, sim: Simulation):
+    def __init__(self, raw: dict, scene: Scene, sim: Simulation, lanes: int = 1):
         self.raw = raw   # the document its scene was parsed from (the lanes' numbers set in it)
         self.scene, self.sim = scene, sim
-        self.plan = _Plan(sim)
+        self.plan = _Plan(sim, lanes)
         robot = scene.robot
         self.effort_mode = not sim.arm_controller.active
         self.sizes = {"mass": robot.n_links, "efforts.wheels": 2,
@@ -162,7 +162,7 @@ class Template:
         self.own_masses = sim.system.data.ff_model is sim.system.data.model
 
     @classmethod
-    def of(cls, document: dict, rest: dict) -> Template | None:
+    def of(cls, document: dict, rest: dict, lanes: int = 1) -> Template | None:
         """The template of the lanes with these other overrides, or None (they are built the
         plain way: an adaptive method, or a scene or simulation that does not build)."""
         try:
@@ -170,7 +170,7 @@ class Template:
             scene = parse_scene(raw, "scene")
             if not scene.integrator.fixed_step:
                 return None
-            template = cls(raw, scene, Simulation(scene))
+            template = cls(raw, scene, Simulation(scene), lanes)
         except Exception:
             return None
         return None if template.plan.shares_memory() else template
@@ -310,13 +310,17 @@ class _Plan:
     stops'), and shares everything else (the scene's objects, the compiled kernels and their
     entry points, which the copies' records, of the same types, use as they are)."""
 
-    def __init__(self, template):
+    def __init__(self, template, copies: int = 1):
         self.nodes: list = []      # per slot: a shared value, or None for one made per copy
         self.steps: list = []      # (kind, slot, …) in the order they are made
         self.arrays: list = []
         self._index: dict = {}     # id of a walked node → its slot
         self._keep: list = []      # the walked nodes, alive while the plan is
         self.root = self._walk(template)
+        # The all-zero arrays of `copies` copies (the stop logs, some 300 kB per lane) as slices
+        # of one zeroed block each: pages the operating system maps when a lane first writes
+        # them (a few impact rows), not ones cleared and mapped for every copy.
+        self.copies, self._zero_blocks = copies, {}
 
     def _walk(self, node) -> int:
         known = self._index.get(id(node))
@@ -361,6 +365,15 @@ class _Plan:
                 base = getattr(base, "base", None)
         return False
 
+    def _zeros(self, array: np.ndarray) -> np.ndarray:
+        block, used = self._zero_blocks.get(id(array), (None, self.copies))
+        if used == self.copies:
+            if self.copies < 2:
+                return np.zeros(array.shape, array.dtype)
+            block, used = np.zeros((self.copies,) + array.shape, array.dtype), 0
+        self._zero_blocks[id(array)] = (block, used + 1)
+        return block[used]
+
     def copy(self):
         nodes = self.nodes.copy()
         for step in self.steps:
@@ -379,7 +392,7 @@ class _Plan:
             elif kind is _TUPLE:
                 nodes[slot] = tuple([nodes[i] for i in step[2]])
             elif kind is _ZEROS:
-                nodes[slot] = np.zeros(step[2].shape, step[2].dtype)
+                nodes[slot] = self._zeros(step[2])
             elif kind is _LAYOUT:
                 nodes[slot] = _copy(step[2])
             else:
