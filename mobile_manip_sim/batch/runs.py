@@ -88,14 +88,14 @@ class Batch:
         """A batch of these scenes, one lane each (an exception in place of a scene: that lane
         is failed from the start with it as its reason)."""
         batch = cls.__new__(cls)
-        sims = []
+        scenes, sims = list(scenes), []
         for i, scene in enumerate(scenes):
             try:
                 sims.append(None if isinstance(scene, BaseException) else Simulation(scene))
             except Exception as error:
                 scenes[i] = error
                 sims.append(None)
-        batch._start(list(scenes), sims, threads, time_limit)
+        batch._start(scenes, sims, threads, time_limit)
         return batch
 
     def _start(self, scenes: list, sims: list, threads: int | None,

@@ -14,6 +14,7 @@ from mobile_manip_sim.batch import lanes as lanes_module
 from mobile_manip_sim.batch.lanes import LOG_ROWS
 from mobile_manip_sim.runtime import headless
 from mobile_manip_sim.runtime.timeline import sample_times
+from mobile_manip_sim.scene.errors import UserError
 from mobile_manip_sim.scene.overrides import scene_with
 from robots import random_robot_document
 
@@ -167,3 +168,14 @@ def test_a_lane_whose_own_impact_log_fills_pauses_and_goes_on_with_the_same_bits
     assert same_bits(results[1][0], results[LOG_ROWS][0])
     assert results[1][2] == results[LOG_ROWS][2] and any(results[1][2])
     assert results[1][1] > results[LOG_ROWS][1]   # lanes paused with a one-row log
+
+
+def test_of_scenes_takes_parsed_scenes_and_an_exception_fails_its_lane_alone():
+    document, lanes = random_lanes(71, 2, 2)
+    scenes = [scene_with(document, lanes[0]), UserError("robot.base.mass", "must be positive")]
+    batch = Batch.of_scenes(scenes, threads=1)
+    batch.advance_to(0.05)
+    assert isinstance(scenes[1], UserError)   # the caller's list is left as it was
+    status = batch.status
+    assert status[0].ok and status[0].t == 0.05
+    assert not status[1].ok and status[1].error == str(scenes[1])
