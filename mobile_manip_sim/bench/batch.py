@@ -51,6 +51,8 @@ class BatchResult:
     ghz: float = math.nan
     instructions: dict = field(default_factory=dict)
     rows_equal: bool = False                 # every lane's final state = its run alone (sampled)
+    load: float = math.nan                   # the machine's 1-minute load average before
+    others: float = math.nan                 # … and CPUs busy with other processes meanwhile
 
 
 def paper_runs(count: int, seed: int = 28) -> list[dict]:
@@ -79,6 +81,16 @@ def on_cores(count: int):
                 os.sched_setaffinity(int(tid), set(allowed))
             except OSError:   # a thread that ended meanwhile
                 pass
+
+
+def _busy_cpu() -> float:
+    """CPU s the whole machine has spent busy (all processes), from /proc/stat."""
+    try:
+        with open("/proc/stat") as handle:
+            fields = [float(x) for x in handle.readline().split()[1:]]
+        return (sum(fields[:8]) - fields[3] - fields[4]) / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError):
+        return math.nan
 
 
 def _timed(work) -> tuple[Timing, object]:
@@ -243,6 +255,8 @@ def clock_ghz() -> float:
 def measure(progress, quick: bool = False) -> BatchResult:
     runs = paper_runs(QUICK_RUNS if quick else RUNS)
     result = BatchResult(len(runs))
+    result.load = os.getloadavg()[0]
+    busy0, wall0, own0 = _busy_cpu(), time.perf_counter(), time.process_time()
     sweep_block(runs[:16], 2)   # compile or load the kernels
     stats = {}
     result.two_threads, rows = _timed(lambda: sweep_block(runs, 2, stats))
@@ -251,6 +265,8 @@ def measure(progress, quick: bool = False) -> BatchResult:
              f"wall, {result.two_threads.cpu:.2f} s CPU")
     with on_cores(1):
         result.one_thread, _ = _timed(lambda: sweep_block(runs, 1))
+    result.others = ((_busy_cpu() - busy0) - (time.process_time() - own0)) / (
+        time.perf_counter() - wall0)
     progress(f"… 1 core: {result.one_thread.wall:.2f} s wall, {result.one_thread.cpu:.2f} s CPU "
              f"(×{result.one_thread.wall / result.two_threads.wall:.2f} from 1 to 2 cores)")
     checked = [0, len(runs) // 2, len(runs) - 1]
@@ -331,5 +347,8 @@ def section(result: BatchResult, number: int = 9) -> str:
              f"and {packed} packed double arithmetic instructions ({mix}). The lanes are not "
              "vectorized (no SIMD lanes body yet).", ""]
     if os.cpu_count():
-        lines.append(f"This machine: {os.cpu_count()} cores.")
+        lines.append(f"This machine: {os.cpu_count()} cores; load average {result.load:.2f} "
+                     f"before the section, and other processes kept {result.others:.2f} CPUs "
+                     "busy on average while the batch ran on 1 and 2 cores (wall times and the "
+                     "1-to-2-core ratio are those of a quiet machine only when this is near 0).")
     return "\n".join(lines) + "\n"
