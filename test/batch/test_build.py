@@ -180,3 +180,36 @@ def test_a_number_the_parser_refuses_fails_its_lane_with_the_parsers_line(key, v
     assert sims[1] is None and error_line(scenes[1]) == error_line(plain.value)
     assert "\n" not in error_line(scenes[1])
     assert sims[0] is not None and sims[2] is not None and sims[0]._advance is sims[2]._advance
+
+
+def immutable(value) -> bool:
+    """A value two lanes may share: a number, string, None, a function, module or compiled
+    entry point, a frozen dataclass, or a tuple of such."""
+    if value is None or isinstance(value, (bool, int, float, str, Bound, types.ModuleType,
+                                           types.FunctionType, types.MethodType)):
+        return True
+    if dataclasses.is_dataclass(value) and not isinstance(value, type):
+        return value.__dataclass_params__.frozen
+    if isinstance(value, tuple):
+        return all(immutable(item) for item in value)
+    return False
+
+
+def test_two_copies_share_no_mutable_object():
+    """What a copy shares with another is immutable (so a lane's command or state never reaches
+    another): every array, record and object of the simulation, its system and dynamics, is its
+    own."""
+    document = paper_document()
+    lanes = [{"integrator.method": "rk4", "robot.arm.links[0].mass_per_length": m}
+             for m in (0.9, 1.1)]
+    _, (a, b) = build_lanes(document, lanes)
+    assert a._advance is b._advance   # copies of one template
+    pairs = [(a, b), (a.system, b.system), (a.dynamics, b.dynamics)]
+    for one, other in pairs:
+        for name, value in vars(one).items():
+            if value is getattr(other, name):
+                assert immutable(value), f"{type(one).__name__}.{name} is shared"
+    for one, other in [(a.system.data, b.system.data), (a.stops, b.stops),
+                       (a._scratch, b._scratch), (a.dynamics.ws, b.dynamics.ws)]:
+        for name, x, y in zip(one._fields, one, other, strict=True):
+            assert x is not y or immutable(x), f"{type(one).__name__}.{name} is shared"
