@@ -124,6 +124,8 @@ class Batch:
         self.compiled = np.array([sim is not None and METHODS[sim.settings.method].fixed_step
                                   for sim in self.sims], dtype=bool)
         self._records = None
+        self._logs = None         # each compiled lane's own impact log (`lanes.impact_logs`)
+        self.block = 1            # samples in the next compiled call (grown to BLOCK_SECONDS)
 
     # --- per lane ---------------------------------------------------------------------------
     def lane(self, i: int) -> Simulation | None:
@@ -169,17 +171,30 @@ class Batch:
     def advance_to(self, t_end: float) -> None:
         """Every lane that is ok to exactly t_end (s)."""
         self._run(np.array([float(t_end)]), None, None)
+        self.collect()
 
-    def sample(self, times, progress=None) -> np.ndarray:
+    def sample(self, times, progress=None, collect: bool = True) -> np.ndarray:
         """Every lane through the increasing sample times (s): an (N, samples, state + 1) array
         whose [i, k] is lane i's (s, T + V) at times[k], as `Simulation.sample` gives it (nan
-        after a lane failed). `progress`: a `runtime.progress.Progress` counting samples."""
+        after a lane failed). `progress`: a `runtime.progress.Progress` counting samples.
+        `collect=False` leaves the impacts in the lanes' own logs until `collect()` (another
+        thread may then read them while this one steps another batch)."""
         times = np.ascontiguousarray(times, dtype=float).reshape(-1)
         size = self._state_size()
         rows = np.full((self.size, times.size, size + 1), np.nan)
         self.sample_t = np.full((self.size, times.size), np.nan)
         self._run(times, rows, progress)
+        if collect:
+            self.collect()
         return rows
+
+    def collect(self) -> None:
+        """Each lane's impacts moved from its own log into its `impacts` (`Simulation`'s)."""
+        logs = self._logs
+        if logs is None:
+            return
+        for i in np.flatnonzero(logs.count):
+            self.sims[i]._collect_impacts(compiled.lane_log(logs, i))
 
     def _state_size(self) -> int:
         return next((sim.s.size for sim in self.sims if sim is not None), 0)
@@ -243,11 +258,13 @@ class Batch:
         code = np.zeros(self.size, dtype=np.int64)
         failure = np.zeros(self.size, dtype=np.int64)
         next_sample = np.zeros(self.size, dtype=np.int64)
-        logs = compiled.impact_logs(self.size, first_sim.nq, first_sim.nu)
+        if self._logs is None:
+            self._logs = compiled.impact_logs(self.size, first_sim.nq, first_sim.nu)
+        logs = self._logs
         write = rows is not None
         out = rows if write else compiled.empty_rows(self.size, self._state_size())
         out_t = self.sample_t if write else np.zeros((self.size, 1))
-        block, first = 1, 0
+        block, first = self.block, 0
         while first < times.size:
             last = min(times.size, first + block)
             pending = lanes[[self.errors[i] is None for i in lanes]]
@@ -267,12 +284,14 @@ class Batch:
                 progress.update(last, f", {int((~self.ok).sum())} failed")
             block = _next_block(block, last - first, time.perf_counter() - block_start)
             first = last
+        self.block = block
 
     def _after_call(self, pending, code, failure, next_sample, last, logs) -> np.ndarray:
-        """After a compiled call: each lane's impacts read from its own log (and, for a paused
-        lane, the stops' log: as Python does after every call of a run), failed lanes told why,
-        time limits checked; returns the lanes that still have samples to reach in this block."""
-        busy = pending[(code[pending] != compiled.LANE_DONE) | (logs.count[pending] > 0)]
+        """After a compiled call: a paused or failed lane's impacts read from its own log (and
+        the stops' log, as Python does after every call of a run; the others' stay in their logs
+        until `collect`), failed lanes told why, time limits checked; returns the lanes that
+        still have samples to reach in this block."""
+        busy = pending[code[pending] != compiled.LANE_DONE]
         for i in busy:
             sim = self.sims[i]
             if logs.count[i]:

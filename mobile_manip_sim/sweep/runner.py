@@ -108,8 +108,17 @@ def run_block(document: dict, runs: list, duration: float, sample_rate: float | 
                      time_limit=time_limit,
                      check=lambda scene: check_run(scene, n_links, duration, rate))
 
+    calls = {"block": 1}   # samples per compiled call: each batch starts where the last ended
+
+    def step(batch):
+        batch.block = calls["block"]
+        samples = batch.sample(times, collect=False)   # impacts read by `_rows`, beside the next
+        calls["block"] = batch.block
+        return samples
+
     rows, stepping_python = [], 0.0
-    for piece, batch, samples in overlapped(pieces, build, lambda batch: batch.sample(times)):
+    for piece, batch, samples in overlapped(pieces, build, step):
+        batch.collect()
         rows += _rows(piece, batch, samples, csv_dir)
         stepping_python += batch.python_cpu
     if stats is not None:
