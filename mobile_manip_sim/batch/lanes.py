@@ -3,22 +3,25 @@
 Each lane is one run with its own records (the system, its stops, its scratch, its state and
 clock: exactly those its own `Simulation` steps with), and each lane follows the very calls a
 `Simulation` makes from Python: for every sample time, `stepping.advance` with the simulation's
-step budget, again after BUDGET, and — where Python would empty the impact log after each call
-(`Simulation._collect_impacts`) — the lane pauses as soon as a call has logged an impact, so that
-Python moves the log into that lane's impact list before the lane goes on. The steps, the events
-(crossings, impacts, releases, holds: `engine/stepping.py` and `engine/stops.py`, called, never
-copied), the calls' boundaries and hence the rhs counters are those of the run alone: each lane
-is bit for bit its own run. A lane that fails (NOT_FINITE, CHATTER) stops where its own run
-would raise, and the others go on.
+step budget, again after BUDGET, and after every call the impact log emptied as Python empties it
+(`Simulation._collect_impacts`): its rows moved into the lane's own log (`keep_impacts`), which
+Python reads after the compiled call. A lane pauses only when that log is full, and goes on in the
+next call once Python has read it. The steps, the events (crossings, impacts, releases, holds:
+`engine/stepping.py` and `engine/stops.py`, called, never copied), the calls' boundaries and
+hence the rhs counters are those of the run alone: each lane is bit for bit its own run. A lane
+that fails (NOT_FINITE, CHATTER) stops where its own run would raise, and the others go on.
 
 `advance_fixed` runs the lanes of the fixed-step methods; the loop over lanes is numba's
 `prange` (threads, the lanes of one call shared among them), one thread per lane at a time, the
 project's scalar kernels inside each lane. Without numba it is the same loop in Python.
 """
+from collections import namedtuple
+
 import numpy as np
 
 from ..dynamics import kernels
 from ..dynamics.jit import ENABLED, jit
+from ..engine.impact_log import LOG_COLUMNS
 from ..engine.stepping import (
     BUDGET,
     CLOCK_DT,
@@ -67,12 +70,36 @@ def lane_list(items) -> "LaneList":
 
 
 @jit
+def keep_impacts(stops, log, log_q, log_u, log_free, count):
+    """Move the impact log's rows into the lane's own (log, log_q, log_u, log_free, count[0]
+    rows in use) and empty it, as Python does after every call of a run alone
+    (`Simulation._collect_impacts`); False, leaving the log as it is, when they do not fit."""
+    rows = stops.count[0]
+    if count[0] + rows > log.shape[0]:
+        return False
+    for r in range(rows):
+        k = count[0] + r
+        for j in range(log.shape[1]):
+            log[k, j] = stops.log[r, j]
+        for j in range(log_q.shape[1]):
+            log_q[k, j] = stops.log_q[r, j]
+        for j in range(log_u.shape[2]):
+            log_u[k, 0, j] = stops.log_u[r, 0, j]
+            log_u[k, 1, j] = stops.log_u[r, 1, j]
+            log_free[k, j] = stops.log_free[r, j]
+    count[0] += rows
+    stops.count[0] = 0
+    return True
+
+
+@jit
 def fixed_lane(method, system, stops, scr, s, clock, times, first, last, rows, rows_t, write,
-               budget):
+               budget, log, log_q, log_u, log_free, count):
     """One lane from sample `first` towards sample `last` (exclusive), as `Simulation.advance_to`
     does it sample by sample (rows[i] = (s, T + V) at times[i] and rows_t[i] the lane's own
-    clock there, `Simulation.t`, when `write`). Returns (code, next sample, the stepping status
-    that ended a failed lane)."""
+    clock there, `Simulation.t`, when `write`), its impacts moved after every call into its own
+    log (`keep_impacts`). Returns (code, next sample, the stepping status that ended a failed
+    lane): PAUSED when its log is full (Python reads it and the lane goes on)."""
     size = s.shape[0]
     i = first
     while i < last:
@@ -86,23 +113,25 @@ def fixed_lane(method, system, stops, scr, s, clock, times, first, last, rows, r
             i += 1
         elif status != BUDGET and status != LOG_FULL:
             return LANE_FAILED, i, status
-        if stops.count[0] > 0:   # Python empties the impact log after every call
+        if stops.count[0] > 0 and not keep_impacts(stops, log, log_q, log_u, log_free, count):
             return LANE_PAUSED, i, status
     return LANE_DONE, i, DONE
 
 
 @jit_lanes
 def advance_fixed(methods, systems, stops, scratches, states, clocks, lanes, records, times,
-                  last, rows, rows_t, write, budget, code, next_sample, failure):
+                  last, rows, rows_t, write, budget, code, next_sample, failure, logs):
     """Every lane in `lanes` (its records at index records[j] of the lists) from its
     next_sample[lane] towards sample `last`, in parallel; each lane's outcome in code[lane],
     next_sample[lane] and failure[lane] (`fixed_lane`). rows[lane] are its samples (with
-    `write`; else rows is one dummy row per lane)."""
+    `write`; else rows is one dummy row per lane); logs (`ImpactLogs`) its impacts."""
     for j in prange(lanes.shape[0]):
         lane, r = lanes[j], records[j]
         c, i, status = fixed_lane(methods[r], systems[r], stops[r], scratches[r], states[r],
                                   clocks[r], times, next_sample[lane], last, rows[lane],
-                                  rows_t[lane], write, budget)
+                                  rows_t[lane], write, budget, logs.log[lane], logs.log_q[lane],
+                                  logs.log_u[lane], logs.log_free[lane],
+                                  logs.count[lane:lane + 1])
         code[lane] = c
         next_sample[lane] = i
         failure[lane] = status
@@ -114,6 +143,28 @@ def configuration_rates(model, samples, nq, nu, out):
     row, as `Dynamics.configuration_rate` gives it."""
     for i in range(samples.shape[0]):
         kernels.configuration_rate(model, samples[i, :nq], samples[i, nq:nq + nu], out[i])
+
+
+# Rows of each lane's own impact log: the impacts of one call (a block of samples) that Python
+# reads after it; a lane with more pauses, and goes on once they are read.
+LOG_ROWS = 16
+
+ImpactLogs = namedtuple("ImpactLogs", "log log_q log_u log_free count")
+
+
+def impact_logs(lanes: int, nq: int, nu: int) -> ImpactLogs:
+    """Each lane's own impact log, indexed by lane (`keep_impacts`; rows as `stops.StopsData`'s)."""
+    return ImpactLogs(np.zeros((lanes, LOG_ROWS, LOG_COLUMNS)), np.zeros((lanes, LOG_ROWS, nq)),
+                      np.zeros((lanes, LOG_ROWS, 2, nu)),
+                      np.zeros((lanes, LOG_ROWS, nu), dtype=np.bool_),
+                      np.zeros(lanes, dtype=np.int64))
+
+
+def lane_log(logs: ImpactLogs, lane: int) -> ImpactLogs:
+    """Lane `lane`'s own log, read by `Simulation._collect_impacts` as the stops' log (the same
+    field names) and emptied by it."""
+    return ImpactLogs(logs.log[lane], logs.log_q[lane], logs.log_u[lane], logs.log_free[lane],
+                      logs.count[lane:lane + 1])
 
 
 def empty_rows(lanes: int, size: int) -> np.ndarray:

@@ -31,8 +31,8 @@ from ..engine.stepping import BUDGET
 from ..scene.errors import UserError
 from ..scene.loading import Scene
 from ..scene.methods import METHODS
-from ..scene.overrides import scene_with
 from . import lanes as compiled
+from .build import build_lanes
 
 BLOCK_SECONDS = 0.25   # wall s aimed at per compiled call: progress, limits and Ctrl-C between
 # Threads that finish their lanes first wait for the call's end asleep, not spinning: OpenMP's
@@ -69,21 +69,18 @@ class LaneStatus:
 
 class Batch:
     def __init__(self, scene: Scene | dict, overrides: list[dict] | None = None, *,
-                 threads: int | None = None, time_limit: float | None = None):
+                 threads: int | None = None, time_limit: float | None = None, check=None):
         """`scene`: a `Scene` or a scene document; `overrides`: one {key path: value} per lane
         (default: one lane, the scene itself). `threads`: threads of the compiled calls (default:
         numba's, one per core). `time_limit`: wall s per lane (its share of each call's wall time,
-        call wall × threads / lanes in the call); past it the lane is failed at its next sample."""
+        call wall × threads / lanes in the call); past it the lane is failed at its next sample.
+        `check(scene)`: a further check of each lane's scene (a raise fails the lane with it).
+        Lanes that differ only in numbers are copies of one template (`build.py`)."""
         document = scene.document if isinstance(scene, Scene) else scene
         overrides = [{}] if overrides is None else list(overrides)
-        built = []
-        for values in overrides:
-            try:
-                built.append(scene if isinstance(scene, Scene) and not values
-                             else scene_with(document, values))
-            except Exception as error:   # the lane is failed with its reason; the others go on
-                built.append(error)
-        self._start(built, threads, time_limit)
+        scenes, sims = build_lanes(document, overrides, check,
+                                   scene if isinstance(scene, Scene) else None)
+        self._start(scenes, sims, threads, time_limit)
 
     @classmethod
     def of_scenes(cls, scenes: list, *, threads: int | None = None,
@@ -91,36 +88,44 @@ class Batch:
         """A batch of these scenes, one lane each (an exception in place of a scene: that lane
         is failed from the start with it as its reason)."""
         batch = cls.__new__(cls)
-        batch._start(list(scenes), threads, time_limit)
+        scenes, sims = list(scenes), []
+        for i, scene in enumerate(scenes):
+            try:
+                sims.append(None if isinstance(scene, BaseException) else Simulation(scene))
+            except Exception as error:
+                scenes[i] = error
+                sims.append(None)
+        batch._start(scenes, sims, threads, time_limit)
         return batch
 
-    def _start(self, built: list, threads: int | None, time_limit: float | None) -> None:
-        self.size = len(built)
+    def _start(self, scenes: list, sims: list, threads: int | None,
+               time_limit: float | None) -> None:
+        self.size = len(scenes)
         self.threads = threads
         self.time_limit = time_limit
-        self.sims: list[Simulation | None] = [None] * self.size
+        self.sims: list[Simulation | None] = list(sims)
         self.errors: list[str | None] = [None] * self.size
         self.wall = np.zeros(self.size)   # each lane's share of wall time (s)
         self.sample_t = np.zeros((self.size, 0))   # each lane's own t at the last samples
-        self.compiled_cpu = 0.0   # CPU s (all threads) spent inside the compiled calls
+        self.compiled_cpu = 0.0   # CPU s (all threads of the process) during the compiled calls
+        self.python_cpu = 0.0     # CPU s of the stepping thread outside the compiled calls
+        self._caller_in_calls = 0.0   # … and inside them
         links = None
-        for i, scene in enumerate(built):
+        for i, scene in enumerate(scenes):
             if isinstance(scene, BaseException):
-                self.errors[i] = error_line(scene)
+                self.errors[i], self.sims[i] = error_line(scene), None
                 continue
             if links is None:
                 links = scene.robot.n_links
             if scene.robot.n_links != links:
                 self.errors[i] = str(UserError("robot.arm.links", "the lanes of a batch have one "
                                                                   "number of links"))
-                continue
-            try:
-                self.sims[i] = Simulation(scene)
-            except Exception as error:
-                self.errors[i] = error_line(error)
+                self.sims[i] = None
         self.compiled = np.array([sim is not None and METHODS[sim.settings.method].fixed_step
                                   for sim in self.sims], dtype=bool)
         self._records = None
+        self._logs = None         # each compiled lane's own impact log (`lanes.impact_logs`)
+        self.block = 1            # samples in the next compiled call (grown to BLOCK_SECONDS)
 
     # --- per lane ---------------------------------------------------------------------------
     def lane(self, i: int) -> Simulation | None:
@@ -166,27 +171,42 @@ class Batch:
     def advance_to(self, t_end: float) -> None:
         """Every lane that is ok to exactly t_end (s)."""
         self._run(np.array([float(t_end)]), None, None)
+        self.collect()
 
-    def sample(self, times, progress=None) -> np.ndarray:
+    def sample(self, times, progress=None, collect: bool = True) -> np.ndarray:
         """Every lane through the increasing sample times (s): an (N, samples, state + 1) array
         whose [i, k] is lane i's (s, T + V) at times[k], as `Simulation.sample` gives it (nan
-        after a lane failed). `progress`: a `runtime.progress.Progress` counting samples."""
+        after a lane failed). `progress`: a `runtime.progress.Progress` counting samples.
+        `collect=False` leaves the impacts in the lanes' own logs until `collect()` (another
+        thread may then read them while this one steps another batch)."""
         times = np.ascontiguousarray(times, dtype=float).reshape(-1)
         size = self._state_size()
         rows = np.full((self.size, times.size, size + 1), np.nan)
         self.sample_t = np.full((self.size, times.size), np.nan)
         self._run(times, rows, progress)
+        if collect:
+            self.collect()
         return rows
+
+    def collect(self) -> None:
+        """Each lane's impacts moved from its own log into its `impacts` (`Simulation`'s)."""
+        logs = self._logs
+        if logs is None:
+            return
+        for i in np.flatnonzero(logs.count):
+            self.sims[i]._collect_impacts(compiled.lane_log(logs, i))
 
     def _state_size(self) -> int:
         return next((sim.s.size for sim in self.sims if sim is not None), 0)
 
     def _run(self, times: np.ndarray, rows, progress) -> None:
+        start, in_calls = time.thread_time(), self._caller_in_calls
         for i in np.flatnonzero(self.ok & ~self.compiled):
             self._scalar_lane(i, times, rows)
         lanes = np.flatnonzero(self.ok & self.compiled)
         if lanes.size:
             self._compiled_lanes(lanes, times, rows, progress)
+        self.python_cpu += (time.thread_time() - start) - (self._caller_in_calls - in_calls)
 
     def _scalar_lane(self, i: int, times: np.ndarray, rows) -> None:
         """A lane the compiled call does not run, stepped by its own Simulation as `simulate`
@@ -232,56 +252,91 @@ class Batch:
 
     def _compiled_lanes(self, lanes: np.ndarray, times: np.ndarray, rows, progress) -> None:
         lane_of, lists = self._lists()
-        budget = self.sims[lanes[0]]._step_budget
+        first_sim = self.sims[lanes[0]]
+        budget = first_sim._step_budget
         threads = _set_threads(self.threads or 1 << 30)
         code = np.zeros(self.size, dtype=np.int64)
         failure = np.zeros(self.size, dtype=np.int64)
         next_sample = np.zeros(self.size, dtype=np.int64)
+        if self._logs is None:
+            self._logs = compiled.impact_logs(self.size, first_sim.nq, first_sim.nu)
+        logs = self._logs
         write = rows is not None
         out = rows if write else compiled.empty_rows(self.size, self._state_size())
         out_t = self.sample_t if write else np.zeros((self.size, 1))
-        block, first = 1, 0
+        block, first = self.block, 0
         while first < times.size:
             last = min(times.size, first + block)
             pending = lanes[[self.errors[i] is None for i in lanes]]
             next_sample[pending] = first
             block_start = started = time.perf_counter()
             while pending.size:
-                cpu = time.process_time()
+                cpu, own = time.process_time(), time.thread_time()
                 compiled.advance_fixed(*lists, pending, lane_of[pending], times, last, out, out_t,
-                                       write, budget, code, next_sample, failure)
+                                       write, budget, code, next_sample, failure, logs)
                 self.compiled_cpu += time.process_time() - cpu
+                self._caller_in_calls += time.thread_time() - own
                 now = time.perf_counter()
                 self.wall[pending] += (now - started) * threads / max(pending.size, threads)
                 started = now
-                pending = self._after_call(pending, code, failure, next_sample, last)
+                pending = self._after_call(pending, code, failure, next_sample, last, logs)
             if progress is not None:
                 progress.update(last, f", {int((~self.ok).sum())} failed")
             block = _next_block(block, last - first, time.perf_counter() - block_start)
             first = last
+        self.block = block
 
-    def _after_call(self, pending, code, failure, next_sample, last) -> np.ndarray:
-        """After a compiled call: impacts moved into each paused lane's list (as Python does
-        after every call of a run), failed lanes told why, time limits checked; returns the
-        lanes that still have samples to reach in this block."""
-        again = []
-        for i in pending:
-            sim, r = self.sims[i], i
-            if code[r] == compiled.LANE_DONE and self.time_limit is None:
+    def _after_call(self, pending, code, failure, next_sample, last, logs) -> np.ndarray:
+        """After a compiled call: a paused or failed lane's impacts read from its own log (and
+        the stops' log, as Python does after every call of a run; the others' stay in their logs
+        until `collect`), failed lanes told why, time limits checked; returns the lanes that
+        still have samples to reach in this block."""
+        busy = pending[code[pending] != compiled.LANE_DONE]
+        for i in busy:
+            sim = self.sims[i]
+            if logs.count[i]:
+                sim._collect_impacts(compiled.lane_log(logs, i))
+            if code[i] == compiled.LANE_DONE:
                 continue
             try:
-                if code[r] == compiled.LANE_FAILED:
-                    sim._after_compiled(int(failure[r]))   # raises the run's own error
-                    raise RuntimeError(f"the stepping ended with status {int(failure[r])}")
-                if code[r] == compiled.LANE_PAUSED:
-                    sim._after_compiled(BUDGET)             # empties the log, as after a call
-                self._check_time_limit(i)
+                if code[i] == compiled.LANE_FAILED:
+                    sim._after_compiled(int(failure[i]))   # raises the run's own error
+                    raise RuntimeError(f"the stepping ended with status {int(failure[i])}")
+                sim._after_compiled(BUDGET)                 # paused: its log read, as after a call
             except Exception as error:
                 self.fail(i, error)
-                continue
-            if code[r] == compiled.LANE_PAUSED and next_sample[r] < last:
-                again.append(i)   # (a lane paused on its block's last sample is through)
-        return np.array(again, dtype=np.int64)
+        if self.time_limit is not None:
+            for i in pending:
+                if self.errors[i] is None:
+                    try:
+                        self._check_time_limit(i)
+                    except TimeLimit as error:
+                        self.fail(i, error)
+        again = pending[(code[pending] == compiled.LANE_PAUSED) & (next_sample[pending] < last)]
+        return again[[self.errors[i] is None for i in again]].astype(np.int64)
+
+
+def overlapped(items: list, build, step):
+    """(item, build(item), step(built)) for each item, in order, with item k stepped in a helper
+    thread while item k + 1 is built, and item k - 1's results are used by the caller (between
+    two of its `next`), in this thread: the compiled calls of a step release the GIL, so a
+    sweep's Python work (building lanes, reading their figures) runs beside them on the cores."""
+    if len(items) < 2:
+        for item in items:
+            built = build(item)
+            yield item, built, step(built)
+        return
+    from concurrent.futures import ThreadPoolExecutor
+    with ThreadPoolExecutor(1, thread_name_prefix="batch-steps") as helper:
+        built = build(items[0])
+        stepping = helper.submit(step, built)
+        for k, item in enumerate(items):
+            following = build(items[k + 1]) if k + 1 < len(items) else None
+            stepped = stepping.result()
+            done = built
+            if following is not None:
+                stepping, built = helper.submit(step, following), following
+            yield item, done, stepped
 
 
 def _set_threads(count: int) -> int:

@@ -395,10 +395,12 @@ class Simulation(ArmCommands, BaseCommands, ScipySteps):
                               f"impulses (a singular contact set); try a smaller dt or tighter "
                               f"tolerances")
 
-    def _collect_impacts(self) -> None:
+    def _collect_impacts(self, stops=None) -> None:
         """Move the compiled stop log into `impacts` and `impact_details`; a hold that
-        removed more than the Zeno guard's bound is said on one line (`hold_warning`)."""
-        collect(self.stops, self.impacts, self.impact_details, self.hold_warning)
+        removed more than the Zeno guard's bound is said on one line (`hold_warning`). `stops`:
+        a record with the stops' log fields to read instead (a batch lane's own log)."""
+        collect(self.stops if stops is None else stops, self.impacts, self.impact_details,
+                self.hold_warning)
 
     def _cannot_follow(self, t_before: float, problem: str) -> None:
         s = self.settings

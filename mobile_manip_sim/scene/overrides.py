@@ -65,13 +65,18 @@ def set_path(document: dict, path: str, value) -> None:
             node = node[part]
 
 
-def scene_with(document: dict, overrides: dict, name: str = "scene") -> Scene:
-    """The scene ``document`` (a scene file's mapping, or `Scene.document`) with every
-    ``{key path: value}`` of ``overrides`` set, validated by `parse_scene`."""
+def document_with(document: dict, overrides: dict) -> dict:
+    """A copy of the scene ``document`` with every ``{key path: value}`` of ``overrides`` set."""
     changed = copy.deepcopy(document)
     for path, value in overrides.items():
         set_path(changed, path, value)
-    return parse_scene(changed, name)
+    return changed
+
+
+def scene_with(document: dict, overrides: dict, name: str = "scene") -> Scene:
+    """The scene ``document`` (a scene file's mapping, or `Scene.document`) with every
+    ``{key path: value}`` of ``overrides`` set, validated by `parse_scene`."""
+    return parse_scene(document_with(document, overrides), name)
 
 
 def check_known(document: dict, path: str, value) -> None:

@@ -13,13 +13,14 @@ among its runs). `run_chunk_one_by_one` is the path without the batch, kept to c
 from __future__ import annotations
 
 import csv
+import functools
 import time
 from pathlib import Path
 
 import numpy as np
 from distributed import WorkerPlugin
 
-from ..batch import Batch, TimeLimit, error_line
+from ..batch import Batch, TimeLimit, error_line, overlapped
 from ..batch.lanes import configuration_rates
 from ..dynamics import constraint_residuals
 from ..runtime import headless
@@ -31,15 +32,24 @@ from ..scene.methods import METHODS
 from ..scene.overrides import scene_with
 from .spec import DEFAULT_SAMPLE_RATE
 
+# Lanes per batch of a block: one batch is stepped (its compiled calls on the threads) while
+# the next one is built and the last one's figures are read, in Python, beside it.
+PIECE = 256
+
+
+@functools.cache
+def _state_columns(n_links: int) -> tuple:
+    return tuple(headless.csv_columns(n_links))
+
 
 def state_columns(n_links: int) -> list[str]:
-    return headless.csv_columns(n_links)
+    return list(_state_columns(n_links))
 
 
 def run_one(document: dict, overrides: dict, duration: float, sample_rate: float | None = None,
             time_limit: float | None = None, csv_path: str | None = None) -> dict:
     """The row of one run: status, error, final state (CSV names), checks and costs."""
-    n_links = len(document["robot"].get("arm", {}).get("links", []))
+    n_links = _links(document)
     rate = sample_rate or DEFAULT_SAMPLE_RATE
     row = {"status": "failed", "error": None}
     samples, csv_rows = [], []
@@ -54,9 +64,7 @@ def run_one(document: dict, overrides: dict, duration: float, sample_rate: float
 
     try:
         scene = scene_with(document, overrides)
-        if scene.robot.n_links != n_links:
-            raise UserError("robot.arm.links", "a sweep cannot change the number of links")
-        check_work(duration, scene.integrator, "duration", "integrator.dt", rate, "sample_rate")
+        check_run(scene, n_links, duration, rate)
         sim = headless.run(scene, duration, rate, None, on_sample)
     except Exception as error:   # recorded as one line (`error_line`): the sweep goes on
         row["error"] = error_line(error)
@@ -69,33 +77,61 @@ def run_one(document: dict, overrides: dict, duration: float, sample_rate: float
     return row
 
 
-def run_scene(document: dict, overrides: dict, duration: float, rate: float):
-    """The run's scene, checked as `run_one` checks it (UserError naming the key)."""
-    n_links = len(document["robot"].get("arm", {}).get("links", []))
-    scene = scene_with(document, overrides)
+def check_run(scene, n_links: int, duration: float, rate: float) -> None:
+    """A run's scene checked as a sweep checks it: its number of links, its work (UserError
+    naming the key)."""
     if scene.robot.n_links != n_links:
         raise UserError("robot.arm.links", "a sweep cannot change the number of links")
     check_work(duration, scene.integrator, "duration", "integrator.dt", rate, "sample_rate")
-    return scene
+
+
+def _links(document: dict) -> int:
+    return len(document["robot"].get("arm", {}).get("links", []))
 
 
 def run_block(document: dict, runs: list, duration: float, sample_rate: float | None = None,
               time_limit: float | None = None, csv_dir: str | None = None,
               threads: int | None = None, stats: dict | None = None) -> list[dict]:
-    """The rows of ``runs`` [(run id, overrides)], run as the lanes of one `Batch` on `threads`
-    threads: each row is `run_one`'s for that run (``cpu_s``: the block's CPU time per run).
-    `stats`, if given, receives the CPU s inside the compiled calls (``compiled_cpu``)."""
+    """The rows of ``runs`` [(run id, overrides)], run as the lanes of batches of up to PIECE
+    lanes on `threads` threads, one batch stepped while the next is built and the last one's
+    figures are read (`batch.overlapped`): each row is `run_one`'s for that run (``cpu_s``: the
+    block's CPU time per run). `stats`, if given, receives the CPU s of the compiled calls
+    (``compiled_cpu``: the process's CPU but that of its Python work, in either thread)."""
     rate = sample_rate or DEFAULT_SAMPLE_RATE
-    start_cpu = time.process_time()
-    scenes = []
-    for _, overrides in runs:
-        try:
-            scenes.append(run_scene(document, overrides, duration, rate))
-        except Exception as error:   # that lane fails with it; the block goes on
-            scenes.append(error)
-    batch = Batch.of_scenes(scenes, threads=threads, time_limit=time_limit)
+    start_cpu, start_python = time.process_time(), time.thread_time()
+    n_links = _links(document)
     times = np.fromiter(sample_times(duration, rate), dtype=float)
-    samples = batch.sample(times)
+    pieces = [runs[i:i + PIECE] for i in range(0, len(runs), PIECE)]
+
+    def build(piece):
+        return Batch(document, [overrides for _, overrides in piece], threads=threads,
+                     time_limit=time_limit,
+                     check=lambda scene: check_run(scene, n_links, duration, rate))
+
+    calls = {"block": 1}   # samples per compiled call: each batch starts where the last ended
+
+    def step(batch):
+        batch.block = calls["block"]
+        samples = batch.sample(times, collect=False)   # impacts read by `_rows`, beside the next
+        calls["block"] = batch.block
+        return samples
+
+    rows, stepping_python = [], 0.0
+    for piece, batch, samples in overlapped(pieces, build, step):
+        batch.collect()
+        rows += _rows(piece, batch, samples, csv_dir)
+        stepping_python += batch.python_cpu
+    if stats is not None:
+        python = time.thread_time() - start_python + stepping_python
+        stats["compiled_cpu"] = time.process_time() - start_cpu - python
+    cpu = (time.process_time() - start_cpu) / max(len(runs), 1)
+    for row in rows:
+        row["cpu_s"] = cpu
+    return rows
+
+
+def _rows(runs: list, batch, samples: np.ndarray, csv_dir: str | None) -> list[dict]:
+    """The rows of a batch's runs [(run id, overrides)] from its samples (`_figures`)."""
     rows = []
     for i, (run_id, _) in enumerate(runs):
         row = {"run": run_id, "status": "failed", "error": batch.errors[i]}
@@ -104,7 +140,7 @@ def run_block(document: dict, runs: list, duration: float, sample_rate: float | 
             try:
                 states = samples[i, :, :-1]
                 sim.tracking = _tracking(sim, states)
-                row.update(_figures(sim, scenes[i], states, residual_of_samples))
+                row.update(_figures(sim, sim.scene, states, residual_of_samples))
                 row["status"] = "ok"
                 if csv_dir:
                     _write_csv(f"{csv_dir}/run-{run_id:06d}.csv", state_columns(sim.model.n_links),
@@ -112,11 +148,6 @@ def run_block(document: dict, runs: list, duration: float, sample_rate: float | 
             except Exception as error:
                 row.update(status="failed", error=error_line(error))
         rows.append(row)
-    if stats is not None:
-        stats["compiled_cpu"] = batch.compiled_cpu
-    cpu = (time.process_time() - start_cpu) / max(len(runs), 1)
-    for row in rows:
-        row["cpu_s"] = cpu
     return rows
 
 

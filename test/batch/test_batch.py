@@ -10,8 +10,11 @@ import numpy as np
 import pytest
 
 from mobile_manip_sim.batch import Batch
+from mobile_manip_sim.batch import lanes as lanes_module
+from mobile_manip_sim.batch.lanes import LOG_ROWS
 from mobile_manip_sim.runtime import headless
 from mobile_manip_sim.runtime.timeline import sample_times
+from mobile_manip_sim.scene.errors import UserError
 from mobile_manip_sim.scene.overrides import scene_with
 from robots import random_robot_document
 
@@ -55,8 +58,12 @@ def same_bits(a: np.ndarray, b: np.ndarray) -> bool:
     return a.shape == b.shape and np.array_equal(a.view(np.int64), b.view(np.int64))
 
 
-@pytest.mark.parametrize("seed, n_links", [(11, 2), (12, 3)])
-def test_every_lane_is_bit_for_bit_its_own_simulate_run(seed, n_links):
+@pytest.mark.parametrize("seed, n_links, log_rows", [(11, 2, LOG_ROWS), (12, 3, LOG_ROWS),
+                                                     (13, 2, 1)])
+def test_every_lane_is_bit_for_bit_its_own_simulate_run(seed, n_links, log_rows, monkeypatch):
+    # log_rows 1: a lane's own impact log holds one call's impacts at most, so lanes with more
+    # pause, Python reads their logs, and they go on in the next call
+    monkeypatch.setattr(lanes_module, "LOG_ROWS", log_rows)
     document, lanes = random_lanes(seed, 12, n_links)
     batch = Batch(document, lanes, threads=2)
     times = np.array(list(sample_times(DURATION, RATE)))
@@ -142,3 +149,33 @@ def test_one_thread_and_two_give_the_same_bits():
     one = Batch(copy.deepcopy(document), lanes, threads=1).sample(times)
     two = Batch(copy.deepcopy(document), lanes, threads=2).sample(times)
     assert same_bits(one, two)
+
+
+def test_a_lane_whose_own_impact_log_fills_pauses_and_goes_on_with_the_same_bits(monkeypatch):
+    document, lanes = random_lanes(11, 12, 2)
+    times = np.array(list(sample_times(DURATION, RATE)))
+    calls = []
+    advance = lanes_module.advance_fixed
+    monkeypatch.setattr(lanes_module, "advance_fixed",
+                        lambda *args: calls.append(args[6].size) or advance(*args))
+    results = {}
+    for rows in (LOG_ROWS, 1):
+        monkeypatch.setattr(lanes_module, "LOG_ROWS", rows)
+        calls.clear()
+        batch = Batch(copy.deepcopy(document), lanes, threads=2)
+        results[rows] = (batch.sample(times), len(calls),
+                         [batch.lane(i).impacts for i in range(len(lanes))])
+    assert same_bits(results[1][0], results[LOG_ROWS][0])
+    assert results[1][2] == results[LOG_ROWS][2] and any(results[1][2])
+    assert results[1][1] > results[LOG_ROWS][1]   # lanes paused with a one-row log
+
+
+def test_of_scenes_takes_parsed_scenes_and_an_exception_fails_its_lane_alone():
+    document, lanes = random_lanes(71, 2, 2)
+    scenes = [scene_with(document, lanes[0]), UserError("robot.base.mass", "must be positive")]
+    batch = Batch.of_scenes(scenes, threads=1)
+    batch.advance_to(0.05)
+    assert isinstance(scenes[1], UserError)   # the caller's list is left as it was
+    status = batch.status
+    assert status[0].ok and status[0].t == 0.05
+    assert not status[1].ok and status[1].error == str(scenes[1])

@@ -9,6 +9,7 @@ import pyarrow.parquet as pq
 
 from executables import executable
 from mobile_manip_sim.scene.loading import load_scene
+from mobile_manip_sim.sweep import runner
 from mobile_manip_sim.sweep.runner import run_chunk, run_chunk_one_by_one
 from mobile_manip_sim.sweep.spec import load_spec
 
@@ -101,3 +102,22 @@ def test_csv_rows_of_a_batch_are_the_ones_simulate_writes(tmp_path):
                     str(simulated), *settings], check=True, capture_output=True, timeout=600)
     with simulated.open() as a, (out / "runs" / f"run-{row['run']:06d}.csv").open() as b:
         assert list(csv.reader(a)) == list(csv.reader(b))
+
+
+def test_a_block_in_pieces_stepped_beside_its_python_work_gives_the_rows_one_by_one(monkeypatch):
+    """run_block with pieces of 3 lanes (one stepped in a helper thread while the next is built
+    and the last one's figures are read) and lanes copied from templates (only numbers vary):
+    the rows of the runs one by one."""
+    document = load_scene().document
+    runs = list(enumerate({"integrator.method": "rk4", "integrator.dt": 0.002,
+                           "robot.arm.links[0].mass_per_length": 0.8 + 0.05 * i,
+                           "efforts.joints[0]": 4.0 + 0.1 * i} for i in range(8)))
+    runs[5][1]["robot.arm.links[0].mass_per_length"] = -1.0   # refused: its row says why
+    monkeypatch.setattr(runner, "PIECE", 3)
+    stats = {}
+    rows = runner.run_block(document, runs, 0.6, None, None, None, 2, stats)
+    one_by_one = run_chunk_one_by_one(document, runs, 0.6, None, None, None)
+    assert comparable(rows) == comparable(one_by_one)
+    assert [row["status"] for row in rows].count("ok") == 7
+    assert any(row["impacts"] > 0 for row in rows if row["status"] == "ok")
+    assert 0.0 < stats["compiled_cpu"]
