@@ -254,6 +254,15 @@ _binary(operator.imul, "fmul")
 _binary(operator.itruediv, "fdiv")
 
 
+def _overload_for_vec4(key, function):
+    """`function` (compiled, of one Vec4) as operator or math function `key` of a Vec4."""
+    def implementation(x):
+        if x is vec4:
+            return lambda x: function(x)
+        return None
+    overload(key)(implementation)
+
+
 def _unary(key, emit):
     """operator or math function `key` of a Vec4: the vector instruction(s) `emit` builds."""
     @intrinsic
@@ -262,12 +271,7 @@ def _unary(key, emit):
             return emit(builder, args[0])
         return vec4(x), codegen
 
-    def implementation(x):
-        if x is vec4:
-            return lambda x: vector_op(x)
-        return None
-
-    overload(key)(implementation)
+    _overload_for_vec4(key, vector_op)
     return vector_op
 
 
@@ -361,11 +365,7 @@ def _per_lane(function):
             return _each_lane(builder, args[0], lambda value: implementation(builder, [value]))
         return vec4(x), codegen
 
-    def implementation(x):
-        if x is vec4:
-            return lambda x: mapped(x)
-        return None
-    overload(function)(implementation)
+    _overload_for_vec4(function, mapped)
 
 
 for _function in (math.sin, math.cos, math.tan, math.exp, math.log, math.atan, math.tanh):

@@ -16,7 +16,8 @@ ROOT = Path(__file__).resolve().parents[2]
 # requirements.txt (test_rosdep_keys.py checks that package.xml's keys resolve).
 ROSDEP_KEYS = {
     "numpy": "python3-numpy", "scipy": "python3-scipy", "yaml": "python3-yaml",
-    "numba": "python3-numba", "matplotlib": "python3-matplotlib", "pinocchio": "pinocchio",
+    "numba": "python3-numba", "llvmlite": "python3-numba",   # numba's backend, installed with it
+    "matplotlib": "python3-matplotlib", "pinocchio": "pinocchio",
     "mujoco": "python3-mujoco-pip", "zstandard": "pip:zstandard", "mcap": "pip:mcap",
     "distributed": "pip:dask[distributed]", "dask": "pip:dask[distributed]",
     "pyarrow": "pip:pyarrow", "foxglove": "pip:foxglove-sdk",
