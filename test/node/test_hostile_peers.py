@@ -82,21 +82,30 @@ def _connect(port: int):
 
 def test_closing_the_live_view_never_waits_on_a_client_that_does_not_read():
     """The SDK's own stop waits for the client for ever (it is still waiting when `close` has
-    returned: the hazard is real); `close` returns all the same."""
+    returned: the hazard is real); `close` returns all the same. The SDK may also drop a slow
+    client before the stop (then nothing blocks): `close` must return every time, and the
+    hazard must have been real in at least one of three attempts, or the test says nothing."""
     from mobile_manip_sim.ros.live_view import LiveView
-    view = LiveView(0)
-    client = stalled_client(view.port, lambda: view.publish(0, {"/tf": b"\0" * 100_000}))
-    for k in range(200):   # more than the kernel's buffers hold
-        view.publish(k, {"/tf": b"\0" * 100_000})
-    closing = threading.Thread(target=view.close)
-    closing.start()
-    closing.join(SHUTDOWN_GUARD)
-    try:
-        assert not closing.is_alive(), "close() waited on the client"
-        stopper = [t for t in threading.enumerate() if t.name == "live view stop"]
-        assert stopper and stopper[0].is_alive(), "the server stopped: the client did not block"
-    finally:
-        client.close()
+    blocked = 0
+    for _ in range(3):
+        view = LiveView(0)
+        client = stalled_client(view.port, lambda view=view: view.publish(
+            0, {"/tf": b"\0" * 100_000}))
+        for k in range(200):   # more than the kernel's buffers hold
+            view.publish(k, {"/tf": b"\0" * 100_000})
+        closing = threading.Thread(target=view.close)
+        closing.start()
+        closing.join(SHUTDOWN_GUARD)
+        try:
+            assert not closing.is_alive(), "close() waited on the client"
+            stopper = [t for t in threading.enumerate()
+                       if t.name == "live view stop" and t.is_alive()]
+            blocked += bool(stopper)
+        finally:
+            client.close()
+        if blocked:
+            break
+    assert blocked, "the server stopped every time: the client never blocked it"
 
 
 def test_a_stop_with_a_client_that_never_reads_closes_the_bag_first_and_exits(tmp_path):
