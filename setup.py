@@ -32,7 +32,7 @@ setup(
     extras_require={"test": [
         "pytest", "pin", "mujoco", "rosbags", "mcap-ros2-support", "ros-jazzy-ament-package",
         "colcon-core", "colcon-ros", "colcon-python-setup-py", "colcon-package-information",
-        "colcon-package-selection", "hypothesis", "ruff",
+        "colcon-package-selection", "hypothesis", "ruff", "pytest-xdist",
     ]},
     zip_safe=True,
     maintainer="mobile_manip_sim developers",

@@ -7,6 +7,7 @@ facts about the repository as a whole in ``test/package/`` (packaging, colcon, t
 owner checks), ``test/docs/`` (every docs block run) and ``test/fuzz/``; anything that is not a
 ``test_*.py`` (helper modules, scripts run as processes, the Node.js client) in ``test/helpers/``.
 Test file names stay unique across folders (the folders have no ``__init__.py``)."""
+import os
 import sys
 from pathlib import Path
 
@@ -17,6 +18,13 @@ TEST = Path(__file__).resolve().parent
 # (pytest's default import mode already needs test module names unique across folders)
 sys.path[:0] = [str(TEST / "helpers")] + sorted(
     str(p) for p in TEST.iterdir() if p.is_dir() and p.name not in ("helpers", "__pycache__"))
+
+
+def pytest_xdist_auto_num_workers(config):
+    """`-n auto` (pytest.ini): one worker per core, at most four. Each test file runs whole in
+    one worker (--dist loadfile), so a module's fixtures are built once; ROS tests pick a random
+    domain per module (ros_harness.py), so workers' nodes never hear each other."""
+    return max(1, min(len(os.sched_getaffinity(0)), 4))
 
 
 @pytest.fixture(scope="session")
