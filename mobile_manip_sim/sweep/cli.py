@@ -75,27 +75,31 @@ def _main(argv) -> int:
 
 
 def _sweep(args, spec: Spec, runs: list, todo: list, store) -> int:
-    """Run ``todo`` on the cluster; 130 when interrupted (every finished run kept), else 0."""
-    client = cluster = None
-    if args.local:
-        workers = args.workers or os.cpu_count() or 1
-        chunk = spec.chunk or LOCAL_CHUNK
-    else:
-        client, cluster = _connect(args)
-        workers = max(1, len(client.scheduler_info()["workers"]) or (args.workers or 1))
-        chunk = spec.chunk or max(1, min(DASK_CHUNK, math.ceil(len(todo) / (8 * workers))))
-    chunks = [todo[i:i + chunk] for i in range(0, len(todo), chunk)]
-    print(f"sweep: {len(runs)} runs, {len(store.done)} already in {args.out}, {len(todo)} to do "
-          f"in {len(chunks)} chunks of ≤ {chunk} on {_where(args, workers)}", flush=True)
-    progress = Progress("sweep", len(runs), "runs", done=len(store.done))
+    """Run ``todo`` on the cluster; 130 when interrupted (every finished run kept), else 0.
+    Ctrl-C is answered in every phase, the cluster's start and its workers' warm-up included."""
+    client = cluster = progress = None
     try:
+        if args.local:
+            workers = args.workers or os.cpu_count() or 1
+            chunk = spec.chunk or LOCAL_CHUNK
+        else:
+            client, cluster = _connect(args)
+            workers = max(1, len(client.scheduler_info()["workers"]) or (args.workers or 1))
+            chunk = spec.chunk or max(1, min(DASK_CHUNK, math.ceil(len(todo) / (8 * workers))))
+        chunks = [todo[i:i + chunk] for i in range(0, len(todo), chunk)]
+        print(f"sweep: {len(runs)} runs, {len(store.done)} already in {args.out}, {len(todo)} "
+              f"to do in {len(chunks)} chunks of ≤ {chunk} on {_where(args, workers)}",
+              flush=True)
+        progress = Progress("sweep", len(runs), "runs", done=len(store.done))
         if args.local:
             _run_local(workers, spec, runs, chunks, store, progress, args.out)
         else:
             _run(client, spec, runs, chunks, store, progress, args.out)
     except KeyboardInterrupt:
+        _quiet_dask()
         store.flush()
-        progress.close()
+        if progress is not None:
+            progress.close()
         print(f"sweep: interrupted; {len(store.done)} of {len(runs)} runs are in "
               f"{args.out}/runs.parquet (run the same command to finish)", file=sys.stderr,
               flush=True)
@@ -105,6 +109,13 @@ def _sweep(args, spec: Spec, runs: list, todo: list, store) -> int:
             _close(client, cluster)
     progress.close()
     return 0
+
+
+def _quiet_dask() -> None:
+    """After Ctrl-C: the cluster's own complaints while it is torn down (workers that stopped
+    mid-task, broadcasts to them) are the interruption itself, not news."""
+    import logging
+    logging.getLogger("distributed").setLevel(logging.CRITICAL)
 
 
 def fingerprint(spec: Spec) -> str:
@@ -131,9 +142,14 @@ def _connect(args):
                                processes=True, dashboard_address=None, silence_logs=logging.ERROR)
         client = Client(cluster)
     from .runner import IgnoreInterrupts, WarmKernels
-    if cluster is not None:
-        client.register_plugin(IgnoreInterrupts())
-    client.register_plugin(WarmKernels())
+    try:
+        if cluster is not None:
+            client.register_plugin(IgnoreInterrupts())
+        client.register_plugin(WarmKernels())   # minutes when the workers compile: Ctrl-C ends it
+    except BaseException:
+        _quiet_dask()
+        _close(client, cluster)
+        raise
     return client, cluster
 
 
