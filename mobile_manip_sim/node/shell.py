@@ -31,7 +31,7 @@ from ..ros.topics import (
 from ..runtime import cli
 from ..runtime.compiles import CompileWatch
 from ..runtime.headless import hold_ledger
-from ..runtime.memory import CompilerPages, release_compiler_pages
+from ..runtime.memory import CompilerPages, release_compiler_pages, return_large_buffers
 from ..runtime.pacing import Pacer
 from ..runtime.timeline import Grid, apply_commands, start_node_time_line
 from ..scene.coordinates import ARM_Q, ARM_U, arm_size
@@ -379,6 +379,7 @@ def _main(argv) -> int:
         print(arguments.help_text())
         return 0
     release_compiler_pages()   # those numba's import touched; loading the kernels needs few
+    return_large_buffers()     # trajectories of megabytes come and go for as long as it runs
     _init(argv)
     node = None
     try:

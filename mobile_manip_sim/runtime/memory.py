@@ -1,4 +1,5 @@
-"""Give back the compiler's pages once the compiled kernels are loaded.
+"""Give back memory a long-running process no longer uses: the compiler's pages once the
+compiled kernels are loaded, and large buffers once they are freed.
 
 numba brings LLVM (llvmlite's ``libllvmlite.so``, some 150 MB of machine code) into every
 process that runs a kernel, and touches a large part of it twice: its static initialisers run
@@ -14,6 +15,14 @@ private (copy-on-write) page are touched: text and read-only data that are byte 
 file's, so an unmapped page that is needed again — a kernel compiled or loaded later — is read
 back from the page cache (a minor fault), never lost. Elsewhere (no ``/proc/self/smaps``, no
 libc ``madvise``, numba off) it does nothing.
+
+`return_large_buffers` keeps glibc's malloc from holding freed large buffers for good. By
+default glibc raises its mmap threshold to the size of each large block freed, so that the next
+ones of that size come from the heap of the thread that allocates them; a node that takes a
+100,000-point trajectory (arrays of megabytes, read in the executor's threads) then kept 200 MB
+after the first few and some 4 MB more with each later one. With the threshold fixed at its
+default, every block above it is its own mapping, unmapped when freed, and the node's memory
+stays bounded whatever it is sent (test_hostile_peers).
 """
 from __future__ import annotations
 
@@ -23,6 +32,8 @@ import sys
 
 COMPILER_LIBRARY = "libllvmlite"
 MADV_DONTNEED = 4
+M_MMAP_THRESHOLD = -3          # mallopt's parameter (glibc malloc.h)
+MMAP_THRESHOLD = 128 * 1024    # bytes: glibc's own default, kept fixed from now on
 
 
 def _clean_mappings(library: str):
@@ -93,3 +104,14 @@ class CompilerPages:
         if self.used:
             self.used = False
             release_compiler_pages()
+
+
+def return_large_buffers() -> bool:
+    """Fix glibc's mmap threshold at MMAP_THRESHOLD (setting it turns off its growth), so every
+    freed block above it goes back to the system at once. False where there is no glibc."""
+    try:
+        mallopt = ctypes.CDLL(ctypes.util.find_library("c")).mallopt
+    except (OSError, AttributeError, TypeError):
+        return False
+    mallopt.argtypes = [ctypes.c_int, ctypes.c_int]
+    return mallopt(M_MMAP_THRESHOLD, MMAP_THRESHOLD) == 1

@@ -10,6 +10,7 @@ import subprocess
 import sys
 import threading
 import time
+from pathlib import Path
 
 import pytest
 import rclpy
@@ -19,6 +20,7 @@ from rclpy.parameter import Parameter
 from rclpy.qos import QoSProfile, ReliabilityPolicy
 from rosbags.rosbag2 import Reader as RosbagsReader
 from rosgraph_msgs.msg import Clock
+from sensor_msgs.msg import JointState
 from std_srvs.srv import SetBool
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
@@ -33,6 +35,8 @@ DOMAIN_ID = private_domain(100, 232)
 STARTUP_TIMEOUT = 120.0        # a loaded machine may compile kernels first
 TIMEOUT = 60.0                 # any other condition
 SHUTDOWN_GUARD = 30.0          # a stop must end the process (the node's own bound is 5 s)
+RSS_AFTER_GOALS = 200 << 20    # bytes a node may keep once 100,000-point trajectories ended
+RSS_GROWTH = 16 << 20          # and may add with each later flood of them
 SERVICE_TIMEOUT = 15.0         # ~/pause must answer within this while trajectories pour in
 TRAJECTORY_POINTS = 100_000    # the documented maximum of one trajectory
 TRAJECTORIES = 6               # sent back to back: rclpy alone would take > 12 s to read them
@@ -239,6 +243,16 @@ class Caller:
             QoSProfile(depth=TRAJECTORIES, reliability=ReliabilityPolicy.RELIABLE))
         self.clock = []
         self.node.create_subscription(Clock, "/clock", self.clock.append, 10)
+        self.joints = {}
+        self.node.create_subscription(JointState, "/joint_states", self._on_joints, 10)
+
+    def _on_joints(self, message):
+        self.joints = dict(zip(message.name, message.position, strict=True))
+
+    def arm_at(self, target, tolerance=0.02) -> bool:
+        joints = self.joints
+        return all(name in joints and abs(joints[name] - value) < tolerance
+                   for name, value in zip(NAMES, target, strict=True))
 
 
 def heavy_trajectory() -> JointTrajectory:
@@ -261,6 +275,7 @@ def test_pause_answers_while_100000_point_trajectories_pour_in_on_the_topic(tmp_
             assert caller.pause.wait_for_service(timeout_sec=TIMEOUT)
             wait_for(lambda: caller.trajectories.get_subscription_count() > 0,
                      "the node's trajectory subscription", TIMEOUT)
+            baseline = resident(node.pid)
             for _ in range(TRAJECTORIES):
                 caller.trajectories.publish(message)
             answers = []
@@ -271,10 +286,48 @@ def test_pause_answers_while_100000_point_trajectories_pour_in_on_the_topic(tmp_
                 assert done.wait(SERVICE_TIMEOUT), f"~/pause {data} unanswered"
                 answers.append(future.result().success)
             assert answers == [True, True, True]
+            future = caller.pause.call_async(SetBool.Request(data=False))
+            wait_for(future.done, "~/pause false answered", SERVICE_TIMEOUT)
+            # What the trajectories cost is given back: after a flood, a short trajectory that
+            # the arm is seen to reach (the topic is read in order, so every large one before
+            # it has been read, applied and replaced), twice. The node keeps at most
+            # RSS_AFTER_GOALS more than before them, and the second flood adds at most
+            # RSS_GROWTH (glibc's growing mmap threshold made it keep 290 MB after the first
+            # two floods and some 4 MB more with every later trajectory).
+            held = []
+            for target in LAST_TARGETS:
+                for _ in range(2 * TRAJECTORIES):
+                    caller.trajectories.publish(message)
+                caller.trajectories.publish(short_trajectory(target))
+                wait_for(lambda target=target: caller.arm_at(target),
+                         f"the arm at {target}", TIMEOUT)
+                held.append(resident(node.pid))
+            assert held[0] <= baseline + RSS_AFTER_GOALS, (
+                f"{held[0] >> 20} MB held after the trajectories, {baseline >> 20} MB before")
+            assert held[1] <= held[0] + RSS_GROWTH, (
+                f"{held[0] >> 20} MB after a flood, {held[1] >> 20} MB after the next")
         assert node.running(), node.output()
     finally:
         assert node.stop(signal.SIGINT) == 0
     assert "Traceback" not in node.output()
+
+
+# rad, m, rad, m: none of heavy_trajectory's values
+LAST_TARGETS = ((0.1, 0.3, 0.1, 0.3), (0.0, 0.25, 0.0, 0.25))
+
+
+def short_trajectory(target) -> JointTrajectory:
+    point = JointTrajectoryPoint(positions=list(target))
+    point.time_from_start.nanosec = 200_000_000
+    return JointTrajectory(joint_names=NAMES, points=[point])
+
+
+def resident(pid: int) -> int:
+    """A process's resident memory, bytes (/proc/PID/status, VmRSS)."""
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) * 1024
+    raise AssertionError(f"no VmRSS for {pid}")
 
 
 def test_a_watchdog_abandon_never_lets_the_old_thread_touch_the_new_engine():
