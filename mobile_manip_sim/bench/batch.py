@@ -42,6 +42,7 @@ class BatchResult:
     runs: int
     one_thread: Timing = None
     two_threads: Timing = None
+    alone_lanes: Timing = None              # 2 threads, each lane alone (no vector blocks)
     compiled_share: float = math.nan        # of the 2-thread CPU time, inside the compiled call
     lane_steps: tuple = (0, 0)              # grid steps in vector blocks, and alone
     mujoco: Timing | None = None
@@ -100,11 +101,13 @@ def _timed(work) -> tuple[Timing, object]:
     return Timing(time.perf_counter() - wall0, time.process_time() - cpu0), result
 
 
-def sweep_block(runs: list[dict], threads: int, stats: dict | None = None):
-    """The sweep's work for these runs (`runner.run_block`: scenes, batch, figures)."""
+def sweep_block(runs: list[dict], threads: int, stats: dict | None = None,
+                vector: bool = True):
+    """The sweep's work for these runs (`runner.run_block`: scenes, batch, figures); `vector`
+    False: each lane stepped alone, without the vector blocks."""
     from ..sweep.runner import run_block
     return run_block(paper_document(), list(enumerate(runs)), DURATION, None, None, None, threads,
-                     stats)
+                     stats, vector)
 
 
 def mujoco_rollout(runs: list[dict], threads: int = 2) -> Timing | None:
@@ -267,6 +270,9 @@ def measure(progress, quick: bool = False) -> BatchResult:
              f"wall, {result.two_threads.cpu:.2f} s CPU, {result.compiled_share * 100:.0f} % "
              f"compiled; grid steps in vector blocks / alone: {result.lane_steps[0]} / "
              f"{result.lane_steps[1]}")
+    result.alone_lanes, _ = _timed(lambda: sweep_block(runs, 2, vector=False))
+    progress(f"… each lane alone (no vector blocks), 2 threads: {result.alone_lanes.wall:.2f} s "
+             f"wall, {result.alone_lanes.cpu:.2f} s CPU")
     with on_cores(1):
         result.one_thread, _ = _timed(lambda: sweep_block(runs, 1))
     result.others = ((_busy_cpu() - busy0) - (time.process_time() - own0)) / (
@@ -316,6 +322,9 @@ def section(result: BatchResult, number: int = 9) -> str:
     rows = [("runs", f"{result.runs}", ""),
             ("batch, 2 threads: wall / CPU", f"{two.wall:.2f} s / {two.cpu:.2f} s",
              verdict(two.wall <= 5.0 * result.runs / RUNS, "≤ 5 s for 10,000 runs")),
+            ("the same, each lane alone (no vector blocks): wall / CPU",
+             f"{result.alone_lanes.wall:.2f} s / {result.alone_lanes.cpu:.2f} s",
+             f"vector blocks ×{result.alone_lanes.cpu / two.cpu:.2f} less CPU"),
             ("batch, 1 core (process pinned to one CPU): wall", f"{one.wall:.2f} s",
              verdict(speedup >= 1.8, f"×{speedup:.2f} from 1 to 2 cores (target ≥ 1.8)")),
             ("CPU inside the compiled call", f"{result.compiled_share * 100:.0f} %",

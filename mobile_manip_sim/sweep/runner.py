@@ -91,13 +91,15 @@ def _links(document: dict) -> int:
 
 def run_block(document: dict, runs: list, duration: float, sample_rate: float | None = None,
               time_limit: float | None = None, csv_dir: str | None = None,
-              threads: int | None = None, stats: dict | None = None) -> list[dict]:
+              threads: int | None = None, stats: dict | None = None,
+              vector: bool = True) -> list[dict]:
     """The rows of ``runs`` [(run id, overrides)], run as the lanes of batches of up to PIECE
     lanes on `threads` threads, one batch stepped while the next is built and the last one's
     figures are read (`batch.overlapped`): each row is `run_one`'s for that run (``cpu_s``: the
     block's CPU time per run). `stats`, if given, receives the CPU s of the compiled calls
     (``compiled_cpu``: the process's CPU but that of its Python work, in either thread) and the
-    grid steps taken in vector blocks and alone (``lane_steps``, `Batch.lane_steps`)."""
+    grid steps taken in vector blocks and alone (``lane_steps``, `Batch.lane_steps`). `vector`:
+    as `Batch`'s (False: every lane stepped alone; the same rows)."""
     rate = sample_rate or DEFAULT_SAMPLE_RATE
     start_cpu, start_python = time.process_time(), time.thread_time()
     n_links = _links(document)
@@ -106,7 +108,7 @@ def run_block(document: dict, runs: list, duration: float, sample_rate: float | 
 
     def build(piece):
         return Batch(document, [overrides for _, overrides in piece], threads=threads,
-                     time_limit=time_limit,
+                     time_limit=time_limit, vector=vector,
                      check=lambda scene: check_run(scene, n_links, duration, rate))
 
     calls = {"block": 1}   # samples per compiled call: each batch starts where the last ended

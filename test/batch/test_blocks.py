@@ -12,7 +12,9 @@ import pytest
 from mobile_manip_sim.batch import Batch
 from mobile_manip_sim.bench.scenes import paper_document
 from mobile_manip_sim.dynamics.jit import ENABLED
+from mobile_manip_sim.engine.simulation import Simulation
 from mobile_manip_sim.runtime.timeline import sample_times
+from mobile_manip_sim.scene.overrides import scene_with
 from test_batch import DURATION, RATE, random_lanes, same_bits, simulate
 
 pytestmark = pytest.mark.skipif(not ENABLED, reason="vector lanes need numba")
@@ -34,7 +36,7 @@ def assert_lane_is_its_run(batch, rows, i, document, overrides):
 
 
 @pytest.mark.parametrize("method", ["rk4", "semi_implicit_euler", "euler"])
-@pytest.mark.parametrize("seed, n_links, count", [(81, 2, 7), (82, 3, 10)])
+@pytest.mark.parametrize("seed, n_links, count", [(81, 2, 7), (83, 3, 10)])
 def test_random_robots_every_lane_is_its_own_run_in_blocks(method, seed, n_links, count):
     document, lanes = random_lanes(seed, count, n_links)
     for overrides in lanes:   # one method: the lanes share blocks (7, 10: not multiples of 4)
@@ -87,8 +89,10 @@ def test_a_lane_given_a_non_finite_command_fails_alone_in_its_block():
     assert [s.ok for s in status] == [True, True, False, True, True]
     assert status[2].error.startswith("efforts.joints: values must be finite")
     assert status[2].t == 0.1
-    for i in (0, 1, 3, 4):
-        _, sim = simulate(document, lanes[i])
+    for i in (0, 1, 3, 4):   # the others: their runs alone, advanced by the same calls
+        sim = Simulation(scene_with(document, lanes[i]))
+        sim.advance_to(0.1)
+        sim.advance_to(DURATION)
         assert same_bits(batch.lane(i).s, sim.s)
         assert batch.lane(i).impacts == sim.impacts
         assert np.array_equal(batch.lane(i).system.counters, sim.system.counters)
