@@ -21,6 +21,10 @@ events, impacts, releases and failures then run exactly as in its run alone. So 
 for bit its own run; the blocks only decide who computes a plain step.
 
 
+
+The kernels here are cached on disk; the stale-cache sweep of `dynamics/jit.py` reads this
+module for its '@jit', as it reads `vector_steps.py` and `lane_flow.py`, whose code is compiled
+into them.
 """
 from __future__ import annotations
 
@@ -229,7 +233,7 @@ def advance_blocks(methods, systems, stops, scratches, states, clocks, slots, re
                   gs)
 
 
-GROUP = 16   # lanes per group: one thread's lanes, among which the vector blocks are formed
+GROUP = 32   # lanes per group: one thread's lanes, among which the vector blocks are formed
 
 
 def block_keys(sims) -> np.ndarray:
@@ -242,10 +246,11 @@ def block_keys(sims) -> np.ndarray:
     return numbers.reshape(-1).astype(np.int64)
 
 
-def group_slots(lanes: np.ndarray, records: np.ndarray, keys: np.ndarray, group: int = GROUP):
-    """(slots, records) of the groups of these lanes, (groups, group) each, slots −1 past a
-    group's lanes (their records: the first lane's): lanes of one key (`block_keys`, indexed by
-    record) in order, `group` at a time."""
+def group_slots(lanes: np.ndarray, records: np.ndarray, keys: np.ndarray, group: int = 0):
+    """(slots, records) of the groups of these lanes, (groups, group) each (group 0: GROUP),
+    slots −1 past a group's lanes (their records: the first lane's): lanes of one key
+    (`block_keys`, indexed by record) in order, `group` at a time."""
+    group = group or GROUP
     slots, rows = [], []
     lanes, records = np.asarray(lanes, dtype=np.int64), np.asarray(records, dtype=np.int64)
     lane_keys = keys[records]

@@ -1,6 +1,9 @@
 """One lane's control flow inside a group of lanes (`blocks.py`): `lanes.fixed_lane` and
 `stepping.advance` around the grid step, resumable, so that the group can take the lanes' grid
 steps together and everything else lane by lane, exactly as the run alone does it.
+
+Compiled into `blocks.py`'s kernels: like every module whose code numba compiles into others,
+it is read by the stale-cache sweep of `dynamics/jit.py` (which looks for '@jit' in a source).
 """
 from __future__ import annotations
 
@@ -15,9 +18,8 @@ from ..engine.stepping import (
     DONE,
     LOG_FULL,
     step_with_events,
-    total_energy,
 )
-from .lanes import LANE_DONE, LANE_FAILED, LANE_PAUSED, keep_impacts
+from .lanes import LANE_DONE, LANE_GOES_ON, after_advance
 from .vector_steps import compiled_inline
 
 NEED_STEP = -1       # `until_step`: the lane waits for its next whole grid step
@@ -37,7 +39,6 @@ def until_step(method, system, stops, scr, s, clock, times, last, rows, rows_t, 
     status). Everything but the grid step itself — the last shorter step to a sample off the
     grid, budgets, the log's room, the samples, the impacts moved to the lane's log — is done
     here, as they do it."""
-    size = s.shape[0]
     room = stops.log.shape[0] // 2
     while True:
         status = phase[ENDING]
@@ -75,18 +76,10 @@ def until_step(method, system, stops, scr, s, clock, times, last, rows, rows_t, 
         # `advance` returned `status`: what `fixed_lane` does with it
         phase[ENDING] = -1
         phase[IN_CALL] = 0
-        i = at[0]
-        if status == DONE:
-            if write:
-                for j in range(size):
-                    rows[i, j] = s[j]
-                rows[i, size] = total_energy(system, s)
-                rows_t[i] = clock[CLOCK_T0] + clock[CLOCK_K] * clock[CLOCK_DT]
-            at[0] = i + 1
-        elif status != BUDGET and status != LOG_FULL:
-            return LANE_FAILED, status
-        if stops.count[0] > 0 and not keep_impacts(stops, log, log_q, log_u, log_free, count):
-            return LANE_PAUSED, status
+        code, at[0] = after_advance(status, at[0], system, stops, s, clock, rows, rows_t, write,
+                                    log, log_q, log_u, log_free, count)
+        if code != LANE_GOES_ON:
+            return code, status
 
 
 @compiled_inline

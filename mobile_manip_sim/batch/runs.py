@@ -11,7 +11,8 @@ Every lane is a `Simulation` of its own scene (the scene with the lane's overrid
 settings may all differ between lanes; only the number of links must be the same. Commands go to
 one lane (`set_efforts`, or any command of `lane(i)`) between calls.
 
-Lanes of rk4, semi-implicit Euler and Euler run in the compiled call. Lanes of the adaptive
+Lanes of rk4, semi-implicit Euler and Euler run in the compiled call, their plain grid steps four
+lanes at a time in vector registers (`blocks.py`; `vector=False`: each lane alone, the same bits). Lanes of the adaptive
 methods (rk45, dop853, radau, bdf) are not compiled lanes: each is stepped by its own
 `Simulation` from Python, sample by sample — the same numbers, without the batch's speed
 (`LaneStatus.compiled` says which). A lane that fails (a bad override, a non-finite command or

@@ -5,6 +5,9 @@ whether a lane takes it (`take_vector_step`) or steps alone.
 
 Also the compile options of the batch's block kernels (`compiled`, …): numba's, cached on disk,
 no fast-math (no contraction into fused multiply-adds), as `dynamics/jit.py`'s.
+Compiled into `blocks.py`'s kernels, these modules are read by the stale-cache sweep of
+`dynamics/jit.py` (which looks for '@jit' in a source) like every module numba compiles into
+others.
 """
 from __future__ import annotations
 
