@@ -12,9 +12,9 @@ settings may all differ between lanes; only the number of links must be the same
 one lane (`set_efforts`, or any command of `lane(i)`) between calls.
 
 Lanes of rk4, semi-implicit Euler and Euler run in the compiled call, their plain grid steps four
-lanes at a time in vector registers (`blocks.py`; `vector=False`: each lane alone, the same bits). Lanes of the adaptive
-methods (rk45, dop853, radau, bdf) are not compiled lanes: each is stepped by its own
-`Simulation` from Python, sample by sample — the same numbers, without the batch's speed
+lanes at a time in vector registers (`blocks.py`; `vector=False`: each lane alone, the same bits).
+Lanes of the adaptive methods (rk45, dop853, radau, bdf) are not compiled lanes: each is stepped by
+its own `Simulation` from Python, sample by sample — the same numbers, without the batch's speed
 (`LaneStatus.compiled` says which). A lane that fails (a bad override, a non-finite command or
 state, chatter, its time limit) is failed alone, with its one-line reason; the others go on.
 """
