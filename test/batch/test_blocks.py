@@ -13,6 +13,7 @@ from mobile_manip_sim.batch import Batch
 from mobile_manip_sim.bench.scenes import paper_document
 from mobile_manip_sim.dynamics.jit import ENABLED
 from mobile_manip_sim.engine.simulation import Simulation
+from mobile_manip_sim.engine.system import REDUCED_SOLVE, RHS_EVALS
 from mobile_manip_sim.runtime.timeline import sample_times
 from mobile_manip_sim.scene.overrides import scene_with
 from test_batch import DURATION, RATE, random_lanes, same_bits, simulate
@@ -76,6 +77,29 @@ def test_paper_scene_lanes_in_blocks_are_their_own_runs(method):
     for i, overrides in enumerate(lanes):
         assert_lane_is_its_run(batch, rows, i, document, overrides)
     assert batch.lane_steps[0] > batch.lane_steps[1]   # most steps in vector lanes
+
+
+def test_lanes_resting_at_their_stops_step_in_vector_lanes_with_the_same_bits():
+    document = paper_document()
+    lanes = paper_lanes(8, "rk4", seed=9)
+    for overrides in lanes:
+        overrides["duration"] = 1.5
+        overrides["efforts.joints[1]"] = 7.0
+    times = np.array(list(sample_times(1.5, RATE)))
+    batch = Batch(copy.deepcopy(document), lanes, threads=2)
+    alone = Batch(copy.deepcopy(document), lanes, threads=2, vector=False)
+    assert same_bits(batch.sample(times), alone.sample(times))
+    resting = []
+    for i in range(len(lanes)):
+        lane = batch.lane(i)
+        assert np.array_equal(lane.system.counters, alone.lane(i).system.counters)
+        assert lane.impacts == alone.lane(i).impacts
+        # most of its evaluations with a rod locked at its stop: resting, its holding watched
+        if lane.system.counters[REDUCED_SOLVE] > lane.system.counters[RHS_EVALS] // 3:
+            resting.append(i)
+            vector, scalar = batch.paths[i]
+            assert vector > 0.7 * (vector + scalar), (i, vector, scalar)   # alone: < 0.67
+    assert resting
 
 
 def test_a_lane_given_a_non_finite_command_fails_alone_in_its_block():
