@@ -20,7 +20,7 @@ from collections import namedtuple
 import numpy as np
 
 from ..dynamics import kernels
-from ..dynamics.jit import ENABLED, jit
+from ..dynamics.jit import ENABLED, jit, jit_inline
 from ..engine.impact_log import LOG_COLUMNS
 from ..engine.stepping import (
     BUDGET,
@@ -33,8 +33,8 @@ from ..engine.stepping import (
     total_energy,
 )
 
-# a lane's outcome after a call (`code`)
-LANE_DONE, LANE_PAUSED, LANE_FAILED = 0, 1, 2
+# a lane's outcome after a call (`code`); LANE_GOES_ON: not yet (`after_advance`)
+LANE_DONE, LANE_PAUSED, LANE_FAILED, LANE_GOES_ON = 0, 1, 2, -1
 
 if ENABLED:
     import numba
@@ -100,22 +100,36 @@ def fixed_lane(method, system, stops, scr, s, clock, times, first, last, rows, r
     clock there, `Simulation.t`, when `write`), its impacts moved after every call into its own
     log (`keep_impacts`). Returns (code, next sample, the stepping status that ended a failed
     lane): PAUSED when its log is full (Python reads it and the lane goes on)."""
-    size = s.shape[0]
     i = first
     while i < last:
         status = advance(method, system, stops, scr, s, clock, times[i], budget)
-        if status == DONE:
-            if write:
-                for j in range(size):
-                    rows[i, j] = s[j]
-                rows[i, size] = total_energy(system, s)
-                rows_t[i] = clock[CLOCK_T0] + clock[CLOCK_K] * clock[CLOCK_DT]
-            i += 1
-        elif status != BUDGET and status != LOG_FULL:
-            return LANE_FAILED, i, status
-        if stops.count[0] > 0 and not keep_impacts(stops, log, log_q, log_u, log_free, count):
-            return LANE_PAUSED, i, status
+        code, i = after_advance(status, i, system, stops, s, clock, rows, rows_t, write, log,
+                                log_q, log_u, log_free, count)
+        if code != LANE_GOES_ON:
+            return code, i, status
     return LANE_DONE, i, DONE
+
+
+@jit_inline
+def after_advance(status, i, system, stops, s, clock, rows, rows_t, write, log, log_q, log_u,
+                  log_free, count):
+    """What a lane does after each `advance` towards sample i that returned `status`: the
+    sample written (rows[i] = (s, T + V), rows_t[i] the lane's clock, when `write`) once
+    reached, the impacts moved into the lane's own log (`keep_impacts`). Returns (LANE_GOES_ON,
+    or LANE_FAILED / LANE_PAUSED; the next sample)."""
+    if status == DONE:
+        if write:
+            size = s.shape[0]
+            for j in range(size):
+                rows[i, j] = s[j]
+            rows[i, size] = total_energy(system, s)
+            rows_t[i] = clock[CLOCK_T0] + clock[CLOCK_K] * clock[CLOCK_DT]
+        i += 1
+    elif status != BUDGET and status != LOG_FULL:
+        return LANE_FAILED, i
+    if stops.count[0] > 0 and not keep_impacts(stops, log, log_q, log_u, log_free, count):
+        return LANE_PAUSED, i
+    return LANE_GOES_ON, i
 
 
 @jit_lanes

@@ -11,9 +11,10 @@ Every lane is a `Simulation` of its own scene (the scene with the lane's overrid
 settings may all differ between lanes; only the number of links must be the same. Commands go to
 one lane (`set_efforts`, or any command of `lane(i)`) between calls.
 
-Lanes of rk4, semi-implicit Euler and Euler run in the compiled call. Lanes of the adaptive
-methods (rk45, dop853, radau, bdf) are not compiled lanes: each is stepped by its own
-`Simulation` from Python, sample by sample — the same numbers, without the batch's speed
+Lanes of rk4, semi-implicit Euler and Euler run in the compiled call, their plain grid steps four
+lanes at a time in vector registers (`blocks.py`; `vector=False`: each lane alone, the same bits).
+Lanes of the adaptive methods (rk45, dop853, radau, bdf) are not compiled lanes: each is stepped by
+its own `Simulation` from Python, sample by sample — the same numbers, without the batch's speed
 (`LaneStatus.compiled` says which). A lane that fails (a bad override, a non-finite command or
 state, chatter, its time limit) is failed alone, with its one-line reason; the others go on.
 """
@@ -69,22 +70,25 @@ class LaneStatus:
 
 class Batch:
     def __init__(self, scene: Scene | dict, overrides: list[dict] | None = None, *,
-                 threads: int | None = None, time_limit: float | None = None, check=None):
+                 threads: int | None = None, time_limit: float | None = None, check=None,
+                 vector: bool = True):
         """`scene`: a `Scene` or a scene document; `overrides`: one {key path: value} per lane
         (default: one lane, the scene itself). `threads`: threads of the compiled calls (default:
         numba's, one per core). `time_limit`: wall s per lane (its share of each call's wall time,
         call wall × threads / lanes in the call); past it the lane is failed at its next sample.
         `check(scene)`: a further check of each lane's scene (a raise fails the lane with it).
-        Lanes that differ only in numbers are copies of one template (`build.py`)."""
+        Lanes that differ only in numbers are copies of one template (`build.py`). `vector`:
+        lanes' plain steps four at a time in vector lanes (`blocks.py`); False: each lane alone
+        (the same bits either way)."""
         document = scene.document if isinstance(scene, Scene) else scene
         overrides = [{}] if overrides is None else list(overrides)
         scenes, sims = build_lanes(document, overrides, check,
                                    scene if isinstance(scene, Scene) else None)
-        self._start(scenes, sims, threads, time_limit)
+        self._start(scenes, sims, threads, time_limit, vector)
 
     @classmethod
     def of_scenes(cls, scenes: list, *, threads: int | None = None,
-                  time_limit: float | None = None) -> Batch:
+                  time_limit: float | None = None, vector: bool = True) -> Batch:
         """A batch of these scenes, one lane each (an exception in place of a scene: that lane
         is failed from the start with it as its reason)."""
         batch = cls.__new__(cls)
@@ -95,12 +99,15 @@ class Batch:
             except Exception as error:
                 scenes[i] = error
                 sims.append(None)
-        batch._start(scenes, sims, threads, time_limit)
+        batch._start(scenes, sims, threads, time_limit, vector)
         return batch
 
     def _start(self, scenes: list, sims: list, threads: int | None,
-               time_limit: float | None) -> None:
+               time_limit: float | None, vector: bool = True) -> None:
         self.size = len(scenes)
+        self.vector = bool(vector) and compiled.ENABLED
+        # grid steps of each lane taken in vector lanes and alone (`blocks.lane_paths`)
+        self.paths = np.zeros((self.size, 2), dtype=np.int64)
         self.threads = threads
         self.time_limit = time_limit
         self.sims: list[Simulation | None] = list(sims)
@@ -132,6 +139,12 @@ class Batch:
         """Lane i's own `Simulation` (None if it failed before it started): read it, or command
         it between calls (the batch picks up the records a command replaces)."""
         return self.sims[i]
+
+    @property
+    def lane_steps(self) -> tuple[int, int]:
+        """Grid steps the compiled lanes took so far four at a time in vector lanes, and alone
+        (events, rests, controllers, a lane ready without company; `blocks.py`)."""
+        return int(self.paths[:, 0].sum()), int(self.paths[:, 1].sum())
 
     @property
     def ok(self) -> np.ndarray:
@@ -247,7 +260,8 @@ class Batch:
                      compiled.lane_list([sim._scratch for sim in sims]),
                      compiled.lane_list([sim.s for sim in sims]),
                      compiled.lane_list([sim._clock for sim in sims]))
-            self._records = (key, lane_of, lists)
+            keys = _blocks().block_keys(sims) if self.vector else None
+            self._records = (key, lane_of, lists, keys)
         return self._records[1], self._records[2]
 
     def _compiled_lanes(self, lanes: np.ndarray, times: np.ndarray, rows, progress) -> None:
@@ -272,8 +286,17 @@ class Batch:
             block_start = started = time.perf_counter()
             while pending.size:
                 cpu, own = time.process_time(), time.thread_time()
-                compiled.advance_fixed(*lists, pending, lane_of[pending], times, last, out, out_t,
-                                       write, budget, code, next_sample, failure, logs)
+                if self.vector:
+                    blocks = _blocks()
+                    slots, records = blocks.group_slots(pending, lane_of[pending],
+                                                        self._records[3])
+                    blocks.advance_blocks(*lists, slots, records, times, last, out, out_t, write,
+                                          budget, code, next_sample, failure, logs, self.paths,
+                                          True)
+                else:
+                    compiled.advance_fixed(*lists, pending, lane_of[pending], times, last, out,
+                                           out_t, write, budget, code, next_sample, failure,
+                                           logs)
                 self.compiled_cpu += time.process_time() - cpu
                 self._caller_in_calls += time.thread_time() - own
                 now = time.perf_counter()
@@ -337,6 +360,12 @@ def overlapped(items: list, build, step):
             if following is not None:
                 stepping, built = helper.submit(step, following), following
             yield item, done, stepped
+
+
+def _blocks():
+    """The blocks of four lanes (`blocks.py`; imported only with numba: its vector types)."""
+    from . import blocks
+    return blocks
 
 
 def _set_threads(count: int) -> int:

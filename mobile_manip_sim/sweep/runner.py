@@ -91,12 +91,15 @@ def _links(document: dict) -> int:
 
 def run_block(document: dict, runs: list, duration: float, sample_rate: float | None = None,
               time_limit: float | None = None, csv_dir: str | None = None,
-              threads: int | None = None, stats: dict | None = None) -> list[dict]:
+              threads: int | None = None, stats: dict | None = None,
+              vector: bool = True) -> list[dict]:
     """The rows of ``runs`` [(run id, overrides)], run as the lanes of batches of up to PIECE
     lanes on `threads` threads, one batch stepped while the next is built and the last one's
     figures are read (`batch.overlapped`): each row is `run_one`'s for that run (``cpu_s``: the
     block's CPU time per run). `stats`, if given, receives the CPU s of the compiled calls
-    (``compiled_cpu``: the process's CPU but that of its Python work, in either thread)."""
+    (``compiled_cpu``: the process's CPU but that of its Python work, in either thread) and the
+    grid steps taken in vector blocks and alone (``lane_steps``, `Batch.lane_steps`). `vector`:
+    as `Batch`'s (False: every lane stepped alone; the same rows)."""
     rate = sample_rate or DEFAULT_SAMPLE_RATE
     start_cpu, start_python = time.process_time(), time.thread_time()
     n_links = _links(document)
@@ -105,7 +108,7 @@ def run_block(document: dict, runs: list, duration: float, sample_rate: float | 
 
     def build(piece):
         return Batch(document, [overrides for _, overrides in piece], threads=threads,
-                     time_limit=time_limit,
+                     time_limit=time_limit, vector=vector,
                      check=lambda scene: check_run(scene, n_links, duration, rate))
 
     calls = {"block": 1}   # samples per compiled call: each batch starts where the last ended
@@ -116,14 +119,16 @@ def run_block(document: dict, runs: list, duration: float, sample_rate: float | 
         calls["block"] = batch.block
         return samples
 
-    rows, stepping_python = [], 0.0
+    rows, stepping_python, lane_steps = [], 0.0, np.zeros(2, dtype=np.int64)
     for piece, batch, samples in overlapped(pieces, build, step):
         batch.collect()
         rows += _rows(piece, batch, samples, csv_dir)
         stepping_python += batch.python_cpu
+        lane_steps += batch.lane_steps
     if stats is not None:
         python = time.thread_time() - start_python + stepping_python
         stats["compiled_cpu"] = time.process_time() - start_cpu - python
+        stats["lane_steps"] = tuple(int(v) for v in lane_steps)
     cpu = (time.process_time() - start_cpu) / max(len(runs), 1)
     for row in rows:
         row["cpu_s"] = cpu

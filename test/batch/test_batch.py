@@ -158,6 +158,11 @@ def test_a_lane_whose_own_impact_log_fills_pauses_and_goes_on_with_the_same_bits
     advance = lanes_module.advance_fixed
     monkeypatch.setattr(lanes_module, "advance_fixed",
                         lambda *args: calls.append(args[6].size) or advance(*args))
+    if lanes_module.ENABLED:   # the lanes' plain steps four at a time (`blocks.py`)
+        from mobile_manip_sim.batch import blocks
+        in_blocks = blocks.advance_blocks
+        monkeypatch.setattr(blocks, "advance_blocks",
+                            lambda *args: calls.append(args[6].size) or in_blocks(*args))
     results = {}
     for rows in (LOG_ROWS, 1):
         monkeypatch.setattr(lanes_module, "LOG_ROWS", rows)
