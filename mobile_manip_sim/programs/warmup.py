@@ -27,7 +27,7 @@ from ..scene.methods import METHODS
 
 SCENES = ("paper_two_link.yaml", "hard_impacts.yaml", "effect_joint_damping.yaml",
           "effect_locked_joints.yaml")
-EXPECTED = "1.5 to 5 minutes on two cores"   # cold: 72–142 s, 250 s when loaded
+EXPECTED = "3 to 9 minutes on two cores"   # cold: 161 s before the vector lanes, 519 s loaded
 
 
 def kernels():
@@ -39,9 +39,11 @@ def kernels():
 def warm(stream=sys.stderr) -> float:
     start = time.perf_counter()
     todo = kernels()
-    # Progress counts methods: a method's first run compiles its kernels (nearly all the time);
-    # the other scenes then take the branches left, in a second or so.
-    progress = Progress("warmup", len(METHODS), "methods compiled", rate_unit="methods/min",
+    # Progress counts parts: each method (its first run compiles its kernels, nearly all the
+    # time; the other scenes then take the branches left, in a second or so), the arm
+    # controllers, and the batch's lanes (their vector blocks: minutes of their own).
+    parts = len(METHODS) + 2
+    progress = Progress("warmup", parts, "parts compiled", rate_unit="parts/min",
                         per=60.0, lines=True, always=True, stream=stream)
     progress.note(f"warmup: compiling {len(todo)} kernels ({len(METHODS)} methods on "
                   f"{len(SCENES)} scenes), once: {EXPECTED}; later runs load them from the cache")
@@ -63,6 +65,7 @@ def warm(stream=sys.stderr) -> float:
             sim.set_efforts(wheels=[0.0, 0.0])
             sim.energy_error()
             sim.load_kernels()
+        progress.update(len(METHODS))
         modes = dict.fromkeys(mode for mode, _ in controllers())
         progress.note(f"warmup: the arm controllers ({', '.join(modes)}) "
                       f"({time.perf_counter() - start:.0f} s)")
@@ -71,10 +74,12 @@ def warm(stream=sys.stderr) -> float:
             sim = Simulation(scene, arm_controller=ArmController(mode, feedforward=feedforward))
             sim.load_kernels()
             sim.advance_to(0.05)
+        progress.update(len(METHODS) + 1)
         progress.note(f"warmup: the batch's compiled lanes, for sweeps "
                       f"({time.perf_counter() - start:.0f} s)")
         from ..batch import Batch
         Batch(scenes[SCENES[0]], [{"integrator.method": "rk4"}], threads=1).sample([0.01, 0.02])
+        progress.update(parts)
     return time.perf_counter() - start
 
 
