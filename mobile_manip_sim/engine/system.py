@@ -147,6 +147,13 @@ def applied_forces(system, s, ds):
 def derivative(system, s, ds):
     """ds/dt for s = (q, u, e, W): q̇ from the constraints, u̇ = M⁻¹(Q − h) by articulated bodies
     (locked pseudo-velocities get u̇ = 0), ė from the wheel-speed loop, Ẇ = Q·u."""
+    derivative_inline(system, s, ds)
+
+
+@jit_inline
+def derivative_inline(system, s, ds):
+    """`derivative` inlined into its caller: for rk4's step (`fixed_step.rk4_step`), which
+    evaluates its four stages through one copy of it."""
     nq, nu = layout.sizes(system)
     system.counters[RHS_EVALS] += 1
     q = s[:nq]
