@@ -157,9 +157,9 @@ class Template:
         self.sizes = {"mass": robot.n_links, "efforts.wheels": 2,
                       "efforts.joints": scene.joint_efforts.size,
                       "initial.velocity": robot.n_u, "dt": 1}
-        # the lanes' μ go into the model record that every kernel reads; the feed-forward's
-        # record must be that one (no model error)
-        self.own_masses = sim.system.data.ff_model is sim.system.data.model
+        # the lanes' μ go into the model record that every kernel reads; the feed-forward must
+        # compute with that one (no model error: no masses of its own)
+        self.own_masses = sim.system.data.ff_masses.size == 0
 
     @classmethod
     def of(cls, document: dict, rest: dict, lanes: int = 1) -> Template | None:

@@ -1,7 +1,8 @@
 """The arm controller inside the simulated system, as ros2_control's controllers drive an arm:
 the settings' defaults for a robot (`for_robot`: the record itself, `scene.arm_controller.
-ArmController`, is the scene layer's), the feed-forward's model (`feedforward_model`) and the
-compiled control law that `system.applied_forces` runs at every right-hand-side evaluation.
+ArmController`, is the scene layer's), the feed-forward's model (`feedforward_masses`,
+`feedforward_model`) and the compiled control law that `system.applied_forces` runs at every
+right-hand-side evaluation.
 
 The law, per arm joint j (revolute τ_j in N·m, prismatic F_j in N), with the reference of
 `arm_reference.py` evaluated at the reference clock τ (a state component, τ̇ = 1):
@@ -26,9 +27,10 @@ in the direction of the error. Feedforward ff:
   `dynamics.reduced.base_acceleration`).
   A locked or resting arm joint is taken at u̇ = 0, a fixed base at u̇_b = 0.
 
-Both model-based feed-forwards compute with ``system.ff_model``: the plant's model record itself,
-or with a model error (`scene.arm_controller.ModelError`) a copy whose masses, inertias and
-payload differ (`feedforward_model`), so computed torque no longer cancels the plant exactly.
+Both model-based feed-forwards compute with `feedforward_model`: the plant's model record itself,
+or with a model error (`scene.arm_controller.ModelError`) a record whose masses, inertias and
+payload differ (held in ``system.ff_masses``), so computed torque no longer cancels the plant
+exactly.
 
 The controller's states z (n_arm) and τ follow W in s (`layout.arm_integrals`,
 `layout.reference_clock`) and exist only when the arm is not in effort mode; in effort mode the
@@ -43,6 +45,7 @@ import numpy as np
 from ..dynamics import indices, kernels
 from ..dynamics.articulated import set_moving
 from ..dynamics.jit import jit_inline
+from ..dynamics.records import BaseParameters, Model
 from ..dynamics.reduced import base_acceleration, gravity_efforts
 from ..scene.arm_controller import (
     DEFAULT_FEEDFORWARD,
@@ -75,6 +78,8 @@ GAIN_KP, GAIN_KI, GAIN_KD = range(3)
 LAST_FF, LAST_TAU = 3, 4   # the feedforward and the applied efforts of the last evaluation
 # system.arm_scratch rows (n_u each)
 SCRATCH_UD, SCRATCH_QA, SCRATCH_COL_V, SCRATCH_COL_W, SCRATCH_ZERO = range(5)
+# system.ff_masses entries (`feedforward_masses`), then μ (n) and J (n, 3, 3) flattened from FF_MU
+FF_MASS, FF_YAW_INERTIA, FF_WHEEL_INERTIA, FF_TIP_MASS, FF_MU = range(5)
 
 # Default gains (`default_controller`): each joint alone, with its diagonal inertia M_jj at the
 # robot's reference pose (every q_k = 0, every rod at mid-stroke), is a critically damped PD of
@@ -120,18 +125,40 @@ def scene_arm_controller(section) -> ArmController:
     return ArmController() if section is None else section.arm_controller
 
 
-def feedforward_model(model, error: ModelError):
-    """The dynamics' model record (`dynamics.records.Model`) the feed-forward computes with:
-    `model` itself when `error` is exact, else a copy with its masses, inertias and payload
-    changed (`ModelError`); the geometry is the plant's (the frames are shared)."""
+def feedforward_masses(model, error: ModelError) -> np.ndarray:
+    """``system.ff_masses``, the inertial parameters the feed-forward computes with: empty when
+    `error` is exact (the plant's model record itself), else the plant's masses, inertias and
+    payload changed by `error` (FF_MASS, FF_YAW_INERTIA, FF_WHEEL_INERTIA, FF_TIP_MASS, then μ
+    and J flattened); `feedforward_model` makes the record, with the plant's geometry.
+
+    One float array rather than a second `Model` record: every compiled call that takes the
+    system's record (four right-hand sides per rk4 step, the event checks) is handed each of
+    its arrays' descriptors one word at a time, so a record of records costs on every
+    evaluation, even in effort mode where the feed-forward never runs."""
     if error.exact:
-        return model
+        return np.zeros(0)
     mass, inertia = 1.0 + error.mass, 1.0 + error.inertia
-    base = model.base._replace(mass=model.base.mass * mass,
-                               yaw_inertia=model.base.yaw_inertia * inertia,
-                               wheel_inertia=model.base.wheel_inertia * inertia)
+    base = model.base
     tip_mass = model.tip_mass if error.payload is None else float(error.payload)
-    return model._replace(base=base, mu=model.mu * mass, J=model.J * inertia, tip_mass=tip_mass)
+    head = np.zeros(FF_MU)
+    head[FF_MASS], head[FF_YAW_INERTIA] = base.mass * mass, base.yaw_inertia * inertia
+    head[FF_WHEEL_INERTIA], head[FF_TIP_MASS] = base.wheel_inertia * inertia, tip_mass
+    return np.concatenate((head, (model.mu * mass).ravel(), (model.J * inertia).ravel()))
+
+
+@jit_inline
+def feedforward_model(system):
+    """The dynamics' model record (`dynamics.records.Model`) the feed-forward computes with:
+    ``system.model`` itself, or with a model error one whose masses, inertias and payload are
+    ``system.ff_masses``' (`feedforward_masses`); the geometry is the plant's."""
+    f, model = system.ff_masses, system.model
+    if f.shape[0] == 0:
+        return model
+    n, b = model.L.shape[0], model.base
+    base = BaseParameters(f[FF_MASS], f[FF_YAW_INERTIA], b.com_offset, b.wheel_radius,
+                          b.half_track, f[FF_WHEEL_INERTIA])
+    return Model(base, model.mount, model.R0, model.L, f[FF_MU:FF_MU + n],
+                 f[FF_MU + n:FF_MU + 10 * n].reshape((n, 3, 3)), f[FF_TIP_MASS])
 
 
 def default_gains(robot) -> np.ndarray:
@@ -176,7 +203,8 @@ def feedforward(system, s, ff):
         for j in range(n_arm):
             ff[j] = 0.0
         return
-    model, ws, scratch, damping = system.ff_model, system.ws, system.arm_scratch, system.damping
+    model, ws, scratch = feedforward_model(system), system.ws, system.arm_scratch
+    damping = system.damping
     nq, nu = layout.sizes(system)
     q, u = s[:nq], s[nq:nq + nu]
     ud, Q_id = scratch[SCRATCH_UD], scratch[SCRATCH_QA]

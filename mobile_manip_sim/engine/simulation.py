@@ -35,7 +35,7 @@ from ..scene.methods import COMPILED_STEPPERS, IDS, METHODS
 from . import adaptive_stepping, dense, layout, step_watch, stepping
 from . import status as status_codes
 from .arm_commands import ArmCommands
-from .arm_control import arm_settings, feedforward_model, for_robot, scene_arm_controller
+from .arm_control import arm_settings, feedforward_masses, for_robot, scene_arm_controller
 from .base_commands import BaseCommands, command, finite_forces
 from .events import holding_margin
 from .impact_log import Impact, ImpactDetail, collect
@@ -78,8 +78,8 @@ class Simulation(ArmCommands, BaseCommands, ScipySteps):
         arm = (arm_settings(self.arm_controller, effects.effort_limits)
                if self.arm_controller.active else None)
         self.system = System(self.dynamics, effects.generalized_damping(model.base), effects.locked,
-                             arm, feedforward_model(self.dynamics.model_record,
-                                                    self.arm_controller.model_error))
+                             arm, feedforward_masses(self.dynamics.model_record,
+                                                     self.arm_controller.model_error))
         self.nq, self.nu = model.n_q, model.n_u
         self.stop_law = effects.stop_law
         if (self.settings.method == "semi_implicit_euler" and self.stop_law is not None

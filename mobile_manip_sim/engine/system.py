@@ -68,8 +68,8 @@ SystemData = namedtuple("SystemData", [
     "ref_coeffs",   # (capacity, n_arm, arm_reference.WIDTH) their coefficients
     "arm_ref",      # (5, n_arm) scratch: q_ref, q̇_ref, q̈_ref, feedforward, applied efforts
     "arm_scratch",  # (5, n_u) scratch of the inverse-dynamics passes (row SCRATCH_ZERO stays zero)
-    "ff_model",     # the feed-forward's model record: ``model`` itself unless it has a model
-                    # error (`arm_control.feedforward_model`)
+    "ff_masses",    # the feed-forward's masses: (0,) for the plant's own, else a model
+                    # error's (`arm_control.feedforward_masses`, read by `feedforward_model`)
 ])
 
 
@@ -147,6 +147,13 @@ def applied_forces(system, s, ds):
 def derivative(system, s, ds):
     """ds/dt for s = (q, u, e, W): q̇ from the constraints, u̇ = M⁻¹(Q − h) by articulated bodies
     (locked pseudo-velocities get u̇ = 0), ė from the wheel-speed loop, Ẇ = Q·u."""
+    derivative_inline(system, s, ds)
+
+
+@jit_inline
+def derivative_inline(system, s, ds):
+    """`derivative` inlined into its caller: for rk4's step (`fixed_step.rk4_step`), which
+    evaluates its four stages through one copy of it."""
     nq, nu = layout.sizes(system)
     system.counters[RHS_EVALS] += 1
     q = s[:nq]
@@ -223,10 +230,10 @@ class System:
     """Holds the compiled `SystemData` record and the Python-side view of the effects."""
 
     def __init__(self, dynamics, damping: np.ndarray | None, locked: list[int], arm=None,
-                 ff_model=None):
+                 ff_masses=None):
         """`arm`: the arm controller's (settings, gains, limits) of `arm_control.arm_settings`,
-        or None (effort mode: no controller states, no controller stage); `ff_model` the
-        feed-forward's model record (None: the plant's)."""
+        or None (effort mode: no controller states, no controller stage); `ff_masses` the
+        feed-forward's masses of `arm_control.feedforward_masses` (None: the plant's)."""
         self.dynamics = dynamics
         nu = dynamics.model.n_u
         n_arm = arm_width(nu) if arm is not None else 0
@@ -247,7 +254,7 @@ class System:
                                np.array([0.0, math.inf]), settings, gains, limits, np.zeros(1),
                                np.zeros((1, n_arm, WIDTH)), self.arm_ref,
                                np.zeros((5, nu if arm is not None else 0)),
-                               dynamics.model_record if ff_model is None else ff_model)
+                               np.zeros(0) if ff_masses is None else ff_masses)
         self.set_locked(())
         size = layout.state_size(nu) + (layout.arm_state_size(nu) if arm is not None else 0)
         self._scratch = np.zeros(size)
