@@ -58,6 +58,21 @@ def same_bits(a: np.ndarray, b: np.ndarray) -> bool:
     return a.shape == b.shape and np.array_equal(a.view(np.int64), b.view(np.int64))
 
 
+def assert_lane_is_its_run(batch, rows, i, document, overrides):
+    """Lane i of `batch` (its sample rows `rows[i]`) is its own run alone, bit for bit:
+    samples, impacts and holds, counters, steps, energy error; that run's Simulation."""
+    expected, sim = simulate(document, overrides)
+    lane, status = batch.lane(i), batch.status[i]
+    assert status.ok and status.compiled, status.error
+    assert same_bits(rows[i], expected), f"lane {i}: {overrides}"
+    assert lane.impacts == sim.impacts
+    assert [d.held for d in lane.impact_details] == [d.held for d in sim.impact_details]
+    assert np.array_equal(lane.system.counters, sim.system.counters), i
+    assert (lane.steps, lane.rhs_evaluations) == (sim.steps, sim.rhs_evaluations)
+    assert same_bits(np.array([status.energy_error]), np.array([sim.energy_error()]))
+    return sim
+
+
 @pytest.mark.parametrize("seed, n_links, log_rows", [(11, 2, LOG_ROWS), (12, 3, LOG_ROWS),
                                                      (13, 2, 1)])
 def test_every_lane_is_bit_for_bit_its_own_simulate_run(seed, n_links, log_rows, monkeypatch):
@@ -70,15 +85,8 @@ def test_every_lane_is_bit_for_bit_its_own_simulate_run(seed, n_links, log_rows,
     rows = batch.sample(times)
     impacts, resting = [], []
     for i, overrides in enumerate(lanes):
-        expected, sim = simulate(document, overrides)
-        lane, status = batch.lane(i), batch.status[i]
-        assert status.ok and status.compiled, status.error
-        assert same_bits(rows[i], expected), f"lane {i} ({overrides['integrator.method']})"
-        assert lane.impacts == sim.impacts
-        assert [d.held for d in lane.impact_details] == [d.held for d in sim.impact_details]
-        assert (lane.steps, lane.rhs_evaluations) == (sim.steps, sim.rhs_evaluations)
-        assert same_bits(np.array([status.energy_error]), np.array([sim.energy_error()]))
-        assert lane.t == sim.t == DURATION
+        sim = assert_lane_is_its_run(batch, rows, i, document, overrides)
+        assert batch.lane(i).t == sim.t == DURATION
         impacts.append(len(sim.impacts))
         resting.append(any(impact.resting for impact in sim.impacts))
     # the lanes differ in what happens to them: impacts in some, none in others; rests too

@@ -16,24 +16,13 @@ from mobile_manip_sim.engine.simulation import Simulation
 from mobile_manip_sim.engine.system import REDUCED_SOLVE, RHS_EVALS
 from mobile_manip_sim.runtime.timeline import sample_times
 from mobile_manip_sim.scene.overrides import scene_with
-from test_batch import DURATION, RATE, random_lanes, same_bits, simulate
+from test_batch import DURATION, RATE, assert_lane_is_its_run, random_lanes, same_bits, simulate
 
 pytestmark = pytest.mark.skipif(not ENABLED, reason="vector lanes need numba")
 
 TIMES = np.array(list(sample_times(DURATION, RATE)))
 
 
-def assert_lane_is_its_run(batch, rows, i, document, overrides):
-    expected, sim = simulate(document, overrides)
-    lane, status = batch.lane(i), batch.status[i]
-    assert status.ok and status.compiled, status.error
-    assert same_bits(rows[i], expected), f"lane {i}: {overrides}"
-    assert lane.impacts == sim.impacts
-    assert [d.held for d in lane.impact_details] == [d.held for d in sim.impact_details]
-    assert np.array_equal(lane.system.counters, sim.system.counters), i
-    assert (lane.steps, lane.rhs_evaluations) == (sim.steps, sim.rhs_evaluations)
-    assert same_bits(np.array([status.energy_error]), np.array([sim.energy_error()]))
-    return sim
 
 
 @pytest.mark.parametrize("method", ["rk4", "semi_implicit_euler", "euler"])
