@@ -24,7 +24,8 @@ def pytest_xdist_auto_num_workers(config):
     """`-n auto` (pytest.ini): one worker per core, at most four. Each test file runs whole in
     one worker (--dist loadfile), so a module's fixtures are built once; ROS tests pick a random
     domain per module (ros_harness.py), so workers' nodes never hear each other."""
-    return max(1, min(len(os.sched_getaffinity(0)), 4))
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    return max(1, min(cores or 1, 4))
 
 
 @pytest.fixture(scope="session")
