@@ -52,6 +52,43 @@ def _on_stop_signal(signum, frame):
     _raise(signum)
 
 
+_swallowed = False       # a SIGINT raised under `remembered_interrupts` and not raised again
+
+
+def _remember_interrupt(signum, frame):
+    global _swallowed
+    _swallowed = True
+    raise KeyboardInterrupt
+
+
+@contextmanager
+def remembered_interrupts():
+    """SIGINT raises KeyboardInterrupt as usual, and is remembered: Python drops an exception
+    raised inside a finalizer (a ``__del__`` such as pyarrow's ParquetWriter's, a weakref
+    callback) with a note on stderr, and a sweep interrupted there ran on to its end with status 0.
+    `raise_swallowed_interrupt` raises it again where the caller checks."""
+    global _swallowed
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    _swallowed = False
+    previous = signal.signal(signal.SIGINT, _remember_interrupt)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+        _swallowed = False
+
+
+def raise_swallowed_interrupt() -> None:
+    """Raise the KeyboardInterrupt of a SIGINT that arrived under `remembered_interrupts` and
+    was dropped where it was raised (any that propagated was never followed by this call)."""
+    global _swallowed
+    if _swallowed:
+        _swallowed = False
+        raise KeyboardInterrupt
+
+
 @contextmanager
 def critical():
     """A write that must not be cut in half (one sample's CSV row and bag messages): a SIGINT or

@@ -76,25 +76,28 @@ def _main(argv) -> int:
 
 def _sweep(args, spec: Spec, runs: list, todo: list, store) -> int:
     """Run ``todo`` on the cluster; 130 when interrupted (every finished run kept), else 0.
-    Ctrl-C is answered in every phase, the cluster's start and its workers' warm-up included."""
+    Ctrl-C is answered in every phase, the cluster's start and its workers' warm-up included,
+    and after a chunk's rows are written when it was dropped inside a finalizer."""
     client = cluster = progress = None
     try:
-        if args.local:
-            workers = args.workers or os.cpu_count() or 1
-            chunk = spec.chunk or LOCAL_CHUNK
-        else:
-            client, cluster = _connect(args)
-            workers = max(1, len(client.scheduler_info()["workers"]) or (args.workers or 1))
-            chunk = spec.chunk or max(1, min(DASK_CHUNK, math.ceil(len(todo) / (8 * workers))))
-        chunks = [todo[i:i + chunk] for i in range(0, len(todo), chunk)]
-        print(f"sweep: {len(runs)} runs, {len(store.done)} already in {args.out}, {len(todo)} "
-              f"to do in {len(chunks)} chunks of ≤ {chunk} on {_where(args, workers)}",
-              flush=True)
-        progress = Progress("sweep", len(runs), "runs", done=len(store.done))
-        if args.local:
-            _run_local(workers, spec, runs, chunks, store, progress, args.out)
-        else:
-            _run(client, spec, runs, chunks, store, progress, args.out)
+        with cli.remembered_interrupts():
+            if args.local:
+                workers = args.workers or os.cpu_count() or 1
+                chunk = spec.chunk or LOCAL_CHUNK
+            else:
+                client, cluster = _connect(args)
+                workers = max(1, len(client.scheduler_info()["workers"]) or (args.workers or 1))
+                chunk = spec.chunk or max(1, min(DASK_CHUNK,
+                                                 math.ceil(len(todo) / (8 * workers))))
+            chunks = [todo[i:i + chunk] for i in range(0, len(todo), chunk)]
+            print(f"sweep: {len(runs)} runs, {len(store.done)} already in {args.out}, "
+                  f"{len(todo)} to do in {len(chunks)} chunks of ≤ {chunk} on "
+                  f"{_where(args, workers)}", flush=True)
+            progress = Progress("sweep", len(runs), "runs", done=len(store.done))
+            if args.local:
+                _run_local(workers, spec, runs, chunks, store, progress, args.out)
+            else:
+                _run(client, spec, runs, chunks, store, progress, args.out)
     except KeyboardInterrupt:
         _quiet_dask()
         store.flush()
@@ -176,9 +179,7 @@ def _run_local(threads: int, spec: Spec, runs: list, chunks: list, store, progre
         rows = runner.run_block(spec.document, [(i, runs[i]) for i in ids], spec.duration,
                                 spec.sample_rate, spec.time_limit, _csv_dir(spec, out), threads)
         rows = [{**row, "worker": "local"} for row in rows]
-        store.add(rows, runs)
-        failures += sum(row["status"] == "failed" for row in rows)
-        progress.update(progress.done + len(rows), f", {failures} failed")
+        failures = _keep(store, rows, runs, progress, failures)
 
 
 def _run(client, spec: Spec, runs: list, chunks: list, store, progress, out: str) -> None:
@@ -207,9 +208,18 @@ def _run(client, spec: Spec, runs: list, chunks: list, store, progress, out: str
             rows = [{"run": i, "status": "failed",
                      "error": f"{type(error).__name__}: {error}".splitlines()[0]}
                     for i in ids]
-        store.add(rows, runs)
-        failures += sum(row["status"] == "failed" for row in rows)
-        progress.update(progress.done + len(rows), f", {failures} failed")
+        failures = _keep(store, rows, runs, progress, failures)
+
+
+def _keep(store, rows: list, runs: list, progress, failures: int) -> int:
+    """A finished chunk's rows into the table and the progress line (returns the failures so
+    far); then a Ctrl-C that was dropped meanwhile (raised inside the parquet writer's
+    finalizer) ends the sweep."""
+    store.add(rows, runs)
+    failures += sum(row["status"] == "failed" for row in rows)
+    progress.update(progress.done + len(rows), f", {failures} failed")
+    cli.raise_swallowed_interrupt()
+    return failures
 
 
 def _close(client, cluster) -> None:
