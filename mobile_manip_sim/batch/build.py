@@ -298,6 +298,8 @@ def _set(document: dict, parts: list, value) -> None:
 
 # --- copies of a simulation's records ------------------------------------------------------
 
+ZERO_BLOCK_BYTES = 2 << 20   # under numpy's huge-page threshold (4 MiB): see `_Plan`
+
 # objects whose attributes are copied (their arrays and records anew, the rest shared)
 OWNERS = (Simulation, System, Dynamics)
 
@@ -318,8 +320,11 @@ class _Plan:
         self._keep: list = []      # the walked nodes, alive while the plan is
         self.root = self._walk(template)
         # The all-zero arrays of `copies` copies (the stop logs, some 300 kB per lane) as slices
-        # of one zeroed block each: pages the operating system maps when a lane first writes
-        # them (a few impact rows), not ones cleared and mapped for every copy.
+        # of zeroed blocks: pages the operating system maps when a lane first writes them (a
+        # few impact rows), not ones cleared and mapped for every copy. Each block stays under
+        # ZERO_BLOCK_BYTES: numpy asks for huge pages on arrays of 4 MiB or more, and a lane's
+        # first impact row then cleared 2 MiB (all of the logs of 1024 lanes: 0.7 s of a 2 s
+        # batch of 1024 paper runs spent by the kernel clearing pages).
         self.copies, self._zero_blocks = copies, {}
 
     def _walk(self, node) -> int:
@@ -366,11 +371,12 @@ class _Plan:
         return False
 
     def _zeros(self, array: np.ndarray) -> np.ndarray:
-        block, used = self._zero_blocks.get(id(array), (None, self.copies))
-        if used == self.copies:
-            if self.copies < 2:
-                return np.zeros(array.shape, array.dtype)
-            block, used = np.zeros((self.copies,) + array.shape, array.dtype), 0
+        per_block = min(self.copies, ZERO_BLOCK_BYTES // max(array.nbytes, 1))
+        if per_block < 2:
+            return np.zeros(array.shape, array.dtype)
+        block, used = self._zero_blocks.get(id(array), (None, per_block))
+        if used == per_block:
+            block, used = np.zeros((per_block,) + array.shape, array.dtype), 0
         self._zero_blocks[id(array)] = (block, used + 1)
         return block[used]
 
