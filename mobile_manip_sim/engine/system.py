@@ -85,13 +85,13 @@ def wheel_drive(kp, ki, target, speed, integral, limit):
     return tau, rate
 
 
-@jit_inline
-def wheel_speed_loop(system, s):
+@jit
+def wheel_speed_loop(control, r, b, s, nq, nu):
     """(τ_R, τ_L, ė_R, ė_L): the wheel-speed loop of each wheel (`wheel_drive`), with
-    θ̇_R/L = (v ± b ω)/r, e_R/L held in the state and each wheel's own torque limit."""
-    control, base = system.control, system.model.base
-    r, b = base.wheel_radius, base.half_track
-    nq, nu = layout.sizes(system)
+    θ̇_R/L = (v ± b ω)/r, e_R/L held in the state and each wheel's own torque limit.
+
+    Compiled on its own and handed the few numbers it reads, not inlined into the right-hand
+    side: there its code made every right-hand side slower, those of runs in effort mode too."""
     v, om = s[nq + V], s[nq + OMEGA]
     i_e = layout.controller(nq, nu)
     kp, ki = control[WHEEL_KP], control[WHEEL_KI]
@@ -105,7 +105,10 @@ def wheel_speed_loop(system, s):
 @jit
 def wheel_speed_torques(system, s):
     """(τ_R, τ_L), N·m: the torques of the wheel-speed loop at s (`wheel_speed_loop`)."""
-    tau_R, tau_L, _, _ = wheel_speed_loop(system, s)
+    nq, nu = layout.sizes(system)
+    base = system.model.base
+    tau_R, tau_L, _, _ = wheel_speed_loop(system.control, base.wheel_radius, base.half_track,
+                                          s, nq, nu)
     return tau_R, tau_L
 
 
@@ -124,8 +127,8 @@ def applied_forces(system, s, ds):
     ds[i_e + 1] = 0.0
     if control[WHEEL_VELOCITY_MODE] != 0.0:
         system.counters[CONTROL_STAGE] += 1
-        tau_R, tau_L, ds[i_e], ds[i_e + 1] = wheel_speed_loop(system, s)
         r, b = model.base.wheel_radius, model.base.half_track
+        tau_R, tau_L, ds[i_e], ds[i_e + 1] = wheel_speed_loop(control, r, b, s, nq, nu)
         Q[V] = (tau_R + tau_L) / r
         Q[OMEGA] = b * (tau_R - tau_L) / r
     if system.arm[ARM_ON] != 0.0:
