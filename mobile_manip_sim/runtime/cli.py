@@ -36,6 +36,7 @@ STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
 _critical_depth = 0      # `critical` blocks entered and not left
 _pending = None          # a stop signal that arrived inside one, raised when it ends
+_raised = None           # the stop signal last raised by the handler (`raise_dropped_stop`)
 
 
 def _raise(signum):
@@ -45,48 +46,43 @@ def _raise(signum):
 
 
 def _on_stop_signal(signum, frame):
-    global _pending
+    global _pending, _raised
     if _critical_depth:
         _pending = signum
         return
+    _raised = signum
     _raise(signum)
 
 
-_swallowed = False       # a SIGINT raised under `remembered_interrupts` and not raised again
-
-
-def _remember_interrupt(signum, frame):
-    global _swallowed
-    _swallowed = True
-    raise KeyboardInterrupt
-
-
 @contextmanager
-def remembered_interrupts():
-    """SIGINT raises KeyboardInterrupt as usual, and is remembered: Python drops an exception
-    raised inside a finalizer (a ``__del__`` such as pyarrow's ParquetWriter's, a weakref
-    callback) with a note on stderr, and a sweep interrupted there ran on to its end with status 0.
-    `raise_swallowed_interrupt` raises it again where the caller checks."""
-    global _swallowed
+def stop_signals(signums=STOP_SIGNALS):
+    """Within the block, these signals (SIGINT raises KeyboardInterrupt, SIGTERM `Terminated`)
+    wait for the end of a `critical` block, and one raised where Python drops exceptions — inside
+    a finalizer (a ``__del__`` such as pyarrow's ParquetWriter's, a weakref callback), which only
+    notes it on stderr — is raised again by `raise_dropped_stop`. Only in the main thread (signal
+    handlers can be set nowhere else); the handlers before it are put back."""
+    global _raised
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    _swallowed = False
-    previous = signal.signal(signal.SIGINT, _remember_interrupt)
+    _raised = None
+    previous = {signum: signal.signal(signum, _on_stop_signal) for signum in signums}
     try:
         yield
     finally:
-        signal.signal(signal.SIGINT, previous)
-        _swallowed = False
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+        _raised = None
 
 
-def raise_swallowed_interrupt() -> None:
-    """Raise the KeyboardInterrupt of a SIGINT that arrived under `remembered_interrupts` and
-    was dropped where it was raised (any that propagated was never followed by this call)."""
-    global _swallowed
-    if _swallowed:
-        _swallowed = False
-        raise KeyboardInterrupt
+def raise_dropped_stop() -> None:
+    """Raise again a stop signal that the handler raised and Python dropped (a loop calls this
+    between its pieces of work; a sweep interrupted inside a finalizer ran on to its end, status
+    0). One that propagated is never followed by this call: the caller stopped."""
+    global _raised
+    if _raised is not None:
+        signum, _raised = _raised, None
+        _raise(signum)
 
 
 @contextmanager
@@ -111,11 +107,9 @@ def run(main: Callable[[list[str] | None], int | None], argv: list[str] | None =
     With `sigterm`, SIGTERM raises `Terminated` in the main thread (status 143), and both it and
     SIGINT wait for the end of a `critical` block."""
     prog = sys.argv[0].rsplit("/", 1)[-1] if sys.argv else "mobile_manip_sim"
-    previous = {}
-    if sigterm and threading.current_thread() is threading.main_thread():
-        previous = {signum: signal.signal(signum, _on_stop_signal) for signum in STOP_SIGNALS}
     try:
-        return int(main(argv) or 0)
+        with stop_signals(STOP_SIGNALS if sigterm else ()):
+            return int(main(argv) or 0)
     except Terminated:
         return EXIT_TERMINATED
     except UserError as error:
@@ -127,6 +121,3 @@ def run(main: Callable[[list[str] | None], int | None], argv: list[str] | None =
         print(f"{prog}: error: {error}", file=sys.stderr)
         # A StepLimitError names the settings that cannot follow the run: a user's choice.
         return EXIT_USER_ERROR if isinstance(error, StepLimitError) else 1
-    finally:
-        for signum, handler in previous.items():
-            signal.signal(signum, handler)

@@ -15,6 +15,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import signal
 import sys
 import time
 from pathlib import Path
@@ -80,7 +81,7 @@ def _sweep(args, spec: Spec, runs: list, todo: list, store) -> int:
     and after a chunk's rows are written when it was dropped inside a finalizer."""
     client = cluster = progress = None
     try:
-        with cli.remembered_interrupts():
+        with cli.stop_signals((signal.SIGINT,)):
             if args.local:
                 workers = args.workers or os.cpu_count() or 1
                 chunk = spec.chunk or LOCAL_CHUNK
@@ -218,7 +219,7 @@ def _keep(store, rows: list, runs: list, progress, failures: int) -> int:
     store.add(rows, runs)
     failures += sum(row["status"] == "failed" for row in rows)
     progress.update(progress.done + len(rows), f", {failures} failed")
-    cli.raise_swallowed_interrupt()
+    cli.raise_dropped_stop()
     return failures
 
 

@@ -42,33 +42,33 @@ def test_a_stop_signal_outside_a_critical_block_acts_at_once():
 
 
 @pytest.mark.filterwarnings("ignore::pytest.PytestUnraisableExceptionWarning")   # the drop itself
-def test_an_interrupt_dropped_inside_a_finalizer_is_raised_at_the_next_check():
+def test_a_stop_signal_dropped_inside_a_finalizer_is_raised_at_the_next_check():
     """Python drops an exception raised in a __del__ (it prints "Exception ignored in"): a
     sweep whose Ctrl-C landed in pyarrow's ParquetWriter.__del__ ran on to its end, status 0.
-    Under remembered_interrupts the check after a chunk raises it again."""
+    Under stop_signals the check between two pieces of work raises it again."""
     events = []
     before = signal.getsignal(signal.SIGINT)
 
     class Finalized:
         def __del__(self):
             signal.raise_signal(signal.SIGINT)
-            wait_for(lambda: cli._swallowed, "the handler to run inside __del__", 30.0)
+            wait_for(lambda: cli._raised is not None, "the handler to run inside __del__", 30.0)
             events.append("finalizer ran on")   # never: the handler raised in here
 
     with pytest.raises(KeyboardInterrupt):
-        with cli.remembered_interrupts():
+        with cli.stop_signals((signal.SIGINT,)):
             Finalized()                   # collected at once: the interrupt is dropped
             events.append("dropped")
-            cli.raise_swallowed_interrupt()
+            cli.raise_dropped_stop()
             events.append("went on")      # never
     assert events == ["dropped"]
-    cli.raise_swallowed_interrupt()       # raised once: nothing left to raise
+    cli.raise_dropped_stop()              # raised once: nothing left to raise
     assert signal.getsignal(signal.SIGINT) is before   # the handler is put back
 
 
-def test_an_interrupt_that_propagated_is_not_raised_twice():
+def test_a_stop_signal_that_propagated_is_not_raised_twice():
     with pytest.raises(KeyboardInterrupt):
-        with cli.remembered_interrupts():
+        with cli.stop_signals((signal.SIGINT,)):
             signal.raise_signal(signal.SIGINT)
             wait_for(lambda: False, "the interrupt", 30.0)
-    cli.raise_swallowed_interrupt()       # the interrupt was raised where it landed: no repeat
+    cli.raise_dropped_stop()              # the interrupt was raised where it landed: no repeat
