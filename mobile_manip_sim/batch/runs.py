@@ -29,6 +29,7 @@ import numpy as np
 
 from ..engine.simulation import Simulation
 from ..engine.stepping import BUDGET
+from ..engine.system import system_data
 from ..scene.errors import UserError
 from ..scene.loading import Scene
 from ..scene.methods import METHODS
@@ -255,7 +256,7 @@ class Batch:
             lane_of = np.full(self.size, -1, dtype=np.int64)
             lane_of[chosen] = np.arange(len(sims))
             lists = (np.array([sim._core_args[0] for sim in sims], dtype=np.int64),
-                     compiled.lane_list([sim.system.data for sim in sims]),
+                     compiled.lane_list([system_data(sim.system.data) for sim in sims]),
                      compiled.lane_list([sim.stops for sim in sims]),
                      compiled.lane_list([sim._scratch for sim in sims]),
                      compiled.lane_list([sim.s for sim in sims]),

@@ -240,9 +240,9 @@ def arm_efforts(system, s, ds):
     Compiled on its own, not inlined into the right-hand side: inlined, its code (the reference,
     the PID, the feed-forward's inverse dynamics) made every right-hand side slower, the runs
     without a controller too (measured on a two-core AMD EPYC: the paper scene's rk4 run some
-    15 % slower, the computed-torque run 18 %). Even out of line, this call is handed the whole
-    system record word by word, and its mere presence in the right-hand side still costs an
-    evaluation some 35 ns in effort mode."""
+    15 % slower, the computed-torque run 18 %). Even out of line, the call hands it the whole
+    system record word by word, and its mere presence cost every evaluation some 35 ns: the
+    right-hand side of an effort-mode run is compiled without it (`system.EffortSystemData`)."""
     nq, nu = layout.sizes(system)
     i_z, i_clock = layout.arm_integrals(nq, nu), layout.reference_clock(nq, nu)
     ref, gains, limits = system.arm_ref, system.arm_gains, system.arm_limits

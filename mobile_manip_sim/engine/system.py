@@ -25,7 +25,7 @@ import numpy as np
 
 from ..dynamics import kernels
 from ..dynamics.articulated import articulated_forward_dynamics
-from ..dynamics.jit import jit, jit_inline
+from ..dynamics.jit import ENABLED, jit, jit_inline
 from ..scene.coordinates import OMEGA, V, arm_width
 from . import layout
 from .arm_control import ARM_ON, ARM_SEGMENT, ARM_SEGMENTS, N_ARM_SETTINGS, arm_efforts
@@ -71,6 +71,44 @@ SystemData = namedtuple("SystemData", [
     "ff_masses",    # the feed-forward's masses: (0,) for the plant's own, else a model
                     # error's (`arm_control.feedforward_masses`, read by `feedforward_model`)
 ])
+
+# The record of a system without an arm controller (effort mode): the same fields, a class of its
+# own. Compiled code is specialised by the record's class, and this one's leaves the controller's
+# stage out altogether (`arm_stage`): the stage's mere presence, a call that hands `arm_efforts`
+# the whole record word by word (some 330 words for the paper robot), cost every right-hand side
+# of an effort-mode run about 35 ns of its 340, on a call that never happens there. The price is a
+# second compile of every kernel that takes the record, which the warm-up pays.
+EffortSystemData = namedtuple("EffortSystemData", SystemData._fields)
+
+
+def system_data(data) -> SystemData:
+    """The same arrays in a `SystemData`: the batch's lanes share one record class, whatever each
+    lane's arm controller (the compiled lanes are typed once, for all)."""
+    return data if type(data) is SystemData else SystemData(*data)
+
+
+@jit_inline
+def arm_controller_stage(system, s, ds):
+    """The arm controller's efforts (`arm_control.arm_efforts`), while it is on."""
+    if system.arm[ARM_ON] != 0.0:
+        system.counters[ARM_CONTROL_STAGE] += 1
+        arm_efforts(system, s, ds)
+
+
+def arm_stage(system, s, ds):
+    """The arm's stage of `applied_forces`: `arm_controller_stage`; compiled, nothing at all for
+    an `EffortSystemData` (`_arm_stage_by_class`)."""
+    arm_controller_stage(system, s, ds)
+
+
+if ENABLED:
+    from numba.extending import overload
+
+    @overload(arm_stage, inline="always")
+    def _arm_stage_by_class(system, s, ds):
+        if system.instance_class is EffortSystemData:
+            return lambda system, s, ds: None
+        return lambda system, s, ds: arm_controller_stage(system, s, ds)
 
 
 @jit_inline
@@ -131,9 +169,7 @@ def applied_forces(system, s, ds):
         tau_R, tau_L, ds[i_e], ds[i_e + 1] = wheel_speed_loop(control, r, b, s, nq, nu)
         Q[V] = (tau_R + tau_L) / r
         Q[OMEGA] = b * (tau_R - tau_L) / r
-    if system.arm[ARM_ON] != 0.0:
-        system.counters[ARM_CONTROL_STAGE] += 1
-        arm_efforts(system, s, ds)
+    arm_stage(system, s, ds)
     power = 0.0
     for k in range(nu):
         power += Q[k] * s[nq + k]
@@ -251,7 +287,8 @@ class System:
         settings, gains, limits = arm if arm is not None else (
             np.zeros(N_ARM_SETTINGS), np.zeros((3, 0)), np.zeros(0))
         self.arm_ref = np.zeros((5, n_arm))
-        self.data = SystemData(dynamics.model_record, float(dynamics.gravity), self.damping,
+        record = SystemData if arm is not None else EffortSystemData
+        self.data = record(dynamics.model_record, float(dynamics.gravity), self.damping,
                                self.free, self.Q_cmd, self.control, dynamics.ws, np.zeros(nu),
                                self.counters, np.zeros(dynamics.model.n_links, dtype=np.int64),
                                np.array([0.0, math.inf]), settings, gains, limits, np.zeros(1),

@@ -10,11 +10,19 @@ import numpy as np
 import pytest
 
 from executables import executable
-from mobile_manip_sim.dynamics import Dynamics
+from mobile_manip_sim.dynamics import Dynamics, jit
 from mobile_manip_sim.engine import layout
 from mobile_manip_sim.engine.arm_control import default_controller, for_robot, gravity_efforts
 from mobile_manip_sim.engine.simulation import Simulation
-from mobile_manip_sim.engine.system import ARM_CONTROL_STAGE, RHS_EVALS
+from mobile_manip_sim.engine.system import (
+    ARM_CONTROL_STAGE,
+    RHS_EVALS,
+    EffortSystemData,
+    SystemData,
+    applied_forces,
+    derivative,
+    system_data,
+)
 from mobile_manip_sim.scene.arm_controller import ArmController, ModelError
 from mobile_manip_sim.scene.errors import UserError
 from mobile_manip_sim.scene.loading import load_scene, make_integrator, parse_scene
@@ -79,6 +87,34 @@ def test_effort_mode_has_no_controller_states_and_runs_no_controller_stage():
     assert held.s.size == layout.state_size(held.nu) + held.nu - 1   # z (n_arm) and τ
     held.advance_to(0.1)
     assert held.system.counters[ARM_CONTROL_STAGE] == held.system.counters[RHS_EVALS] > 0
+
+
+def test_effort_mode_is_compiled_without_the_controller_stage():
+    """An effort-mode system's record is an `EffortSystemData`, whose compiled right-hand side
+    has no call of the controller at all (its mere presence cost every evaluation ~10 %); the
+    same arrays as a `SystemData` take the stage's branch, never entered, with the same bits."""
+    sim = Simulation(paper_scene())
+    data = sim.system.data
+    assert type(data) is EffortSystemData
+    assert type(paper().system.data) is SystemData
+    s = sim.s + np.random.default_rng(3).normal(scale=0.2, size=sim.s.size)
+    effort, controlled = np.empty_like(s), np.empty_like(s)
+    derivative(data, s, effort)
+    derivative(system_data(data), s, controlled)
+    assert np.array_equal(effort, controlled) and np.all(np.isfinite(effort))
+    if not jit.ENABLED:
+        return
+    # a fresh compile: numba inspects no code it read from its cache
+    import numba
+
+    def forces(system, s, ds):
+        return applied_forces(system, s, ds)
+    fresh = numba.njit(_nrt=False, error_model="numpy")(forces)
+    for record in (data, system_data(data)):
+        fresh(record, s, effort)
+    calls = {signature[0].instance_class: "arm_efforts" in fresh.inspect_llvm(signature)
+             for signature in fresh.signatures}
+    assert calls == {EffortSystemData: False, SystemData: True}
 
 
 # --- what it does ------------------------------------------------------------------------------
