@@ -163,14 +163,19 @@ class Simulation(ArmCommands, BaseCommands, ScipySteps):
     def load_kernels(self) -> None:
         """Load now (compile, if the warm-up did not) every compiled kernel that this
         simulation's run may call from Python later — a step, an adaptive step's interpolation,
-        the release check of a command, the arm's reference and efforts, u̇ — by calling each
-        once on a twin (same scene, settings and arm controller; this one is untouched), so that
-        no compile happens while a node runs (the kernels are bound per argument types, which
-        the twin shares)."""
+        the release check of a command, a switch to cmd_vel and the wheel-speed loop's torques,
+        the arm's reference and efforts, and what a node's publication reads: q̇, u̇, T and V —
+        by calling each once on a twin (same scene, settings and arm controller; this one is
+        untouched), so that no compile happens while a node runs (the kernels are bound per
+        argument types, which the twin shares)."""
         twin = Simulation(self.scene, self.settings,
                           None if self._arm_section is not None else self.arm_controller)
         twin.advance_to(twin.t + 1e-3)
         twin.acceleration()
+        twin.qdot()
+        twin.dynamics.energy(twin.q, twin.u)
+        twin.set_base_velocity(0.0, 0.0)
+        twin.wheel_torques()
         scr = twin._scratch
         holding_margin(twin.system.data, twin.s, twin.resting, scr.stages[3], scr.forces)
         release(twin.system.data, twin.stops, twin.s, scr.impact, scr.stages[3], scr.forces,

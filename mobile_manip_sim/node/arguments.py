@@ -1,6 +1,6 @@
 """The node's command line before rcl sees it: `--help`, and the parameter values rcl would
-take silently or refuse in several lines (a blank ``-p NAME:=``, a bool spelled ``yes``, a params
-file it would block on or expand without end). No ROS."""
+take silently or refuse in several lines (a blank ``-p NAME:=``, a bool spelled ``yes``, a line
+break in a ``-p`` rule, a params file it would block on or expand without end). No ROS."""
 from __future__ import annotations
 
 import sys
@@ -66,6 +66,11 @@ def _check_override(rule: str) -> None:
     """``-p [NODE:]NAME:=VALUE`` for one of our parameters."""
     target, separator, text = rule.partition(":=")
     name = target.rsplit(":", 1)[-1]
+    if "\n" in rule or "\r" in rule:   # YAML's line breaks
+        from ..scene import schema
+        raise UserError(schema.label(name), f"-p {schema.short(rule)} holds a line break "
+                                            f"(rcl would fold it into a space, or refuse it in "
+                                            f"several lines)")
     if not separator:
         return   # rcl's to judge
     if text.strip() == "":

@@ -238,6 +238,85 @@ def check_blank_argument(case):
     outcome(lambda: node_arguments.check(["--ros-args", "-p", f"{name}:={value}"]))
 
 
+# --- `-p NAME:=VALUE` on to the declarations: what arguments.check hands to rcl ---------------
+# rcl parses the value and rclpy declares it (type, range; node/declare.py); then the record
+# (parameters.read), the integrator and arm controller built from it, and the QoS overrides
+# (node/qos.py), as SimulatorNode.__init__ does before it builds the engine. A node per case, in
+# one context of this process on a private domain (this host only).
+QOS_TOPICS = ("/odom", "/joint_states")   # two the node publishes: Odometry, JointState
+QOS_KEYS = [f"qos_overrides.{topic}.publisher.{policy}" for topic in (*QOS_TOPICS, "/elsewhere")
+            for policy in ("history", "depth", "reliability")]
+DECLARED_VALUES = [
+    "[]", "[1.0, 2.0]", "[1.0, 2.0, 3.0, 4.0]", "[1, 2]", "[true]", "['a']", "[[1.0]]", "{}",
+    "1e400", "-1e400", ".nan", ".inf", "1e308", "-1e308", "1e-300", "0", "-1", "1", "1.0", "0.0",
+    "-0.0", "2147483648", "9223372036854775807", "9223372036854775808",
+    "-9223372036854775809", "99999999999999999999", "true", "false", "yes", "keep_all",
+    "keep_last", "best_effort", "reliable", "rk4", "radau", "position", "velocity", "effort",
+    "none", "base", "0.0.0.0", "/odom", "null", "~", "a\nb", "[1.0,\n 2.0]", "1.0\r",
+    "[1.0,\n'a']", "\n\x08"]   # rcl refused these two in a message of two lines
+declared_arguments = st.tuples(
+    st.sampled_from([*PARAMETERS, *QOS_KEYS]),
+    st.one_of(st.sampled_from(DECLARED_VALUES), st.sampled_from(BLANKS), st.text(max_size=12)))
+_declaring = {}   # the context (made at the first case, shut down at exit) and the robot
+
+
+def declared_at_start_up(node) -> None:
+    """What SimulatorNode.__init__ makes of ``node``'s parameters before the engine."""
+    from nav_msgs.msg import Odometry
+    from sensor_msgs.msg import JointState
+
+    from mobile_manip_sim.engine.arm_control import for_robot
+    from mobile_manip_sim.node import declare, qos
+    from mobile_manip_sim.ros.topics import state_qos
+    from mobile_manip_sim.scene.loading import make_integrator
+    scene = _declaring["scene"]
+    values = node_parameters.read(declare.declare(node))
+    make_integrator(scene.integrator, values.method, values.dt, values.rtol, values.atol,
+                    prefix="integrator")
+    for_robot(values.arm_controller, scene.robot)
+    for topic, kind in zip(QOS_TOPICS, (Odometry, JointState), strict=True):
+        qos.publisher(node, kind, topic, state_qos())
+    qos.check_unknown(node)
+
+
+def check_declared_argument(case):
+    """``-p NAME:=VALUE`` past arguments.check: refused in one line at start-up (rcl's parse
+    as the node reports it, a declaration, the record, a QoS override) or taken — never
+    another exception. Returns the refusal, or None."""
+    import atexit
+
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.impl.implementation_singleton import rclpy_implementation
+
+    from mobile_manip_sim.node.parameters import NODE_NAME
+    from mobile_manip_sim.scene.loading import load_scene
+    from ros_harness import on_domain, private_domain
+    name, value = case
+    argv = ["--ros-args", "-p", f"{name}:={value}"]
+    error = outcome(lambda: node_arguments.check(argv))
+    if error is not None:
+        return error
+    if not _declaring:
+        context, domain = Context(), private_domain(100, 232)
+        rclpy.init(context=context, domain_id=domain)
+        atexit.register(rclpy.try_shutdown, context=context)
+        _declaring.update(context=context, domain=domain, scene=load_scene(None))
+    with on_domain(_declaring["domain"]):
+        try:
+            node = rclpy.create_node(NODE_NAME, context=_declaring["context"], cli_args=argv,
+                                     start_parameter_services=False, enable_rosout=False)
+        except rclpy_implementation.RCLInvalidROSArgsError:   # rcl refuses it: as the node says
+            from mobile_manip_sim.node import shell
+            error = outcome(lambda: shell._init(argv))
+            assert error is not None, argv   # refused: nothing initialised, nothing to shut down
+            return error
+    try:
+        return outcome(lambda: declared_at_start_up(node))
+    finally:
+        node.destroy_node()
+
+
 def check_blank_in_yaml(case):
     reader, path_index, blank = case
     doc, read = READERS[reader]
@@ -436,6 +515,7 @@ CHECKS = [
     (check_tags, st.tuples(st.sampled_from(list(READERS)), st.integers(0, 10**6), tagged_scalars)),
     (check_blank_argument, st.tuples(st.sampled_from(list(PARAMETERS)), st.one_of(
         st.sampled_from(BLANKS), st.text(max_size=12)))),
+    (check_declared_argument, declared_arguments),
     (check_blank_in_yaml, st.tuples(st.sampled_from(list(READERS)), st.integers(0, 10**6),
                                     st.sampled_from(BLANKS))),
     (check_sweep, sweep_changes),
@@ -482,6 +562,14 @@ def test_the_fuzzer_can_fail():
     assert outcome(lambda: scene_yaml(with_tag(PAPER, ("duration",), "!!float", "abc")))
     assert outcome(lambda: scene_yaml(with_tag(PAPER, ("duration",), "!!float", "0.5"))) is None
     assert outcome(lambda: node_arguments.check(["--ros-args", "-p", "publish_rate:="]))
+    # arguments.check hands these to rcl; the declarations refuse them (and take a good one)
+    for name, value in (("arm_gains.kp", "[]"),
+                        ("qos_overrides./odom.publisher.depth", "99999999999"),
+                        ("qos_overrides./elsewhere.publisher.depth", "5")):
+        argv = ["--ros-args", "-p", f"{name}:={value}"]
+        assert outcome(lambda argv=argv: node_arguments.check(argv)) is None
+        assert check_declared_argument((name, value)).key == name
+    assert check_declared_argument(("publish_rate", "50.0")) is None
     assert outcome(lambda: sweep_check(mutate(SWEEP, ("random", "count"), 10**9, False)))
     assert outcome(lambda: sweep_check(SWEEP)) is None
     harness_runs = []

@@ -3,7 +3,7 @@ its own process by test_arm_node.py with control_msgs on its paths. Each scenari
 command line prints one JSON line: the results, feedback counts and errors the test checks.
 
     python trajectory_client.py follow wrong_joints out_of_stroke old_header path_tolerance \
-        goal_tolerance preempt cancel paused reset
+        goal_tolerance preempt cancel paused reset huge_revolute flood failed_segment
 """
 import json
 import sys
@@ -183,9 +183,29 @@ def paused(client):
 
 
 def huge_revolute(client):
-    """Revolute targets no integrator can follow (1e6, 1e300 rad): each answered at once."""
+    """Revolute targets no integrator can follow (1e6 rad up to the largest doubles, both
+    signs): each answered at once."""
     return {"results": [client.result(client.send(goal([(1.0, [value, 0.5, 0.0, 0.5])])))
-                        for value in (1e6, 1e300)]}
+                        for value in (1e6, 1e300, 1e308, -1e308)]}
+
+
+def failed_segment(client):
+    """A 30 s goal running when 1e300 N·m on the wheels (finite, so taken) overflow the state:
+    the goal's result, then ~/reset (the node runs again, efforts zero)."""
+    from std_msgs.msg import Float64MultiArray
+    from std_srvs.srv import Trigger
+    wheels = client.node.create_publisher(Float64MultiArray, "/wheel_effort_controller/commands",
+                                          10)
+    service = client.node.create_client(Trigger, "/mobile_manip_sim/reset")
+    client.feedback.clear()
+    handle = client.send(goal([(30.0, [0.0, 0.3, 0.0, 0.3])]))
+    client.spin_until(lambda: len(client.feedback) >= 3 and wheels.get_subscription_count() > 0,
+                      "the goal's feedback and the wheel command subscription")
+    wheels.publish(Float64MultiArray(data=[1e300, 1e300]))
+    outcome = client.result(handle)
+    future = service.call_async(Trigger.Request())
+    client.spin_until(future.done, "the reset's answer")
+    return {**outcome, "reset": future.result().success}
 
 
 def flood(client, count: int = 40):

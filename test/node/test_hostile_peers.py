@@ -1,9 +1,10 @@
 """The node and `simulate --view` under peers that misbehave and goals that weigh: a live-view
 client that never reads, a flood of 100,000-point trajectories while ~/pause is called, a
-segment the watchdog abandons, goals no controller could follow, a flood of goals, a stop while
-a goal runs. Real processes, real DDS, a raw WebSocket client on a bare socket; every wait is on
-an event with a timeout. The one bound on time is the shutdown's, a hang guard: a stopped
-process must have exited (generously within SHUTDOWN_GUARD), not measured."""
+segment the watchdog abandons, goals no controller could follow, a flood of goals, a segment
+that fails under a running goal, SIGINT and SIGTERM while a goal runs. Real processes, real
+DDS, a raw WebSocket client on a bare socket; every wait is on an event with a timeout. The one
+bound on time is the shutdown's, a hang guard: a stopped process must have exited (generously
+within SHUTDOWN_GUARD), not measured."""
 import json
 import signal
 import subprocess
@@ -62,6 +63,12 @@ def started(tmp_path, *args, env=None) -> NodeProcess:
     return node
 
 
+@pytest.fixture
+def action_env(interfaces_prefix):
+    """A node's and a client's environment with control_msgs (FollowJointTrajectory)."""
+    return interfaces_build.environment(interfaces_prefix, child_env(DOMAIN_ID))
+
+
 def stalled_client(port: int, feed=lambda: None) -> RawClient:
     """A client subscribed to every channel that never reads: returned once the server has
     bytes queued for it that it does not take (``feed()`` publishes meanwhile, if need be)."""
@@ -112,33 +119,40 @@ def test_closing_the_live_view_never_waits_on_a_client_that_does_not_read():
     assert blocked, "the server stopped every time: the client never blocked it"
 
 
-def test_a_stop_with_a_client_that_never_reads_closes_the_bag_first_and_exits(tmp_path):
-    """SIGINT and SIGTERM with a stalled live-view client: the node exits (status 0) and its bag
-    is complete — rosbags reads it, metadata.yaml and summary included."""
+def test_a_stop_with_a_client_that_never_reads_closes_the_bag_first_and_exits(action_env,
+                                                                            tmp_path):
+    """SIGINT and SIGTERM with a stalled live-view client and a FollowJointTrajectory goal
+    running: the node exits (status 0, no traceback) and its bag is complete."""
     for sig in (signal.SIGINT, signal.SIGTERM):
         port, bag = free_port(), tmp_path / f"bag_{sig.name}"
-        node = started(tmp_path, "-p", f"foxglove_port:={port}", "-p", f"record:={bag}")
+        node = started(tmp_path, "-p", f"foxglove_port:={port}", "-p", f"record:={bag}",
+                       "-p", "arm_controller:=joint_trajectory", env=action_env)
         client = stalled_client(port)
         try:
-            node.process.send_signal(sig)
-            node.process.wait(timeout=SHUTDOWN_GUARD)
-        except subprocess.TimeoutExpired:
-            pytest.fail(f"{sig.name}: the node did not exit\n{node.output()}")
+            stop_while_a_goal_runs(node, sig, action_env)
         finally:
             client.close()
             node.stop()
-        output = node.output()
-        assert node.process.returncode == 0 and "Traceback" not in output, output
-        assert f"bag {bag} closed" in output
-        metadata = yaml.safe_load((bag / "metadata.yaml").read_text())
-        assert metadata["rosbag2_bagfile_information"]["message_count"] > 0
-        with RosbagsReader(bag) as reader:
-            counts = {c.topic: c.msgcount for c in reader.connections}
-            assert counts["/joint_states"] > 0 and counts["/tf"] > 0
-            assert sum(1 for _ in reader.messages()) == sum(counts.values())
+        exited_cleanly_with_its_bag(node, bag)
 
 
-def test_simulate_view_stops_on_sigterm_with_a_client_that_never_reads(tmp_path):
+def exited_cleanly_with_its_bag(node: NodeProcess, bag: Path) -> None:
+    """The stopped node exited with status 0, no traceback, and its bag complete: rosbags (an
+    independent reader) reads it, metadata.yaml and summary included."""
+    output = node.output()
+    assert node.process.returncode == 0 and "Traceback" not in output, output
+    assert f"bag {bag} closed" in output
+    metadata = yaml.safe_load((bag / "metadata.yaml").read_text())
+    assert metadata["rosbag2_bagfile_information"]["message_count"] > 0
+    with RosbagsReader(bag) as reader:
+        counts = {c.topic: c.msgcount for c in reader.connections}
+        assert counts["/joint_states"] > 0 and counts["/tf"] > 0
+        assert sum(1 for _ in reader.messages()) == sum(counts.values())
+
+
+@pytest.mark.parametrize("sig, status", [(signal.SIGINT, 130), (signal.SIGTERM, 143)],
+                         ids=["SIGINT", "SIGTERM"])
+def test_simulate_view_stops_on_a_signal_with_a_client_that_never_reads(tmp_path, sig, status):
     process = subprocess.Popen([executable("simulate"), "--view", "0", "--duration", "600",
                                 "--out", str(tmp_path / "run.csv")], stdout=subprocess.PIPE,
                                stderr=subprocess.PIPE, text=True)
@@ -146,12 +160,12 @@ def test_simulate_view_stops_on_sigterm_with_a_client_that_never_reads(tmp_path)
         first = process.stdout.readline()
         assert first.startswith("live view: ws://localhost:"), first
         client = stalled_client(int(first.split()[2].rsplit(":", 1)[1]))
-        process.send_signal(signal.SIGTERM)
+        process.send_signal(sig)
         _, err = process.communicate(timeout=SHUTDOWN_GUARD)
         client.close()
     finally:
         process.kill()
-    assert process.returncode == 143 and "Traceback" not in err, err
+    assert process.returncode == status and "Traceback" not in err, err
     rows = (tmp_path / "run.csv").read_text().splitlines()
     assert rows and rows[0].startswith("t,x,y,")   # closed with what was written, not removed
 
@@ -385,18 +399,16 @@ def test_a_watchdog_abandon_never_lets_the_old_thread_touch_the_new_engine():
 
 # --- goals that get answers, stops while goals run ------------------------------------------
 
-@pytest.fixture
-def action_env(interfaces_prefix):
-    return interfaces_build.environment(interfaces_prefix, child_env(DOMAIN_ID))
-
-
 def test_every_goal_is_answered_and_a_stop_while_one_runs_is_clean(action_env, tmp_path):
-    client_script = CLIENT
+    """Revolute targets beyond REVOLUTE_TARGET (to ±1e308 rad) are refused in one line; a
+    flood of goals is answered (some rejected); a failed segment aborts the running goal with
+    the failure's line rather than leaving it to wait; SIGINT while a goal runs is a clean exit
+    (SIGTERM too: the stalled-client test above stops with both while a goal runs)."""
     node = started(tmp_path, "-p", "arm_controller:=joint_trajectory", env=action_env)
     try:
-        result = subprocess.run([sys.executable, client_script, "huge_revolute", "flood"],
-                                env=action_env, capture_output=True, text=True,
-                                timeout=STARTUP_TIMEOUT)
+        result = subprocess.run([sys.executable, CLIENT, "huge_revolute", "flood",
+                                 "failed_segment"], env=action_env, capture_output=True,
+                                text=True, timeout=STARTUP_TIMEOUT)
         assert result.returncode == 0, result.stderr + node.output()
         answers = {line["scenario"]: line for line in map(json.loads,
                                                           result.stdout.splitlines())}
@@ -405,17 +417,33 @@ def test_every_goal_is_answered_and_a_stop_while_one_runs_is_clean(action_env, t
         flood = answers["flood"]
         assert flood["rejected"] + flood["accepted"] == 40 and flood["rejected"] > 0
         assert "goal rejected" in node.output()
-        # A stop while a goal runs: no traceback (the goal's handle goes with the context).
-        client = subprocess.Popen([sys.executable, "-c", LONG_GOAL, client_script],
-                                  env=action_env, stdout=subprocess.PIPE, text=True)
-        assert client.stdout.readline().strip() == "feedback"
-        node.process.send_signal(signal.SIGINT)
-        node.process.wait(timeout=SHUTDOWN_GUARD)
-        client.kill()
+        # The 30 s goal cannot end by itself once the node has failed (nothing steps until
+        # ~/reset): its answer is the failure's one line, ABORTED (6).
+        failed = answers["failed_segment"]
+        assert failed["status"] == 6 and failed["reset"], failed
+        assert failed["text"].startswith("simulation failed in the segment after t = "), failed
+        assert failed["text"] in node.output()
+        stop_while_a_goal_runs(node, signal.SIGINT, action_env)
     finally:
         node.stop()
     output = node.output()
     assert node.process.returncode == 0 and "Traceback" not in output, output
+
+
+def stop_while_a_goal_runs(node: NodeProcess, sig, env) -> None:
+    """``sig`` once a client's 30 s goal has had feedback; the node must exit (the goal's
+    handle goes with the context: no traceback, which the caller checks)."""
+    client = subprocess.Popen([sys.executable, "-c", LONG_GOAL, CLIENT], env=env,
+                              stdout=subprocess.PIPE, text=True)
+    try:
+        assert client.stdout.readline().strip() == "feedback"
+        node.process.send_signal(sig)
+        node.process.wait(timeout=SHUTDOWN_GUARD)
+    except subprocess.TimeoutExpired:
+        pytest.fail(f"{sig.name} while a goal runs: the node did not exit\n{node.output()}")
+    finally:
+        client.kill()
+        client.wait()
 
 
 LONG_GOAL = """

@@ -44,19 +44,34 @@ def loaded_overloads() -> dict:
     return found
 
 
+def publication(sim, k: int) -> None:
+    """What the node computes from the engine for publication ``k`` (shell._messages,
+    view.messages): the joint states (q̇, the efforts acting: the wheel-speed loop's torques in
+    velocity mode, the arm controller's output), /imu (u̇) and the live view's /energy."""
+    from mobile_manip_sim.ros.imu import Imu
+    from mobile_manip_sim.ros.messages import energy, state_messages
+    state_messages(sim, k, sim.model.joint_names())
+    Imu().read(sim, k)
+    energy(sim)
+
+
 def run_mode(mode: str) -> None:
     """A node's run in ``mode`` with each feed-forward, in this (fresh) process: every kernel
-    it calls — steps, commands (and the release check they make), the arm's reference and
-    efforts, u̇ for the IMU, resets, a state set by hand — was loaded by
-    `Simulation.load_kernels` (no dispatcher gains a version afterwards) and nothing compiles.
-    Prints the offenders, or "none"."""
+    it calls — steps, commands (effort and cmd_vel through the wheel-speed loop, and the
+    release check they make), the arm's reference and efforts, what every publication reads,
+    resets, a state set by hand — was loaded by `Simulation.load_kernels` (no dispatcher gains
+    a version afterwards) and nothing compiles. Prints the offenders, or "none"."""
     import copy
 
     import numpy as np
 
     from mobile_manip_sim.engine.simulation import Simulation
     from mobile_manip_sim.ros.trajectory_goals import Trajectory
-    from mobile_manip_sim.runtime.timeline import apply_arm_command, start_node_time_line
+    from mobile_manip_sim.runtime.timeline import (
+        apply_arm_command,
+        apply_commands,
+        start_node_time_line,
+    )
     from mobile_manip_sim.scene.arm_controller import MODES, ArmController
     from mobile_manip_sim.scene.loading import load_scene, parse_scene
 
@@ -71,16 +86,21 @@ def run_mode(mode: str) -> None:
         watch = CompileWatch().start()
         try:
             start_node_time_line(sim)
+            publication(sim, 0)
             sim.advance_to(0.6)   # rod 2 comes to rest at its stop (test_set_state.py)
+            publication(sim, 60)
             q = sim.q[5:].copy()
-            if not MODES[mode].controlled:
-                sim.set_efforts([0.1, 0.0], [0.0, 1.0, 0.0, 1.0])
-            elif MODES[mode].array:
-                apply_arm_command(sim, mode, q * 0.5 if mode == "velocity" else q + 0.05)
-            else:
-                apply_arm_command(sim, mode, Trajectory(np.array([10 ** 8]), (q + 0.05)[None],
-                                                        None, None))
+            efforts = None if MODES[mode].controlled else [0.0, 1.0, 0.0, 1.0]
+            apply_commands(sim, [0.3, 0.5], efforts, velocity=True)   # base_command velocity
+            sim.advance_to(0.65)
+            publication(sim, 65)
+            apply_commands(sim, [0.1, 0.0], efforts, velocity=False)
+            if MODES[mode].controlled:
+                apply_arm_command(sim, mode, (q * 0.5 if mode == "velocity" else q + 0.05)
+                                  if MODES[mode].array else
+                                  Trajectory(np.array([10 ** 8]), (q + 0.05)[None], None, None))
             sim.advance_to(0.7)
+            publication(sim, 70)
             sim.acceleration()
             sim.joint_efforts_applied()
             if sim.arm_controller.active:
