@@ -500,6 +500,26 @@ def test_a_missing_or_invalid_scene_exits_2_with_one_line(tmp_path, content):
     assert len(lines) == 1 and lines[0].startswith("simulator: error: "), result.stderr
 
 
+def test_a_node_that_must_compile_its_kernels_says_so_before_its_start_up_line(tmp_path):
+    """An install never warmed up (here: an empty kernel cache): the node says it is compiling
+    the kernels, then how far it is every 10 s, before any start-up line — minutes of silence
+    otherwise. Killed once it has said both, minutes before the compile would end. (A warmed
+    node says neither: test_arm_node's default node.)"""
+    env = dict(child_env(), NUMBA_CACHE_DIR=str(tmp_path / "empty_cache"))
+    node = NodeProcess(tmp_path, *FAST, env=env)
+    try:
+        wait_for(lambda: "still compiling the kernels (" in node.output() or not node.running(),
+                 "a line of progress from the compiling node", 180.0)   # a net, not a figure
+    finally:
+        node.stop(signal.SIGKILL)
+    lines = node.output().splitlines()
+    said = [i for i, line in enumerate(lines) if "compiling the engine's kernels before the "
+                                                 "first step" in line]
+    progress = [i for i, line in enumerate(lines) if "still compiling the kernels (" in line]
+    assert said and progress and said[0] < progress[0], lines
+    assert not any("publishing at" in line for line in lines), lines
+
+
 def test_robot_description_reaches_a_late_subscriber(probe, simulator):
     received = []
     latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,
