@@ -44,6 +44,7 @@ from .lockstep import ClockFollower, Lockstep
 from .loop import Abandoned, SteppingLoop
 from .parameters import NODE_NAME
 from .recording import BAG_FLUSH_INTERVAL, NodeRecording
+from .stop_while_loading import exit_on_stop
 from .throttle import Throttle
 from .view import NodeView
 
@@ -128,7 +129,7 @@ class SimulatorNode(Node):
         # The engine, and every kernel its run may call loaded (or compiled, said with
         # progress: the warm-up was not run for this install) before the start-up line; none
         # compiles afterwards (said if one does).
-        with CompileNotice(log.warning, COMPILING, KERNEL_NOTE):
+        with exit_on_stop(log.warning), CompileNotice(log.warning, COMPILING, KERNEL_NOTE):
             self.sim = self._new_engine()
             with warnings.catch_warnings():   # the scene's advice was given once, by self.sim
                 warnings.simplefilter("ignore", RuntimeWarning)
