@@ -108,7 +108,9 @@ class JointCommands:
     command interface — the wheels velocity (base_command velocity) or effort, the arm's joints
     the arm controller's (position, velocity or effort) — as that interface fills it: a field
     as long as ``name`` is by name; a shorter one holds, in ``name`` order, the values of the
-    named joints whose interface it is. A joint a message does not name keeps its last command.
+    named joints whose interface it is. A joint a message does not name, or whose value is NaN
+    (ros2_control's "no command": a command interface never written, or one a controller
+    released), keeps its last command; ±inf refuses the message.
     The wheels' values become the base command (wheel torques, or v = r(ω_R + ω_L)/2,
     ω = r(ω_R − ω_L)/(2b)), the arm's the arm command: the same slots the array topics fill."""
 
@@ -164,7 +166,7 @@ class JointCommands:
                                   f"({len(mine)} of them take {field} commands)")
                 pairs = zip(mine, given, strict=True)
             for name, value in pairs:
-                if self.interfaces[name] != field:
+                if self.interfaces[name] != field or math.isnan(value):
                     continue
                 if not math.isfinite(value):
                     return None, f"{field} of {name} is {value}"

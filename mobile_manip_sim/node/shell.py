@@ -29,7 +29,7 @@ from ..ros.topics import (
     state_qos,
 )
 from ..runtime import cli
-from ..runtime.compiles import CompileWatch
+from ..runtime.compiles import CompileNotice, CompileWatch
 from ..runtime.headless import hold_ledger
 from ..runtime.memory import CompilerPages, release_compiler_pages, return_large_buffers
 from ..runtime.pacing import Pacer
@@ -44,6 +44,7 @@ from .lockstep import ClockFollower, Lockstep
 from .loop import Abandoned, SteppingLoop
 from .parameters import NODE_NAME
 from .recording import BAG_FLUSH_INTERVAL, NodeRecording
+from .stop_while_loading import exit_on_stop
 from .throttle import Throttle
 from .view import NodeView
 
@@ -53,7 +54,9 @@ STOP_TIMEOUT = 2.0         # s of wall time shutdown waits for the stepping thre
 EXECUTOR_THREADS = 6       # two goals' execute callbacks, the trajectory topic, the services,
 #                            the timers: none waits for another
 WATCH_PERIOD = 1.0         # s: the watchdog and the check for a namesake node run this often
-KERNEL_NOTE = 10.0         # s: a first segment longer than this is compiling: said, and again
+KERNEL_NOTE = 10.0         # s between two lines of progress while the start-up compiles
+COMPILING = ("compiling the engine's kernels before the first step (this install was not "
+             "warmed up: minutes, once; `ros2 run mobile_manip_sim warmup` compiles them ahead)")
 STATE_TYPES = {JOINT_STATES_TOPIC: JointState, ODOM_TOPIC: Odometry, CLOCK_TOPIC: Clock}
 
 
@@ -68,14 +71,9 @@ class SimulatorNode(Node):
                                          prefix="integrator")
         # UserError: arm_gains.*
         self.arm_controller = for_robot(p.arm_controller, self.scene.robot)
-        self.sim = Simulation(self.scene, self._settings, arm_controller=self.arm_controller)
-        self.sim.set_wheel_speed_gains(*p.wheel_speed_gains)
-        self.sim.hold_warning = self.get_logger().warning   # a hold over its bound: one line
         self.joint_names = self.scene.robot.joint_names()
         self.grid = Grid(p.publish_rate)   # publication k at t_k, segment k → k + 1
         self._compiler_pages = CompilerPages()   # given back after a segment loaded a kernel
-        self._first_segment = threading.Event()   # set once a segment ran: kernels loaded
-        self._kernel_note: threading.Thread | None = None
         self._recording: NodeRecording | None = None
         log = self.get_logger()
         throttle = Throttle(log.warning)
@@ -128,11 +126,14 @@ class SimulatorNode(Node):
         self.add_on_set_parameters_callback(declare.validate)
         self.add_post_set_parameters_callback(self._apply_parameters)
         self._thread = threading.Thread(target=self.loop.run, name="stepping", daemon=True)
-        # Every kernel the run may call, loaded (or compiled) before the start-up line: none
-        # compiles afterwards (said if one does: the warm-up was not run for this install).
-        with warnings.catch_warnings():   # the scene's advice was given once, by self.sim
-            warnings.simplefilter("ignore", RuntimeWarning)
-            self.sim.load_kernels()
+        # The engine, and every kernel its run may call loaded (or compiled, said with
+        # progress: the warm-up was not run for this install) before the start-up line; none
+        # compiles afterwards (said if one does).
+        with exit_on_stop(log.warning), CompileNotice(log.warning, COMPILING, KERNEL_NOTE):
+            self.sim = self._new_engine()
+            with warnings.catch_warnings():   # the scene's advice was given once, by self.sim
+                warnings.simplefilter("ignore", RuntimeWarning)
+                self.sim.load_kernels()
         self._compiles = CompileWatch(lambda name: log.warning(
             f"compiled {name} while running (the first run of an install compiles; "
             f"python3 -m mobile_manip_sim.programs.warmup does it once)")).start()
@@ -231,10 +232,6 @@ class SimulatorNode(Node):
         # own engine and never reaches the one that replaced it; `_owned` before each step
         # that touches what the two share (goals, the bag) ends it instead.
         sim, generation = self.sim, self._generation
-        if self._kernel_note is None:   # the first segment: it loads (or compiles) the kernels
-            self._kernel_note = threading.Thread(target=self._say_kernels, name="kernels",
-                                                 daemon=True)
-            self._kernel_note.start()
         base, joints = self.commands.held(start_ns)
         efforts = None if self.arm is not None else joints   # the arm's, in effort mode
         applied = apply_commands(sim, base, efforts, self.params.velocity_mode)
@@ -246,10 +243,7 @@ class SimulatorNode(Node):
             self._recording.commands(start_ns, applied[0], None if efforts is None else applied[1])
             if arm is not None:
                 self._recording.arm_command(start_ns, arm)
-        try:
-            sim.advance_to(self.grid.time(k + 1))
-        finally:   # done or failed: no longer loading the kernels
-            self._first_segment.set()
+        sim.advance_to(self.grid.time(k + 1))
         self._owned(generation)
         self._compiler_pages.release_if_used()
         return self._messages(k + 1, sim)
@@ -296,12 +290,16 @@ class SimulatorNode(Node):
         publishers = [*self._state_pubs.values(), self._hardware_states]
         return any(pub.get_subscription_count() > 0 for pub in publishers if pub is not None)
 
+    def _new_engine(self) -> Simulation:
+        sim = Simulation(self.scene, self._settings, arm_controller=self.arm_controller)
+        sim.set_wheel_speed_gains(*self.params.wheel_speed_gains)
+        sim.hold_warning = self.get_logger().warning   # a hold over its bound: one line
+        return sim
+
     def _replace_engine(self) -> None:
         """The watchdog gave up on a stuck segment: a new engine (the old one is left to it)."""
         self._generation += 1
-        self.sim = Simulation(self.scene, self._settings, arm_controller=self.arm_controller)
-        self.sim.set_wheel_speed_gains(*self.params.wheel_speed_gains)
-        self.sim.hold_warning = self.get_logger().warning
+        self.sim = self._new_engine()
         if self._recording is not None:
             self._recording.sim = self.sim
 
@@ -321,21 +319,6 @@ class SimulatorNode(Node):
     def start(self) -> None:
         """Start the stepping thread. Nothing is computed here, before the executor spins."""
         self._thread.start()
-
-    def _say_kernels(self) -> None:
-        """The first segment loads the compiled kernels — or compiles them, minutes, on an
-        install never warmed up: say so, and while it lasts say so again every KERNEL_NOTE s."""
-        log, start = self.get_logger(), time.monotonic()
-        if self._first_segment.wait(KERNEL_NOTE):
-            return
-        log.warning("the first segment is compiling the engine's kernels (this install was not "
-                    "warmed up: `ros2 run mobile_manip_sim warmup` compiles them once, ahead); "
-                    "simulated time starts when it is done")
-        while not self._first_segment.wait(KERNEL_NOTE):
-            if not rclpy.ok(context=self.context):
-                return
-            log.info(f"still compiling the kernels ({time.monotonic() - start:.0f} s)")
-        log.info(f"kernels compiled in {time.monotonic() - start:.0f} s; stepping")
 
     def stop(self) -> None:
         """Stop the stepping thread (idempotent); nothing is published afterwards."""

@@ -66,13 +66,23 @@ def stop_signals(signums=STOP_SIGNALS):
         yield
         return
     _raised = None
-    previous = {signum: signal.signal(signum, _on_stop_signal) for signum in signums}
+    try:
+        with signal_handlers(signums, _on_stop_signal):
+            yield
+    finally:
+        _raised = None
+
+
+@contextmanager
+def signal_handlers(signums, handler):
+    """Within the block, ``handler`` takes these signals (main thread only); the handlers
+    before it are put back."""
+    previous = {signum: signal.signal(signum, handler) for signum in signums}
     try:
         yield
     finally:
-        for signum, handler in previous.items():
-            signal.signal(signum, handler)
-        _raised = None
+        for signum, before in previous.items():
+            signal.signal(signum, before)
 
 
 def raise_dropped_stop() -> None:

@@ -4,11 +4,13 @@ for seconds to minutes), and the tests prove that nothing does.
 
 numba fires its ``numba:compile`` event only when it compiles a kernel, not when it loads one
 from its on-disk cache, so the count is the number of kernels compiled (a kernel compiled with
-its callees counts each of them). Without numba it counts nothing.
+its callees counts each of them). Without numba it counts nothing. `CompileNotice` rests on it
+too: the node's start-up says so when it compiles instead of loading.
 """
 from __future__ import annotations
 
 import threading
+import time
 
 
 class CompileWatch:
@@ -57,3 +59,50 @@ class CompileWatch:
             from numba.core import event
             event.unregister("numba:compile", self._listener)
             self._listener = None
+
+
+class CompileNotice:
+    """Says that work which should only load the kernels is compiling them (an install never
+    warmed up: minutes): ``first`` once, at the first compile — a warmed start, which loads
+    them from the cache, says nothing — then a line every ``every`` s while the work lasts, and
+    at its end, unless an exception ended it, how long it took. ``say`` takes each line (a
+    logger's method).
+
+        with CompileNotice(log.warning, "compiling the kernels …"):
+            sim.load_kernels()
+    """
+
+    def __init__(self, say, first: str, every: float = 10.0):
+        self._say, self._first, self._every = say, first, every
+        self._watch = CompileWatch(self._compiling)
+        self._done = threading.Event()
+        self._ticker: threading.Thread | None = None
+        self._start = 0.0
+
+    def __enter__(self) -> "CompileNotice":
+        self._watch.start()
+        return self
+
+    def __exit__(self, kind, *exc) -> None:
+        self._watch.stop()
+        self._done.set()
+        if self._ticker is not None:
+            self._ticker.join()
+            if kind is None:   # not stopped halfway (Ctrl-C, SIGTERM, an error)
+                self._say(f"kernels compiled in {time.monotonic() - self._start:.0f} s "
+                          f"({self._watch.count} of them)")
+
+    def _compiling(self, name: str) -> None:
+        # numba compiles under one lock: the calls come one at a time
+        if self._ticker is not None:
+            return
+        self._start = time.monotonic()
+        self._say(self._first)
+        self._ticker = threading.Thread(target=self._tick, name="compile notice", daemon=True)
+        self._ticker.start()
+
+    def _tick(self) -> None:
+        # it runs while numba compiles: LLVM's passes, called through ctypes, release the GIL
+        while not self._done.wait(self._every):
+            self._say(f"still compiling the kernels ({time.monotonic() - self._start:.0f} s, "
+                      f"{self._watch.count} compiled so far)")

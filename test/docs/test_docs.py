@@ -264,7 +264,26 @@ def test_the_readme_layout_names_every_folder_and_the_readme_stays_short():
     missing = [name for name in modules + packages if f"`{name}`" not in layout
                and f"`mobile_manip_sim/{name}`" not in layout and f", `{name}`" not in layout]
     assert missing == []
-    assert len(readme.splitlines()) <= 220, "the README is the front door: details go in docs/"
+    # 265: the ros2_control route (its URDF block, controllers.yaml, the commands) is on it
+    assert len(readme.splitlines()) <= 265, "the README is the front door: details go in docs/"
+
+
+def test_the_readme_and_the_ros_route_give_the_same_controllers_yaml():
+    """README.md's compact controllers.yaml is docs/ros.md's, value for value, and the URDF
+    block both quote opens as `describe --ros2-control` writes it."""
+    def of(page):
+        return [block for block in blocks(ROOT / page)
+                if block.language == "yaml" and block.text.startswith("controller_manager:")]
+    readme, route = of("README.md"), of("docs/ros.md")
+    assert len(readme) == len(route) == 1
+    assert yaml.safe_load(readme[0].text) == yaml.safe_load(route[0].text)
+    from mobile_manip_sim.ros.urdf import robot_description
+    from mobile_manip_sim.scene import load_scene
+    urdf = robot_description(load_scene(), ros2_control={})
+    for page in ("README.md", "docs/ros.md"):
+        block = next(b for b in blocks(ROOT / page) if b.language == "xml")
+        hardware = block.text[:block.text.index("</hardware>")]
+        assert textwrap.indent(hardware, "  ") in urdf, page
 
 
 def test_the_example_in_the_sweep_spec_docstring_is_a_valid_spec():

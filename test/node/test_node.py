@@ -500,6 +500,34 @@ def test_a_missing_or_invalid_scene_exits_2_with_one_line(tmp_path, content):
     assert len(lines) == 1 and lines[0].startswith("simulator: error: "), result.stderr
 
 
+@pytest.mark.parametrize("stop", [signal.SIGINT, signal.SIGTERM])
+def test_a_node_that_must_compile_its_kernels_says_so_and_stops_while_it_does(tmp_path, stop):
+    """An install never warmed up (here: an empty kernel cache): the node says it is compiling
+    the kernels, then how far it is every 10 s, before any start-up line — minutes of silence
+    otherwise. Ctrl-C or SIGTERM then, minutes before the compile would end, stops it at once
+    with one line and status 0 (rclpy's handlers alone let SIGTERM wait for the compile, and
+    SIGINT's KeyboardInterrupt inside numba's compiler crashed the interpreter at times). (A
+    warmed node says neither: test_arm_node's default node.)"""
+    env = dict(child_env(), NUMBA_CACHE_DIR=str(tmp_path / "empty_cache"))
+    node = NodeProcess(tmp_path, *FAST, env=env)
+    try:
+        wait_for(lambda: "still compiling the kernels (" in node.output() or not node.running(),
+                 "a line of progress from the compiling node", 180.0)   # a net, not a figure
+        status = node.stop(stop)
+    finally:
+        node.stop(signal.SIGKILL)
+    lines = node.output().splitlines()
+    said = [i for i, line in enumerate(lines) if "compiling the engine's kernels before the "
+                                                 "first step" in line]
+    progress = [i for i, line in enumerate(lines) if "still compiling the kernels (" in line]
+    assert said and progress and said[0] < progress[0], lines
+    assert not any("publishing at" in line for line in lines), lines
+    assert status == 0, lines
+    stopped = [line for line in lines if "while loading the engine's kernels" in line]
+    assert len(stopped) == 1 and f"stopped by {stop.name} " in stopped[0], lines
+    assert not any("Traceback" in line for line in lines), lines
+
+
 def test_robot_description_reaches_a_late_subscriber(probe, simulator):
     received = []
     latched = QoSProfile(depth=1, reliability=ReliabilityPolicy.RELIABLE,

@@ -12,9 +12,12 @@ interfaces_build.py), a probe node in this process, real DDS on a private domain
   and bad ones are one line;
 - /imu at rest reads (0, 0, g) and zero rates (a perfect sensor: covariances at the floor);
 - foxglove_port: a third-party Foxglove client gets every channel with its ros2msg schema and
-  decodes /tf and /joint_states at the publication rate."""
+  decodes /tf and /joint_states at the publication rate;
+- foxglove_host: the default serves this machine only (a client at its network address is
+  refused), 0.0.0.0 every interface."""
 import json
 import os
+import re
 import signal
 import socket
 import subprocess
@@ -37,6 +40,7 @@ from mobile_manip_sim.engine.simulation import Simulation
 from mobile_manip_sim.ros.frames import FrameTree
 from mobile_manip_sim.ros.topics import LIVE_TOPIC_TYPES
 from mobile_manip_sim.scene.loading import load_scene
+from raw_websocket import RawClient
 from ros_harness import NodeProcess, child_env, private_domain, spinning
 from ros_harness import wait_for as harness_wait_for
 from test_urdf import SCENES
@@ -352,6 +356,66 @@ def test_a_foxglove_client_sees_the_robot_of_the_node(probe, tmp_path):
     assert static["frames"] == [[j.parent, j.child] for j in tree.fixed]
     imu = next(e for e in events if e["event"] == "message" and e["topic"] == "/imu")
     assert imu["linear_acceleration"]["z"] == Simulation(load_scene()).dynamics.gravity
+
+
+def network_address() -> str | None:
+    """An IPv4 address of this machine that is not loopback — the one its route to the outside
+    leaves from, or the first global one `ip` lists — or None."""
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as udp:
+        try:
+            udp.connect(("192.0.2.1", 9))   # TEST-NET-1; a UDP connect sends nothing
+            address = udp.getsockname()[0]
+        except OSError:
+            address = None
+    if address and not address.startswith("127."):
+        return address
+    try:
+        listed = subprocess.run(["ip", "-4", "-o", "addr", "show", "scope", "global"],
+                                capture_output=True, text=True, timeout=10).stdout
+    except OSError:
+        return None
+    found = re.search(r"\binet (\d+\.\d+\.\d+\.\d+)/", listed)
+    return found.group(1) if found else None
+
+
+def live_view_node(tmp_path, port: int, *args) -> NodeProcess:
+    """A node serving its live view on ``port``, once its start-up says so."""
+    node = start(tmp_path, child_env(DOMAIN_ID), "-p", f"foxglove_port:={port}", *args)
+    try:
+        wait_for(lambda: "live view: ws://" in node.output() or not node.running(),
+                 "the live view", TIMEOUT)
+        assert node.running(), node.output()
+    except BaseException:
+        node.stop()
+        raise
+    return node
+
+
+def test_foxglove_host_binds_where_it_says(probe, tmp_path):
+    """The default (127.0.0.1) serves loopback and refuses a client that comes to this
+    machine's network address; foxglove_host 0.0.0.0 takes it, and it gets the live channels."""
+    address = network_address()
+    if address is None:
+        pytest.skip("this machine has no IPv4 address but loopback")
+    port = free_port()
+    node = live_view_node(tmp_path, port)
+    try:
+        RawClient(port).close()
+        with pytest.raises(ConnectionRefusedError):
+            RawClient(port, address)
+    finally:
+        stop(node)
+    port = free_port()
+    node = live_view_node(tmp_path, port, "-p", "foxglove_host:=0.0.0.0")
+    try:
+        client = RawClient(port, address)
+        try:
+            assert client.status.split()[1] == "101", client.status
+            assert "/joint_states" in client.channels()
+        finally:
+            client.close()
+    finally:
+        stop(node)
 
 
 def test_a_noisy_imu_is_recorded_and_resimulates_identical(probe, tmp_path):

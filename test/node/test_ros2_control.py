@@ -198,3 +198,34 @@ def test_wheel_velocities_become_the_base_twist():
     v, omega = joints.base(np.array([3.0, 2.0]))
     assert v == pytest.approx(base.wheel_radius * 2.5)
     assert omega == pytest.approx(base.wheel_radius * 1.0 / (2 * base.half_track))
+
+
+def test_a_nan_joint_command_is_no_command_and_an_infinite_one_is_refused():
+    """ros2_control writes NaN for "no command" (a command interface never written, or one a
+    controller released): that joint keeps its last command while the others take theirs; an
+    infinite value refuses the whole message."""
+    from types import SimpleNamespace
+
+    from mobile_manip_sim.node.commands import JointCommands
+
+    class NoNode:
+        def create_subscription(self, *args, **kwargs):
+            return SimpleNamespace(topic_name=JOINT_COMMANDS_TOPIC)
+
+    base, names = SCENE.robot.base, SCENE.robot.joint_names()
+    initial = np.array(SCENE.initial_q)[ARM_Q]
+    joints = JointCommands(NoNode(), None, names, velocity_mode=True, arm_interface="position",
+                           wheel_radius=base.wheel_radius, half_track=base.half_track,
+                           arm_initial=initial)
+    nan = float("nan")
+    full = JointState(name=names, velocity=[1.0, nan, nan, nan, nan, nan],
+                      position=[nan, nan, 0.4, nan, -0.1, 0.5])
+    values, problem = joints.read(full)
+    assert problem is None
+    assert values.tolist() == [1.0, 0.0, 0.4, initial[1], -0.1, 0.5]
+    short = JointState(name=names, velocity=[nan, 2.0], position=[nan, 0.6, nan, nan])
+    values, problem = joints.read(short)   # the fields as the hardware interface fills them
+    assert problem is None and values.tolist() == [0.0, 2.0, *initial[:1], 0.6, *initial[2:]]
+    for bad in (float("inf"), -float("inf")):
+        values, problem = joints.read(JointState(name=names[:2], velocity=[1.0, bad]))
+        assert values is None and problem == f"velocity of {names[1]} is {bad}"

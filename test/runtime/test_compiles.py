@@ -1,10 +1,13 @@
 """`runtime.compiles.CompileWatch` counts what numba compiles (its ``numba:compile`` event), not
-what it loads from its cache: the node's "nothing compiles after start-up" rests on it."""
+what it loads from its cache: the node's "nothing compiles after start-up" rests on it, and so
+does `CompileNotice`, what the node says when its start-up compiles."""
+import threading
+
 import numba
 import pytest
 
 from mobile_manip_sim.dynamics.jit import ENABLED
-from mobile_manip_sim.runtime.compiles import CompileWatch
+from mobile_manip_sim.runtime.compiles import CompileNotice, CompileWatch
 
 pytestmark = pytest.mark.skipif(not ENABLED, reason="numba is off: nothing compiles")
 
@@ -27,6 +30,55 @@ def test_a_compile_is_counted_with_its_name_and_reported_and_a_second_call_is_no
         watch.stop()
     assert doubled(True) == 2.0      # after stop: not counted
     assert watch.count == 2
+
+
+def test_a_start_that_compiles_says_so_first_then_how_far_it_is_and_a_warmed_one_says_nothing():
+    # waiting (test/helpers) is not imported at the top: run_mode's processes import this
+    # module without the tests' path
+    from numba.core import event
+
+    from waiting import HANG
+
+    @numba.njit(cache=False)
+    def tripled(x):
+        return 3.0 * x
+
+    said, progress = [], threading.Event()
+
+    def say(line):
+        said.append(line)
+        if line.startswith("still compiling the kernels ("):
+            progress.set()
+
+    class HeldCompile(event.Listener):
+        """Registered after the notice's watch: holds the compile until a progress line came
+        (no timing: the compile lasts as long as it takes the ticker to speak)."""
+        def on_start(self, ev):
+            assert progress.wait(HANG), said
+
+        def on_end(self, ev):
+            pass
+
+    held = HeldCompile()
+    with CompileNotice(say, "compiling", every=0.01):
+        event.register("numba:compile", held)
+        try:
+            assert tripled(1.0) == 3.0
+        finally:
+            event.unregister("numba:compile", held)
+    assert said[0] == "compiling", said
+    assert said[1].startswith("still compiling the kernels ("), said
+    assert said[-1].startswith("kernels compiled in ") and said[-1].endswith("(1 of them)"), said
+
+    said.clear()
+    with CompileNotice(say, "compiling", every=0.01):
+        assert tripled(2.0) == 6.0   # loaded, as from a warmed cache: no compile, no line
+    assert said == []
+
+    with pytest.raises(KeyboardInterrupt), CompileNotice(say, "compiling", every=60.0):
+        assert tripled(2) == 6   # an int: compiled
+        raise KeyboardInterrupt   # a stop halfway: no "compiled in" line
+    assert said == ["compiling"]
 
 
 def loaded_overloads() -> dict:
