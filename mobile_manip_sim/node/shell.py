@@ -4,6 +4,7 @@ documented in docs/node.md; topic names, types and QoS are topics.py's."""
 from __future__ import annotations
 
 import re
+import sys
 import threading
 import time
 import warnings
@@ -347,14 +348,22 @@ class SimulatorNode(Node):
 
 
 def _init(argv) -> None:
-    """rclpy.init; bad --ros-args (a missing or unparsable --params-file, ...) is a UserError."""
+    """rclpy.init; bad --ros-args (a missing or unparsable --params-file, ...) is a UserError,
+    and the line rcl logs itself then ("Failed to parse global arguments") is left out."""
     arguments.check(argv)
-    try:
-        rclpy.init(args=argv)
-    except Exception as error:   # RCLError, whose text names rcl's source lines
-        text = re.sub(r",? at /\S+:\d+", "", str(error)).replace("failed to initialize rcl: ", "")
-        key = "--params-file" if "params file" in text else "--ros-args"
-        raise UserError(key, text.strip()) from None
+    with cli.held_stderr() as said:
+        try:
+            rclpy.init(args=argv)
+            failed = None
+        except Exception as error:   # RCLError, whose text names rcl's source lines
+            failed = error
+    if failed is None:
+        sys.stderr.buffer.write(said[0])   # rcl's words on a start that goes on: passed on
+        sys.stderr.flush()
+        return
+    text = re.sub(r",? at /\S+:\d+", "", str(failed)).replace("failed to initialize rcl: ", "")
+    key = "--params-file" if "params file" in text else "--ros-args"
+    raise UserError(key, text.strip()) from None
 
 
 def _main(argv) -> int:

@@ -2,8 +2,10 @@
 from __future__ import annotations
 
 import argparse
+import os
 import signal
 import sys
+import tempfile
 import threading
 from contextlib import contextmanager
 from typing import Callable
@@ -131,3 +133,23 @@ def run(main: Callable[[list[str] | None], int | None], argv: list[str] | None =
         print(f"{prog}: error: {error}", file=sys.stderr)
         # A StepLimitError names the settings that cannot follow the run: a user's choice.
         return EXIT_USER_ERROR if isinstance(error, StepLimitError) else 1
+
+
+@contextmanager
+def held_stderr():
+    """What the process writes to file descriptor 2 within the block (a C library logging, as
+    rcl does), kept in a file instead: the bytes are the yielded list's one item afterwards."""
+    said = [b""]
+    sys.stderr.flush()
+    saved = os.dup(2)
+    try:
+        with tempfile.TemporaryFile() as held:
+            os.dup2(held.fileno(), 2)
+            try:
+                yield said
+            finally:
+                os.dup2(saved, 2)
+                held.seek(0)
+                said[0] = held.read()
+    finally:
+        os.close(saved)

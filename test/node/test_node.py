@@ -706,6 +706,9 @@ PARAMETERS = {  # case: (arguments, the key named, what the one line says)
                           "arm_gains.ki", "expected numbers in"),
     "feedforward unknown": (["-p", "arm_feedforward:=magic"], "arm_feedforward",
                             "unknown feedforward"),
+    # rcl's own parse fails (it logs a line of its own, which must not reach the user beside ours)
+    "override rcl cannot parse": (["-p", "scene:=[1.0,"], "--ros-args",
+                                  "Couldn't parse parameter override rule"),
 }
 
 

@@ -72,3 +72,13 @@ def test_a_stop_signal_that_propagated_is_not_raised_twice():
             signal.raise_signal(signal.SIGINT)
             wait_for(lambda: False, "the interrupt", 30.0)
     cli.raise_dropped_stop()              # the interrupt was raised where it landed: no repeat
+
+
+def test_held_stderr_keeps_what_c_code_writes_to_descriptor_2(capfd):
+    """rcl logs its own line on a failed rclpy.init, straight to descriptor 2: held, it can be
+    left out (the node's one line says why) or passed on."""
+    with cli.held_stderr() as said:
+        os.write(2, b"[ERROR] [rcl]: Failed to parse global arguments\n")
+    assert said == [b"[ERROR] [rcl]: Failed to parse global arguments\n"]
+    os.write(2, b"after\n")
+    assert capfd.readouterr().err == "after\n"
