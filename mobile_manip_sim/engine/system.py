@@ -191,9 +191,8 @@ def derivative(system, s, ds):
 
 @jit_inline
 def derivative_inline(system, s, ds):
-    """`derivative` inlined into its caller, which then hands it no record: rk4's step
-    (`fixed_step.rk4_stages`, its four stages through one copy of it) and the steps on the grid
-    (`fixed_step.inlined_step`)."""
+    """`derivative` inlined into its caller: for rk4's step (`fixed_step.rk4_step`), which
+    evaluates its four stages through one copy of it."""
     nq, nu = layout.sizes(system)
     system.counters[RHS_EVALS] += 1
     q = s[:nq]
