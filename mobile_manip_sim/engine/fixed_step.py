@@ -22,36 +22,14 @@ EULER, SEMI_IMPLICIT_EULER, RK4 = IDS["euler"], IDS["semi_implicit_euler"], IDS[
 @jit_inline
 def step(method, system, s, h, out, stages, k1_ready=False):
     """One step of length h from s into out; ``stages`` is (4, len(s)) scratch. With
-    ``k1_ready`` stages[0] already holds f(s) (computed by the caller at this very state).
-    The right-hand side is a call (`rk4_step`, `derivative`): this step serves the events'
-    trial steps, many call sites, which would each hold a copy of it inlined (`inlined_step`)."""
+    ``k1_ready`` stages[0] already holds f(s) (computed by the caller at this very state)."""
     if method == RK4:
         # int(): one compiled `rk4_step` for every caller (a literal False would be another)
         rk4_step(system, s, h, out, stages, int(k1_ready))
         return
-    if not k1_ready:
-        derivative(system, s, stages[0])
-    one_stage(method, system, s, h, out, stages)
-
-
-@jit_inline
-def inlined_step(method, system, s, h, out, stages, k1_ready):
-    """`step` with the right-hand side inlined, for the steps on the grid (nearly all of a run:
-    `stepping.grid_step`). A call hands the system record over word by word, some 330 words for
-    the paper robot, every step: a 1 kHz rk4 run of the paper scene spent some 15 % of its time
-    on it."""
-    if method == RK4:
-        rk4_stages(system, s, h, out, stages, int(k1_ready))
-        return
-    if not k1_ready:
-        derivative_inline(system, s, stages[0])
-    one_stage(method, system, s, h, out, stages)
-
-
-@jit_inline
-def one_stage(method, system, s, h, out, stages):
-    """Euler's or semi-implicit Euler's step from s into out, f(s) in stages[0]."""
     k1, k2 = stages[0], stages[1]
+    if not k1_ready:
+        derivative(system, s, k1)
     if method == EULER:
         for i in range(s.shape[0]):
             out[i] = s[i] + h * k1[i]
@@ -66,15 +44,12 @@ def one_stage(method, system, s, h, out, stages):
 
 @jit
 def rk4_step(system, s, h, out, stages, first_stage):
-    """`rk4_stages` in a call of its own (`step`)."""
-    rk4_stages(system, s, h, out, stages, first_stage)
+    """`step` of rk4, its stages from ``first_stage`` (1: stages[0] holds f(s) already).
 
-
-@jit_inline
-def rk4_stages(system, s, h, out, stages, first_stage):
-    """rk4's step, its stages from ``first_stage`` (1: stages[0] holds f(s) already), with the
-    right-hand side inlined once in the loop over the stages (four calls would each hand the
-    system record over)."""
+    One compiled call per step, the right-hand side inlined once in the loop over the stages:
+    a call to `system.derivative` is handed every array descriptor of the system's record one
+    word at a time (some 330 words for the paper robot), which each stage would pay. (The
+    one-stage methods call `derivative` as before: their step in one call was slower.)"""
     k1, k2, k3, k4 = stages[0], stages[1], stages[2], stages[3]
     for stage in range(first_stage, 4):
         x = s

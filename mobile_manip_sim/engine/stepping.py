@@ -27,7 +27,7 @@ from .events import (
     holding_margin,
     step_state,
 )
-from .fixed_step import inlined_step, step
+from .fixed_step import step
 from .status import BUDGET, CHATTER, CONTACT_FAILED, DONE, LOG_FULL, NOT_FINITE  # why it returned
 from .stops import any_resting, impact, release
 from .system import HOLDING_LEAST_MARGIN, clear_holding
@@ -151,7 +151,7 @@ def grid_step(method, system, stops, scr, s, clock, k1_ready):
     dt = clock[CLOCK_DT]
     t = clock[CLOCK_T0] + clock[CLOCK_K] * dt
     clear_holding(system)
-    inlined_step(method, system, s, dt, scr.out, scr.stages, k1_ready)
+    step(method, system, s, dt, scr.out, scr.stages, k1_ready)
     if not finite(scr.out):
         return NOT_FINITE, False
     # The holding forces need f(out), which is the next step's first stage: computed once. The
