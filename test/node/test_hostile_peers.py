@@ -129,25 +129,26 @@ def test_a_stop_with_a_client_that_never_reads_closes_the_bag_first_and_exits(ac
                        "-p", "arm_controller:=joint_trajectory", env=action_env)
         client = stalled_client(port)
         try:
-            stop_while_a_goal_runs(node, sig, action_env)
+            status = stop_while_a_goal_runs(node, sig, action_env)
         finally:
             client.close()
             node.stop()
-        exited_cleanly_with_its_bag(node, bag)
+        output = node.output()
+        assert status == 0 and "Traceback" not in output, output
+        assert f"bag {bag} closed" in output
+        counts, read = bag_counts(bag)
+        assert counts["/joint_states"] > 0 and counts["/tf"] > 0, counts
+        assert read == sum(counts.values()), (read, counts)
 
 
-def exited_cleanly_with_its_bag(node: NodeProcess, bag: Path) -> None:
-    """The stopped node exited with status 0, no traceback, and its bag complete: rosbags (an
-    independent reader) reads it, metadata.yaml and summary included."""
-    output = node.output()
-    assert node.process.returncode == 0 and "Traceback" not in output, output
-    assert f"bag {bag} closed" in output
+def bag_counts(bag: Path) -> tuple[dict, int]:
+    """({topic: messages} as the bag's metadata.yaml and summary say, the messages read one by
+    one), read by rosbags, an independent reader: a bag left unfinished fails here."""
     metadata = yaml.safe_load((bag / "metadata.yaml").read_text())
     assert metadata["rosbag2_bagfile_information"]["message_count"] > 0
     with RosbagsReader(bag) as reader:
         counts = {c.topic: c.msgcount for c in reader.connections}
-        assert counts["/joint_states"] > 0 and counts["/tf"] > 0
-        assert sum(1 for _ in reader.messages()) == sum(counts.values())
+        return counts, sum(1 for _ in reader.messages())
 
 
 @pytest.mark.parametrize("sig, status", [(signal.SIGINT, 130), (signal.SIGTERM, 143)],
@@ -430,15 +431,15 @@ def test_every_goal_is_answered_and_a_stop_while_one_runs_is_clean(action_env, t
     assert node.process.returncode == 0 and "Traceback" not in output, output
 
 
-def stop_while_a_goal_runs(node: NodeProcess, sig, env) -> None:
+def stop_while_a_goal_runs(node: NodeProcess, sig, env) -> int:
     """``sig`` once a client's 30 s goal has had feedback; the node must exit (the goal's
-    handle goes with the context: no traceback, which the caller checks)."""
+    handle goes with the context: no traceback, which the caller checks). Its exit status."""
     client = subprocess.Popen([sys.executable, "-c", LONG_GOAL, CLIENT], env=env,
                               stdout=subprocess.PIPE, text=True)
     try:
         assert client.stdout.readline().strip() == "feedback"
         node.process.send_signal(sig)
-        node.process.wait(timeout=SHUTDOWN_GUARD)
+        return node.process.wait(timeout=SHUTDOWN_GUARD)
     except subprocess.TimeoutExpired:
         pytest.fail(f"{sig.name} while a goal runs: the node did not exit\n{node.output()}")
     finally:
