@@ -42,6 +42,7 @@ from mobile_manip_sim.ros.topics import (
     JOINT_STATES_TOPIC,
     ODOM_TOPIC,
 )
+from mobile_manip_sim.runtime.cli import critical
 from mobile_manip_sim.runtime.timeline import NS, CommandHistory, Grid
 from mobile_manip_sim.scene import limits, schema
 from mobile_manip_sim.scene.coordinates import ARM_U, arm_width
@@ -168,7 +169,11 @@ def decode(message, type_name: str | None = None):
     if type_name is not None and message.type_name != type_name:
         raise UserError(message.topic, f"recorded as {message.type_name}, expected {type_name}")
     try:
-        return deserialize_message(bytes(message.data), message_class(message.type_name))
+        # rclpy's pybind11 call swallows an exception raised inside it (a SIGINT's
+        # KeyboardInterrupt while it builds the message became "does not decode", status 2):
+        # a stop signal waits for its end.
+        with critical():
+            return deserialize_message(bytes(message.data), message_class(message.type_name))
     except UserError:
         raise
     except Exception as error:   # rclpy raises bare exceptions on bad CDR

@@ -53,7 +53,10 @@ def _main(argv) -> int:
         print(f"replay: warning: {bag.path} has no summary (a recording that was killed?): "
               f"using its complete chunks; `mcap recover` may save more", file=sys.stderr)
     if args.resimulate:
-        return resimulate(bag, args.tolerance)
+        # SIGINT and SIGTERM wait for the end of a message's decoding (`critical`); play leaves
+        # them to rclpy, which it runs under.
+        with cli.stop_signals():
+            return resimulate(bag, args.tolerance)
     return play(bag, args.topics, args.rate, args.loop, args.start_offset,
                 args.wait_for_subscribers)
 
