@@ -2,9 +2,11 @@
 tf2_msgs: interfaces_build.environment). Subscribes to /tf, /tf_static (transient local, as
 tf2_ros does), NAMESPACE/robot_description (transient local), NAMESPACE/joint_states and
 NAMESPACE/odom, collects until /tf brought COUNT messages (or STATIC latched /tf_static messages
-when COUNT is 0), then prints one JSON document:
+when COUNT is 0) — COUNT from each publisher of a frame prefix in PREFIXES (comma-separated; a
+listener that heard one publisher first could otherwise fill its count before it heard the
+other) — then prints one JSON document:
 
-    view_listener.py COUNT [NAMESPACE] [STATIC]
+    view_listener.py COUNT [NAMESPACE] [STATIC] [PREFIXES]
 
 {"tf": [[stamp, parent, child, x, y, z, qx, qy, qz, qw], ...], "static": [[...same...], ...]
  (one list per /tf_static message), "description": URDF or null, "joints": {stamp: [names,
@@ -37,6 +39,7 @@ def main() -> int:
     count = int(sys.argv[1])
     namespace = sys.argv[2].rstrip("/") if len(sys.argv) > 2 else ""
     statics = int(sys.argv[3]) if len(sys.argv) > 3 else 1
+    prefixes = sys.argv[4].split(",") if len(sys.argv) > 4 else [""]
     rclpy.init()
     node = rclpy.create_node("view_listener")
     seen = {"tf": [], "static": [], "description": None, "joints": {}, "odom": {}}
@@ -44,11 +47,13 @@ def main() -> int:
     # depth 100 as tf2_ros's static listener: one latched message from EACH publisher is kept
     latched = QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
-    tf_count = [0]
+    tf_count = dict.fromkeys(prefixes, 0)
 
     def on_tf(message):
         seen["tf"] += rows(message)
-        tf_count[0] += 1
+        for prefix in prefixes:
+            if message.transforms and message.transforms[0].header.frame_id.startswith(prefix):
+                tf_count[prefix] += 1
 
     def on_description(message):
         seen["description"] = message.data
@@ -69,10 +74,11 @@ def main() -> int:
     node.create_subscription(JointState, f"{namespace}/joint_states", on_joints, state)
     node.create_subscription(Odometry, f"{namespace}/odom", on_odom, state)
     try:
-        code = spin_until(node, lambda: tf_count[0] >= count and len(seen["static"]) >= statics
+        code = spin_until(node, lambda: min(tf_count.values()) >= count
+                          and len(seen["static"]) >= statics
                           and seen["description"] is not None)
     except KeyboardInterrupt:   # the test gave up: say what came
-        print(f"/tf {tf_count[0]} of {count}, /tf_static {len(seen['static'])} of {statics}, "
+        print(f"/tf {tf_count} of {count} each, /tf_static {len(seen['static'])} of {statics}, "
               f"description {seen['description'] is not None}", file=sys.stderr)
         return 1
     print(json.dumps(seen), flush=True)
