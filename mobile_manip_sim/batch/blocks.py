@@ -16,9 +16,9 @@ watch and stage sums lane by lane in scalar code as `system.derivative`, `system
 tests the scalar grid step runs after a step (non-finite, the crossing check, the resting rods'
 holding margins); a lane whose step has nothing else to do takes it (its counters, holding watch,
 f(end) and holding forces left as the scalar step leaves them), any other lane throws the vector
-result away and takes the step with the scalar `stepping.grid_step` from its untouched state —
-events, impacts, releases and failures then run exactly as in its run alone. So every lane is bit
-for bit its own run; the blocks only decide who computes a plain step.
+result away and takes the step with the scalar `stepping.grid_step_calling` from its untouched
+state — events, impacts, releases and failures then run exactly as in its run alone. So every
+lane is bit for bit its own run; the blocks only decide who computes a plain step.
 
 
 
@@ -34,7 +34,7 @@ import numpy as np
 
 from ..engine import layout
 from ..engine.fixed_step import EULER, SEMI_IMPLICIT_EULER
-from ..engine.stepping import CLOCK_DT, DONE, grid_step
+from ..engine.stepping import CLOCK_DT, DONE, grid_step_calling
 from ..engine.stops import any_resting
 from ..engine.system import HOLDING_ON
 from .lane_flow import ENDING, IN_CALL, K1_READY, NEED_STEP, stepped, until_step
@@ -209,9 +209,9 @@ def run_group(methods, systems, stops, scratches, states, clocks, slots, records
         for j in range(width):
             if ready[j]:
                 r = records[j]
-                status, k1_ready = grid_step(methods[r], borrowed(systems, r), borrowed(stops, r),
-                                             borrowed(scratches, r), borrowed(states, r),
-                                             borrowed(clocks, r), phase[j, K1_READY] != 0)
+                status, k1_ready = grid_step_calling(
+                    methods[r], borrowed(systems, r), borrowed(stops, r), borrowed(scratches, r),
+                    borrowed(states, r), borrowed(clocks, r), phase[j, K1_READY] != 0)
                 stepped(borrowed(clocks, r), phase[j], status, k1_ready)
                 paths[slots[j], SCALAR_STEPS] += 1
 

@@ -27,7 +27,7 @@ from .events import (
     holding_margin,
     step_state,
 )
-from .fixed_step import step
+from .fixed_step import inlined_step, step
 from .status import BUDGET, CHATTER, CONTACT_FAILED, DONE, LOG_FULL, NOT_FINITE  # why it returned
 from .stops import any_resting, impact, release
 from .system import HOLDING_LEAST_MARGIN, clear_holding
@@ -147,11 +147,36 @@ def step_with_events(method, system, stops, scr, s, h, t, clock):
 @jit_inline
 def grid_step(method, system, stops, scr, s, clock, k1_ready):
     """One whole step dt on the grid, events and releases included. Returns the status and
-    whether scr.stages[0] now holds f(s) for the next step (the release check computed it)."""
-    dt = clock[CLOCK_DT]
-    t = clock[CLOCK_T0] + clock[CLOCK_K] * dt
-    clear_holding(system)
+    whether scr.stages[0] now holds f(s) for the next step (the release check computed it).
+    The right-hand side is inlined (`fixed_step.inlined_step`): nearly every step of a run is
+    one of these."""
+    dt, t = grid_step_start(system, clock)
+    inlined_step(method, system, s, dt, scr.out, scr.stages, k1_ready)
+    return grid_step_end(method, system, stops, scr, s, clock, dt, t)
+
+
+@jit_inline
+def grid_step_calling(method, system, stops, scr, s, clock, k1_ready):
+    """`grid_step` with the right-hand side called (`fixed_step.step`), for the batch's groups
+    (`batch.blocks.run_group`): inlined there beside the vector steps' copies of the same small
+    kernels, it gave wrong lanes (numba names an inlined kernel's variables after the kernel, so
+    two copies in one function share them)."""
+    dt, t = grid_step_start(system, clock)
     step(method, system, s, dt, scr.out, scr.stages, k1_ready)
+    return grid_step_end(method, system, stops, scr, s, clock, dt, t)
+
+
+@jit_inline
+def grid_step_start(system, clock):
+    """dt and the step's start time; the holding watch cleared."""
+    dt = clock[CLOCK_DT]
+    clear_holding(system)
+    return dt, clock[CLOCK_T0] + clock[CLOCK_K] * dt
+
+
+@jit_inline
+def grid_step_end(method, system, stops, scr, s, clock, dt, t):
+    """After the grid step's trial step into scr.out: events and releases, or s = out."""
     if not finite(scr.out):
         return NOT_FINITE, False
     # The holding forces need f(out), which is the next step's first stage: computed once. The

@@ -104,7 +104,14 @@ def arm_stage(system, s, ds):
 if ENABLED:
     from numba.extending import overload
 
-    @overload(arm_stage, inline="always")
+    def _inline_the_empty_stage(expr, caller, callee):
+        """An effort-mode record's stage, which is nothing, is inlined; the controller's is a
+        call of its own. Inlined, its two copies in one function (`fixed_step.inlined_step`
+        holds two right-hand sides) shared the names of their variables, as numba caches an
+        overload's IR, and numba's SSA pass lost one (NumbaIRAssumptionWarning)."""
+        return callee.signature.args[0].instance_class is EffortSystemData
+
+    @overload(arm_stage, inline=_inline_the_empty_stage)
     def _arm_stage_by_class(system, s, ds):
         if system.instance_class is EffortSystemData:
             return lambda system, s, ds: None
@@ -191,8 +198,8 @@ def derivative(system, s, ds):
 
 @jit_inline
 def derivative_inline(system, s, ds):
-    """`derivative` inlined into its caller: for rk4's step (`fixed_step.rk4_step`), which
-    evaluates its four stages through one copy of it."""
+    """`derivative` inlined into its caller: for the steps (`fixed_step.inlined_step`, in which
+    rk4 evaluates its four stages through one copy)."""
     nq, nu = layout.sizes(system)
     system.counters[RHS_EVALS] += 1
     q = s[:nq]
