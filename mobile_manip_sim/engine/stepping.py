@@ -158,9 +158,10 @@ def grid_step(method, system, stops, scr, s, clock, k1_ready):
 @jit_inline
 def grid_step_calling(method, system, stops, scr, s, clock, k1_ready):
     """`grid_step` with the right-hand side called (`fixed_step.step`), for the batch's groups
-    (`batch.blocks.run_group`): inlined there beside the vector steps' copies of the same small
-    kernels, it gave wrong lanes (numba names an inlined kernel's variables after the kernel, so
-    two copies in one function share them)."""
+    (`batch.blocks.run_group`). Inlined there, beside the vector steps' copies of the same small
+    kernels, every lane that took vector steps came out wrong although the scalar runs were
+    right; the fault inside numba's inlining was not pinned down (two inlined copies of one
+    overload sharing variable names, `system.arm_stage`, was one such fault)."""
     dt, t = grid_step_start(system, clock)
     step(method, system, s, dt, scr.out, scr.stages, k1_ready)
     return grid_step_end(method, system, stops, scr, s, clock, dt, t)
