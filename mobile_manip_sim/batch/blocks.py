@@ -20,6 +20,12 @@ result away and takes the step with the scalar `stepping.grid_step_calling` from
 state — events, impacts, releases and failures then run exactly as in its run alone. So every
 lane is bit for bit its own run; the blocks only decide who computes a plain step.
 
+A block goes on with its next steps in the same call (`block_steps`) while every lane takes them
+and none reaches the end of its `advance` call or its step budget (`steps_together`): between two
+grid steps a lane's own flow only counts, so the round trip through the flows, the forming of
+blocks and the call's some three hundred words of arguments are paid once per sample, not once
+per step.
+
 
 
 The kernels here are cached on disk; the stale-cache sweep of `dynamics/jit.py` reads this
@@ -34,10 +40,10 @@ import numpy as np
 
 from ..engine import layout
 from ..engine.fixed_step import EULER, SEMI_IMPLICIT_EULER
-from ..engine.stepping import CLOCK_DT, DONE, grid_step_calling
+from ..engine.stepping import CLOCK_DT, CLOCK_K, DONE, grid_step_calling
 from ..engine.stops import any_resting
 from ..engine.system import HOLDING_ON
-from .lane_flow import ENDING, IN_CALL, K1_READY, NEED_STEP, stepped, until_step
+from .lane_flow import ENDING, IN_CALL, K1_READY, NEED_STEP, TAKEN, WHOLE, stepped, until_step
 from .vector_steps import (
     WIDTH,
     borrowed,
@@ -89,6 +95,63 @@ def form_blocks(ready, eligible, systems, methods, states, records, block_of, me
         members[b, count[b]] = j
         count[b] += 1
     return blocks
+
+
+@compiled_inline
+def steps_together(clocks, records, phase, aim, members, b, count, budget):
+    """Whole grid steps every lane of block b takes before its flow needs anything but its next
+    grid step (`until_step`): up to its call's last whole step and within its step budget (a
+    plain step leaves its impact log's room as it is)."""
+    steps = budget
+    for j in range(count):
+        slot = members[b, j]
+        clock = borrowed(clocks, records[slot])
+        steps = min(steps, int(aim[slot, WHOLE] - clock[CLOCK_K]), budget - phase[slot, TAKEN])
+    return max(steps, 1)
+
+
+@compiled_borrowing
+def block_steps(method, stack, b, gravity, free, wraw, nq, nu, x, out, k, qcmd, damp, qb, h,
+                has_damping, watch, have_k1, rest, least, end, steps, systems, stops, scratches,
+                states, clocks, slots, records, members, count, phase, paths, ready):
+    """Up to `steps` grid steps of block b's lanes (x, have_k1 and k[0] filled from their
+    records) in vector lanes: after each, every lane takes its step as it would after its own
+    `vector_step` (`take_vector_step`, booked by `stepped`); the block stops at the first step
+    some lane does not take (that lane then steps alone from its untouched state). Between two
+    steps a lane's own flow does nothing but count the step (`until_step`), and a taken step
+    changes neither the lane's locks, rests, holding watch nor efforts: the next step starts
+    from the states taken, with f(end) as first stage where a rod rests, as a new round would."""
+    size = x.shape[0]
+    stages = 1 if method == EULER or method == SEMI_IMPLICIT_EULER else 4
+    for m in range(steps):
+        vector_step(method, stack, b, gravity, free, wraw, nq, nu, x, out, k, qcmd, damp, qb, h,
+                    has_damping, watch, have_k1, rest, least, end)
+        every = True
+        for j in range(count):
+            slot = members[b, j]
+            r = records[slot]
+            taken, k1_ready = take_vector_step(borrowed(systems, r), borrowed(stops, r),
+                                               borrowed(scratches, r), borrowed(states, r),
+                                               borrowed(clocks, r), out, k, wraw, qb, least, j,
+                                               stages, have_k1[j])
+            if taken:
+                stepped(borrowed(clocks, r), phase[slot], DONE, k1_ready)
+                paths[slots[slot], VECTOR_STEPS] += 1
+                ready[slot] = False
+                have_k1[j] = k1_ready
+            else:
+                every = False
+        if not every or m == steps - 1:
+            return
+        for j in range(count, WIDTH):   # the block's spare slots repeat its first lane
+            have_k1[j] = have_k1[0]
+        for i in range(size):
+            for j in range(WIDTH):
+                x[i, j] = out[i, j]
+                if have_k1[j]:
+                    k[0, i, j] = k[4, i, j]
+        for j in range(count):
+            ready[members[b, j]] = True   # (its flow wants its next step: counted above)
 
 
 GroupScratch = namedtuple("GroupScratch", [
@@ -191,21 +254,11 @@ def run_group(methods, systems, stops, scratches, states, clocks, slots, records
             for j in range(count[b]):
                 end = end or any_resting(borrowed(stops, records[members[b, j]]))
             system, method = borrowed(systems, records[lead]), methods[records[lead]]
-            vector_step(method, stack, b, gravity, system.free, wraw, nq, nu, x, out, k, qcmd,
+            steps = steps_together(clocks, records, phase, aim, members, b, count[b], budget)
+            block_steps(method, stack, b, gravity, system.free, wraw, nq, nu, x, out, k, qcmd,
                         damp, qb, h, system.damping.shape[0] > 0, watch, have_k1, rest, least,
-                        end)
-            stages = 1 if method == EULER or method == SEMI_IMPLICIT_EULER else 4
-            for j in range(count[b]):
-                slot = members[b, j]
-                r = records[slot]
-                taken, k1_ready = take_vector_step(borrowed(systems, r), borrowed(stops, r),
-                                                   borrowed(scratches, r), borrowed(states, r),
-                                                   borrowed(clocks, r), out, k, wraw, qb, least,
-                                                   j, stages, have_k1[j])
-                if taken:
-                    stepped(borrowed(clocks, r), phase[slot], DONE, k1_ready)
-                    paths[slots[slot], VECTOR_STEPS] += 1
-                    ready[slot] = False
+                        end, steps, systems, stops, scratches, states, clocks, slots, records,
+                        members, count[b], phase, paths, ready)
         for j in range(width):
             if ready[j]:
                 r = records[j]

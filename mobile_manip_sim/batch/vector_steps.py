@@ -155,7 +155,7 @@ def _margin(wraw, qb, rest, j):
     return margin
 
 
-@compiled_bare
+@compiled_inline
 def vector_step(method, stack, b, gravity, free, wraw, nq, nu, x, out, k, qcmd, damp, qb, h,
                 has_damping, watch, have_k1, rest, least, end):
     """One step of each lane j from x[:, j] by h[j] into out[:, j], the stages in k: the
