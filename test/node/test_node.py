@@ -160,11 +160,16 @@ def start_simulator(probe, tmp_path, *args) -> SimulatorProcess:
     if not any(str(arg).startswith("arm_controller:=") for arg in args):
         args = (*args, *EFFORT_ARM)
     marks = probe.marks()
-    arm_readers = probe.arm.get_subscription_count()   # another node's count for nothing here
+    # Other nodes' counts are for nothing here: wait for this node's own subscriptions, to the
+    # wheel efforts too unless its base takes velocity commands (it then has none)
+    readers = [(probe.arm, probe.arm.get_subscription_count())]
+    if "base_command:=velocity" not in args:
+        readers.append((probe.wheels, probe.wheels.get_subscription_count()))
     simulator = SimulatorProcess(tmp_path, *args)
     try:
         wait_for(lambda: simulator.process.poll() is not None or (
-            probe.connected() and probe.arm.get_subscription_count() > arm_readers
+            probe.connected()
+            and all(publisher.get_subscription_count() > count for publisher, count in readers)
             and all(len(probe.snapshot(name)) > mark for name, mark in marks.items())),
             "the simulator's topics, services and first messages", STARTUP_TIMEOUT)
         assert simulator.process.poll() is None, simulator.output()
