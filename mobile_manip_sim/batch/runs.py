@@ -244,6 +244,13 @@ class Batch:
             raise TimeLimit(f"time_limit: stopped after {self.time_limit:g} s wall at "
                             f"t = {self.sims[i].t:.6g} s")
 
+    def prepare(self) -> None:
+        """Build the compiled call's per-lane records now rather than at the first call (a sweep
+        builds them in its own thread while the last batch steps: their typed lists take some
+        40 µs of Python per lane)."""
+        if (self.ok & self.compiled).any():
+            self._lists()
+
     def _lists(self):
         """The compiled call's per-lane records (those of the compiled lanes), rebuilt when a
         lane's records were replaced (a command that grew them, a reset)."""

@@ -107,9 +107,11 @@ def run_block(document: dict, runs: list, duration: float, sample_rate: float | 
     pieces = [runs[i:i + PIECE] for i in range(0, len(runs), PIECE)]
 
     def build(piece):
-        return Batch(document, [overrides for _, overrides in piece], threads=threads,
-                     time_limit=time_limit, vector=vector,
-                     check=lambda scene: check_run(scene, n_links, duration, rate))
+        batch = Batch(document, [overrides for _, overrides in piece], threads=threads,
+                      time_limit=time_limit, vector=vector,
+                      check=lambda scene: check_run(scene, n_links, duration, rate))
+        batch.prepare()   # here, beside the last batch's compiled calls
+        return batch
 
     calls = {"block": 1}   # samples per compiled call: each batch starts where the last ended
 
