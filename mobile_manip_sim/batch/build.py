@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import gc
 import math
 from collections import Counter
 
@@ -36,6 +35,7 @@ import numpy as np
 from ..dynamics import Dynamics
 from ..engine.simulation import Simulation
 from ..engine.system import System
+from ..runtime.memory import collector_paused
 from ..scene.limits import DENSITY, DT, EFFORT, SPEED
 from ..scene.loading import Scene, check_work, parse_scene
 from ..scene.overrides import document_with, parse_path, scene_with
@@ -52,9 +52,7 @@ def build_lanes(document: dict, overrides: list[dict], check=None,
     shared = Counter(key for key in keys if key is not None)
     templates: dict = {}
     scenes, sims = [], []
-    collecting = gc.isenabled()
-    gc.disable()   # many small records made and kept: the collector's passes cost more than them
-    try:
+    with collector_paused():   # many small records made and kept: its passes cost more
         for values, (fast, rest), key in zip(overrides, split, keys, strict=True):
             template = None
             if shared[key] > 1:   # a template pays from the second lane of its group on
@@ -78,9 +76,6 @@ def build_lanes(document: dict, overrides: list[dict], check=None,
                 built, sim = error, None
             scenes.append(built)
             sims.append(sim)
-    finally:
-        if collecting:
-            gc.enable()
     return scenes, sims
 
 

@@ -23,12 +23,19 @@ ones of that size come from the heap of the thread that allocates them; a node t
 after the first few and some 4 MB more with each later one. With the threshold fixed at its
 default, every block above it is its own mapping, unmapped when freed, and the node's memory
 stays bounded whatever it is sent (test_hostile_peers).
+
+`collector_paused` holds Python's cycle collector off while a batch's lanes are made, stepped and
+read: each of its passes walks every young object, and the lanes are thousands of them; none is in
+a reference cycle (a lane's `Simulation` is freed by reference counting when dropped), so nothing
+piles up meanwhile.
 """
 from __future__ import annotations
 
 import ctypes
 import ctypes.util
+import gc
 import sys
+from contextlib import contextmanager
 
 COMPILER_LIBRARY = "libllvmlite"
 MADV_DONTNEED = 4
@@ -115,3 +122,15 @@ def return_large_buffers() -> bool:
         return False
     mallopt.argtypes = [ctypes.c_int, ctypes.c_int]
     return mallopt(M_MMAP_THRESHOLD, MMAP_THRESHOLD) == 1
+
+
+@contextmanager
+def collector_paused():
+    """Python's cycle collector off for the block (on again after it, if it was on)."""
+    collecting = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if collecting:
+            gc.enable()

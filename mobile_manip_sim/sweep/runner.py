@@ -24,6 +24,7 @@ from ..batch import Batch, TimeLimit, error_line, overlapped
 from ..batch.lanes import configuration_rates
 from ..dynamics import constraint_residuals
 from ..runtime import headless
+from ..runtime.memory import collector_paused
 from ..runtime.timeline import sample_times
 from ..scene.coordinates import arm_width
 from ..scene.errors import UserError
@@ -122,11 +123,12 @@ def run_block(document: dict, runs: list, duration: float, sample_rate: float | 
         return samples
 
     rows, stepping_python, lane_steps = [], 0.0, np.zeros(2, dtype=np.int64)
-    for piece, batch, samples in overlapped(pieces, build, step):
-        batch.collect()
-        rows += _rows(piece, batch, samples, csv_dir)
-        stepping_python += batch.python_cpu
-        lane_steps += batch.lane_steps
+    with collector_paused():
+        for piece, batch, samples in overlapped(pieces, build, step):
+            batch.collect()
+            rows += _rows(piece, batch, samples, csv_dir)
+            stepping_python += batch.python_cpu
+            lane_steps += batch.lane_steps
     if stats is not None:
         python = time.thread_time() - start_python + stepping_python
         stats["compiled_cpu"] = time.process_time() - start_cpu - python
