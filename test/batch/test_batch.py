@@ -192,3 +192,26 @@ def test_of_scenes_takes_parsed_scenes_and_an_exception_fails_its_lane_alone():
     status = batch.status
     assert status[0].ok and status[0].t == 0.05
     assert not status[1].ok and status[1].error == str(scenes[1])
+
+
+def test_a_dropped_batchs_lanes_are_freed_without_the_cycle_collector():
+    """The sweep holds Python's cycle collector off (`memory.collector_paused`): that is sound
+    only while nothing of a lane — its simulation, records, scene — sits in a reference cycle,
+    so that dropping a stepped batch frees every lane at once."""
+    import gc
+    import weakref
+    document, lanes = random_lanes(5, 6, 2)
+    gc.collect()
+    gc.disable()
+    try:
+        batch = Batch(document, lanes)
+        batch.prepare()
+        batch.sample(np.array(list(sample_times(DURATION, RATE))))
+        sims = [sim for sim in batch.sims if sim is not None]
+        assert sims, "no lane was built"
+        kept = [weakref.ref(item) for sim in sims
+                for item in (sim, sim.system, sim.dynamics, sim.scene)]
+        del batch, sims
+        assert [ref() for ref in kept if ref() is not None] == []
+    finally:
+        gc.enable()
