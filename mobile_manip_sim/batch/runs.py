@@ -288,7 +288,7 @@ class Batch:
         out_t = self.sample_t if write else np.zeros((self.size, 1))
         block, first = self.block, 0
         while first < times.size:
-            last = min(times.size, first + block)
+            last = _call_end(first, block, times.size)
             pending = lanes[[self.errors[i] is None for i in lanes]]
             next_sample[pending] = first
             block_start = started = time.perf_counter()
@@ -393,9 +393,17 @@ def _row(values, row: int, lanes: int):
     return array[row] if array.ndim == 2 and array.shape[0] == lanes else values
 
 
+def _call_end(first: int, block: int, samples: int) -> int:
+    """The end of the next call's samples: `block` of them from `first`, or all that are left
+    when fewer than half a block would remain after it (one call of up to 1.5 blocks rather
+    than a short one after it: each call ends on its slowest thread)."""
+    last = first + block
+    return samples if samples - last < (block + 1) // 2 else last
+
+
 def _next_block(block: int, done: int, spent: float) -> int:
     """Samples for the next compiled call: doubled while a call takes under BLOCK_SECONDS."""
-    if spent < BLOCK_SECONDS / 2 and done == block:
+    if spent < BLOCK_SECONDS / 2 and done >= block:
         return 2 * block
     if spent > 2 * BLOCK_SECONDS:
         return max(1, block // 2)

@@ -215,3 +215,16 @@ def test_a_dropped_batchs_lanes_are_freed_without_the_cycle_collector():
         assert [ref() for ref in kept if ref() is not None] == []
     finally:
         gc.enable()
+
+
+@pytest.mark.parametrize("first, block, samples, end", [
+    (0, 128, 151, 151),    # 23 left after a block: taken in the same call
+    (0, 128, 300, 128),    # 172 left: another call
+    (0, 128, 192, 128),    # exactly half a block left: another call
+    (0, 128, 191, 191),
+    (0, 1, 1, 1), (0, 1, 2, 1), (5, 4, 10, 10), (100, 64, 151, 151)])
+def test_a_call_takes_the_rest_of_the_samples_rather_than_leave_a_short_call(first, block,
+                                                                               samples, end):
+    from mobile_manip_sim.batch.runs import _call_end
+    assert _call_end(first, block, samples) == end
+    assert end - first <= block + block // 2   # a call stays within 1.5 blocks
