@@ -40,6 +40,9 @@ class Progress:
         self._write(f"      {line}")
 
     def _write(self, text: str) -> None:
+        # A Ctrl-C that third-party code swallowed (seen once: the bench ran on to its end,
+        # status 0) is raised here, at the next line, by the shared stop handler.
+        cli.raise_dropped_stop()
         self.ticker.note(f"{time.perf_counter() - self.start:7.1f} s  {text}")
 
 
@@ -170,7 +173,7 @@ def _write(report, results, out, progress) -> int:
 
 
 def main(argv=None) -> int:
-    return cli.run(_main, argv)
+    return cli.run(_main, argv, sigterm=True)   # SIGINT 130, SIGTERM 143, either noted
 
 
 if __name__ == "__main__":

@@ -74,6 +74,31 @@ def test_a_stop_signal_that_propagated_is_not_raised_twice():
     cli.raise_dropped_stop()              # the interrupt was raised where it landed: no repeat
 
 
+def test_bench_stops_at_its_next_line_on_a_ctrl_c_that_other_code_swallowed():
+    """bench under `cli.run` took a Ctrl-C early in CI and ran on to its end, status 0: some
+    code below it had swallowed the KeyboardInterrupt. Each of its progress lines raises a stop
+    the handler raised and nothing let through."""
+    import io
+
+    from mobile_manip_sim.bench.main import Progress
+    events = []
+
+    def main(argv):
+        progress = Progress(2, stream=io.StringIO())
+        progress.section("first")
+        try:   # code that swallows what it calls raise, as a library may
+            signal.raise_signal(signal.SIGINT)
+            wait_for(lambda: False, "the interrupt", 30.0)
+        except BaseException:
+            events.append("swallowed")
+        progress("a measurement")
+        events.append("went on")          # never: the line raised the stop again
+        return 0
+
+    assert cli.run(main, [], sigterm=True) == 130
+    assert events == ["swallowed"]
+
+
 def test_held_stderr_keeps_what_c_code_writes_to_descriptor_2(capfd):
     """rcl logs its own line on a failed rclpy.init, straight to descriptor 2: held, it can be
     left out (the node's one line says why) or passed on."""
