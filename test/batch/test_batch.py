@@ -228,3 +228,31 @@ def test_a_call_takes_the_rest_of_the_samples_rather_than_leave_a_short_call(fir
     from mobile_manip_sim.batch.runs import _call_end
     assert _call_end(first, block, samples) == end
     assert end - first <= block + block // 2   # a call stays within 1.5 blocks
+
+
+def lanes_under_a_budget(document, lanes, budget, vector):
+    """Samples and per-lane counters of a batch whose lanes restart their `advance` call every
+    `budget` grid steps."""
+    batch = Batch(copy.deepcopy(document), lanes, threads=2, vector=vector)
+    for i in range(len(lanes)):
+        if budget:
+            batch.lane(i)._step_budget = budget
+    rows = batch.sample(np.array(list(sample_times(DURATION, RATE))))
+    return rows, [(batch.lane(i).steps, batch.lane(i).rhs_evaluations)
+                  for i in range(len(lanes))], batch.lane_steps
+
+
+def test_lanes_in_blocks_keep_to_their_step_budget():
+    """A step budget of 3 grid steps per `advance` call (a sample needs 4 to 20 here). A lane
+    that reaches it starts a new call, which computes f(s) afresh where a resting rod's step
+    would have carried it over: its right-hand-side count shows where it restarted. Lanes in
+    vector blocks, which take several steps in one go (`blocks.block_steps`), must restart
+    exactly where the lanes stepped one by one do."""
+    document, lanes = random_lanes(11, 12, 2)
+    vector_rows, vector_counts, paths = lanes_under_a_budget(document, lanes, 3, True)
+    alone_rows, alone_counts, _ = lanes_under_a_budget(document, lanes, 3, False)
+    assert not lanes_module.ENABLED or paths[0] > 0   # steps taken in vector blocks
+    assert same_bits(vector_rows, alone_rows)
+    assert vector_counts == alone_counts
+    _, unbounded, _ = lanes_under_a_budget(document, lanes, None, False)
+    assert unbounded != alone_counts   # the budget shows in the counts: the test can see it
