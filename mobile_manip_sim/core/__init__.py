@@ -5,7 +5,8 @@ ahead of time with the package (`CMakeLists.txt`, driven by setup.py) and bound 
     from mobile_manip_sim.core import compiled_dynamics
     core = compiled_dynamics(model)                 # a scene's RobotModel
     ud = core.forward_dynamics(q, u, Q, g, moving)  # moving: 1.0 free, 0.0 locked, per u
-    f, dq, du, dQ = core.rate_derivatives(q, u, Q, g, moving)   # f = (q̇, u̇), exact Jacobians
+    s_next = core.step("rk4", s, h, Q_cmd, damping, moving, g)   # s = (q, u, e, W)
+    value, d_dx, d_dtau = core.jacobians("rk4", s, h, Q_cmd, B, damping, moving, g)
 
 The sources are in ``include/mms/`` (the kernels) and ``src/bindings.cpp``; `build_info` says how
 this copy was compiled (flags, vector width).

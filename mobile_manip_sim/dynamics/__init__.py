@@ -66,13 +66,6 @@ class Dynamics:
         return self.core.forward_dynamics(_vector(q), _vector(u), _vector(Q), self.gravity,
                                           moving)
 
-    def rate_derivatives(self, q, u, Q, moving=None):
-        """(f, ∂f/∂q, ∂f/∂u, ∂f/∂Q) of the rates f = (q̇, u̇) (n_q + n_u), u̇ as `forward_dynamics`
-        gives it: exact Jacobians by dual numbers through the same compiled source."""
-        moving = self._moving if moving is None else _vector(moving)
-        return self.core.rate_derivatives(_vector(q), _vector(u), _vector(Q), self.gravity,
-                                          moving)
-
     def forward_dynamics_by_cholesky(self, q, u, Q) -> np.ndarray:
         """The same u̇ from the mass matrix and the bias: M(q)⁻¹ (Q − h(q, u)), by Cholesky."""
         M = self.mass_matrix(q)

@@ -119,27 +119,72 @@ def test_every_lane_equals_its_own_run_bit_for_bit(n):
     assert len({lanes[i].tobytes() for i in range(runs)}) == runs   # the lanes did differ
 
 
-@pytest.mark.parametrize("n", [0, 1, 2, 4, 8])
-def test_dual_derivatives_agree_with_central_differences_of_the_double_run(n):
-    """∂(q̇, u̇)/∂(q, u, Q) by dual numbers against central differences of the double kernels
-    (Richardson-extrapolated; the best of a sweep of steps, as round-off grows when the step
-    shrinks): 1e-8 relative to the Jacobian's size. The dual value is the double run bit for bit."""
-    c = case(200 + n, n)
-    core, q, u, Q, g, moving = c["core"], c["q"], c["u"], c["Q"], c["g"], c["moving"]
-    nq, nu = c["robot"].n_q, c["robot"].n_u
-    f, dq, du, dQ = core.rate_derivatives(q, u, Q, g, moving)
-    assert identical(f[:nq], core.configuration_rate(q, u))
-    assert identical(f[nq:], core.forward_dynamics(q, u, Q, g, moving))
-    x = np.concatenate([q, u, Q])
+def system_case(seed, n):
+    """`case` with damping on every pseudo-velocity (or none when seed is even) and the state
+    s = (q, u, e, W) of the engine's layout."""
+    c = case(seed, n)
+    nu = c["robot"].n_u
+    c["damping"] = c["rng"].uniform(0.0, 0.5, nu) if seed % 2 else np.zeros(0)
+    c["s"] = np.concatenate([c["q"], c["u"], c["rng"].normal(size=3)])
+    return c
 
-    def rates(x):
-        q, u, Q = x[:nq], x[nq:nq + nu], x[nq + nu:]
-        return np.concatenate([core.configuration_rate(q, u),
-                               core.forward_dynamics(q, u, Q, g, moving)])
-    exact = np.hstack([dq, du, dQ])
-    assert best_agreement(rates, x, exact) <= 1e-8
-    locked = [k for k in range(nu) if not moving[k]]
-    assert not np.any(exact[[nq + k for k in locked]])   # locked rows: u̇ ≡ 0
+
+def numba_system(c):
+    """The engine's effort-mode system record for `case` c, as `engine.system.System` builds it."""
+    from mobile_manip_sim.engine.system import System
+
+    class Dyn:   # what System reads of a `dynamics.Dynamics`
+        model, model_record, ws, gravity = c["robot"], c["record"], c["ws"], c["g"]
+    locked = [k for k in range(c["robot"].n_u) if not c["moving"][k]]
+    system = System(Dyn, c["damping"] if c["damping"].size else None, locked)
+    system.Q_cmd[:] = c["Q"]
+    return system
+
+
+@pytest.mark.parametrize("n", [0, 1, 2, 5])
+@pytest.mark.parametrize("seed", [1, 2])
+def test_the_right_hand_side_and_every_step_equal_the_engines_bit_for_bit(seed, n):
+    """The effort-mode right-hand side (efforts, damping, locks, the work integral) and one step
+    of euler, semi-implicit Euler and rk4: the core's against the engine's numba kernels."""
+    from mobile_manip_sim.engine import fixed_step
+    from mobile_manip_sim.scene.methods import IDS
+    c = system_case(seed * 10 + n, n)
+    system, core, s = numba_system(c), c["core"], c["s"]
+    args = (c["Q"], c["damping"], c["moving"], c["g"])
+    assert identical(core.rates(s, *args), system.derivative(s))
+    for method in ("euler", "semi_implicit_euler", "rk4"):
+        out, stages = np.empty_like(s), np.empty((4, s.size))
+        fixed_step.step(IDS[method], system.data, s, 0.01, out, stages)
+        assert identical(core.step(method, s, 0.01, *args), out), method
+
+
+@pytest.mark.parametrize("method", ["", "euler", "semi_implicit_euler", "rk4"])
+@pytest.mark.parametrize("n", [0, 1, 2, 4, 8])
+def test_dual_jacobians_agree_with_central_differences_of_the_double_map(n, method):
+    """∂/∂(x, τ) of the rates (method "") and of one step, by dual numbers, against central
+    differences of the double map (Richardson-extrapolated, the best of a sweep of steps):
+    1e-8 relative to the Jacobian's size; the dual value is the double map bit for bit."""
+    c = system_case(200 + n, n)
+    core, s, g = c["core"], c["s"], c["g"]
+    nq, nu, h = c["robot"].n_q, c["robot"].n_u, 0.005
+    rng = c["rng"]
+    B = rng.normal(size=(nu, 3))          # three effort directions
+    tau0 = np.zeros(3)
+
+    def mapped(x, tau):
+        state = np.concatenate([x, s[nq + nu:]])
+        Q = c["Q"] + B @ tau
+        args = (Q, c["damping"], c["moving"], g)
+        out = core.step(method, state, h, *args) if method else core.rates(state, *args)
+        return out[:nq + nu]
+    value, d_dx, d_dtau = core.jacobians(method, s, h, c["Q"], B, c["damping"], c["moving"], g)
+    x = s[:nq + nu]
+    assert identical(value, mapped(x, tau0))
+    assert best_agreement(lambda x: mapped(x, tau0), x, d_dx) <= 1e-8
+    assert best_agreement(lambda tau: mapped(x, tau), tau0, d_dtau) <= 1e-8
+    if not method:
+        locked = [nq + k for k in range(nu) if not c["moving"][k]]
+        assert not np.any(d_dx[locked]) and not np.any(d_dtau[locked])   # u̇ ≡ 0 there
 
 
 def test_the_build_does_ieee_arithmetic_without_contraction():

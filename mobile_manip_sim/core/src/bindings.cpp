@@ -12,6 +12,7 @@
 
 #include "mms/articulated.hpp"
 #include "mms/dynamics.hpp"
+#include "mms/fixed_step.hpp"
 
 namespace nb = nanobind;
 using namespace nb::literals;
@@ -45,7 +46,7 @@ void need(const In& a, size_t size, const char* name) {
 class Dynamics {
  public:
   Dynamics(BaseParameters base, In mount, In R0, In L, In mu, In J, double tip_mass)
-      : ws_(0), block_(0), dual_(0) {
+      : ws_(0), block_(0), system_(Model()), dual_system_(Model()) {
     size_t n = L.size();
     need(mount, 3, "mount");
     need(R0, 9 * n, "R0");
@@ -67,8 +68,8 @@ class Dynamics {
     model_.tip_mass = tip_mass;
     ws_ = Workspace<double>(model_.n());
     block_ = Workspace<Block>(model_.n());
-    dual_ = Workspace<DualD>(model_.n());
-    M_.resize(model_.n_u() * model_.n_u());
+    system_ = SystemWorkspace<double>(model_);
+    dual_system_ = SystemWorkspace<DualD>(model_);
   }
 
   int n() const { return model_.n(); }
@@ -181,50 +182,92 @@ class Dynamics {
     return out;
   }
 
-  // The rates f = (q̇, u̇) and their exact derivatives, by forward-mode dual numbers
-  // (kDirections directions a pass, one vector register): (f, ∂f/∂q (n_x × n_q), ∂f/∂u
-  // (n_x × n_u), ∂f/∂Q (n_x × n_u)), n_x = n_q + n_u; locked pseudo-velocities (moving 0) have
-  // u̇ = 0 and zero rows.
-  std::tuple<Out, Out, Out, Out> rate_derivatives(In q, In u, In Q, double g, In moving) {
-    check(q, u, Q);
-    need(moving, n_u(), "moving");
-    const int nq = n_q(), nu = n_u(), nx = nq + nu, total = nq + 2 * nu;
-    double *f, *dq, *du, *dQ;
-    Out o_f = new_array({size_t(nx)}, &f), o_dq = new_array({size_t(nx), size_t(nq)}, &dq),
-        o_du = new_array({size_t(nx), size_t(nu)}, &du),
-        o_dQ = new_array({size_t(nx), size_t(nu)}, &dQ);
-    for (int k = 0; k < nu; ++k) dual_.moving[k] = moving.data()[k];
-    std::vector<DualD> qd(nq), uu(nu), QQ(nu), rates(nx);
+  // ds/dt at s = (q, u, e, W) for a robot driven by efforts (system.hpp): Q_cmd (n_u), damping
+  // (n_u, or empty: none), moving (n_u: 1 free, 0 locked).
+  Out rates(In s, In Q_cmd, In damping, In moving, double g) {
+    set_effects(s, Q_cmd, damping, moving);
+    double* ds;
+    Out out = new_array({size_t(state_size(model_))}, &ds);
+    Effects<double> fx{g, Q_cmd.data(), damping.size() ? damping.data() : nullptr};
+    mms::rates(model_, fx, s.data(), ds, system_);
+    return out;
+  }
+
+  // One step of `method` (euler, semi_implicit_euler, rk4) of length h from s (fixed_step.hpp).
+  Out step(const std::string& method, In s, double h, In Q_cmd, In damping, In moving, double g) {
+    Method m = method_of(method);
+    set_effects(s, Q_cmd, damping, moving);
+    double* next;
+    Out out = new_array({size_t(state_size(model_))}, &next);
+    Effects<double> fx{g, Q_cmd.data(), damping.size() ? damping.data() : nullptr};
+    mms::step(m, model_, fx, s.data(), h, next, system_);
+    return out;
+  }
+
+  // Exact Jacobians by dual numbers (kDirections directions a pass, one vector register), of the
+  // rates (method "" : f = (q̇, u̇)) or of one step of a method (s⁺'s (q, u)), with respect to
+  // x = (q, u) and the efforts τ, whose generalized forces are Q_cmd + B (τ − τ₀) (B: n_u × n_τ,
+  // a zero column for an effort held at its limit): (value (n_x), ∂/∂x (n_x × n_x), ∂/∂τ
+  // (n_x × n_τ)), n_x = n_q + n_u.
+  std::tuple<Out, Out, Out> jacobians(const std::string& method, In s, double h, In Q_cmd, In B,
+                                      In damping, In moving, double g) {
+    const bool of_step = !method.empty();
+    Method m = of_step ? method_of(method) : Method::Euler;
+    set_effects(s, Q_cmd, damping, moving);
+    const int nq = n_q(), nu = n_u(), nx = nq + nu, ns = state_size(model_);
+    if (B.ndim() != 2 || B.shape(0) != size_t(nu))
+      throw std::invalid_argument("B: expected an array of shape (" + std::to_string(nu) +
+                                  ", efforts)");
+    const int ntau = static_cast<int>(B.shape(1)), total = nx + ntau;
+    double *value, *dx, *dtau;
+    Out o_value = new_array({size_t(nx)}, &value), o_dx = new_array({size_t(nx), size_t(nx)}, &dx),
+        o_dtau = new_array({size_t(nx), size_t(ntau)}, &dtau);
+    for (int k = 0; k < nu; ++k) dual_system_.dynamics.moving[k] = moving.data()[k];
+    std::vector<DualD> sd(ns), Qd(nu), out(ns);
+    Effects<DualD> fx{g, Qd.data(), damping.size() ? damping.data() : nullptr};
     for (int first = 0; first < total; first += kDirections) {
-      // direction j (first ≤ j < first + kDirections) seeds input j of (q, u, Q)
+      // direction j (first ≤ j < first + kDirections) seeds x_j, or the effort j − n_x
       auto seed = [&](int j) {
         Directions d(0.0);
         if (j >= first && j < first + kDirections) d.set(j - first, 1.0);
         return d;
       };
-      for (int i = 0; i < nq; ++i) qd[i] = DualD(q.data()[i], seed(i));
+      for (int i = 0; i < ns; ++i) sd[i] = DualD(s.data()[i], i < nx ? seed(i) : Directions(0.0));
       for (int i = 0; i < nu; ++i) {
-        uu[i] = DualD(u.data()[i], seed(nq + i));
-        QQ[i] = DualD(Q.data()[i], seed(nq + nu + i));
+        Directions d(0.0);
+        for (int j = 0; j < ntau; ++j) d = d + B.data()[i * ntau + j] * seed(nx + j);
+        Qd[i] = DualD(Q_cmd.data()[i], d);
       }
-      mms::configuration_rate(model_, qd.data(), uu.data(), rates.data());
-      frames(model_, qd.data(), dual_);
-      mms::forward_dynamics(model_, qd.data(), uu.data(), QQ.data(), g, dual_, rates.data() + nq);
+      if (of_step) mms::step(m, model_, fx, sd.data(), h, out.data(), dual_system_);
+      else mms::rates(model_, fx, sd.data(), out.data(), dual_system_);
       for (int r = 0; r < nx; ++r) {
-        f[r] = rates[r].val;
+        value[r] = out[r].val;
         for (int lane = 0; lane < kDirections && first + lane < total; ++lane) {
           int j = first + lane;
-          double value = rates[r].d[lane];
-          if (j < nq) dq[r * nq + j] = value;
-          else if (j < nq + nu) du[r * nu + j - nq] = value;
-          else dQ[r * nu + j - nq - nu] = value;
+          if (j < nx) dx[r * nx + j] = out[r].d[lane];
+          else dtau[r * ntau + j - nx] = out[r].d[lane];
         }
       }
     }
-    return {o_f, o_dq, o_du, o_dQ};
+    return {o_value, o_dx, o_dtau};
   }
 
  private:
+  static Method method_of(const std::string& name) {
+    if (name == "euler") return Method::Euler;
+    if (name == "semi_implicit_euler") return Method::SemiImplicitEuler;
+    if (name == "rk4") return Method::Rk4;
+    throw std::invalid_argument("method: expected euler, semi_implicit_euler or rk4, got " + name);
+  }
+
+  void set_effects(const In& s, const In& Q_cmd, const In& damping, const In& moving) {
+    need(s, state_size(model_), "s");
+    need(Q_cmd, n_u(), "Q_cmd");
+    if (damping.size()) need(damping, n_u(), "damping");
+    need(moving, n_u(), "moving");
+    for (int k = 0; k < n_u(); ++k) system_.dynamics.moving[k] = moving.data()[k];
+  }
+
   void check(const In& q, const In& u, const In& third) {
     need(q, n_q(), "q");
     need(u, n_u(), "u");
@@ -234,8 +277,8 @@ class Dynamics {
   Model model_;
   Workspace<double> ws_;
   Workspace<Block> block_;
-  Workspace<DualD> dual_;
-  std::vector<double> M_;
+  SystemWorkspace<double> system_;
+  SystemWorkspace<DualD> dual_system_;
 };
 
 // a*b + c, as this build computes it: a build that contracts it into one fused multiply-add
@@ -287,8 +330,11 @@ NB_MODULE(_core, m) {
       .def("configuration_rate", &mms::Dynamics::configuration_rate, "q"_a, "u"_a)
       .def("forward_dynamics_lanes", &mms::Dynamics::forward_dynamics_lanes, "q"_a, "u"_a,
            "Q"_a, "g"_a, "moving"_a)
-      .def("rate_derivatives", &mms::Dynamics::rate_derivatives, "q"_a, "u"_a, "Q"_a, "g"_a,
-           "moving"_a);
+      .def("rates", &mms::Dynamics::rates, "s"_a, "Q_cmd"_a, "damping"_a, "moving"_a, "g"_a)
+      .def("step", &mms::Dynamics::step, "method"_a, "s"_a, "h"_a, "Q_cmd"_a, "damping"_a,
+           "moving"_a, "g"_a)
+      .def("jacobians", &mms::Dynamics::jacobians, "method"_a, "s"_a, "h"_a, "Q_cmd"_a, "B"_a,
+           "damping"_a, "moving"_a, "g"_a);
   m.def("build_info", &mms::build_info);
   m.def("multiply_add", &mms::multiply_add, "a"_a, "b"_a, "c"_a);
 }
