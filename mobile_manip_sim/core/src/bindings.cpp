@@ -6,6 +6,7 @@
 #include <nanobind/stl/tuple.h>
 
 #include <cstring>
+#include <ctime>
 #include <stdexcept>
 #include <string>
 #include <vector>
@@ -252,7 +253,58 @@ class Dynamics {
     return {o_value, o_dx, o_dtau};
   }
 
+  // CPU seconds per call of this thread, over `calls` calls, for the benchmarks (bench/): the
+  // kernels alone, without the Python call around them.
+  double time_forward_dynamics(In q, In u, In Q, double g, In moving, int calls) {
+    check(q, u, Q);
+    need(moving, n_u(), "moving");
+    for (int k = 0; k < n_u(); ++k) ws_.moving[k] = moving.data()[k];
+    std::vector<double> ud(n_u());
+    return per_call(calls, [&] {
+      frames(model_, q.data(), ws_);
+      mms::forward_dynamics(model_, q.data(), u.data(), Q.data(), g, ws_, ud.data());
+    });
+  }
+
+  // … per lane-evaluation of one vector block of kLaneWidth runs (the rows of q, u, Q, moving).
+  double time_forward_dynamics_lanes(In q, In u, In Q, double g, In moving, int calls) {
+    const int W = kLaneWidth, nq = n_q(), nu = n_u();
+    need(q, size_t(W) * nq, "q");
+    need(u, size_t(W) * nu, "u");
+    need(Q, size_t(W) * nu, "Q");
+    need(moving, size_t(W) * nu, "moving");
+    std::vector<Block> qb(nq), ub(nu), Qb(nu), udb(nu);
+    for (int lane = 0; lane < W; ++lane) {
+      for (int i = 0; i < nq; ++i) qb[i].set(lane, q.data()[lane * nq + i]);
+      for (int i = 0; i < nu; ++i) {
+        ub[i].set(lane, u.data()[lane * nu + i]);
+        Qb[i].set(lane, Q.data()[lane * nu + i]);
+        block_.moving[i].set(lane, moving.data()[lane * nu + i]);
+      }
+    }
+    return per_call(calls, [&] {
+      frames(model_, qb.data(), block_);
+      mms::forward_dynamics(model_, qb.data(), ub.data(), Qb.data(), g, block_, udb.data());
+    }) / W;
+  }
+
+  double time_jacobians(const std::string& method, In s, double h, In Q_cmd, In B, In damping,
+                        In moving, double g, int calls) {
+    return per_call(calls, [&] { jacobians(method, s, h, Q_cmd, B, damping, moving, g); });
+  }
+
  private:
+  template <class F>
+  static double per_call(int calls, F&& body) {
+    body();
+    timespec start, end;
+    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &start);
+    for (int i = 0; i < calls; ++i) body();
+    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &end);
+    double seconds = (end.tv_sec - start.tv_sec) + 1e-9 * (end.tv_nsec - start.tv_nsec);
+    return seconds / (calls > 0 ? calls : 1);
+  }
+
   static Method method_of(const std::string& name) {
     if (name == "euler") return Method::Euler;
     if (name == "semi_implicit_euler") return Method::SemiImplicitEuler;
@@ -334,7 +386,13 @@ NB_MODULE(_core, m) {
       .def("step", &mms::Dynamics::step, "method"_a, "s"_a, "h"_a, "Q_cmd"_a, "damping"_a,
            "moving"_a, "g"_a)
       .def("jacobians", &mms::Dynamics::jacobians, "method"_a, "s"_a, "h"_a, "Q_cmd"_a, "B"_a,
-           "damping"_a, "moving"_a, "g"_a);
+           "damping"_a, "moving"_a, "g"_a)
+      .def("time_forward_dynamics", &mms::Dynamics::time_forward_dynamics, "q"_a, "u"_a, "Q"_a,
+           "g"_a, "moving"_a, "calls"_a)
+      .def("time_forward_dynamics_lanes", &mms::Dynamics::time_forward_dynamics_lanes, "q"_a,
+           "u"_a, "Q"_a, "g"_a, "moving"_a, "calls"_a)
+      .def("time_jacobians", &mms::Dynamics::time_jacobians, "method"_a, "s"_a, "h"_a,
+           "Q_cmd"_a, "B"_a, "damping"_a, "moving"_a, "g"_a, "calls"_a);
   m.def("build_info", &mms::build_info);
   m.def("multiply_add", &mms::multiply_add, "a"_a, "b"_a, "c"_a);
 }
