@@ -43,19 +43,33 @@ def check_effort_mode(sim, what: str) -> None:
                               f"(not differentiated yet): linearize in effort mode")
 
 
+def moving_mask(sim) -> np.ndarray:
+    """(n_u,) 1.0 for a free pseudo-velocity, 0.0 for one locked now."""
+    moving = np.ones(sim.nu)
+    moving[list(sim.system.locked)] = 0.0
+    return moving
+
+
+def efforts_in_force(sim, efforts):
+    """(Q_cmd, B) of efforts τ = (τ_R, τ_L, τ_1, F_1, …) within the scene's limits, as
+    `Simulation.set_efforts` applies them: the generalized forces, and ∂Q/∂τ with a zero column
+    for each effort held at its limit."""
+    B = effort_map(sim.model)
+    limits = sim.effects.effort_limits
+    efforts = sim.effects.saturate(efforts)
+    if limits is not None:
+        B[:, np.abs(efforts) >= limits] = 0.0
+    Q = np.concatenate([sim.dynamics.wheel_forces(*efforts[:2]), efforts[2:]])
+    return Q, B
+
+
 def jacobians(sim, method: str, q, u, h: float = 0.0):
     """(value, ∂/∂x, ∂/∂τ) of the rates (method "") or of one step of `method`, at (q, u) with
     the simulation's efforts, damping and locks (module doc)."""
-    nu = sim.nu
-    moving = np.ones(nu)
-    moving[list(sim.system.locked)] = 0.0
-    B = effort_map(sim.model)
-    limits = sim.effects.effort_limits
-    if limits is not None:
-        B[:, np.abs(np.concatenate([sim.wheel_efforts, sim.joint_efforts])) >= limits] = 0.0
+    _, B = efforts_in_force(sim, np.concatenate([sim.wheel_efforts, sim.joint_efforts]))
     s = np.concatenate([q, u, np.zeros(3)])
     return sim.dynamics.core.jacobians(method, s, float(h), sim.system.Q_cmd, B,
-                                       sim.system.damping, moving, sim.dynamics.gravity)
+                                       sim.system.damping, moving_mask(sim), sim.dynamics.gravity)
 
 
 def linearize(sim, q=None, u=None):
@@ -66,21 +80,75 @@ def linearize(sim, q=None, u=None):
     return F_x, F_tau
 
 
-def step_jacobians(sim, q=None, u=None, dt: float | None = None):
-    """(A, B) = (∂x⁺/∂x, ∂x⁺/∂τ) of one step of the run's fixed-step method of length dt
-    (default: the run's) from (q, u) (default: the current state)."""
-    check_effort_mode(sim, "step_jacobians")
+def _step_settings(sim, what: str, dt) -> tuple[str, float]:
+    """The run's method (one the core differentiates) and the step length (default the run's)."""
+    check_effort_mode(sim, what)
     method = sim.settings.method
     if method not in DIFFERENTIATED:
         kind = "adaptive" if not METHODS[method].fixed_step else "not differentiated"
-        raise UserError("integrator.method", f"step_jacobians differentiates the steps of "
+        raise UserError("integrator.method", f"{what} differentiates the steps of "
                                              f"{', '.join(DIFFERENTIATED)}; {method} is {kind}")
     h = sim.settings.dt if dt is None else float(dt)
     if not np.isfinite(h) or h <= 0.0:
         raise UserError("dt", f"must be a positive step in seconds, got {dt!r}")
+    return method, h
+
+
+def step_jacobians(sim, q=None, u=None, dt: float | None = None):
+    """(A, B) = (∂x⁺/∂x, ∂x⁺/∂τ) of one step of the run's fixed-step method of length dt
+    (default: the run's) from (q, u) (default: the current state)."""
+    method, h = _step_settings(sim, "step_jacobians", dt)
     q, u = _state(sim, q, u)
     _, A, B = jacobians(sim, method, q, u, h)
     return A, B
+
+
+def step_jacobians_many(sim, q, u, efforts=None, dt: float | None = None):
+    """(A, B) of one step at many states at once, for a trajectory's linearisation (an MPC's):
+    q (m × n_q), u (m × n_u), efforts τ (m × n_u; default the simulation's at every state),
+    with its damping and locks; A (m × n_x × n_x), B (m × n_x × n_u). One compiled loop."""
+    method, h = _step_settings(sim, "step_jacobians_many", dt)
+    q, u = np.atleast_2d(np.asarray(q, dtype=float)), np.atleast_2d(np.asarray(u, dtype=float))
+    m = q.shape[0]
+    for name, array, width in (("q", q, sim.nq), ("u", u, sim.nu)):
+        if array.shape != (m, width) or not np.isfinite(array).all():
+            raise UserError(name, f"expected {m} finite rows of {width} numbers, got shape "
+                                  f"{array.shape}")
+    if efforts is None:
+        efforts = np.tile(np.concatenate([sim.wheel_efforts, sim.joint_efforts]), (m, 1))
+    efforts = np.asarray(efforts, dtype=float)
+    if efforts.shape != (m, sim.nu) or not np.isfinite(efforts).all():
+        raise UserError("efforts", f"expected {m} finite rows of {sim.nu} numbers, got shape "
+                                   f"{efforts.shape}")
+    pairs = [efforts_in_force(sim, row) for row in efforts]
+    Q_cmd, B_all = np.array([p[0] for p in pairs]), np.array([p[1] for p in pairs])
+    s = np.hstack([q, u, np.zeros((m, 3))])
+    moving = np.tile(moving_mask(sim), (m, 1))
+    _, A, B = sim.dynamics.core.jacobians_many(method, s, h, Q_cmd, B_all, sim.system.damping,
+                                               moving, sim.dynamics.gravity)
+    return A, B
+
+
+def jacobians_along(sim, t_end: float):
+    """Advance the run to t_end step by step and return (t, A, B, event): the start time of every
+    step (K), its (A, B) at the state it starts from (K × n_x × n_x, K × n_x × n_u), and whether
+    an event (an impact, a rod coming to rest or leaving its stop) happened inside it — there A
+    and B are the event-free step's, not the step the run took."""
+    method, h = _step_settings(sim, "jacobians_along", None)
+    times, As, Bs, events = [], [], [], []
+    k = int(round(sim.t / h))
+    while (k + 1) * h <= t_end + 0.5 * h:
+        A, B = step_jacobians(sim)
+        impacts, locked = len(sim.impacts), sim.system.locked
+        times.append(sim.t)
+        sim.advance_to((k + 1) * h)
+        As.append(A)
+        Bs.append(B)
+        events.append(len(sim.impacts) != impacts or sim.system.locked != locked)
+        k += 1
+    nx = sim.nq + sim.nu
+    return (np.array(times), np.array(As).reshape(-1, nx, nx),
+            np.array(Bs).reshape(-1, nx, sim.nu), np.array(events, dtype=bool))
 
 
 def _state(sim, q, u):

@@ -132,3 +132,41 @@ def test_what_is_not_differentiated_is_refused_in_one_line():
         sim.linearize()
     with pytest.raises(UserError, match=r"q\[0\]"):
         Simulation(load_scene()).linearize(q=[np.nan] + 8 * [0.0])
+
+
+def test_many_states_at_once_equal_each_state_alone():
+    """`step_jacobians_many` (one compiled loop) gives, state by state, what `step_jacobians`
+    gives at that state, with efforts per state (one of them clamped by its limit)."""
+    from mobile_manip_sim.engine.linearization import step_jacobians_many
+    limits = {"wheels": 0.5, "joints": [3.0, 3.0, 3.0, 3.0]}
+    sim = random_simulation(9, 2, effort_limits=limits)
+    rng = np.random.default_rng(9)
+    states = [robots.random_state(rng, sim.model) for _ in range(5)]
+    q, u = np.array([s[0] for s in states]), np.array([s[1] for s in states])
+    u[:, list(sim.system.permanently_locked)] = 0.0
+    efforts = rng.normal(size=(5, sim.nu))
+    efforts[:, 0] = 0.1
+    efforts[2, 0] = 7.0                          # beyond its limit: a zero column there
+    A, B = step_jacobians_many(sim, q, u, efforts)
+    assert A.shape == (5, sim.nq + sim.nu, sim.nq + sim.nu) and B.shape == (5, A.shape[1], sim.nu)
+    for i in range(5):
+        sim.set_efforts(wheels=efforts[i, :2], joints=efforts[i, 2:])
+        A_i, B_i = sim.step_jacobians(q[i], u[i])
+        assert np.array_equal(A[i], A_i) and np.array_equal(B[i], B_i)
+    assert not B[2, :, 0].any() and B[1, :, 0].any()
+
+
+def test_jacobians_along_a_run_are_those_of_its_steps_and_flag_the_impacts():
+    """Along the paper run (rk4, 2 ms, its end stops), every step's (A, B) is the step Jacobian
+    at the state the step starts from, and the steps that hold an impact are the ones flagged."""
+    from mobile_manip_sim.engine.linearization import jacobians_along
+    scene = load_scene()
+    sim = Simulation(scene, integrator=IntegratorSettings(method="rk4", dt=0.002))
+    twin = Simulation(scene, integrator=IntegratorSettings(method="rk4", dt=0.002))
+    t, A, B, event = jacobians_along(sim, 1.5)
+    assert t.size == 750 and A.shape == (750, 15, 15) and B.shape == (750, 15, 6)
+    assert event.sum() == len(sim.impacts) > 0
+    for k in (0, 123, int(np.flatnonzero(event)[0]), 749):
+        twin.advance_to(t[k])
+        A_k, B_k = twin.step_jacobians()
+        assert np.array_equal(A[k], A_k) and np.array_equal(B[k], B_k)

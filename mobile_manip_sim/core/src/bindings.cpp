@@ -212,43 +212,42 @@ class Dynamics {
   // (n_x × n_τ)), n_x = n_q + n_u.
   std::tuple<Out, Out, Out> jacobians(const std::string& method, In s, double h, In Q_cmd, In B,
                                       In damping, In moving, double g) {
-    const bool of_step = !method.empty();
-    Method m = of_step ? method_of(method) : Method::Euler;
     set_effects(s, Q_cmd, damping, moving);
-    const int nq = n_q(), nu = n_u(), nx = nq + nu, ns = state_size(model_);
-    if (B.ndim() != 2 || B.shape(0) != size_t(nu))
-      throw std::invalid_argument("B: expected an array of shape (" + std::to_string(nu) +
-                                  ", efforts)");
-    const int ntau = static_cast<int>(B.shape(1)), total = nx + ntau;
+    const int nx = n_q() + n_u(), ntau = efforts_of(B, 2);
     double *value, *dx, *dtau;
     Out o_value = new_array({size_t(nx)}, &value), o_dx = new_array({size_t(nx), size_t(nx)}, &dx),
         o_dtau = new_array({size_t(nx), size_t(ntau)}, &dtau);
-    for (int k = 0; k < nu; ++k) dual_system_.dynamics.moving[k] = moving.data()[k];
-    std::vector<DualD> sd(ns), Qd(nu), out(ns);
-    Effects<DualD> fx{g, Qd.data(), damping.size() ? damping.data() : nullptr};
-    for (int first = 0; first < total; first += kDirections) {
-      // direction j (first ≤ j < first + kDirections) seeds x_j, or the effort j − n_x
-      auto seed = [&](int j) {
-        Directions d(0.0);
-        if (j >= first && j < first + kDirections) d.set(j - first, 1.0);
-        return d;
-      };
-      for (int i = 0; i < ns; ++i) sd[i] = DualD(s.data()[i], i < nx ? seed(i) : Directions(0.0));
-      for (int i = 0; i < nu; ++i) {
-        Directions d(0.0);
-        for (int j = 0; j < ntau; ++j) d = d + B.data()[i * ntau + j] * seed(nx + j);
-        Qd[i] = DualD(Q_cmd.data()[i], d);
-      }
-      if (of_step) mms::step(m, model_, fx, sd.data(), h, out.data(), dual_system_);
-      else mms::rates(model_, fx, sd.data(), out.data(), dual_system_);
-      for (int r = 0; r < nx; ++r) {
-        value[r] = out[r].val;
-        for (int lane = 0; lane < kDirections && first + lane < total; ++lane) {
-          int j = first + lane;
-          if (j < nx) dx[r * nx + j] = out[r].d[lane];
-          else dtau[r * ntau + j - nx] = out[r].d[lane];
-        }
-      }
+    jacobians_into(method, s.data(), h, Q_cmd.data(), B.data(), ntau,
+                   damping.size() ? damping.data() : nullptr, moving.data(), g, value, dx, dtau);
+    return {o_value, o_dx, o_dtau};
+  }
+
+  // The same at many states at once, one row each (m × state, m × n_u, m × n_u × n_τ,
+  // m × n_u): (m × n_x, m × n_x × n_x, m × n_x × n_τ). The loop runs without the GIL.
+  std::tuple<Out, Out, Out> jacobians_many(const std::string& method, In s, double h, In Q_cmd,
+                                           In B, In damping, In moving, double g) {
+    const int nu = n_u(), nx = n_q() + nu, ns = state_size(model_);
+    if (s.ndim() != 2 || s.shape(1) != size_t(ns))
+      throw std::invalid_argument("s: expected an array of shape (states, " +
+                                  std::to_string(ns) + ")");
+    const size_t m = s.shape(0);
+    need(Q_cmd, m * nu, "Q_cmd");
+    need(moving, m * nu, "moving");
+    if (damping.size()) need(damping, nu, "damping");
+    const int ntau = efforts_of(B, 3);
+    if (B.shape(0) != m) throw std::invalid_argument("B: expected one matrix a state");
+    method_of(method.empty() ? "euler" : method);  // a bad name fails before the loop
+    double *value, *dx, *dtau;
+    Out o_value = new_array({m, size_t(nx)}, &value),
+        o_dx = new_array({m, size_t(nx), size_t(nx)}, &dx),
+        o_dtau = new_array({m, size_t(nx), size_t(ntau)}, &dtau);
+    {
+      nb::gil_scoped_release free_the_interpreter;
+      for (size_t i = 0; i < m; ++i)
+        jacobians_into(method, s.data() + i * ns, h, Q_cmd.data() + i * nu,
+                       B.data() + i * nu * ntau, ntau, damping.size() ? damping.data() : nullptr,
+                       moving.data() + i * nu, g, value + i * nx, dx + i * nx * nx,
+                       dtau + i * nx * ntau);
     }
     return {o_value, o_dx, o_dtau};
   }
@@ -294,6 +293,52 @@ class Dynamics {
   }
 
  private:
+  // Exact Jacobians by dual numbers (kDirections directions a pass, one vector register) at one
+  // state: value (n_x), ∂/∂x (n_x × n_x), ∂/∂τ (n_x × n_τ), all row-major.
+  void jacobians_into(const std::string& method, const double* s, double h, const double* Q_cmd,
+                      const double* B, int ntau, const double* damping, const double* moving,
+                      double g, double* value, double* dx, double* dtau) {
+    const bool of_step = !method.empty();
+    Method m = of_step ? method_of(method) : Method::Euler;
+    const int nu = n_u(), nx = n_q() + nu, ns = state_size(model_), total = nx + ntau;
+    for (int k = 0; k < nu; ++k) dual_system_.dynamics.moving[k] = moving[k];
+    std::vector<DualD> sd(ns), Qd(nu), out(ns);
+    Effects<DualD> fx{g, Qd.data(), damping};
+    for (int first = 0; first < total; first += kDirections) {
+      // direction j (first ≤ j < first + kDirections) seeds x_j, or the effort j − n_x
+      auto seed = [&](int j) {
+        Directions d(0.0);
+        if (j >= first && j < first + kDirections) d.set(j - first, 1.0);
+        return d;
+      };
+      for (int i = 0; i < ns; ++i) sd[i] = DualD(s[i], i < nx ? seed(i) : Directions(0.0));
+      for (int i = 0; i < nu; ++i) {
+        Directions d(0.0);
+        for (int j = 0; j < ntau; ++j) d = d + B[i * ntau + j] * seed(nx + j);
+        Qd[i] = DualD(Q_cmd[i], d);
+      }
+      if (of_step) mms::step(m, model_, fx, sd.data(), h, out.data(), dual_system_);
+      else mms::rates(model_, fx, sd.data(), out.data(), dual_system_);
+      for (int r = 0; r < nx; ++r) {
+        value[r] = out[r].val;
+        for (int lane = 0; lane < kDirections && first + lane < total; ++lane) {
+          int j = first + lane;
+          if (j < nx) dx[r * nx + j] = out[r].d[lane];
+          else dtau[r * ntau + j - nx] = out[r].d[lane];
+        }
+      }
+    }
+  }
+
+  // The number of efforts of B (n_u × n_τ, or states × n_u × n_τ when ndim is 3).
+  int efforts_of(const In& B, size_t ndim) {
+    if (B.ndim() != ndim || B.shape(ndim - 2) != size_t(n_u()))
+      throw std::invalid_argument("B: expected an array of shape (" +
+                                  std::string(ndim == 3 ? "states, " : "") +
+                                  std::to_string(n_u()) + ", efforts)");
+    return static_cast<int>(B.shape(ndim - 1));
+  }
+
   template <class F>
   static double per_call(int calls, F&& body) {
     body();
@@ -387,6 +432,8 @@ NB_MODULE(_core, m) {
            "moving"_a, "g"_a)
       .def("jacobians", &mms::Dynamics::jacobians, "method"_a, "s"_a, "h"_a, "Q_cmd"_a, "B"_a,
            "damping"_a, "moving"_a, "g"_a)
+      .def("jacobians_many", &mms::Dynamics::jacobians_many, "method"_a, "s"_a, "h"_a,
+           "Q_cmd"_a, "B"_a, "damping"_a, "moving"_a, "g"_a)
       .def("time_forward_dynamics", &mms::Dynamics::time_forward_dynamics, "q"_a, "u"_a, "Q"_a,
            "g"_a, "moving"_a, "calls"_a)
       .def("time_forward_dynamics_lanes", &mms::Dynamics::time_forward_dynamics_lanes, "q"_a,
