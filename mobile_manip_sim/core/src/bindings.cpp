@@ -5,6 +5,7 @@
 #include <nanobind/stl/string.h>
 #include <nanobind/stl/tuple.h>
 
+#include <algorithm>
 #include <cstring>
 #include <ctime>
 #include <stdexcept>
@@ -47,7 +48,7 @@ void need(const In& a, size_t size, const char* name) {
 class Dynamics {
  public:
   Dynamics(BaseParameters base, In mount, In R0, In L, In mu, In J, double tip_mass)
-      : ws_(0), block_(0), system_(Model()), dual_system_(Model()) {
+      : ws_(0), block_(0), system_(Model()), dual_system_(Model()), block_system_(Model()) {
     size_t n = L.size();
     need(mount, 3, "mount");
     need(R0, 9 * n, "R0");
@@ -71,6 +72,7 @@ class Dynamics {
     block_ = Workspace<Block>(model_.n());
     system_ = SystemWorkspace<double>(model_);
     dual_system_ = SystemWorkspace<DualD>(model_);
+    block_system_ = SystemWorkspace<Block>(model_);
   }
 
   int n() const { return model_.n(); }
@@ -252,6 +254,60 @@ class Dynamics {
     return {o_value, o_dx, o_dtau};
   }
 
+  // Many runs of this robot advanced `steps` fixed steps of `method` (no events: stops and
+  // impacts stay with the engine for now), one row a run: s (m × state), Q_cmd, moving (m × n_u).
+  // With `lanes`, kLaneWidth runs at once in vector blocks (a short last block repeats its last
+  // run), else one by one in double: each lane is its run bit for bit (the tests compare them).
+  Out advance(const std::string& method, In s, double h, int steps, In Q_cmd, In damping,
+              In moving, double g, bool lanes) {
+    Method m = method_of(method);
+    const int nu = n_u(), ns = state_size(model_), W = kLaneWidth;
+    if (s.ndim() != 2 || s.shape(1) != size_t(ns))
+      throw std::invalid_argument("s: expected an array of shape (runs, " + std::to_string(ns) +
+                                  ")");
+    const size_t runs = s.shape(0);
+    need(Q_cmd, runs * nu, "Q_cmd");
+    need(moving, runs * nu, "moving");
+    if (damping.size()) need(damping, nu, "damping");
+    const double* c = damping.size() ? damping.data() : nullptr;
+    double* out;
+    Out result = new_array({runs, size_t(ns)}, &out);
+    nb::gil_scoped_release free_the_interpreter;
+    if (!lanes) {
+      std::vector<double> x(ns), next(ns);
+      for (size_t r = 0; r < runs; ++r) {
+        for (int k = 0; k < nu; ++k) system_.dynamics.moving[k] = moving.data()[r * nu + k];
+        Effects<double> fx{g, Q_cmd.data() + r * nu, c};
+        std::copy(s.data() + r * ns, s.data() + (r + 1) * ns, x.begin());
+        for (int i = 0; i < steps; ++i) {
+          mms::step(m, model_, fx, x.data(), h, next.data(), system_);
+          std::swap(x, next);
+        }
+        std::copy(x.begin(), x.end(), out + r * ns);
+      }
+      return result;
+    }
+    std::vector<Block> x(ns), next(ns), Qb(nu);
+    for (size_t start = 0; start < runs; start += W) {
+      for (int lane = 0; lane < W; ++lane) {
+        size_t r = start + lane < runs ? start + lane : runs - 1;
+        for (int i = 0; i < ns; ++i) x[i].set(lane, s.data()[r * ns + i]);
+        for (int k = 0; k < nu; ++k) {
+          Qb[k].set(lane, Q_cmd.data()[r * nu + k]);
+          block_system_.dynamics.moving[k].set(lane, moving.data()[r * nu + k]);
+        }
+      }
+      Effects<Block> fx{g, Qb.data(), c};
+      for (int i = 0; i < steps; ++i) {
+        mms::step(m, model_, fx, x.data(), h, next.data(), block_system_);
+        std::swap(x, next);
+      }
+      for (int lane = 0; lane < W && start + lane < runs; ++lane)
+        for (int i = 0; i < ns; ++i) out[(start + lane) * ns + i] = x[i][lane];
+    }
+    return result;
+  }
+
   // CPU seconds per call of this thread, over `calls` calls, for the benchmarks (bench/): the
   // kernels alone, without the Python call around them.
   double time_forward_dynamics(In q, In u, In Q, double g, In moving, int calls) {
@@ -376,6 +432,7 @@ class Dynamics {
   Workspace<Block> block_;
   SystemWorkspace<double> system_;
   SystemWorkspace<DualD> dual_system_;
+  SystemWorkspace<Block> block_system_;
 };
 
 // a*b + c, as this build computes it: a build that contracts it into one fused multiply-add
@@ -432,6 +489,8 @@ NB_MODULE(_core, m) {
            "moving"_a, "g"_a)
       .def("jacobians", &mms::Dynamics::jacobians, "method"_a, "s"_a, "h"_a, "Q_cmd"_a, "B"_a,
            "damping"_a, "moving"_a, "g"_a)
+      .def("advance", &mms::Dynamics::advance, "method"_a, "s"_a, "h"_a, "steps"_a, "Q_cmd"_a,
+           "damping"_a, "moving"_a, "g"_a, "lanes"_a)
       .def("jacobians_many", &mms::Dynamics::jacobians_many, "method"_a, "s"_a, "h"_a,
            "Q_cmd"_a, "B"_a, "damping"_a, "moving"_a, "g"_a)
       .def("time_forward_dynamics", &mms::Dynamics::time_forward_dynamics, "q"_a, "u"_a, "Q"_a,
