@@ -229,12 +229,11 @@ class Template:
 
     def lane(self, scene: Scene, fast: dict) -> Simulation:
         """The lane's `Simulation`: the template's records copied, the lane's μ written into its
-        model record, then `reset` (state, efforts, clock, energy reference of its own)."""
+        model record and a compiled core of its own (`Dynamics.for_lane`), then `reset` (state,
+        efforts, clock, energy reference of its own)."""
         sim = self.plan.copy()
         sim.scene, sim.settings, sim.model = scene, scene.integrator, scene.robot
-        sim.dynamics.model = scene.robot
-        if scene.robot is not self.scene.robot:
-            sim.dynamics.model_record.mu[:] = scene.robot.mass_per_length
+        sim.dynamics.for_lane(scene.robot)
         sim.reset()
         return sim
 

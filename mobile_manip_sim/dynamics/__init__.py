@@ -38,13 +38,31 @@ class Dynamics:
         self.model = model
         self.gravity = float(gravity)
         self.model_record = make_model(model, tip_mass, wheel_inertia)   # the numba kernels'
-        self.core = compiled_dynamics(model, tip_mass, wheel_inertia)
+        self.tip_mass, self.wheel_inertia = float(tip_mass), bool(wheel_inertia)
+        self._core = None
         n, nu = model.n_links, model.n_u
         self.ws = make_workspace(n)
         self._zeros = np.zeros(nu)
         self._cholesky = np.zeros((nu, nu))
         self._all = np.arange(nu)
         self._moving = np.ones(nu)
+
+    @property
+    def core(self):
+        """This robot's compiled dynamics (`mobile_manip_sim.core`), built on first use: it holds
+        the workspaces of its evaluations, so each simulation (each batch lane) has its own."""
+        if self._core is None:
+            self._core = compiled_dynamics(self.model, self.tip_mass, self.wheel_inertia)
+        return self._core
+
+    def for_lane(self, robot: RobotModel) -> None:
+        """Make a copy of a template's dynamics a batch lane's own: the lane's robot (the same
+        but for the masses per length, written into the numba record) and a compiled core of its
+        own, built when first used."""
+        if robot is not self.model:
+            self.model_record.mu[:] = robot.mass_per_length
+        self.model = robot
+        self._core = None
 
     def inverse_dynamics(self, q, u, ud, gravity: float | None = None) -> np.ndarray:
         """Q = M(q) u̇ + h(q, u): the recursive Gibbs–Appell pass (docs/model.md ∂S/∂u̇_k = Q_k)."""
