@@ -121,6 +121,20 @@ def test_on_a_terminal_the_line_follows_work_inside_one_long_call(terminal):
     assert "\r\x1b[K" in terminal.text()   # rewritten in place
 
 
+def test_a_status_line_and_a_phase_talk_at_once(terminal):
+    """Written in the constructor, before the ticker's first look (1 s): a phase is "(0 s)"
+    only then; counted work starts at 0 %, never at 100 %."""
+    phase = Progress("sweep", None, "starting a LocalCluster of 2 workers",
+                     stream=terminal.stream)
+    work = Progress("work", 10, "s", stream=terminal.stream)
+    terminal.drain()
+    text = terminal.text()
+    phase.close()
+    work.close()
+    assert "sweep: starting a LocalCluster of 2 workers (0 s)" in text, text
+    assert "work: 0 of 10 s (0 %), 0 s/s, ? to go" in text, text
+
+
 def test_whole_lines_go_anywhere_when_asked_after_a_silence(monkeypatch):
     """The warm-up's form: a line after TICK s of silence, to a log as well as to a terminal."""
     monkeypatch.setattr(progress_module, "TICK", 0.2)
@@ -192,6 +206,23 @@ def test_replay_resimulate_shows_its_progress_and_stops_on_sigint(terminal, tmp_
                       r"\S+ bag s per wall s, .+ to go", "the re-simulation's status line", process)
     status, text = after_one_sigint(process, terminal)
     assert status == 130 and "Traceback" not in text, text   # stopped at once, no traceback
+
+
+def test_sweep_talks_in_every_phase_and_counts_from_what_is_done(terminal, tmp_path):
+    spec = tmp_path / "spec.yaml"
+    spec.write_text("duration: 0.2\ngrid:\n  initial.velocity[2]: [0.0, 0.1, 0.2, 0.3]\n")
+    process = started(terminal, executable("sweep"), str(spec), "--out", str(tmp_path / "out"),
+                      "--workers", "1")
+    for pattern in (rf"sweep: expanding the spec and reading {tmp_path}/out \(\d+ s\)",
+                    r"sweep: starting a LocalCluster of 1 worker \(\d+ s\)",
+                    r"sweep: the workers get ready \(loading or compiling the kernels\) \(",
+                    r"sweep: 0 of 4 runs \(0 %\), 0 runs/s, \? to go"):
+        terminal.wait_for(pattern, f"the line {pattern!r}", process)
+    process.communicate(timeout=SAFETY)
+    assert process.returncode == 0, terminal.text()
+    text = terminal.text()
+    assert text.index("sweep: 0 of 4 runs") < text.index("sweep: 4 of 4 runs (100 %)"), text
+    assert "Traceback" not in text, text
 
 
 def test_bench_talks_on_a_terminal_and_stops_on_sigint(terminal, tmp_path):
