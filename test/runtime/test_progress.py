@@ -190,18 +190,25 @@ def test_a_finished_simulate_ends_its_status_line_at_100_percent(terminal, tmp_p
     assert stdout.decode().startswith("simulated 0.5 s")   # stdout holds the summary alone
 
 
-def test_replay_resimulate_shows_its_progress_and_stops_on_sigint(terminal, tmp_path):
-    """A bag whose re-run is slow (its method rewritten to radau at rtol 1e-14)."""
+def slow_bag(tmp_path: Path, sample_rate: str) -> Path:
+    """A 5 s bag sampled at `sample_rate` Hz whose re-run is slow (its method rewritten to radau
+    at rtol 1e-14)."""
     recorded, slow = tmp_path / "bag", tmp_path / "slow"
     result = subprocess.run([executable("simulate"), "--method", "dop853", "--duration", "5",
-                             "--sample-rate", "100", "--out", str(tmp_path / "run.csv"),
+                             "--sample-rate", sample_rate, "--out", str(tmp_path / "run.csv"),
                              "--record", str(recorded)], capture_output=True, timeout=SAFETY)
     assert result.returncode == 0, result.stderr
     from mobile_manip_sim.recording.bag_reader import open_bag
     metadata = dict(open_bag(recorded).metadata()["mobile_manip_sim"])
     metadata.update(integrator_method="radau", rtol="1e-14", atol="1e-20")
     rewrite_bag(recorded, slow, metadata={"mobile_manip_sim": metadata})
-    process = started(terminal, executable("replay"), str(slow), "--resimulate")
+    return slow
+
+
+def test_replay_resimulate_shows_its_progress_and_stops_on_sigint(terminal, tmp_path):
+    """A bag whose re-run is slow (its method rewritten to radau at rtol 1e-14)."""
+    process = started(terminal, executable("replay"), str(slow_bag(tmp_path, "100")),
+                      "--resimulate")
     terminal.wait_for(r"replay --resimulate: \S+ of 5(\.0+)? s of the bag \(\d+ %\), "
                       r"\S+ bag s per wall s, .+ to go", "the re-simulation's status line", process)
     status, text = after_one_sigint(process, terminal)
@@ -223,6 +230,21 @@ def test_sweep_talks_in_every_phase_and_counts_from_what_is_done(terminal, tmp_p
     text = terminal.text()
     assert text.index("sweep: 0 of 4 runs") < text.index("sweep: 4 of 4 runs (100 %)"), text
     assert "Traceback" not in text, text
+
+
+def test_replay_resimulate_counts_what_is_simulated_not_what_is_read(terminal, tmp_path):
+    """Two samples, t = 0 and t = 5 s, and a slow method: while the one long segment is
+    computed the line says 0 %, never 100 % (it said so from the first second)."""
+    process = started(terminal, executable("replay"), str(slow_bag(tmp_path, "0.2")),
+                      "--resimulate")
+    # the line when made, then two of the ticker's (one a second) while the segment computes
+    wait_for(lambda: terminal.text().count("replay --resimulate: ") >= 3 or process.poll(),
+             "three status lines", SAFETY)
+    text = terminal.text()
+    status, _ = after_one_sigint(process, terminal)
+    assert status == 130, text
+    assert "replay --resimulate: 0 of 5 s of the bag (0 %)" in text, text
+    assert "100 %" not in text, text
 
 
 def test_bench_talks_on_a_terminal_and_stops_on_sigint(terminal, tmp_path):
