@@ -14,6 +14,8 @@ from typing import Callable
 from ..runtime.timeline import format_ns
 from .throttle import Throttle
 
+SAY_EVERY = 5.0   # s of wall time between two lines saying what the start waits for
+
 
 class Lockstep:
     """``commands`` is the node's `CommandIntake`; ``listening()`` says whether a state topic
@@ -24,10 +26,29 @@ class Lockstep:
         self.commands, self.listening = commands, listening
         self.timeout = timeout
         self._throttle, self._clock = throttle, clock
+        self._said: float | None = None   # when the waiting start last said what it waits for
 
     def ready(self) -> bool:
         """The start condition: someone listens, someone commands."""
         return self.listening() and any(self.commands.commanded())
+
+    def waiting(self, say: Callable[[str], None]) -> None:
+        """Called while the start waits: every SAY_EVERY s, one line naming what is missing
+        (a controller that publishes on a topic the node does not take heard nothing)."""
+        now = self._clock()
+        if self._said is None:
+            self._said = now
+        if now - self._said < SAY_EVERY:
+            return
+        self._said = now
+        missing = []
+        if not self.listening():
+            missing.append("a subscriber of its states")
+        if not any(self.commands.commanded()):
+            missing.append(f"a publisher on {' or '.join(self.commands.topic_names())} (none "
+                           f"has one)")
+        if missing:
+            say(f"synchronous: the first state waits for {' and '.join(missing)}")
 
     def publishing(self, now_ns: int) -> None:
         """Just before a state goes out: commands sent before it are not replies to it."""

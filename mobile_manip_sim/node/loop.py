@@ -142,6 +142,7 @@ class SteppingLoop:
         if self.lockstep is not None:
             with self.cv:   # graph changes do not notify: poll, woken early by stop()
                 while self.state is not State.STOPPING and not self.lockstep.ready():
+                    self.lockstep.waiting(self._report)
                     self.cv.wait(PEER_POLL)
         with self.cv:
             if self.state is State.STOPPING:
