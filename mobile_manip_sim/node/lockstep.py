@@ -11,7 +11,7 @@ from __future__ import annotations
 import time
 from typing import Callable
 
-from ..runtime.timeline import format_ns
+from ..runtime.timeline import NS, format_ns
 from .throttle import Throttle
 
 SAY_EVERY = 5.0   # s of wall time between two lines saying what the start waits for
@@ -85,6 +85,7 @@ class ClockFollower:
     It stands in for a `runtime.pacing.Pacer` (the same methods; real_time_factor is moot)."""
 
     POLL = 0.5   # s: the longest wait between looks at the clock (a notification ends it early)
+    JUMP = 3600.0   # s: a /clock that leaps further ahead at once is followed, and said
 
     def __init__(self, real_time_factor: float, period: float,
                  clock: Callable[[], float] = time.monotonic):
@@ -92,12 +93,27 @@ class ClockFollower:
         self.heard_ns: int | None = None
         self.anchor = self.window = (clock(), 0)
         self.notify: Callable[[], None] = lambda: None
+        self.warn: Callable[[tuple, str], object] = lambda key, text: None   # throttled
 
     paced = True
     follows = True   # the loop's ~/step waits for the clock too
 
+    def heard_message(self, sec: int, nanosec: int) -> None:
+        """A /clock message's time: one whose nanosec is not below 10⁹ is no time (refused,
+        said); else `heard`."""
+        if not 0 <= nanosec < NS:
+            self.warn(("clock", "nanosec"), f"/clock: nanosec {nanosec} is not in [0, 1e9): "
+                                            f"not a time, ignored")
+            return
+        self.heard(sec * NS + nanosec)
+
     def heard(self, clock_ns: int) -> None:
-        """A /clock message: the latest time heard (a clock that jumps back is followed)."""
+        """The latest time heard (a clock that jumps back is followed); a leap ahead by more
+        than JUMP s is followed too, and said."""
+        if self.heard_ns is not None and clock_ns - self.heard_ns > self.JUMP * NS:
+            self.warn(("clock", "jump"), f"/clock leapt {(clock_ns - self.heard_ns) / NS:g} s "
+                                         f"ahead, from t = {format_ns(self.heard_ns)} s to "
+                                         f"{format_ns(clock_ns)} s: following it")
         self.heard_ns = clock_ns
         self.notify()
 

@@ -113,10 +113,13 @@ class SimulatorNode(Node):
             alive=lambda: rclpy.ok(context=self.context), progress=self._progress,
             replace=self._replace_engine, report=log.warning)
         self._generation = 0   # engines replaced by the watchdog so far (`_owned`)
+        self._clock_subscription = None
         if not p.publish_clock:
-            pacer.notify = self.loop.notify
-            self.create_subscription(Clock, CLOCK_TOPIC, self._on_clock, state_qos(),
-                                     callback_group=MutuallyExclusiveCallbackGroup())
+            pacer.notify, pacer.warn = self.loop.notify, throttle.warn
+            self._clock_subscription = self.create_subscription(
+                Clock, CLOCK_TOPIC, self._on_clock, state_qos(),
+                callback_group=MutuallyExclusiveCallbackGroup())
+        self._warn = throttle.warn
         self.create_service(Trigger, "~/reset", self._on_reset)
         self.create_service(SetBool, "~/pause", self._on_pause)
         # ~/step waits for its state: in a group of its own, ~/pause and ~/reset answer meanwhile
@@ -203,7 +206,7 @@ class SimulatorNode(Node):
         return response
 
     def _on_clock(self, message) -> None:
-        self.loop.pacer.heard(message.clock.sec * 1_000_000_000 + message.clock.nanosec)
+        self.loop.pacer.heard_message(message.clock.sec, message.clock.nanosec)
 
     def _on_step(self, request, response):
         response.success, response.message = self.loop.step(STEP_TIMEOUT)
@@ -306,6 +309,11 @@ class SimulatorNode(Node):
 
     def _every_second(self) -> None:
         self.loop.watch()
+        clocks = self._clock_subscription and self._clock_subscription.get_publisher_count()
+        if clocks and clocks > 1:   # two time lines interleaved: followed to and fro
+            self._warn(("clock", "publishers"), f"{clocks} nodes publish {CLOCK_TOPIC}: this "
+                       f"node follows whichever it heard last (publish_clock false); give "
+                       f"/clock one publisher")
         name, namespace = self.get_name(), self.get_namespace()
         count = self.get_node_names_and_namespaces().count((name, namespace))
         if count > 1 and not self._namesakes:
