@@ -23,8 +23,11 @@ class ArmDriver:
     """``mode`` a controlled row of `scene.arm_controller.MODES`; ``names`` the arm's joints
     (node order)."""
 
-    def __init__(self, node, mode: str, names, warn, info):
+    def __init__(self, node, mode: str, names, warn, info, source: str | None = None):
+        """``source``: the topic that carries the arrays when it is not the mode's own
+        (ros2_control's joint commands), for the refusals' lines."""
         self.mode, self.names, self._warn = mode, list(names), warn
+        self.source = source or (relative(MODES[mode].topic) if MODES[mode].array else None)
         self.trajectories = None
         if not MODES[mode].array:
             from .trajectory_action import TrajectoryInterface
@@ -49,8 +52,8 @@ class ArmDriver:
             try:   # the intake checked length and finiteness; the engine the limits
                 apply_arm_command(sim, self.mode, values)
             except UserError as error:
-                topic = relative(MODES[self.mode].topic)
-                self._warn(("arm", "refused"), f"{topic}: {error}; keeping the last set-point")
+                self._warn(("arm", "refused"), f"{self.source}: {error}; keeping the last "
+                                               f"set-point")
                 return None
             return arm_command_message(self.mode, values, self.names, start_ns)
         if self.trajectories is None:

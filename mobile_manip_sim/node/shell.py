@@ -99,7 +99,9 @@ class SimulatorNode(Node):
                                       joint_commands=self._joint_commands())
         # An arm controller's commands (arm.py); None in effort mode.
         self.arm = ArmDriver(self, self.arm_controller.mode, self.joint_names[ARM_U],
-                             throttle.warn, log.warning) if self.arm_controller.active else None
+                             throttle.warn, log.warning,
+                             source=self.commands.joints.name if self.commands.joints else None
+                             ) if self.arm_controller.active else None
         lockstep = None
         if p.synchronous:
             lockstep = Lockstep(self.commands, self._listening, p.sync_timeout, throttle)

@@ -164,6 +164,22 @@ def test_efforts_by_joint_name_are_applied_and_reported_as_efforts(hardware_of):
     assert all(hw.latest()[name][2] == 0.5 * value for name, value in efforts.items())
 
 
+def test_an_arm_position_the_engine_refuses_is_said_under_the_joint_command_topic(hardware_of):
+    """A prismatic set-point far beyond its stroke, sent as a joint command: refused with the
+    topic that carried it (it was said under arm_position_controller/commands, which nobody
+    published on), the last set-point kept."""
+    joints = block("velocity", "position")
+    simulator, hw = hardware_of(joints, "-p", "base_command:=velocity",
+                                "-p", "arm_controller:=position")
+    names = [name for name, _ in joints]
+    start = dict(zip(names, [0.0, 0.0, *SCENE.initial_q[ARM_Q]], strict=True))
+    hw.write({**start, "arm_prismatic_1": 100.0})
+    wait_for(lambda: "keeping the last set-point" in simulator.output(), "the refusal", TIMEOUT)
+    line = next(line for line in simulator.output().splitlines()
+                if "keeping the last set-point" in line)
+    assert f"{JOINT_COMMANDS_TOPIC}: " in line and "arm_position_controller" not in line, line
+
+
 def test_a_partial_command_keeps_the_other_joints_commands(hardware_of):
     joints = block("effort", "effort")
     simulator, hw = hardware_of(joints, "-p", "base_command:=effort",
