@@ -173,6 +173,7 @@ def killed_worker_table(long_spec, tmp_path_factory):
             finally:
                 stop(driver)
         assert driver.returncode == 0, stderr
+        assert "Traceback" not in stderr, stderr   # the lost worker is no news
         return table(out), len(rows), victim_address
 
 
@@ -227,6 +228,7 @@ def test_failed_runs_are_recorded_with_the_key_and_the_others_are_ok(small):
             assert row["status"] == "ok" and row["error"] is None
             assert row["t"] == 0.5 and row["steps"] > 0 and abs(row["energy_error"]) < 1e-6
     assert "24 runs, 16 ok, 8 failed" in result.stdout
+    assert "Traceback" not in result.stderr and "Error" not in result.stderr, result.stderr
     report = (out / "REPORT.md").read_text()
     for picture in ("atlas.png", "work_precision.png", "final_state.png"):
         assert f"]({picture})" in report and (out / picture).stat().st_size > 1000
