@@ -43,8 +43,9 @@ class ArmDriver:
 
     def segment_start(self, sim, start_ns: int, values, received: int):
         """Apply what is new at the segment start ``start_ns``: the intake's array ``values``
-        (``received`` counts them), or the trajectory goals' step. Returns the message to record
-        (as applied), or None."""
+        (``received`` counts them), or the trajectory goals' step. Returns what makes the
+        message to record (as applied) when called — built only for a bag: a 100,000-point
+        trajectory's message took the stepping thread a second — or None."""
         if MODES[self.mode].array:
             if received == self._taken:
                 return None
@@ -55,11 +56,11 @@ class ArmDriver:
                 self._warn(("arm", "refused"), f"{self.source}: {error}; keeping the last "
                                                f"set-point")
                 return None
-            return arm_command_message(self.mode, values, self.names, start_ns)
+            return lambda: arm_command_message(self.mode, values, self.names, start_ns)
         if self.trajectories is None:
             return None
         step = self.trajectories.segment_start(
             sim, start_ns, lambda trajectory: apply_arm_command(sim, self.mode, trajectory))
         if step.command is None:
             return None
-        return arm_command_message(self.mode, step.command, self.names, start_ns)
+        return lambda: arm_command_message(self.mode, step.command, self.names, start_ns)

@@ -248,7 +248,7 @@ class SimulatorNode(Node):
         if self._recording is not None:
             self._recording.commands(start_ns, applied[0], None if efforts is None else applied[1])
             if arm is not None:
-                self._recording.arm_command(start_ns, arm)
+                self._recording.arm_command(start_ns, arm())
         sim.advance_to(self.grid.time(k + 1))
         self._owned(generation)
         self._compiler_pages.release_if_used()
