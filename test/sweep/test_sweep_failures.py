@@ -21,6 +21,7 @@ from waiting import wait_for
 
 # 400 runs of about 40 ms, one per task: a sweep that is still running when the test acts.
 MANY = LONG.replace("count: 20", "count: 200")
+STOP_BOUND = 4.0   # s from the signal to the sweep's exit
 NOISE = ("Traceback", "leaked semaphore", "CommClosedError", "Exception", "Task was destroyed")
 
 
@@ -138,8 +139,8 @@ def test_an_output_directory_that_fails_mid_sweep_is_one_line_and_keeps_the_rows
 def test_a_stop_ends_a_dask_sweep_at_once_in_one_line_keeping_its_rows(many_spec, tmp_path,
                                                                         signum, status, word):
     """Ctrl-C (to the process group, as a terminal sends it) or SIGTERM (to the sweep, as
-    `kill` sends it) while the LocalCluster's worker runs: the sweep ends within 2 s with its
-    one line, runs.parquet holds the rows it says, and no worker is left."""
+    `kill` sends it) while the LocalCluster's worker runs: the sweep ends at once (STOP_BOUND)
+    with its one line, runs.parquet holds the rows it says, and no worker is left."""
     out = tmp_path / "out"
     driver = start([executable("sweep"), str(many_spec), "--out", str(out), "--workers", "1"])
     try:
@@ -157,7 +158,9 @@ def test_a_stop_ends_a_dask_sweep_at_once_in_one_line_keeping_its_rows(many_spec
         stop(driver)
     assert driver.returncode == status, stderr
     line = assert_one_line(stderr, f"sweep: {word}; ")
-    assert took < 2.0, f"the sweep took {took:.1f} s to end"
+    # about 1 s on an idle machine, the interpreter's exit included; the bound leaves a loaded
+    # one room (before, the close waited 13 s for the worker, and Ctrl-C did not end it at all)
+    assert took < STOP_BOUND, f"the sweep took {took:.1f} s to end"
     assert not left, f"processes left in the sweep's session: {left}"
     assert line.endswith(f"of 400 runs are in {out}/runs.parquet (run the same command to finish)")
     assert len(table(out)) == rows_said(line) > 0
