@@ -132,6 +132,16 @@ class ArmCommands:
         return array
 
     def _arm_rows(self, values, m, key, bound=None) -> np.ndarray:
+        n_arm = arm_width(self.nu)
+        if isinstance(values, np.ndarray) and values.shape == (m, n_arm):
+            # checked at once (a 100,000-point trajectory's arrays); a bad row is then checked
+            # alone, for its message
+            rows = values.astype(float)
+            bad = ~np.isfinite(rows) if bound is None else ~(np.abs(rows) <= bound)
+            if bad.any():
+                i = int(np.flatnonzero(bad.any(axis=1))[0])
+                self._arm_vector(rows[i], f"{key}[{i}]", bound)
+            return rows
         try:
             rows = list(values)
         except TypeError:
@@ -139,7 +149,7 @@ class ArmCommands:
         if len(rows) != m:
             raise UserError(key, f"expected {m} rows (one per point), got {len(rows)}")
         return np.array([self._arm_vector(row, f"{key}[{i}]", bound)
-                         for i, row in enumerate(rows)]).reshape(m, arm_width(self.nu))
+                         for i, row in enumerate(rows)]).reshape(m, n_arm)
 
     def _trajectory_times(self, times) -> np.ndarray:
         key = "arm.trajectory.times"
@@ -170,13 +180,18 @@ class ArmCommands:
                                           f"±{REVOLUTE_TARGET:g} rad")
         stroke = np.asarray(self.model.stroke).reshape(-1, 2)
         limits = self.effects.effort_limits
+        if self.stop_law is not None and stroke.size:   # every point at once, then the first out
+            lengths = points[:, 1::2]
+            out = ~((stroke[:, 0] <= lengths) & (lengths <= stroke[:, 1]))
+            if out.any():
+                i = int(np.flatnonzero(out.any(axis=1))[0])
+                where = f"{key}[{i}]" if points.shape[0] > 1 else key
+                found = outside_stroke(points[i], stroke)
+                raise UserError(names[found[0]], f"{found[1]} ({where})")
+        if limits is None or self.dynamics.gravity == 0.0:
+            return
         for i, point in enumerate(points):
             where = f"{key}[{i}]" if points.shape[0] > 1 else key
-            found = None if self.stop_law is None else outside_stroke(point, stroke)
-            if found is not None:
-                raise UserError(names[found[0]], f"{found[1]} ({where})")
-            if limits is None or self.dynamics.gravity == 0.0:
-                continue
             q = np.concatenate([self.q[:5], point])
             gravity = self.dynamics.inverse_dynamics(q, np.zeros(self.nu), np.zeros(self.nu))[ARM_U]
             over = np.flatnonzero(np.abs(gravity) > limits[ARM_U])

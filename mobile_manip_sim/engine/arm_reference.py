@@ -141,30 +141,31 @@ def ramp(q0, qd) -> tuple[np.ndarray, np.ndarray]:
 
 
 def linear(p0, p1, h) -> np.ndarray:
-    """Coefficients (n_arm, 6) from p0 to p1 in h seconds at constant velocity."""
-    c = np.zeros((p0.size, WIDTH))
-    c[:, 0], c[:, 1] = p0, (p1 - p0) / h
+    """Coefficients (…, n_arm, 6) from p0 to p1 in h seconds at constant velocity (p0, p1:
+    (…, n_arm); h: (…, 1): any number of segments at once)."""
+    c = np.zeros(p0.shape + (WIDTH,))
+    c[..., 0], c[..., 1] = p0, (p1 - p0) / h
     return c
 
 
 def cubic(p0, v0, p1, v1, h) -> np.ndarray:
     """Cubic Hermite: positions and velocities at both ends."""
-    c = np.zeros((p0.size, WIDTH))
-    c[:, 0], c[:, 1] = p0, v0
-    c[:, 2] = (3.0 * (p1 - p0) - (2.0 * v0 + v1) * h) / h ** 2
-    c[:, 3] = (2.0 * (p0 - p1) + (v0 + v1) * h) / h ** 3
+    c = np.zeros(p0.shape + (WIDTH,))
+    c[..., 0], c[..., 1] = p0, v0
+    c[..., 2] = (3.0 * (p1 - p0) - (2.0 * v0 + v1) * h) / h ** 2
+    c[..., 3] = (2.0 * (p0 - p1) + (v0 + v1) * h) / h ** 3
     return c
 
 
 def quintic(p0, v0, a0, p1, v1, a1, h) -> np.ndarray:
     """Quintic: positions, velocities and accelerations at both ends."""
-    c = np.zeros((p0.size, WIDTH))
-    c[:, 0], c[:, 1], c[:, 2] = p0, v0, 0.5 * a0
-    c[:, 3] = (20.0 * (p1 - p0) - (8.0 * v1 + 12.0 * v0) * h
-               - (3.0 * a0 - a1) * h * h) / (2.0 * h ** 3)
-    c[:, 4] = (30.0 * (p0 - p1) + (14.0 * v1 + 16.0 * v0) * h
-               + (3.0 * a0 - 2.0 * a1) * h * h) / (2.0 * h ** 4)
-    c[:, 5] = (12.0 * (p1 - p0) - 6.0 * (v1 + v0) * h - (a0 - a1) * h * h) / (2.0 * h ** 5)
+    c = np.zeros(p0.shape + (WIDTH,))
+    c[..., 0], c[..., 1], c[..., 2] = p0, v0, 0.5 * a0
+    c[..., 3] = (20.0 * (p1 - p0) - (8.0 * v1 + 12.0 * v0) * h
+                 - (3.0 * a0 - a1) * h * h) / (2.0 * h ** 3)
+    c[..., 4] = (30.0 * (p0 - p1) + (14.0 * v1 + 16.0 * v0) * h
+                 + (3.0 * a0 - 2.0 * a1) * h * h) / (2.0 * h ** 4)
+    c[..., 5] = (12.0 * (p1 - p0) - 6.0 * (v1 + v0) * h - (a0 - a1) * h * h) / (2.0 * h ** 5)
     return c
 
 
@@ -177,31 +178,27 @@ def trajectory(q0, qd0, times, positions, velocities=None, accelerations=None):
     P = np.asarray(positions, dtype=float)
     V = None if velocities is None else np.asarray(velocities, dtype=float)
     A = None if accelerations is None else np.asarray(accelerations, dtype=float)
-    knots_t, knots_p = [0.0], [wrapped_start(q0, P[0])]
-    knots_v = [np.asarray(qd0, dtype=float)]
-    knots_a = [np.zeros_like(knots_p[0])]
-    first = 1 if times[0] == 0.0 else 0
-    if first:   # the trajectory starts at its first point
-        knots_p[0] = P[0]
-        knots_v[0] = V[0] if V is not None else knots_v[0]
-        knots_a[0] = A[0] if A is not None else knots_a[0]
-    for i in range(first, times.size):
-        knots_t.append(times[i])
-        knots_p.append(P[i])
-        knots_v.append(V[i] if V is not None else None)
-        knots_a.append(A[i] if A is not None else None)
-    segments = []
-    for i in range(len(knots_t) - 1):
-        h = knots_t[i + 1] - knots_t[i]
-        if V is None:
-            segments.append(linear(knots_p[i], knots_p[i + 1], h))
-        elif A is None:
-            segments.append(cubic(knots_p[i], knots_v[i], knots_p[i + 1], knots_v[i + 1], h))
-        else:
-            segments.append(quintic(knots_p[i], knots_v[i], knots_a[i], knots_p[i + 1],
-                                    knots_v[i + 1], knots_a[i + 1], h))
-    held = hold(knots_p[-1])[1][0]   # the last point as jtc samples it after its time
+    first = 1 if times[0] == 0.0 else 0   # 1: the trajectory starts at its first point
+    knots_t = np.concatenate(([0.0], times[first:]))
+    start = P[0] if first else wrapped_start(q0, P[0])
+    KP = np.concatenate((start[None, :], P[first:]))
+    if V is not None:
+        v0 = V[0] if first else np.asarray(qd0, dtype=float)
+        KV = np.concatenate((v0[None, :], V[first:]))
+    if A is not None:
+        a0 = A[0] if first else np.zeros_like(start)
+        KA = np.concatenate((a0[None, :], A[first:]))
+    # every segment at once (a 100,000-point trajectory took a second segment by segment)
+    h = np.diff(knots_t)[:, None]
+    if V is None:
+        pieces = linear(KP[:-1], KP[1:], h)
+    elif A is None:
+        pieces = cubic(KP[:-1], KV[:-1], KP[1:], KV[1:], h)
+    else:
+        pieces = quintic(KP[:-1], KV[:-1], KA[:-1], KP[1:], KV[1:], KA[1:], h)
+    segments = np.concatenate((pieces, np.zeros((1,) + pieces.shape[1:])))
+    held = segments[-1]   # the last point as jtc samples it after its time
+    held[:, 0] = KP[-1]
     held[:, HELD_QD] = 0.0 if V is None else V[-1]
     held[:, HELD_QDD] = 0.0 if A is None else A[-1]
-    segments.append(held)
-    return np.array(knots_t, dtype=float), np.array(segments)
+    return knots_t, segments

@@ -23,8 +23,11 @@ class ArmDriver:
     """``mode`` a controlled row of `scene.arm_controller.MODES`; ``names`` the arm's joints
     (node order)."""
 
-    def __init__(self, node, mode: str, names, warn, info):
+    def __init__(self, node, mode: str, names, warn, info, source: str | None = None):
+        """``source``: the topic that carries the arrays when it is not the mode's own
+        (ros2_control's joint commands), for the refusals' lines."""
         self.mode, self.names, self._warn = mode, list(names), warn
+        self.source = source or (relative(MODES[mode].topic) if MODES[mode].array else None)
         self.trajectories = None
         if not MODES[mode].array:
             from .trajectory_action import TrajectoryInterface
@@ -40,8 +43,9 @@ class ArmDriver:
 
     def segment_start(self, sim, start_ns: int, values, received: int):
         """Apply what is new at the segment start ``start_ns``: the intake's array ``values``
-        (``received`` counts them), or the trajectory goals' step. Returns the message to record
-        (as applied), or None."""
+        (``received`` counts them), or the trajectory goals' step. Returns what makes the
+        message to record (as applied) when called — built only for a bag: a 100,000-point
+        trajectory's message took the stepping thread a second — or None."""
         if MODES[self.mode].array:
             if received == self._taken:
                 return None
@@ -49,14 +53,14 @@ class ArmDriver:
             try:   # the intake checked length and finiteness; the engine the limits
                 apply_arm_command(sim, self.mode, values)
             except UserError as error:
-                topic = relative(MODES[self.mode].topic)
-                self._warn(("arm", "refused"), f"{topic}: {error}; keeping the last set-point")
+                self._warn(("arm", "refused"), f"{self.source}: {error}; keeping the last "
+                                               f"set-point")
                 return None
-            return arm_command_message(self.mode, values, self.names, start_ns)
+            return lambda: arm_command_message(self.mode, values, self.names, start_ns)
         if self.trajectories is None:
             return None
         step = self.trajectories.segment_start(
             sim, start_ns, lambda trajectory: apply_arm_command(sim, self.mode, trajectory))
         if step.command is None:
             return None
-        return arm_command_message(self.mode, step.command, self.names, start_ns)
+        return lambda: arm_command_message(self.mode, step.command, self.names, start_ns)

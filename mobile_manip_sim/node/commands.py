@@ -32,7 +32,9 @@ from ..ros.topics import (
     relative,
 )
 from ..runtime.timeline import NS, CommandSlot
+from ..scene import schema
 from ..scene.arm_controller import MODES
+from ..scene.limits import EFFORT, SPEED
 from .throttle import Throttle
 
 MAX_TAKEN = 4 * COMMAND_QOS_DEPTH   # messages one drain takes from a command topic, at most
@@ -115,6 +117,7 @@ class JointCommands:
     ω = r(ω_R − ω_L)/(2b)), the arm's the arm command: the same slots the array topics fill."""
 
     FIELDS = ("position", "velocity", "effort")
+    BOUNDS = {"velocity": SPEED, "effort": EFFORT}   # the scene's, as on the arm's commands
 
     def __init__(self, node, group, names, velocity_mode: bool, arm_interface: str,
                  wheel_radius: float, half_track: float, arm_initial):
@@ -147,8 +150,8 @@ class JointCommands:
         """(every joint's command after ``message``, None), or (None, why it is refused)."""
         names = list(message.name)
         unknown = [name for name in names if name not in self.interfaces]
-        if unknown:
-            return None, (f"unknown joint {unknown[0]!r} (the node's joints: "
+        if unknown:   # a peer's name, cut: a 10⁶-character one was echoed whole
+            return None, (f"unknown joint {schema.short(unknown[0])} (the node's joints: "
                           f"{', '.join(self.names)})")
         if len(set(names)) != len(names):
             return None, "a joint is named twice"
@@ -170,6 +173,9 @@ class JointCommands:
                     continue
                 if not math.isfinite(value):
                     return None, f"{field} of {name} is {value}"
+                bound = self.BOUNDS.get(field)
+                if bound is not None and abs(value) > bound:   # 1e308 rad/s would overflow v
+                    return None, f"{field} of {name} is {value:g}: must be within ±{bound:g}"
                 values[self.names.index(name)] = value
         return values, None
 
@@ -317,6 +323,11 @@ class CommandIntake:
         """Per input: a valid command came since the latest state went out."""
         with self._lock:
             return [command.slot.seq != command.slot.seq_published for command in self.inputs]
+
+    def topic_names(self) -> list[str]:
+        """The command topics, as remapped."""
+        return [command.name for command in self.inputs] + \
+            ([self.joints.name] if self.joints is not None else [])
 
     def commanded(self) -> list[bool]:
         """Per input: someone publishes on it (ros2_control's joint commands count for both)."""

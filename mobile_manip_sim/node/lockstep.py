@@ -11,8 +11,10 @@ from __future__ import annotations
 import time
 from typing import Callable
 
-from ..runtime.timeline import format_ns
+from ..runtime.timeline import NS, format_ns
 from .throttle import Throttle
+
+SAY_EVERY = 5.0   # s of wall time between two lines saying what the start waits for
 
 
 class Lockstep:
@@ -24,10 +26,29 @@ class Lockstep:
         self.commands, self.listening = commands, listening
         self.timeout = timeout
         self._throttle, self._clock = throttle, clock
+        self._said: float | None = None   # when the waiting start last said what it waits for
 
     def ready(self) -> bool:
         """The start condition: someone listens, someone commands."""
         return self.listening() and any(self.commands.commanded())
+
+    def waiting(self, say: Callable[[str], None]) -> None:
+        """Called while the start waits: every SAY_EVERY s, one line naming what is missing
+        (a controller that publishes on a topic the node does not take heard nothing)."""
+        now = self._clock()
+        if self._said is None:
+            self._said = now
+        if now - self._said < SAY_EVERY:
+            return
+        self._said = now
+        missing = []
+        if not self.listening():
+            missing.append("a subscriber of its states")
+        if not any(self.commands.commanded()):
+            missing.append(f"a publisher on {' or '.join(self.commands.topic_names())} (none "
+                           f"has one)")
+        if missing:
+            say(f"synchronous: the first state waits for {' and '.join(missing)}")
 
     def publishing(self, now_ns: int) -> None:
         """Just before a state goes out: commands sent before it are not replies to it."""
@@ -64,6 +85,7 @@ class ClockFollower:
     It stands in for a `runtime.pacing.Pacer` (the same methods; real_time_factor is moot)."""
 
     POLL = 0.5   # s: the longest wait between looks at the clock (a notification ends it early)
+    JUMP = 3600.0   # s: a /clock that leaps further ahead at once is followed, and said
 
     def __init__(self, real_time_factor: float, period: float,
                  clock: Callable[[], float] = time.monotonic):
@@ -71,12 +93,27 @@ class ClockFollower:
         self.heard_ns: int | None = None
         self.anchor = self.window = (clock(), 0)
         self.notify: Callable[[], None] = lambda: None
+        self.warn: Callable[[tuple, str], object] = lambda key, text: None   # throttled
 
     paced = True
     follows = True   # the loop's ~/step waits for the clock too
 
+    def heard_message(self, sec: int, nanosec: int) -> None:
+        """A /clock message's time: one whose nanosec is not below 10⁹ is no time (refused,
+        said); else `heard`."""
+        if not 0 <= nanosec < NS:
+            self.warn(("clock", "nanosec"), f"/clock: nanosec {nanosec} is not in [0, 1e9): "
+                                            f"not a time, ignored")
+            return
+        self.heard(sec * NS + nanosec)
+
     def heard(self, clock_ns: int) -> None:
-        """A /clock message: the latest time heard (a clock that jumps back is followed)."""
+        """The latest time heard (a clock that jumps back is followed); a leap ahead by more
+        than JUMP s is followed too, and said."""
+        if self.heard_ns is not None and clock_ns - self.heard_ns > self.JUMP * NS:
+            self.warn(("clock", "jump"), f"/clock leapt {(clock_ns - self.heard_ns) / NS:g} s "
+                                         f"ahead, from t = {format_ns(self.heard_ns)} s to "
+                                         f"{format_ns(clock_ns)} s: following it")
         self.heard_ns = clock_ns
         self.notify()
 

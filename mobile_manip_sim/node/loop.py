@@ -142,6 +142,7 @@ class SteppingLoop:
         if self.lockstep is not None:
             with self.cv:   # graph changes do not notify: poll, woken early by stop()
                 while self.state is not State.STOPPING and not self.lockstep.ready():
+                    self.lockstep.waiting(self._report)
                     self.cv.wait(PEER_POLL)
         with self.cv:
             if self.state is State.STOPPING:
@@ -283,8 +284,8 @@ class SteppingLoop:
     def _fail(self, start_ns: int, error: Exception) -> None:
         cause = describe(error)
         with self.cv:
-            if self.state in (State.RESETTING, State.STOPPING):
-                return   # the segment is dropped anyway
+            if self.state in (State.RESETTING, State.STOPPING) or not self._alive():
+                return   # the segment is dropped anyway; a context gone is the node stopping
             self.state = State.FAILED
             self.failure = f"t = {format_ns(start_ns)} s: {cause}"
             self.cv.notify_all()

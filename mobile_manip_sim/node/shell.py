@@ -99,7 +99,9 @@ class SimulatorNode(Node):
                                       joint_commands=self._joint_commands())
         # An arm controller's commands (arm.py); None in effort mode.
         self.arm = ArmDriver(self, self.arm_controller.mode, self.joint_names[ARM_U],
-                             throttle.warn, log.warning) if self.arm_controller.active else None
+                             throttle.warn, log.warning,
+                             source=self.commands.joints.name if self.commands.joints else None
+                             ) if self.arm_controller.active else None
         lockstep = None
         if p.synchronous:
             lockstep = Lockstep(self.commands, self._listening, p.sync_timeout, throttle)
@@ -113,10 +115,13 @@ class SimulatorNode(Node):
             alive=lambda: rclpy.ok(context=self.context), progress=self._progress,
             replace=self._replace_engine, report=log.warning)
         self._generation = 0   # engines replaced by the watchdog so far (`_owned`)
+        self._clock_subscription = None
         if not p.publish_clock:
-            pacer.notify = self.loop.notify
-            self.create_subscription(Clock, CLOCK_TOPIC, self._on_clock, state_qos(),
-                                     callback_group=MutuallyExclusiveCallbackGroup())
+            pacer.notify, pacer.warn = self.loop.notify, throttle.warn
+            self._clock_subscription = self.create_subscription(
+                Clock, CLOCK_TOPIC, self._on_clock, state_qos(),
+                callback_group=MutuallyExclusiveCallbackGroup())
+        self._warn = throttle.warn
         self.create_service(Trigger, "~/reset", self._on_reset)
         self.create_service(SetBool, "~/pause", self._on_pause)
         # ~/step waits for its state: in a group of its own, ~/pause and ~/reset answer meanwhile
@@ -203,7 +208,7 @@ class SimulatorNode(Node):
         return response
 
     def _on_clock(self, message) -> None:
-        self.loop.pacer.heard(message.clock.sec * 1_000_000_000 + message.clock.nanosec)
+        self.loop.pacer.heard_message(message.clock.sec, message.clock.nanosec)
 
     def _on_step(self, request, response):
         response.success, response.message = self.loop.step(STEP_TIMEOUT)
@@ -243,7 +248,7 @@ class SimulatorNode(Node):
         if self._recording is not None:
             self._recording.commands(start_ns, applied[0], None if efforts is None else applied[1])
             if arm is not None:
-                self._recording.arm_command(start_ns, arm)
+                self._recording.arm_command(start_ns, arm())
         sim.advance_to(self.grid.time(k + 1))
         self._owned(generation)
         self._compiler_pages.release_if_used()
@@ -306,6 +311,11 @@ class SimulatorNode(Node):
 
     def _every_second(self) -> None:
         self.loop.watch()
+        clocks = self._clock_subscription and self._clock_subscription.get_publisher_count()
+        if clocks and clocks > 1:   # two time lines interleaved: followed to and fro
+            self._warn(("clock", "publishers"), f"{clocks} nodes publish {CLOCK_TOPIC}: this "
+                       f"node follows whichever it heard last (publish_clock false); give "
+                       f"/clock one publisher")
         name, namespace = self.get_name(), self.get_namespace()
         count = self.get_node_names_and_namespaces().count((name, namespace))
         if count > 1 and not self._namesakes:

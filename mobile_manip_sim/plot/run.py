@@ -20,6 +20,7 @@ from ..ros.topics import JOINT_STATES_TOPIC as JOINT_STATES
 from ..ros.topics import ODOM_TOPIC as ODOM
 from ..ros.topics import WHEEL_TOPIC as WHEEL_COMMANDS
 from ..runtime.headless import csv_columns
+from ..scene import schema
 from ..scene.coordinates import ARM_U
 from ..scene.effects import settings as effect_settings
 from ..scene.errors import UserError
@@ -171,7 +172,7 @@ def load_bag(path, scene_path=None) -> Run:
     for topic in (JOINT_STATES, ODOM):
         if topic not in topics:
             raise UserError(str(path), f"no {topic} topic in the bag (has: "
-                                       f"{', '.join(sorted(topics)) or 'no topics'})")
+                                       f"{_names(sorted(topics)) or 'no topics'})")
     scene = load_scene(scene_path) if scene_path is not None else bag_format.read_scene(bag)
     if scene is None:
         raise UserError(str(path), "no scene.yaml attachment (not recorded by mobile_manip_sim?); "
@@ -218,6 +219,13 @@ def _sample_ns(stamps: np.ndarray, log_ns: np.ndarray) -> np.ndarray:
     if np.all(stamps == 0):
         return log_ns - log_ns[0]
     return stamps
+
+
+def _names(names: list[str], most: int = 10) -> str:
+    """A bag's topic names as they can stand in one line: each `schema.label`led (an escape
+    sequence or a newline in a name is shown, not sent to the terminal), at most `most`."""
+    shown = ", ".join(schema.label(name, 80) for name in names[:most])
+    return shown + (f" and {len(names) - most} more" if len(names) > most else "")
 
 
 def _bag_efforts(bag, joint_efforts, sample_ns, scene, topics):

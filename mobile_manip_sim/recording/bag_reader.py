@@ -191,13 +191,17 @@ def _mcap_files(path: Path) -> list[Path]:
         raise UserError(str(path), "not a rosbag2 MCAP bag (storage_identifier "
                                    f"{schema.short(info['storage_identifier'])} in metadata.yaml)")
     files = [path / PurePath(name).name for name in info["relative_file_paths"]]
+    seen = {}   # (device, inode) → name: a link to a listed file is that file again
     for i, file in enumerate(files):
-        if file in files[:i]:   # read twice, every message would be played twice
-            raise UserError(f"{metadata_path}: "
-                            f"rosbag2_bagfile_information.relative_file_paths[{i}]",
-                            f"{file.name} is listed twice")
         if not file.is_file():
             raise UserError(str(file), "listed in metadata.yaml but missing")
+        status = file.stat()
+        same = seen.setdefault((status.st_dev, status.st_ino), file.name)
+        if file in files[:i] or same != file.name:   # read twice, every message played twice
+            again = f"{file.name} is listed twice" if same == file.name else \
+                f"{file.name} is {same} again (a link to it)"
+            raise UserError(f"{metadata_path}: "
+                            f"rosbag2_bagfile_information.relative_file_paths[{i}]", again)
     return files
 
 

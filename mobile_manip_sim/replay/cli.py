@@ -21,6 +21,8 @@ from mobile_manip_sim.replay.resimulate import resimulate
 from mobile_manip_sim.runtime import cli
 from mobile_manip_sim.scene.errors import UserError
 
+RATES = (1e-6, 1e6)   # playback speed factors: a second of the bag in 11.6 days … 1 µs
+
 
 def main(argv=None) -> int:
     return cli.run(_main, argv)
@@ -29,7 +31,8 @@ def main(argv=None) -> int:
 def _main(argv) -> int:
     parser = cli.ArgumentParser(prog="replay", description=__doc__.split("\n\n")[0])
     parser.add_argument("bag", type=cli.path, help="bag directory (or its .mcap file)")
-    parser.add_argument("--rate", type=float, default=1.0, help="playback speed factor (> 0)")
+    parser.add_argument("--rate", type=float, default=1.0,
+                        help="playback speed factor (1e-6 to 1e6)")
     parser.add_argument("--loop", action="store_true", help="play again from the start, forever")
     parser.add_argument("--topics", nargs="+", metavar="T", help="play only these topics")
     parser.add_argument("--start-offset", type=float, default=0.0, metavar="S",
@@ -41,8 +44,8 @@ def _main(argv) -> int:
     parser.add_argument("--tolerance", type=float, default=0.0,
                         help="largest accepted difference with --resimulate (default 0)")
     args = parser.parse_args(argv)
-    if not (math.isfinite(args.rate) and args.rate > 0):
-        raise UserError("--rate", f"must be a positive number, got {args.rate}")
+    if not RATES[0] <= args.rate <= RATES[1]:   # 5e-324 would play for ever; NaN is refused
+        raise UserError("--rate", f"must be in [{RATES[0]:g}, {RATES[1]:g}], got {args.rate}")
     if not (math.isfinite(args.start_offset) and args.start_offset >= 0):
         raise UserError("--start-offset", f"must be a number ≥ 0, got {args.start_offset}")
     if not args.tolerance >= 0:   # inf is allowed: compare, report, never fail

@@ -5,11 +5,15 @@
     progress.update(done)            # from the work loop
     progress.close()
 
+    with Progress("sweep", None, "starting a LocalCluster of 2 workers"):   # a phase
+        ...
+
 Two forms:
 - a status line (the default), rewritten in place, on a terminal only — a pipe or a log gets
-  nothing. It is refreshed by `update` at most every REFRESH s, and by a ticker thread every
-  TICK s even while the work sits in one long compiled call (then `follow()` says how far it is):
-  never silent for longer than TICK.
+  nothing. It is written when the work starts, refreshed by `update` at most every REFRESH s,
+  and by a ticker thread every second even while the work sits in one long compiled call (then
+  `follow()` says how far it is). A phase (`total` None: work whose size is unknown, such as a
+  cluster starting) says what is under way and for how long.
 - whole lines (``lines=True``): a line whenever nothing was written for TICK s — on a terminal
   only, or with ``always=True`` anywhere (the warm-up, whose log is a bootstrap's). `note` writes
   the work's own lines through it, which also resets the silence.
@@ -41,7 +45,7 @@ def duration_text(seconds: float) -> str:
 
 
 class Progress:
-    def __init__(self, what: str, total: float, unit: str, *, done: float = 0.0,
+    def __init__(self, what: str, total: float | None, unit: str, *, done: float = 0.0,
                  rate_unit: str | None = None, per: float = 1.0, lines: bool = False,
                  always: bool = False, stream=None):
         self.what, self.total, self.unit = what, total, unit
@@ -57,6 +61,8 @@ class Progress:
         self._stop = threading.Event()
         self._ticker = None
         if self.active:
+            if not lines:   # at once: a phase that starts talks within its first second
+                self._write(self.status())
             self._ticker = threading.Thread(target=self._tick, name="progress", daemon=True)
             self._ticker.start()
 
@@ -82,6 +88,8 @@ class Progress:
         if self._follow is not None:
             done = max(done, self._follow())
         elapsed = time.monotonic() - self._start
+        if self.total is None:   # a phase
+            return f"{self.what}: {self.unit} ({duration_text(elapsed)}){self.extra}"
         rate = (done - self.first) / elapsed if elapsed > 0 else 0.0
         to_go = (self.total - done) / rate if rate > 0 else math.inf
         share = f" ({100 * done / self.total:.0f} %)" if self.total > 0 else ""

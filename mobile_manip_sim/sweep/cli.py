@@ -12,6 +12,7 @@ command again on DIR runs only what is missing; Ctrl-C keeps every finished run.
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
@@ -49,18 +50,21 @@ def _main(argv) -> int:
     if args.local and args.scheduler:
         raise UserError("--local", "runs without Dask: it takes no --scheduler")
     spec = load_spec(args.spec)
-    from . import results, runner  # after the spec is checked: bad input is answered at once
-    runs = spec.runs()
-    varied = {path: [run[path] for run in runs] for path in spec.varied}
-    columns = runner.state_columns(len(spec.document["robot"].get("arm", {}).get("links", [])))
-    store = results.Store(Path(args.out), results.schema(varied, columns), fingerprint(spec))
-    todo = [i for i in range(len(runs)) if i not in store.done]
+    with Progress("sweep", None, f"expanding the spec and reading {args.out}"):
+        from . import results, runner  # after the spec is checked: bad input is answered at once
+        runs = spec.runs()
+        varied = {path: [run[path] for run in runs] for path in spec.varied}
+        columns = runner.state_columns(len(spec.document["robot"].get("arm", {}).get("links",
+                                                                                     [])))
+        store = results.Store(Path(args.out), results.schema(varied, columns), fingerprint(spec))
+        todo = [i for i in range(len(runs)) if i not in store.done]
     if spec.duplicates():
         print(spec.duplicates(), flush=True)
     start = time.perf_counter()
     if todo:
-        if _sweep(args, spec, runs, todo, store) == 130:
-            return 130
+        status = _sweep(args, spec, runs, todo, store)
+        if status:
+            return status
     else:   # finished already: no cluster to start (a LocalCluster costs seconds to minutes)
         print(f"sweep: {len(runs)} runs, all already in {args.out}: nothing to run",
               flush=True)
@@ -68,7 +72,8 @@ def _main(argv) -> int:
     table = store.table()
     failed = table.column("status").to_pylist().count("failed")
     from . import report
-    report.write(Path(args.out), table, spec)
+    with results.writing(Path(args.out), name_file=True):
+        report.write(Path(args.out), table, spec)
     print(f"sweep: {table.num_rows} runs, {table.num_rows - failed} ok, {failed} failed, "
           f"{time.perf_counter() - start:.1f} s wall → {args.out}/runs.parquet, "
           f"{args.out}/REPORT.md")
@@ -76,12 +81,14 @@ def _main(argv) -> int:
 
 
 def _sweep(args, spec: Spec, runs: list, todo: list, store) -> int:
-    """Run ``todo`` on the cluster; 130 when interrupted (every finished run kept), else 0.
-    Ctrl-C is answered in every phase, the cluster's start and its workers' warm-up included,
-    and after a chunk's rows are written when it was dropped inside a finalizer."""
+    """Run ``todo`` on the cluster; 130 on Ctrl-C, 143 on SIGTERM (every finished run kept, one
+    line), else 0. A stop is answered in every phase, the cluster's start and its workers'
+    warm-up included, and after a chunk's rows are written when it was dropped inside a
+    finalizer. A write that fails is a `UserError` saying what is kept."""
     client = cluster = progress = None
+    stopped = False
     try:
-        with cli.stop_signals((signal.SIGINT,)):
+        with cli.stop_signals():
             if args.local:
                 workers = args.workers or os.cpu_count() or 1
                 chunk = spec.chunk or LOCAL_CHUNK
@@ -99,27 +106,55 @@ def _sweep(args, spec: Spec, runs: list, todo: list, store) -> int:
                 _run_local(workers, spec, runs, chunks, store, progress, args.out)
             else:
                 _run(client, spec, runs, chunks, store, progress, args.out)
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, cli.Terminated) as stop:
+        stopped = True
         _quiet_dask()
-        store.flush()
         if progress is not None:
             progress.close()
-        print(f"sweep: interrupted; {len(store.done)} of {len(runs)} runs are in "
-              f"{args.out}/runs.parquet (run the same command to finish)", file=sys.stderr,
-              flush=True)
-        return 130
+        kept = _kept(store, len(runs), args.out)
+        print(f"sweep: {'interrupted' if isinstance(stop, KeyboardInterrupt) else 'terminated'}; "
+              f"{kept}", file=sys.stderr, flush=True)
+        return 130 if isinstance(stop, KeyboardInterrupt) else cli.EXIT_TERMINATED
+    except UserError as error:   # a write that failed (the spec was checked before)
+        stopped = True
+        _quiet_dask()
+        if progress is not None:
+            progress.close()
+        raise UserError(error.key, f"{error.problem}; {_kept(store, len(runs), args.out)}") \
+            from None
+    except BaseException:
+        stopped = True
+        _quiet_dask()
+        raise
     finally:
         if client is not None:
-            _close(client, cluster)
+            _close(client, cluster, fast=stopped)
     progress.close()
     return 0
 
 
+def _kept(store, total: int, out: str) -> str:
+    """What a sweep that stops early keeps, as its one line ends: runs.parquet rebuilt if it can
+    be (else the parts stay, and the next run of the command reads them)."""
+    try:
+        store.flush()
+        where = f"{out}/runs.parquet"
+    except UserError:
+        where = f"{out}/parts"
+    return (f"{len(store.done)} of {total} runs are in {where} "
+            "(run the same command to finish)")
+
+
 def _quiet_dask() -> None:
-    """After Ctrl-C: the cluster's own complaints while it is torn down (workers that stopped
-    mid-task, broadcasts to them) are the interruption itself, not news."""
+    """When the sweep stops early: the cluster's own complaints while it is torn down (workers
+    that stopped mid-task, broadcasts to them, heartbeats to a closed scheduler) are the stop
+    itself, not news."""
     import logging
-    logging.getLogger("distributed").setLevel(logging.CRITICAL)
+    families = ("distributed", "tornado", "asyncio")
+    names = [name for name in logging.root.manager.loggerDict   # children set their own level
+             if name.split(".")[0] in families]
+    for name in (*families, *names):
+        logging.getLogger(name).setLevel(logging.CRITICAL)
 
 
 def fingerprint(spec: Spec) -> str:
@@ -135,26 +170,59 @@ def _connect(args):
 
     from distributed import Client, LocalCluster
     if args.scheduler:
-        try:
-            client = Client(args.scheduler, timeout=f"{args.connect_timeout}s")
-        except (OSError, TimeoutError, ValueError) as error:
-            reason = str(error).splitlines()[0] if str(error) else type(error).__name__
-            raise UserError("--scheduler", f"cannot reach {args.scheduler} ({reason})") from None
+        with Progress("sweep", None, f"connecting to {args.scheduler}"):
+            try:
+                client = Client(args.scheduler, timeout=f"{args.connect_timeout}s")
+            except (OSError, TimeoutError, ValueError) as error:
+                raise UserError("--scheduler", f"cannot reach {args.scheduler} "
+                                f"({_first_line(error)})") from None
         cluster = None
     else:
-        cluster = LocalCluster(n_workers=args.workers or os.cpu_count() or 1, threads_per_worker=1,
-                               processes=True, dashboard_address=None, silence_logs=logging.ERROR)
-        client = Client(cluster)
+        workers = args.workers or os.cpu_count() or 1
+        with Progress("sweep", None, f"starting a LocalCluster of {workers} worker"
+                                     f"{'s' if workers > 1 else ''}"):
+            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                                   dashboard_address=None, silence_logs=logging.ERROR)
+            client = Client(cluster)
     from .runner import IgnoreInterrupts, WarmKernels
     try:
-        if cluster is not None:
-            client.register_plugin(IgnoreInterrupts())
-        client.register_plugin(WarmKernels())   # minutes when the workers compile: Ctrl-C ends it
+        with Progress("sweep", None, "the workers get ready (loading or compiling the kernels)"):
+            if cluster is not None:
+                _register(client, IgnoreInterrupts())
+            _register(client, WarmKernels())   # minutes when the workers compile: Ctrl-C ends it
     except BaseException:
-        _quiet_dask()
-        _close(client, cluster)
+        _close(client, cluster, fast=True)
         raise
     return client, cluster
+
+
+PLUGIN_TRIES = 5
+
+
+def _register(client, plugin) -> None:
+    """Register a worker plugin on every worker, present and future. The scheduler keeps it
+    before it asks the workers, so a worker that joins later gets it; a worker lost while it is
+    asked (killed, its machine gone) fails the request, which is asked again of the workers
+    left. After PLUGIN_TRIES failures the sweep goes on without it: a plugin only prepares (each
+    task warms its worker up itself). A lost scheduler is one line (`LostScheduler`)."""
+    for _ in range(PLUGIN_TRIES):
+        try:
+            client.register_plugin(plugin)
+            return
+        except (OSError, TimeoutError, RuntimeError) as error:   # CommClosedError is an OSError
+            if client.status not in ("running", "connecting"):
+                raise LostScheduler(_first_line(error)) from None
+
+
+class LostScheduler(UserError):
+    """The scheduler went away (killed, its machine gone) while the sweep used it."""
+
+    def __init__(self, reason: str):
+        super().__init__("--scheduler", f"lost the scheduler ({reason})")
+
+
+def _first_line(error: BaseException) -> str:
+    return (str(error).splitlines() or [""])[0] or type(error).__name__
 
 
 def _where(args, workers: int) -> str:
@@ -174,7 +242,8 @@ def _run_local(threads: int, spec: Spec, runs: list, chunks: list, store, progre
     """Without Dask: each chunk one batch on `threads` threads in this process, its rows
     written as soon as it ends (a part each, as a Dask task's)."""
     from . import runner
-    runner.warm_up(spec.document)
+    with Progress("sweep", None, "loading or compiling the kernels"):
+        runner.warm_up(spec.document)
     failures = 0
     for ids in chunks:
         rows = runner.run_block(spec.document, [(i, runs[i]) for i in ids], spec.duration,
@@ -185,6 +254,7 @@ def _run_local(threads: int, spec: Spec, runs: list, chunks: list, store, progre
 
 def _run(client, spec: Spec, runs: list, chunks: list, store, progress, out: str) -> None:
     from distributed import as_completed
+    from distributed.client import FutureCancelledError
     from distributed.scheduler import KilledWorker
 
     from . import runner
@@ -206,6 +276,9 @@ def _run(client, spec: Spec, runs: list, chunks: list, store, progress, out: str
                      "error": f"KilledWorker: every worker that ran it died ({error})"}
                     for i in ids]
         except Exception as error:
+            # The client cancels every future when it loses the scheduler: not a failed run
+            if isinstance(error, FutureCancelledError) or client.status != "running":
+                raise LostScheduler("its connection closed") from None
             rows = [{"run": i, "status": "failed",
                      "error": f"{type(error).__name__}: {error}".splitlines()[0]}
                     for i in ids]
@@ -223,16 +296,38 @@ def _keep(store, rows: list, runs: list, progress, failures: int) -> int:
     return failures
 
 
-def _close(client, cluster) -> None:
+def _close(client, cluster, fast: bool = False) -> None:
+    """Close the client (a scheduler of the user's then forgets the sweep's queued tasks) and
+    our LocalCluster, silently. `fast` (a stop, a failure): our workers are killed first — a
+    worker inside a compiled call would finish its chunk before a polite close."""
+    _quiet_dask()
     try:
-        client.close(timeout=10)
+        if fast and cluster is not None:
+            _kill_workers(cluster)
+        with contextlib.suppress(Exception):
+            client.close(timeout=2 if fast else 10)
     finally:
         if cluster is not None:
-            cluster.close(timeout=10)
+            with contextlib.suppress(Exception):
+                cluster.close(timeout=2 if fast else 10)
+
+
+def _kill_workers(cluster) -> None:
+    """SIGKILL the worker processes of our LocalCluster. Each nanny is told first that its
+    worker is closing (else it would start a new one, and closing the cluster would wait for
+    that one's start), and closes itself when it sees its worker gone."""
+    from distributed.core import Status
+    for nanny in list(getattr(cluster, "workers", {}).values()):
+        process = getattr(getattr(nanny, "process", None), "process", None)
+        pid = getattr(process, "pid", None)
+        if pid:
+            nanny.status = Status.closing_gracefully
+            with contextlib.suppress(OSError):
+                os.kill(pid, signal.SIGKILL)
 
 
 def main(argv=None) -> int:
-    return cli.run(_main, argv)
+    return cli.run(_main, argv, sigterm=True)
 
 
 if __name__ == "__main__":

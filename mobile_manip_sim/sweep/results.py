@@ -4,12 +4,16 @@ Each finished chunk is written at once as its own small file, DIR/parts/part-<fi
 (written to a temporary name, then renamed: a part is whole or absent). runs.parquet is rebuilt
 from all rows at most every few seconds and at the end, so it is never more than that behind; a
 sweep killed outright leaves its parts, and the next run of the same command picks them up.
+A write that fails (a full disk, a read-only or removed directory) is a `UserError` naming the
+file: every part written before it stays, and so do the rows it holds.
 """
 from __future__ import annotations
 
 import json
 import os
+import re
 import time
+from contextlib import contextmanager
 from pathlib import Path
 
 import pyarrow as pa
@@ -17,6 +21,7 @@ import pyarrow.compute as pc
 import pyarrow.parquet as pq
 
 from ..scene.errors import UserError
+from ..scene.schema import label
 
 COUNTS = ("impacts", "steps", "rhs_evaluations")
 FIGURES = ("energy_error", "stroke_violation", "constraint_residual", "cpu_s",
@@ -66,7 +71,8 @@ class Store:
         self.path = self.dir / "runs.parquet"
         self.rewrite_every = rewrite_every
         self._claim(fingerprint)
-        self.parts.mkdir(parents=True, exist_ok=True)
+        with writing(self.parts):
+            self.parts.mkdir(parents=True, exist_ok=True)
         self.tables: list[pa.Table] = []
         self.done: set[int] = set()
         for table in self._on_disk():
@@ -75,14 +81,16 @@ class Store:
 
     def _claim(self, fingerprint: str) -> None:
         """DIR belongs to one sweep: refuse to mix another spec's runs into it."""
-        self.dir.mkdir(parents=True, exist_ok=True)
+        with writing(self.dir):
+            self.dir.mkdir(parents=True, exist_ok=True)
         stamp = self.dir / "sweep.json"
         if stamp.exists():
             if stamp.read_text() != fingerprint:
                 raise UserError(str(self.dir), "holds the runs of a different sweep (scene, "
                                 "duration, grid or random section differ); use another --out")
         else:
-            stamp.write_text(fingerprint)
+            with writing(stamp):
+                stamp.write_text(fingerprint)
 
     def _on_disk(self) -> list[pa.Table]:
         tables = []
@@ -94,11 +102,16 @@ class Store:
                 pass
         return tables
 
-    def _keep(self, table: pa.Table) -> pa.Table:
+    def _fresh(self, table: pa.Table) -> pa.Table:
+        """The rows of runs not kept yet."""
         ids = table.column("run").to_pylist()
         fresh = [i for i, run in enumerate(ids) if run not in self.done]
         if len(fresh) < len(ids):
             table = table.take(pa.array(fresh, type=pa.int64()))
+        return table
+
+    def _keep(self, table: pa.Table) -> pa.Table:
+        table = self._fresh(table)
         self.done.update(table.column("run").to_pylist())
         if table.num_rows:
             self.tables.append(table)
@@ -114,10 +127,11 @@ class Store:
                     columns[field.name].append(cell(values[field.name], field.type))
                 else:
                     columns[field.name].append(row.get(field.name))
-        table = self._keep(pa.table(columns, schema=self.schema))
-        if table.num_rows:
+        table = self._fresh(pa.table(columns, schema=self.schema))
+        if table.num_rows:   # on disk before it counts as done: a failed write loses no claim
             first = table.column("run")[0].as_py()
             _write(table, self.parts / f"part-{first:08d}.parquet")
+            self._keep(table)
             if time.monotonic() - self._written > self.rewrite_every:
                 self.flush()
         return table.num_rows
@@ -139,10 +153,38 @@ class Store:
                 path.unlink(missing_ok=True)
 
 
+@contextmanager
+def writing(path: Path, *, name_file: bool = False):
+    """An OSError within the block (ENOSPC, EROFS, EACCES, ENOENT) as a `UserError` naming
+    `path` (with `name_file`, the file the error names, if any): one line, status 2."""
+    try:
+        yield
+    except OSError as error:
+        where = (name_file and error.filename) or path
+        raise UserError(label(str(where), 160), f"cannot write ({_reason(error)})") from None
+
+
+def _reason(error: OSError) -> str:
+    """The system's words for an OSError, pyarrow's too (its "Error writing bytes to file.
+    Detail: [errno 28] No space left on device" is cut to the last part)."""
+    number = re.search(r"\[errno (\d+)\]", str(error), re.IGNORECASE)
+    if number:
+        return os.strerror(int(number[1]))
+    return error.strerror or (str(error).splitlines() or [type(error).__name__])[0]
+
+
 def _write(table: pa.Table, path: Path) -> None:
     temporary = path.with_name(path.name + ".tmp")
-    pq.write_table(table, temporary)
-    os.replace(temporary, path)
+    try:
+        with writing(path):
+            pq.write_table(table, temporary)
+            os.replace(temporary, path)
+    except UserError:
+        try:   # a torn file would only take space (`_on_disk` passes it over anyway)
+            temporary.unlink(missing_ok=True)
+        except OSError:
+            pass
+        raise
 
 
 def read(directory) -> pa.Table:

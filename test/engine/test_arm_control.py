@@ -531,3 +531,29 @@ def test_after_the_last_point_the_reference_keeps_its_acceleration():
     assert q.tolist() == [0.4, 0.5, -0.2, 0.5] and qd.tolist() == [0.0] * 4
     assert qdd.tolist() == [0.5, 0.0, -0.5, 0.0]
     assert np.array_equal(run().s, sim.s)
+
+
+def test_a_100000_point_trajectory_is_taken_without_a_python_loop_over_its_points():
+    """Checked, arranged into segments and put into the engine with array operations: a few
+    hundred Python calls whatever the count (it made some two million, a second in the
+    node's stepping thread, during which /clock stopped). Counted, not timed; the reference is
+    the one the points give (their last point held at the end)."""
+    import sys
+    sim = paper("joint_trajectory", effects={"stroke_limits": True})
+    m = 100_000
+    times = np.arange(1, m + 1) * 1e-3
+    positions = np.tile(arm(sim), (m, 1))
+    positions[:, 0] += np.linspace(0.0, 0.2, m)
+    calls = [0]
+
+    def count(frame, event, arg):
+        if event == "call":
+            calls[0] += 1
+    sys.setprofile(count)
+    try:
+        sim.set_arm_trajectory(times, positions)
+    finally:
+        sys.setprofile(None)
+    assert calls[0] < 2000, f"{calls[0]} Python calls for {m} points"
+    sim.advance_to(0.05)
+    np.testing.assert_allclose(sim.arm_reference()[0], positions[49], atol=1e-12)

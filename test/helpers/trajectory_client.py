@@ -226,6 +226,31 @@ def flood(client, count: int = 40):
             "statuses": sorted({r.result().status for r in results})}
 
 
+def paced_flood(client, count: int = 500, rate: float = 100.0, wait: float = 30.0):
+    """``count`` goals sent ``rate`` per second, none awaited: how many got an answer
+    (accepted or rejected) within ``wait`` s after the last, and each answer's delay."""
+    from rclpy.qos import QoSProfile, ReliabilityPolicy
+    deep = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
+    action = ActionClient(client.node, FollowJointTrajectory, ACTION,
+                          goal_service_qos_profile=deep, result_service_qos_profile=deep)
+    client.spin_until(lambda: action.server_is_ready(), "the server, for the paced flood")
+    futures, sent = [], []
+    due = time.monotonic()
+    for i in range(count):
+        futures.append(action.send_goal_async(goal([(0.2, [0.1 * (i % 3), 0.4, 0.0, 0.4])])))
+        sent.append(time.monotonic())
+        due += 1.0 / rate
+        while time.monotonic() < due:
+            rclpy.spin_once(client.node, timeout_sec=max(0.0, due - time.monotonic()))
+    end = time.monotonic() + wait
+    while not all(f.done() for f in futures) and time.monotonic() < end:
+        rclpy.spin_once(client.node, timeout_sec=0.05)
+    handles = [f.result() for f in futures if f.done()]
+    return {"sent": count, "answered": len(handles),
+            "accepted": sum(h.accepted for h in handles),
+            "rejected": sum(not h.accepted for h in handles)}
+
+
 def main(scenarios) -> int:
     rclpy.init()
     client = Client()

@@ -326,3 +326,21 @@ def _ended(probe, target) -> bool:
     _, positions, _, _, names = joints[-1]
     index = {name: i for i, name in enumerate(names)}
     return all(abs(positions[index[n]] - t) < 2e-3 for n, t in zip(NAMES, target, strict=True))
+
+
+def test_the_arm_command_message_is_built_only_for_a_bag(monkeypatch):
+    """The node builds an applied command's message for its bag only: a 100,000-point
+    trajectory's took the stepping thread about a second, /clock stopped meanwhile, without
+    any bag to write it to."""
+    from mobile_manip_sim.engine.simulation import Simulation
+    from mobile_manip_sim.node import arm as arm_module
+    from mobile_manip_sim.scene.arm_controller import ArmController
+    from mobile_manip_sim.scene.loading import load_scene
+    built = []
+    monkeypatch.setattr(arm_module, "arm_command_message",
+                        lambda *args: built.append(args) or "the message")
+    driver = arm_module.ArmDriver(None, "position", NAMES, warn=lambda *args: None, info=print)
+    sim = Simulation(load_scene(), arm_controller=ArmController("position"))
+    made = driver.segment_start(sim, 0, sim.q[-len(NAMES):] + 0.01, received=1)
+    assert built == []
+    assert made() == "the message" and len(built) == 1

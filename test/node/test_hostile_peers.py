@@ -431,6 +431,21 @@ def test_every_goal_is_answered_and_a_stop_while_one_runs_is_clean(action_env, t
     assert node.process.returncode == 0 and "Traceback" not in output, output
 
 
+def test_goals_sent_at_100_per_second_are_all_answered(action_env, tmp_path):
+    """500 goal requests at 100 per second from a client whose goal service keeps its
+    answers: each is accepted or rejected, none left without an answer."""
+    node = started(tmp_path, "-p", "arm_controller:=joint_trajectory", env=action_env)
+    try:
+        result = subprocess.run([sys.executable, CLIENT, "paced_flood"], env=action_env,
+                                capture_output=True, text=True, timeout=STARTUP_TIMEOUT + 120)
+        assert result.returncode == 0, result.stderr + node.output()
+        flood = json.loads(result.stdout.splitlines()[-1])
+        assert flood["answered"] == flood["sent"] == 500, flood
+        assert flood["accepted"] > 0 and flood["rejected"] > 0, flood
+    finally:
+        assert node.stop() == 0, node.output()
+
+
 def stop_while_a_goal_runs(node: NodeProcess, sig, env) -> int:
     """``sig`` once a client's 30 s goal has had feedback; the node must exit (the goal's
     handle goes with the context: no traceback, which the caller checks). Its exit status."""

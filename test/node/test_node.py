@@ -655,6 +655,26 @@ def lockstep_run(tmp_path, name: str, states: int):
     return records, output
 
 
+def test_a_synchronous_node_alone_says_what_its_first_state_waits_for(tmp_path):
+    """Nobody listens, nobody commands (a controller that publishes arm efforts to a node whose
+    arm takes another topic is such a one): the node says so, naming its command topics, every
+    SAY_EVERY s — not a word, before."""
+    from mobile_manip_sim.node.lockstep import SAY_EVERY
+    env = ros_child_env(DOMAIN_ID + 1 if DOMAIN_ID < 199 else 1)   # nobody there
+    node = NodeProcess(tmp_path, *FAST, "-p", "synchronous:=true", env=env)
+    said = "synchronous: the first state waits for a subscriber of its states and a publisher on "
+    try:
+        wait_for(lambda: not node.running() or node.output().count(said) >= 2,
+                 f"two lines saying what the start waits for ({SAY_EVERY:g} s apart)",
+                 STARTUP_TIMEOUT + 4 * SAY_EVERY)
+        output = node.output()
+    finally:
+        assert node.stop() == 0, node.output()
+    line = next(line for line in output.splitlines() if said in line)
+    assert "/cmd_vel" in line or "/wheel_effort_controller/commands" in line, line
+    assert line.endswith("(none has one)"), line
+
+
 def test_a_pd_controller_in_lockstep_gives_the_same_bag_every_time(tmp_path):
     """Closed loop over DDS, synchronous, as fast as the two processes go: every state from
     t = 0 on, none skipped or repeated, each segment under the reply to its state — twice the

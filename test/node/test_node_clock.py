@@ -123,3 +123,42 @@ def test_the_follower_releases_a_state_only_once_its_stamp_is_heard():
     assert follower.late(3 * PERIOD_NS, 10.0) is None       # waiting is never "behind"
     follower.heard(PERIOD_NS)                                 # the owner was reset
     assert follower.delay(2 * PERIOD_NS) > 0
+
+
+def test_the_follower_refuses_a_nanosec_past_a_second_and_says_a_leap():
+    """nanosec ≥ 10⁹ is no time: refused, said; a leap of 10⁶ s ahead is followed, said."""
+    from mobile_manip_sim.node.lockstep import ClockFollower
+    follower = ClockFollower(1.0, 0.01, clock=lambda: 0.0)
+    said = []
+    follower.warn = lambda key, text: said.append(text)
+    follower.heard_message(1, 1_000_000_000)
+    assert follower.heard_ns is None
+    assert said == ["/clock: nanosec 1000000000 is not in [0, 1e9): not a time, ignored"]
+    follower.heard_message(2, 0)
+    follower.heard_message(1_000_002, 5)
+    assert follower.heard_ns == 1_000_002_000_000_005 and len(said) == 2
+    assert said[1].startswith("/clock leapt 1e+06 s ahead, from t = 2.000000000 s"), said[1]
+
+
+class TwoClocks:
+    """Two nodes publishing /clock, each its own time."""
+
+    def __init__(self, context):
+        self.node = rclpy.create_node("first_clock", context=context)
+        self.other = rclpy.create_node("second_clock", context=context)
+        self.publishers = [node.create_publisher(Clock, "/clock", RELIABLE)
+                           for node in (self.node, self.other)]
+
+
+def test_a_follower_says_when_two_nodes_publish_the_clock(warm_kernels, tmp_path):
+    with on_domain(DOMAIN_ID):
+        follower = NodeProcess(tmp_path, *FAST, "-p", "publish_clock:=false",
+                               env=child_env(DOMAIN_ID))
+        try:
+            with spinning(TwoClocks, DOMAIN_ID):
+                wait_for(lambda: not follower.running() or "2 nodes publish /clock" in
+                         follower.output(), "the follower's warning of two clocks", TIMEOUT)
+            assert follower.running(), follower.output()
+        finally:
+            assert follower.stop() == 0, follower.output()
+    assert "follows whichever it heard last" in follower.output()

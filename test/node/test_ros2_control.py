@@ -164,6 +164,22 @@ def test_efforts_by_joint_name_are_applied_and_reported_as_efforts(hardware_of):
     assert all(hw.latest()[name][2] == 0.5 * value for name, value in efforts.items())
 
 
+def test_an_arm_position_the_engine_refuses_is_said_under_the_joint_command_topic(hardware_of):
+    """A prismatic set-point far beyond its stroke, sent as a joint command: refused with the
+    topic that carried it (it was said under arm_position_controller/commands, which nobody
+    published on), the last set-point kept."""
+    joints = block("velocity", "position")
+    simulator, hw = hardware_of(joints, "-p", "base_command:=velocity",
+                                "-p", "arm_controller:=position")
+    names = [name for name, _ in joints]
+    start = dict(zip(names, [0.0, 0.0, *SCENE.initial_q[ARM_Q]], strict=True))
+    hw.write({**start, "arm_prismatic_1": 100.0})
+    wait_for(lambda: "keeping the last set-point" in simulator.output(), "the refusal", TIMEOUT)
+    line = next(line for line in simulator.output().splitlines()
+                if "keeping the last set-point" in line)
+    assert f"{JOINT_COMMANDS_TOPIC}: " in line and "arm_position_controller" not in line, line
+
+
 def test_a_partial_command_keeps_the_other_joints_commands(hardware_of):
     joints = block("effort", "effort")
     simulator, hw = hardware_of(joints, "-p", "base_command:=effort",
@@ -200,10 +216,8 @@ def test_wheel_velocities_become_the_base_twist():
     assert omega == pytest.approx(base.wheel_radius * 1.0 / (2 * base.half_track))
 
 
-def test_a_nan_joint_command_is_no_command_and_an_infinite_one_is_refused():
-    """ros2_control writes NaN for "no command" (a command interface never written, or one a
-    controller released): that joint keeps its last command while the others take theirs; an
-    infinite value refuses the whole message."""
+def joint_commands(velocity_mode: bool = True, arm_interface: str = "position"):
+    """A `JointCommands` of the scene's joints without a node."""
     from types import SimpleNamespace
 
     from mobile_manip_sim.node.commands import JointCommands
@@ -212,11 +226,41 @@ def test_a_nan_joint_command_is_no_command_and_an_infinite_one_is_refused():
         def create_subscription(self, *args, **kwargs):
             return SimpleNamespace(topic_name=JOINT_COMMANDS_TOPIC)
 
-    base, names = SCENE.robot.base, SCENE.robot.joint_names()
+    base = SCENE.robot.base
+    return JointCommands(NoNode(), None, SCENE.robot.joint_names(), velocity_mode=velocity_mode,
+                         arm_interface=arm_interface, wheel_radius=base.wheel_radius,
+                         half_track=base.half_track,
+                         arm_initial=np.array(SCENE.initial_q)[ARM_Q])
+
+
+@pytest.mark.parametrize("velocity_mode, field, value, bound", [
+    (True, "velocity", 1e308, "10000"), (True, "velocity", -2e4, "10000"),
+    (False, "effort", 1e300, "1e+06")])
+def test_a_wheel_command_beyond_the_scenes_bounds_is_refused_naming_the_joint(
+        velocity_mode, field, value, bound):
+    """1e308 rad/s passed as finite, and v = r(ω_R + ω_L)/2 overflowed in the engine: the
+    segment failed naming efforts.cmd_vel and inf, not the joint that carried it."""
+    joints = joint_commands(velocity_mode, "effort")
+    names = SCENE.robot.joint_names()
+    values, problem = joints.read(JointState(name=names[:2], **{field: [1.0, value]}))
+    assert values is None and problem == f"{field} of {names[1]} is {value:g}: must be " \
+                                         f"within ±{bound}"
+    values, problem = joints.read(JointState(name=names[:2], **{field: [1.0, 2.0]}))
+    assert problem is None and values[:2].tolist() == [1.0, 2.0]
+
+
+def test_a_huge_unknown_joint_name_is_cut_in_the_refusal():
+    values, problem = joint_commands().read(JointState(name=["j" * 1_000_000], effort=[1.0]))
+    assert values is None and problem.startswith("unknown joint 'jjj") and len(problem) < 400
+
+
+def test_a_nan_joint_command_is_no_command_and_an_infinite_one_is_refused():
+    """ros2_control writes NaN for "no command" (a command interface never written, or one a
+    controller released): that joint keeps its last command while the others take theirs; an
+    infinite value refuses the whole message."""
+    names = SCENE.robot.joint_names()
     initial = np.array(SCENE.initial_q)[ARM_Q]
-    joints = JointCommands(NoNode(), None, names, velocity_mode=True, arm_interface="position",
-                           wheel_radius=base.wheel_radius, half_track=base.half_track,
-                           arm_initial=initial)
+    joints = joint_commands()
     nan = float("nan")
     full = JointState(name=names, velocity=[1.0, nan, nan, nan, nan, nan],
                       position=[nan, nan, 0.4, nan, -0.1, 0.5])

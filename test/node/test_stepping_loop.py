@@ -227,6 +227,20 @@ def test_a_step_while_running_is_refused():
     assert harness.loop.step(1.0) == (False, "not paused: call ~/pause (true) first, then ~/step")
 
 
+def test_a_segment_that_fails_because_the_node_is_stopping_is_no_failure():
+    """SIGINT shuts rclpy's context down before the node tells its loop to stop: a segment
+    publishing then (a FollowJointTrajectory goal's feedback) fails with "publisher's context
+    is invalid". That is the stop, not a simulation failure: nothing is said."""
+    harness = Harness(fail={3: RuntimeError("publisher's context is invalid")})
+    context = {"up": True}
+    harness.loop._alive = lambda: context["up"]
+    harness.during_compute = lambda: context.update(up=harness.loop.k < 3)
+    harness.loop.begin()
+    for _ in range(30):
+        harness.loop.turn()
+    assert harness.errors == [] and harness.loop.state is not State.FAILED
+
+
 def test_a_failure_outside_a_segment_fails_the_loop_and_the_thread_lives_on():
     harness = Harness(real_time_factor=0.0, threaded=True)
     broken = []

@@ -509,3 +509,18 @@ def test_a_scene_name_that_matplotlib_would_read_as_mathtext_is_drawn_as_written
         assert title.replace("\\$", "$").startswith(f"{name}: ")
     assert sorted(p.name for p in (tmp_path / "figures").glob("*.png")) == \
         sorted(f"{n}.png" for n in FIGURE_NAMES)
+
+
+def test_a_bags_topic_names_are_shown_escaped_never_raw(tmp_path, capsys):
+    """Topic names come from the bag: an escape sequence would recolour the terminal, a
+    newline forge a line of its own. The refusal shows them escaped, in its one line."""
+    bag_path = tmp_path / "hostile"
+    with BagWriter(bag_path) as bag:
+        for topic in ("/odom\x1b[31m", "/fake\nplot: wrote 9 figures", "/clock"):
+            bag.add_topic(topic, "rosgraph_msgs/msg/Clock", qos_yaml())
+            bag.write(topic, serialize_message(Clock()), 0)
+    status = plot_cli.main([str(bag_path), "--out", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert status == EXIT_USER_ERROR, err
+    assert err.count("\n") == 1 and "\x1b" not in err and "no /joint_states topic" in err, err
+    assert r"'/odom\x1b[31m'" in err and r"'/fake\nplot: wrote 9 figures'" in err, err

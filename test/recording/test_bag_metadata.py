@@ -239,6 +239,22 @@ def test_damaged_metadata_yaml_is_one_line_naming_the_key(good_bag, tmp_path, ca
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.parametrize("link", [os.link, os.symlink])
+def test_a_file_listed_again_under_a_link_is_one_line(good_bag, tmp_path, capsys, link):
+    """The same .mcap under a second name (a hard or symbolic link) would play every message
+    twice: refused as the name listed twice is."""
+    bag = tmp_path / "bag"
+    shutil.copytree(good_bag, bag)
+    link(bag / FILE, bag / "again.mcap")
+    metadata = bag / "metadata.yaml"
+    metadata.write_text(edited(setting(["relative_file_paths"], [FILE, "again.mcap"]))(
+        metadata.read_text()), encoding="utf-8")
+    for argv in commands(bag, tmp_path / "out"):
+        line = refusal(argv, capsys)
+        assert keyed("relative_file_paths[1]") in line, line
+        assert f"again.mcap is {FILE} again (a link to it)" in line, line
+
+
 def special_metadata(tmp_path: Path, kind: str) -> Path:
     if kind == "fifo":
         os.mkfifo(tmp_path / "metadata.yaml")

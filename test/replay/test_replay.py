@@ -120,3 +120,13 @@ def test_wait_for_subscribers_plays_to_a_subscriber_of_only_some_topics(bag):
         assert result.returncode == 0, result.stderr
         wait_for(lambda: probe.received >= len(odom), "every /odom message", 30.0)
         assert probe.received == len(odom)
+
+
+@pytest.mark.parametrize("rate", ["5e-324", "0", "-1", "nan", "inf", "1e7"])
+def test_a_rate_outside_its_bounds_is_one_line(tmp_path, rate):
+    """5e-324 passed as "positive" and played for ever: refused before the bag is read."""
+    result = subprocess.run([executable("replay"), str(tmp_path / "no_bag"), "--rate", rate],
+                            capture_output=True, text=True, timeout=60)
+    assert result.returncode == 2, result.stderr
+    assert result.stderr.strip() == f"replay: error: --rate: must be in [1e-06, 1e+06], got " \
+                                    f"{float(rate)}", result.stderr

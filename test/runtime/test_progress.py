@@ -121,6 +121,20 @@ def test_on_a_terminal_the_line_follows_work_inside_one_long_call(terminal):
     assert "\r\x1b[K" in terminal.text()   # rewritten in place
 
 
+def test_a_status_line_and_a_phase_talk_at_once(terminal):
+    """Written in the constructor, before the ticker's first look (1 s): a phase is "(0 s)"
+    only then; counted work starts at 0 %, never at 100 %."""
+    phase = Progress("sweep", None, "starting a LocalCluster of 2 workers",
+                     stream=terminal.stream)
+    work = Progress("work", 10, "s", stream=terminal.stream)
+    terminal.drain()
+    text = terminal.text()
+    phase.close()
+    work.close()
+    assert "sweep: starting a LocalCluster of 2 workers (0 s)" in text, text
+    assert "work: 0 of 10 s (0 %), 0 s/s, ? to go" in text, text
+
+
 def test_whole_lines_go_anywhere_when_asked_after_a_silence(monkeypatch):
     """The warm-up's form: a line after TICK s of silence, to a log as well as to a terminal."""
     monkeypatch.setattr(progress_module, "TICK", 0.2)
@@ -176,22 +190,61 @@ def test_a_finished_simulate_ends_its_status_line_at_100_percent(terminal, tmp_p
     assert stdout.decode().startswith("simulated 0.5 s")   # stdout holds the summary alone
 
 
-def test_replay_resimulate_shows_its_progress_and_stops_on_sigint(terminal, tmp_path):
-    """A bag whose re-run is slow (its method rewritten to radau at rtol 1e-14)."""
+def slow_bag(tmp_path: Path, sample_rate: str) -> Path:
+    """A 5 s bag sampled at `sample_rate` Hz whose re-run is slow (its method rewritten to radau
+    at rtol 1e-14)."""
     recorded, slow = tmp_path / "bag", tmp_path / "slow"
     result = subprocess.run([executable("simulate"), "--method", "dop853", "--duration", "5",
-                             "--sample-rate", "100", "--out", str(tmp_path / "run.csv"),
+                             "--sample-rate", sample_rate, "--out", str(tmp_path / "run.csv"),
                              "--record", str(recorded)], capture_output=True, timeout=SAFETY)
     assert result.returncode == 0, result.stderr
     from mobile_manip_sim.recording.bag_reader import open_bag
     metadata = dict(open_bag(recorded).metadata()["mobile_manip_sim"])
     metadata.update(integrator_method="radau", rtol="1e-14", atol="1e-20")
     rewrite_bag(recorded, slow, metadata={"mobile_manip_sim": metadata})
-    process = started(terminal, executable("replay"), str(slow), "--resimulate")
+    return slow
+
+
+def test_replay_resimulate_shows_its_progress_and_stops_on_sigint(terminal, tmp_path):
+    """A bag whose re-run is slow (its method rewritten to radau at rtol 1e-14)."""
+    process = started(terminal, executable("replay"), str(slow_bag(tmp_path, "100")),
+                      "--resimulate")
     terminal.wait_for(r"replay --resimulate: \S+ of 5(\.0+)? s of the bag \(\d+ %\), "
                       r"\S+ bag s per wall s, .+ to go", "the re-simulation's status line", process)
     status, text = after_one_sigint(process, terminal)
     assert status == 130 and "Traceback" not in text, text   # stopped at once, no traceback
+
+
+def test_sweep_talks_in_every_phase_and_counts_from_what_is_done(terminal, tmp_path):
+    spec = tmp_path / "spec.yaml"
+    spec.write_text("duration: 0.2\ngrid:\n  initial.velocity[2]: [0.0, 0.1, 0.2, 0.3]\n")
+    process = started(terminal, executable("sweep"), str(spec), "--out", str(tmp_path / "out"),
+                      "--workers", "1")
+    for pattern in (rf"sweep: expanding the spec and reading {tmp_path}/out \(\d+ s\)",
+                    r"sweep: starting a LocalCluster of 1 worker \(\d+ s\)",
+                    r"sweep: the workers get ready \(loading or compiling the kernels\) \(",
+                    r"sweep: 0 of 4 runs \(0 %\), 0 runs/s, \? to go"):
+        terminal.wait_for(pattern, f"the line {pattern!r}", process)
+    process.communicate(timeout=SAFETY)
+    assert process.returncode == 0, terminal.text()
+    text = terminal.text()
+    assert text.index("sweep: 0 of 4 runs") < text.index("sweep: 4 of 4 runs (100 %)"), text
+    assert "Traceback" not in text, text
+
+
+def test_replay_resimulate_counts_what_is_simulated_not_what_is_read(terminal, tmp_path):
+    """Two samples, t = 0 and t = 5 s, and a slow method: while the one long segment is
+    computed the line says 0 %, never 100 % (it said so from the first second)."""
+    process = started(terminal, executable("replay"), str(slow_bag(tmp_path, "0.2")),
+                      "--resimulate")
+    # the line when made, then two of the ticker's (one a second) while the segment computes
+    wait_for(lambda: terminal.text().count("replay --resimulate: ") >= 3 or process.poll(),
+             "three status lines", SAFETY)
+    text = terminal.text()
+    status, _ = after_one_sigint(process, terminal)
+    assert status == 130, text
+    assert "replay --resimulate: 0 of 5 s of the bag (0 %)" in text, text
+    assert "100 %" not in text, text
 
 
 def test_bench_talks_on_a_terminal_and_stops_on_sigint(terminal, tmp_path):

@@ -2,6 +2,7 @@
 processes on loopback of which one is killed mid-sweep; failed runs recorded with the key;
 rows identical to what the `simulate` executable gives with the same overrides; resume after a
 SIGINT without redoing a run; bad specs as one line and status 2."""
+import contextlib
 import csv
 import os
 import signal
@@ -76,6 +77,19 @@ def stop(process: subprocess.Popen) -> None:
         pass
 
 
+def act_on_first_run(command: list, out: Path, act) -> tuple[subprocess.Popen, str]:
+    """Start the sweep `command` (writing to `out`); once its first run is on disk, `act(driver)`;
+    the driver and its stderr once it has ended (stopped, whatever happens)."""
+    driver = start(command)
+    try:
+        wait_for(lambda: parts(out), "the first finished run", 180)
+        act(driver)
+        _, stderr = driver.communicate(timeout=120)
+    finally:
+        stop(driver)
+    return driver, stderr
+
+
 def sweep(spec: Path, out: Path, *extra, timeout=120) -> subprocess.CompletedProcess:
     return subprocess.run([executable("sweep"), str(spec), "--out", str(out), *extra],
                           capture_output=True, text=True, timeout=timeout)
@@ -129,23 +143,10 @@ def killed_worker_table(long_spec, tmp_path_factory):
     from distributed import Client, Event
 
     out = tmp_path_factory.mktemp("cluster") / "out"
-    port = free_port()
-    address = f"tcp://127.0.0.1:{port}"
-    env = {**os.environ, "DASK_DISTRIBUTED__SCHEDULER__WORK_STEALING": "False"}
-    processes = [start([executable("dask"), "scheduler", "--host", "127.0.0.1", "--port", str(port),
-                        "--no-dashboard"], env=env)]
-    try:
-        workers = []
-        for _ in range(2):
-            worker_port = free_port()
-            workers.append(f"tcp://127.0.0.1:{worker_port}")
-            processes.append(start([executable("dask"), "worker", address, "--nthreads", "1",
-                                    "--no-nanny", "--host", "127.0.0.1",
-                                    "--worker-port", str(worker_port), "--no-dashboard"]))
-        worker_a, victim, victim_address = workers[0], processes[2], workers[1]
+    no_stealing = {"DASK_DISTRIBUTED__SCHEDULER__WORK_STEALING": "False"}
+    with dask_cluster([{}, {}], no_stealing) as (address, _, workers, addresses):
+        worker_a, victim, victim_address = addresses[0], workers[1], addresses[1]
         with Client(address, timeout=90) as client:
-            client.wait_for_workers(2, timeout=90)
-            assert set(client.scheduler_info()["workers"]) == set(workers)
             release = Event("release-worker-a", client=client)
 
             def hold_worker_a():   # nested: pickled by value, the workers cannot import this file
@@ -156,22 +157,50 @@ def killed_worker_table(long_spec, tmp_path_factory):
                      90)
             driver = start([executable("sweep"), str(long_spec), "--out", str(out),
                             "--scheduler", address])
-            processes.append(driver)
-
-            def sweep_task_on_a():
-                return any(str(key).startswith("runs-")
-                           for key in client.processing([worker_a])[worker_a])
-            wait_for(sweep_task_on_a, "a sweep task queued on worker A", 90)
-            rows = wait_for(lambda: [r for r in parts(out) if r["worker"] == victim_address],
-                            "a run finished by worker B", 90)
-            assert len(parts(out)) < 40
-            victim.send_signal(signal.SIGKILL)
-            victim.wait(timeout=10)
-            release.set()
-            held.result(timeout=90)
-            _, stderr = driver.communicate(timeout=90)
+            try:
+                def sweep_task_on_a():
+                    return any(str(key).startswith("runs-")
+                               for key in client.processing([worker_a])[worker_a])
+                wait_for(sweep_task_on_a, "a sweep task queued on worker A", 90)
+                rows = wait_for(lambda: [r for r in parts(out) if r["worker"] == victim_address],
+                                "a run finished by worker B", 90)
+                assert len(parts(out)) < 40
+                victim.send_signal(signal.SIGKILL)
+                victim.wait(timeout=10)
+                release.set()
+                held.result(timeout=90)
+                _, stderr = driver.communicate(timeout=90)
+            finally:
+                stop(driver)
         assert driver.returncode == 0, stderr
+        assert "Traceback" not in stderr, stderr   # the lost worker is no news
         return table(out), len(rows), victim_address
+
+
+@contextlib.contextmanager
+def dask_cluster(worker_envs: list[dict], scheduler_env: dict | None = None):
+    """A real `dask scheduler` and one `dask worker` per env (no nanny, one thread) on loopback,
+    every worker connected: (address, scheduler process, worker processes, worker addresses);
+    everything stopped after."""
+    from distributed import Client
+
+    port = free_port()
+    address = f"tcp://127.0.0.1:{port}"
+    scheduler = start([executable("dask"), "scheduler", "--host", "127.0.0.1", "--port",
+                       str(port), "--no-dashboard"], env={**os.environ, **(scheduler_env or {})})
+    processes, addresses = [scheduler], []
+    try:
+        for env in worker_envs:
+            worker_port = free_port()
+            addresses.append(f"tcp://127.0.0.1:{worker_port}")
+            processes.append(start([executable("dask"), "worker", address, "--nthreads", "1",
+                                    "--no-nanny", "--host", "127.0.0.1", "--worker-port",
+                                    str(worker_port), "--no-dashboard"],
+                                   env={**os.environ, **env}))
+        with Client(address, timeout=90) as client:
+            client.wait_for_workers(len(worker_envs), timeout=90)
+            assert set(client.scheduler_info()["workers"]) == set(addresses)
+        yield address, scheduler, processes[1:], addresses
     finally:
         for process in reversed(processes):
             stop(process)
@@ -199,6 +228,7 @@ def test_failed_runs_are_recorded_with_the_key_and_the_others_are_ok(small):
             assert row["status"] == "ok" and row["error"] is None
             assert row["t"] == 0.5 and row["steps"] > 0 and abs(row["energy_error"]) < 1e-6
     assert "24 runs, 16 ok, 8 failed" in result.stdout
+    assert "Traceback" not in result.stderr and "Error" not in result.stderr, result.stderr
     report = (out / "REPORT.md").read_text()
     for picture in ("atlas.png", "work_precision.png", "final_state.png"):
         assert f"]({picture})" in report and (out / picture).stat().st_size > 1000
@@ -234,13 +264,9 @@ def test_resume_after_sigint_gives_the_same_table_without_redoing_a_run(long_spe
                                                                         killed_worker_table,
                                                                         tmp_path):
     out = tmp_path / "out"
-    driver = start([executable("sweep"), str(long_spec), "--out", str(out), "--workers", "1"])
-    try:
-        wait_for(lambda: parts(out), "the first finished run", 90)
-        driver.send_signal(signal.SIGINT)
-        _, stderr = driver.communicate(timeout=60)
-    finally:
-        stop(driver)
+    driver, stderr = act_on_first_run([executable("sweep"), str(long_spec), "--out", str(out),
+                                       "--workers", "1"], out,
+                                      lambda driver: driver.send_signal(signal.SIGINT))
     assert driver.returncode == 130, stderr
     assert "interrupted" in stderr
     before = {row["run"]: row for row in table(out)}
