@@ -68,6 +68,8 @@ class Browser:
                                   flatten=True)["sessionId"]
         self.call("Network.enable")
         self.call("Page.enable")
+        self.call("Target.setAutoAttach", autoAttach=True, waitForDebuggerOnStart=True,
+                  flatten=True)
         self.call("Emulation.setDeviceMetricsOverride", width=WIDTH, height=HEIGHT,
                   deviceScaleFactor=1, mobile=False)
 
@@ -81,7 +83,9 @@ class Browser:
                         self._lock.notify_all()
                     continue
                 method, params = message.get("method"), message.get("params", {})
-                if method == "Network.requestWillBeSent":
+                if method == "Target.attachedToTarget":   # a worker of the page: log it too
+                    self._attached(params["sessionId"])
+                elif method == "Network.requestWillBeSent":
                     self.requests.append(params["request"]["url"])
                 elif method == "Network.webSocketCreated":
                     self.requests.append(params["url"])
@@ -90,6 +94,13 @@ class Browser:
         except Exception:   # the browser went away: callers time out on their replies
             with self._lock:
                 self._lock.notify_all()
+
+    def _attached(self, session: str) -> None:
+        """A target the page started (a web worker: viser's websocket runs in one): its network
+        log too, then let it run. Sent from the reader thread, whose replies nobody awaits."""
+        for method in ("Network.enable", "Runtime.runIfWaitingForDebugger"):
+            self._socket.send(json.dumps({"id": next(self._ids), "method": method,
+                                          "params": {}, "sessionId": session}))
 
     def call(self, method: str, timeout: float = 60.0, **params) -> dict:
         """One DevTools command; its result (AssertionError on an error reply or no reply)."""
