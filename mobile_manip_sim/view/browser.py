@@ -42,8 +42,10 @@ PLOT_POINTS = 3000           # the live energy plot's last points
 CLOSE_WAIT = 1.0             # s: the longest `close` waits for the server to stop
 SPEEDS = ("0.1", "0.25", "0.5", "1", "2", "4")
 STROKE_RGB = (40, 120, 220)  # the strokes' segments and end marks
+STOP_RADIUS = 0.03           # m, the end marks' radius (the stops)
 FOV = 0.8                    # rad, the camera's vertical field of view
-WORLD = "/world"             # the scene-graph frame everything hangs from
+WORLD = "/world"             # the scene-graph frame the robot hangs from
+GROUND = 30.0                # m, the side of the ground's grid
 
 
 def camera(drawing: Drawing, focus) -> tuple[np.ndarray, np.ndarray]:
@@ -51,7 +53,7 @@ def camera(drawing: Drawing, focus) -> tuple[np.ndarray, np.ndarray]:
     position) from the front right, above, as far back as the robot is large."""
     extent = drawing.extent()
     look_at = np.array([focus[0], focus[1], 0.15 * extent])
-    return look_at + extent * np.array([0.9, -1.3, 0.8]), look_at
+    return look_at + extent * np.array([0.65, -1.0, 0.7]), look_at
 
 
 def _rgb(rgba) -> tuple:
@@ -102,8 +104,8 @@ class BrowserView:
         scene.world_axes.visible = False
         self.focus = np.array([focus[0], focus[1], 0.0])
         self.world = scene.add_frame(WORLD, show_axes=False)   # slid by "follow the robot"
-        scene.add_grid(f"{WORLD}/ground", width=40.0, height=40.0, cell_size=0.25,
-                       section_size=1.0, position=(focus[0], focus[1], -0.001))
+        self.ground = scene.add_grid("/ground", width=GROUND, height=GROUND, cell_size=0.25,
+                                     section_size=1.0, position=(focus[0], focus[1], -0.001))
         position, look_at = camera(drawing, focus)
         self.server.initial_camera.position = position
         self.server.initial_camera.look_at = look_at
@@ -125,10 +127,16 @@ class BrowserView:
                                         **place)
         for stroke in drawing.strokes:   # drawn in the parent: they stay while the rod slides
             path = f"{WORLD}{drawing.path(stroke.parent)}/stroke_{stroke.joint.replace('/', '|')}"
-            scene.add_line_segments(path, points=np.array([[stroke.lower, stroke.upper]]),
-                                    colors=STROKE_RGB, line_width=3.0)
+            # beside the rod (which runs along it): a rail its thickness away, along z
+            thickness = max((max(v.size) if v.kind == "sphere" else v.size[0]
+                             for v in drawing.visuals.get(stroke.child, ())
+                             if v.kind != "box"), default=0.0)
+            scene.add_frame(path, show_axes=False, position=(0.0, 0.0, 2.0 * thickness))
+            scene.add_line_segments(f"{path}/rail", points=np.array([[stroke.lower,
+                                                                      stroke.upper]]),
+                                    colors=STROKE_RGB, line_width=4.0)
             for end, point in (("lower", stroke.lower), ("upper", stroke.upper)):
-                scene.add_icosphere(f"{path}/{end}", radius=0.012, color=STROKE_RGB,
+                scene.add_icosphere(f"{path}/{end}", radius=STOP_RADIUS, color=STROKE_RGB,
                                     position=point)
 
     def _gui(self) -> None:
@@ -142,7 +150,8 @@ class BrowserView:
                                   series=({"label": "t (s)"},
                                           {"label": "T + V (J)", "stroke": "#2060c0",
                                            "width": 2}),
-                                  title="energy T + V (J)", aspect=1.6)
+                                  scales={"x": {"time": False}}, title="energy T + V (J)",
+                                  aspect=1.6)
         self.impacts = gui.add_markdown("**impacts**: none yet")
         self._shown_impacts = 0
 
@@ -166,7 +175,10 @@ class BrowserView:
     def _slide(self, root) -> None:
         """Follow the robot: the world moves by where its root went since the start."""
         self._root = root
-        self.world.position = self.focus - root if self.follow.value else (0.0, 0.0, 0.0)
+        offset = self.focus - root if self.follow.value else np.zeros(3)
+        self.world.position = offset
+        # the ground slides by as much modulo its 1 m sections: it never runs out
+        self.ground.position = self.focus + np.mod(offset, 1.0) - (0.0, 0.0, 0.001)
 
     def status(self, t: float, energy: float | None, impacts: list) -> None:
         """The time, T + V (J; None: unknown) and the impacts up to now (dicts with time,

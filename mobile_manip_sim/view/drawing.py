@@ -37,6 +37,7 @@ class Stroke(NamedTuple):
 
     joint: str
     parent: str
+    child: str
     lower: tuple
     upper: tuple
 
@@ -61,11 +62,12 @@ class Drawing(NamedTuple):
         return "/" + "/".join(name.replace("/", "|") for name in reversed(chain))
 
     def extent(self) -> float:
-        """A length (m) the size of the robot: where a camera stands back to."""
+        """A length (m) the size of the robot, where a camera stands back to: the farthest any
+        shape reaches from its link's origin, plus every stroke's farthest end (rods in a row)."""
         reach = [np.linalg.norm(v.xyz) + max(v.size) for shapes in self.visuals.values()
                  for v in shapes]
-        reach += [np.linalg.norm(s.upper) for s in self.strokes]
-        return float(max(sum(reach), 0.2))
+        return float(max(reach, default=0.2) + sum(np.linalg.norm(s.upper)
+                                                    for s in self.strokes))
 
 
 def _floats(text, count: int, what: str) -> tuple:
@@ -136,7 +138,7 @@ def read_urdf(text: str) -> Drawing:
                 if axis_element is not None else (1.0, 0.0, 0.0)
             ends = [tuple(np.add(xyz, _rotate(rotation, np.multiply(axis, float(
                 limit.get(side, 0.0)))))) for side in ("lower", "upper")]
-            strokes.append(Stroke(name, up.get("link"), *ends))
+            strokes.append(Stroke(name, up.get("link"), child.get("link"), *ends))
     roots = [link for link in links if link not in parent]
     if len(roots) != 1:
         raise UserError("/robot_description", f"not a tree: {len(roots)} links have no parent")
