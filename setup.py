@@ -24,6 +24,8 @@ setup(
     install_requires=[
         "setuptools", "numpy", "scipy", "pyyaml", "mcap", "zstandard", "numba", "matplotlib",
         "dask[distributed]", "pyarrow", "foxglove-sdk",
+        # the browser view: a three.js page served with its client, scripts and assets
+        "viser",
         # ROS 2 Jazzy from PyPI wheels; on a ROS install these are already there (colcon does
         # not pip-install them).
         "ros-jazzy-rclpy", "ros-jazzy-common-interfaces", "ros-jazzy-rosgraph-msgs",

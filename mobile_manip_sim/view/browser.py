@@ -27,7 +27,7 @@ import time
 
 import numpy as np
 
-from ..ros.frames import FrameTree
+from ..ros.frames import ODOM, FrameTree
 from ..runtime.pacing import Pacer
 from ..runtime.timeline import NS, Grid
 from ..scene import limits
@@ -233,7 +233,7 @@ class LiveBrowser:
     def __init__(self, scene, drawing: Drawing, port: int, host: str = DEFAULT_HOST,
                  sample_rate: float = 100.0, duration: float | None = None,
                  paced: bool = True, port_key: str = "port", tree: FrameTree | None = None,
-                 odom: str = "odom"):
+                 odom: str = ODOM):
         self.tree = tree or FrameTree(scene.robot)
         self.odom = odom
         self.view = BrowserView(drawing, port, host, focus=scene.initial_q[:2],
