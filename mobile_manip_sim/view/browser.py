@@ -182,15 +182,16 @@ class BrowserView:
 
     def status(self, t: float, energy: float | None, impacts: list) -> None:
         """The time, T + V (J; None: unknown) and the impacts up to now (dicts with time,
-        link, stop, energy_lost)."""
+        link, stop, energy_lost, or `impact_log.Impact`; only a changed count is redrawn)."""
         with self._lock:
             self.time.value = round(t, 6)
             if energy is not None:
                 self.energy.value = float(energy)
             if len(impacts) != self._shown_impacts:
                 self._shown_impacts = len(impacts)
+                last = [i if isinstance(i, dict) else i.as_dict() for i in impacts[-8:]]
                 lines = [f"- t = {i['time']:.4f} s: rod {i['link']} at its {i['stop']} stop, "
-                         f"{i['energy_lost']:.3g} J lost" for i in impacts[-8:]]
+                         f"{i['energy_lost']:.3g} J lost" for i in last]
                 self.impacts.content = (f"**impacts**: {len(impacts)}\n\n" + "\n".join(lines)
                                         if impacts else "**impacts**: none yet")
 
@@ -225,10 +226,11 @@ def _in_use(host: str, port: int) -> bool:
 
 
 class LiveBrowser:
-    """A run seen live: `simulate --view browser` (paced to real time: each sample waits for
-    the wall clock) or the node (``paced`` False: it paces itself). ``sample(sim)`` at every
-    sample; a frame goes to the browser at most FRAME_RATE times a second, and always for the
-    run's last sample (`finish`)."""
+    """A run seen live: `simulate --view browser` calls ``sample(sim)`` at every sample (paced
+    to real time: each waits for the wall clock), the node ``show(sim, stamp)`` at every
+    publication (``paced`` False: it paces itself). A frame goes to the browser at most
+    FRAME_RATE times a second, and always for the run's last sample (`finish`). A stamp
+    earlier than the last (the node's reset) starts the energy plot again."""
 
     def __init__(self, scene, drawing: Drawing, port: int, host: str = DEFAULT_HOST,
                  sample_rate: float = 100.0, duration: float | None = None,
@@ -259,22 +261,29 @@ class LiveBrowser:
                 time.sleep(delay)
             else:
                 self.pacer.late(stamp, -delay)
-        energy = sim.total_energy()
+        self.show(sim, stamp)
+
+    def show(self, sim, stamp: int) -> None:
+        """The state ``sim`` at ``stamp`` ns: drawn when a frame is due."""
+        energy = float(sum(sim.dynamics.energy(sim.q, sim.u)))   # T + V
+        first = not self._t or stamp / NS < self._t[-1]
+        if first:
+            self._t, self._energy, self._plotted = [], [], -np.inf
         self._t.append(stamp / NS)
         self._energy.append(energy)
         now = time.monotonic()
-        if now - self._drawn >= 1.0 / FRAME_RATE or k == 0:
+        if now - self._drawn >= 1.0 / FRAME_RATE or first:
             self._draw(sim, stamp, energy, now)
             self._last = None
         else:
-            self._last = (sim.q.copy(), stamp, energy, [i.as_dict() for i in sim.impacts])
+            self._last = (sim.q.copy(), stamp, energy, _impacts(sim))
 
     def _draw(self, sim, stamp: int, energy: float, now: float) -> None:
         self._drawn = now
         q = sim.q
         self.view.pose([self.tree.base_transform(q, self.odom)]
                        + self.tree.moving_transforms(q))
-        self.view.status(stamp / NS, energy, [i.as_dict() for i in sim.impacts])
+        self.view.status(stamp / NS, energy, _impacts(sim))
         if now - self._plotted >= PLOT_PERIOD:
             self._plotted = now
             self.view.plot_energy(self._t[-PLOT_POINTS:], self._energy[-PLOT_POINTS:])
@@ -291,6 +300,10 @@ class LiveBrowser:
 
     def close(self) -> None:
         self.view.close()
+
+
+def _impacts(sim):
+    return getattr(sim, "impacts", ())   # the engine's list (no copy: read only)
 
 
 class Player:
