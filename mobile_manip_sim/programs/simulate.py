@@ -38,7 +38,6 @@ import time
 from pathlib import Path
 
 from ..runtime import cli
-from ..runtime.headless import csv_columns, csv_row, run, summary_line
 from ..runtime.progress import Progress
 from ..scene import limits, schema
 from ..scene.errors import UserError
@@ -123,6 +122,8 @@ def _main(argv) -> int:
         view = PacedView(args.view, scene, rate, duration, args.view_host or DEFAULT_HOST)
         print(f"live view: {view.url} (Foxglove: open connection, Foxglove WebSocket)",
               flush=True)
+    # The engine (numba) loads after the view has started: a browser loads the page meanwhile.
+    from ..runtime.headless import csv_columns, csv_row, run, summary_line
     with CsvOutput(out) as output:
         recorder = None
         if args.record:

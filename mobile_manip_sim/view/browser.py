@@ -101,6 +101,10 @@ class BrowserView:
     def _draw_robot(self, focus) -> None:
         scene, drawing = self.server.scene, self.drawing
         scene.set_up_direction("+z")
+        # No image-based lighting and no shadows: a page's first frame costs seconds less on a
+        # machine that draws WebGL on the CPU (software rendering), and the robot reads as well
+        scene.configure_environment_map(hdri=None)
+        scene.configure_default_lights(enabled=True, cast_shadow=False)
         scene.world_axes.visible = False
         self.focus = np.array([focus[0], focus[1], 0.0])
         self.world = scene.add_frame(WORLD, show_axes=False)   # slid by "follow the robot"
@@ -111,7 +115,7 @@ class BrowserView:
         self.server.initial_camera.look_at = look_at
         self.server.initial_camera.up = (0.0, 0.0, 1.0)
         self.server.initial_camera.fov = FOV
-        self.links = {}
+        self.links, self._poses = {}, {}
         for link in [drawing.root, *drawing.parent]:
             path = WORLD + drawing.path(link)
             self.links[link] = scene.add_frame(path, show_axes=False)
@@ -166,9 +170,14 @@ class BrowserView:
                 handle = self.links.get(child)
                 if handle is None or (child in parent and parent[child] != transform.parent):
                     continue
-                x, y, z, w = transform.rotation
-                handle.position = transform.translation
-                handle.wxyz = (w, x, y, z)
+                # only what changed goes out (a slide keeps its rotation, a turn its origin)
+                last = self._poses.get(child)
+                if last is None or last[0] != transform.translation:
+                    handle.position = transform.translation
+                if last is None or last[1] != transform.rotation:
+                    x, y, z, w = transform.rotation
+                    handle.wxyz = (w, x, y, z)
+                self._poses[child] = (transform.translation, transform.rotation)
                 if child == self.drawing.root:
                     self._slide(np.array([*transform.translation[:2], 0.0]))
 
@@ -241,7 +250,9 @@ class LiveBrowser:
         self.view = BrowserView(drawing, port, host, focus=scene.initial_q[:2],
                                 port_key=port_key)
         self.url = self.view.url
-        self.view.pose(self.tree.static_transforms())
+        q0 = scene.initial_q   # drawn at once: a page opened before the first sample shows it
+        self.view.pose(self.tree.static_transforms() + [self.tree.base_transform(q0, odom)]
+                       + self.tree.moving_transforms(q0))
         self.grid = Grid(sample_rate, duration)
         self.pacer = Pacer(1.0, 1.0 / sample_rate) if paced else None
         self._k = 0

@@ -60,6 +60,7 @@ class Browser:
         self._lock = threading.Condition()
         self.requests: list[str] = []
         self.loaded = threading.Event()
+        self.frames: list[tuple[float, str]] = []   # (monotonic s, PNG base64) of a screencast
         self._reader = threading.Thread(target=self._read, daemon=True)
         self._reader.start()
         self._session = None
@@ -91,6 +92,12 @@ class Browser:
                     self.requests.append(params["url"])
                 elif method == "Page.loadEventFired":
                     self.loaded.set()
+                elif method == "Page.screencastFrame":   # a frame as drawn: keep it, ack it
+                    self.frames.append((time.monotonic(), params["data"]))
+                    self._socket.send(json.dumps({
+                        "id": next(self._ids), "method": "Page.screencastFrameAck",
+                        "params": {"sessionId": params["sessionId"]},
+                        "sessionId": message.get("sessionId")}))
         except Exception:   # the browser went away: callers time out on their replies
             with self._lock:
                 self._lock.notify_all()
@@ -127,6 +134,16 @@ class Browser:
 
     def screenshot(self) -> np.ndarray:
         data = self.call("Page.captureScreenshot", format="png")["data"]
+        return np.asarray(Image.open(io.BytesIO(base64.b64decode(data))).convert("RGB"))
+
+    def screencast(self) -> None:
+        """From now on every frame the page draws lands in ``frames``, with the time it came
+        (a screenshot takes a second of SwiftShader's time; a frame of the screencast none)."""
+        self.frames.clear()
+        self.call("Page.startScreencast", format="png", everyNthFrame=1)
+
+    @staticmethod
+    def image(data: str) -> np.ndarray:
         return np.asarray(Image.open(io.BytesIO(base64.b64decode(data))).convert("RGB"))
 
     def evaluate(self, expression: str):
