@@ -35,6 +35,8 @@ setup(
         "pytest", "pin", "mujoco", "rosbags", "mcap-ros2-support", "ros-jazzy-ament-package",
         "colcon-core", "colcon-ros", "colcon-python-setup-py", "colcon-package-information",
         "colcon-package-selection", "hypothesis", "ruff", "pytest-xdist",
+        # the browser view's tests drive chromium over its DevTools websocket, read screenshots
+        "websockets", "pillow",
     ]},
     zip_safe=True,
     maintainer="mobile_manip_sim developers",
