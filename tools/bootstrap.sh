@@ -30,7 +30,7 @@ if [ ! -x .venv/bin/python ]; then
 fi
 echo "bootstrap: upgrading pip"
 talking "upgrading pip" .venv/bin/python -m pip install --quiet --upgrade pip
-echo "bootstrap: installing the package and its test dependencies (a few minutes the first time)"
+echo "bootstrap: installing the package and its test dependencies, and building its compiled C++ core (a few minutes the first time)"
 # --no-compile: no byte-compiling of every installed module up front (tens of seconds); Python
 # writes the .pyc of what it imports on first use.
 talking "installing" .venv/bin/python -m pip install --quiet --no-compile -e '.[test]'

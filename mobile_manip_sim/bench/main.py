@@ -7,6 +7,7 @@ and how the hard cases behave; write ``REPORT.md`` and PNG plots.
     bench --out /tmp/c --only controllers      # the arm controllers' section alone
     bench --out /tmp/b --only batch            # many runs in one call (the batch) alone
     bench --out /tmp/l --only lanes_fd         # one dynamics evaluation in vector lanes alone
+    bench --out bench/ --only derivatives      # exact Jacobians: updates its section in place
 """
 from __future__ import annotations
 
@@ -52,8 +53,10 @@ def _main(argv) -> int:
                         help="directory for REPORT.md and the plots (default bench)")
     parser.add_argument("--quick", action="store_true",
                         help="a smoke run: short sweeps, one repeat")
-    parser.add_argument("--only", choices=("mujoco", "controllers", "batch", "lanes_fd"),
-                        help="run one section alone (REPORT.md holds only it)")
+    parser.add_argument("--only", choices=("mujoco", "controllers", "batch", "lanes_fd",
+                                           "derivatives"),
+                        help="run one section alone (REPORT.md holds only it; derivatives: "
+                             "its section of an existing REPORT.md is replaced)")
     args = parser.parse_args(argv)
     out = Path(args.out)
     try:
@@ -93,7 +96,15 @@ def _main(argv) -> int:
         progress = Progress(1)
         _lanes_fd_section(results, progress, args.quick)
         return _write(report, results, out, progress)
-    progress = Progress(12)
+    if args.only == "derivatives":
+        progress = Progress(1)
+        _derivatives_section(results, progress, args.quick)
+        path = report.replace_section(out / "REPORT.md", report.derivatives_section(results))
+        progress(f"wrote {path}")
+        progress.ticker.close()
+        print(path)
+        return 0
+    progress = Progress(13)
 
     progress.section("warming up the compiled kernels")
     versus.realtime(lambda _line: None, quick=True)
@@ -140,7 +151,14 @@ def _main(argv) -> int:
 
     _batch_section(results, progress, args.quick)
     _lanes_fd_section(results, progress, args.quick)
+    _derivatives_section(results, progress, args.quick)
     return _write(report, results, out, progress)
+
+
+def _derivatives_section(results, progress, quick: bool) -> None:
+    from . import derivatives
+    progress.section("exact Jacobians against MuJoCo's finite differences; the core's dynamics")
+    results["derivatives"] = derivatives.measure(progress, quick=quick)
 
 
 def _lanes_fd_section(results, progress, quick: bool) -> None:

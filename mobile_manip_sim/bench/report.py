@@ -305,6 +305,8 @@ def write(results, out: Path) -> Path:
         parts.append(_batch_section(results))
     if results.get("lanes_fd"):
         parts.append(_lanes_fd_section(results))
+    if results.get("derivatives"):
+        parts.append(derivatives_section(results))
     return _write_parts(parts, out)
 
 
@@ -328,6 +330,32 @@ def _mujoco_section(results) -> str:
         return "## 7. Against MuJoCo\n\nmujoco is not installed: skipped.\n"
     from .versus_mujoco import section
     return section(results["mujoco"], number=7)
+
+
+DERIVATIVES_NUMBER = 11
+
+
+def derivatives_section(results) -> str:
+    from .derivatives import section
+    return section(results["derivatives"], number=DERIVATIVES_NUMBER)
+
+
+def replace_section(path: Path, text: str) -> Path:
+    """Put a section into an existing REPORT.md in place of the one of the same number (or at
+    its end): one section re-measured without the whole run."""
+    head = text.split("\n", 1)[0]            # "## N. Title"
+    number = head.split(".", 1)[0] + "."
+    old = path.read_text() if path.exists() else ""
+    lines = old.splitlines()
+    start = next((i for i, line in enumerate(lines) if line.startswith(number + " ")), None)
+    if start is None:
+        new = old.rstrip("\n") + "\n\n" + text
+    else:
+        end = next((i for i in range(start + 1, len(lines)) if lines[i].startswith("## ")),
+                   len(lines))
+        new = "\n".join(lines[:start] + text.rstrip("\n").split("\n") + [""] + lines[end:])
+    path.write_text(new.rstrip("\n") + "\n")
+    return path
 
 
 def _write_parts(parts, out: Path) -> Path:

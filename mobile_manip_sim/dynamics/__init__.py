@@ -1,5 +1,9 @@
 """The dynamics core: no ROS, no I/O. Model + state → forces, accelerations, energy, kinematics.
 
+`Dynamics` answers from the compiled core (`mobile_manip_sim.core`, C++ generic in its scalar);
+its numba records (`model_record`, `ws`) still serve the engine's kernels until they are ported
+too; both compute the same numbers bit for bit (test/core).
+
     from mobile_manip_sim.dynamics import Dynamics
     dyn = Dynamics(model, gravity=10.0)
     Q = dyn.inverse_dynamics(q, u, ud)   # M(q) u̇ + h(q, u), gravity included
@@ -15,9 +19,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..core import compiled_dynamics
 from ..scene.coordinates import WHEEL_L, WHEEL_R, YAW, X, Y
 from ..scene.model import RobotModel
-from . import articulated, kernels
+from . import kernels
 from .records import make_model, make_workspace
 
 
@@ -32,46 +37,34 @@ class Dynamics:
                  wheel_inertia: bool = True):
         self.model = model
         self.gravity = float(gravity)
-        self.model_record = make_model(model, tip_mass, wheel_inertia)   # what the kernels take
+        self.model_record = make_model(model, tip_mass, wheel_inertia)   # the numba kernels'
+        self.core = compiled_dynamics(model, tip_mass, wheel_inertia)
         n, nu = model.n_links, model.n_u
         self.ws = make_workspace(n)
         self._zeros = np.zeros(nu)
-        self._unit = np.zeros(nu)
-        self._column = np.zeros(nu)
         self._cholesky = np.zeros((nu, nu))
         self._all = np.arange(nu)
-
-    def _frames(self, q) -> None:
-        kernels.frames(self.model_record, np.asarray(q, dtype=float), self.ws)
+        self._moving = np.ones(nu)
 
     def inverse_dynamics(self, q, u, ud, gravity: float | None = None) -> np.ndarray:
         """Q = M(q) u̇ + h(q, u): the recursive Gibbs–Appell pass (docs/model.md ∂S/∂u̇_k = Q_k)."""
-        q = np.asarray(q, dtype=float)
         g = self.gravity if gravity is None else gravity
-        Q = np.empty(self.model.n_u)
-        kernels.frames(self.model_record, q, self.ws)
-        kernels.gibbs_appell(self.model_record, q, np.asarray(u, dtype=float),
-                             np.asarray(ud, dtype=float), g, self.ws, Q)
-        return Q
+        return self.core.inverse_dynamics(_vector(q), _vector(u), _vector(ud), float(g))
 
     def bias(self, q, u, gravity: float | None = None) -> np.ndarray:
         """h(q, u): velocity products and gravity."""
         return self.inverse_dynamics(q, u, self._zeros, gravity)
 
     def mass_matrix(self, q) -> np.ndarray:
-        q = np.asarray(q, dtype=float)
-        M = np.empty((self.model.n_u, self.model.n_u))
-        kernels.frames(self.model_record, q, self.ws)
-        kernels.mass_matrix(self.model_record, q, self.ws, self._zeros, self._unit, self._column, M)
-        return M
+        """M(q) by composite rigid bodies, O(n²)."""
+        return self.core.mass_matrix(_vector(q))
 
-    def forward_dynamics(self, q, u, Q) -> np.ndarray:
-        """u̇ = M(q)⁻¹ (Q − h(q, u)) by the articulated-body recursion, O(n) (`articulated.py`)."""
-        ud = np.empty(self.model.n_u)
-        articulated.forward_dynamics(self.model_record, np.asarray(q, dtype=float),
-                                     np.asarray(u, dtype=float), np.asarray(Q, dtype=float),
-                                     self.gravity, self._all, self.ws, ud)
-        return ud
+    def forward_dynamics(self, q, u, Q, moving=None) -> np.ndarray:
+        """u̇ = M(q)⁻¹ (Q − h(q, u)) by the articulated-body recursion, O(n); ``moving`` (n_u,
+        1.0 free, 0.0 locked; all free by default) gives locked pseudo-velocities u̇ = 0."""
+        moving = self._moving if moving is None else _vector(moving)
+        return self.core.forward_dynamics(_vector(q), _vector(u), _vector(Q), self.gravity,
+                                          moving)
 
     def forward_dynamics_by_cholesky(self, q, u, Q) -> np.ndarray:
         """The same u̇ from the mass matrix and the bias: M(q)⁻¹ (Q − h(q, u)), by Cholesky."""
@@ -83,35 +76,32 @@ class Dynamics:
 
     def energy(self, q, u) -> tuple[float, float]:
         """(T, V) in J: kinetic energy from the velocities, potential g Σ μ ∫ z dη."""
-        q = np.asarray(q, dtype=float)
-        self._frames(q)
-        T = kernels.kinetic_energy(self.model_record, q, np.asarray(u, dtype=float), self.ws)
-        return T, kernels.potential_energy(self.model_record, q, self.gravity, self.ws)
+        return self.core.energy(_vector(q), _vector(u), self.gravity)
 
     def joint_origins(self, q) -> np.ndarray:
         """(n+2, 3) world positions: A, O_1 … O_n, then the tip (distal end of rod n)."""
-        self._frames(q)
-        return self.ws.O.copy()
+        return self.core.joint_origins(_vector(q))
 
     def link_rotations(self, q) -> np.ndarray:
         """(n+1, 3, 3) world orientations: base_link, then joint frames 1 … n."""
-        self._frames(q)
-        return self.ws.R.copy()
+        return self.core.link_rotations(_vector(q))
 
     def tip_position(self, q) -> np.ndarray:
         return self.joint_origins(q)[-1]
 
     def configuration_rate(self, q, u) -> np.ndarray:
         """q̇ from u (the nonholonomic constraints are built in)."""
-        qdot = np.empty(self.model.n_q)
-        kernels.configuration_rate(self.model_record, np.asarray(q, float), np.asarray(u, float),
-                                   qdot)
-        return qdot
+        return self.core.configuration_rate(_vector(q), _vector(u))
 
     def wheel_forces(self, tau_R: float, tau_L: float) -> tuple[float, float]:
         """(Q_v, Q_ω) of wheel torques: ((τ_R + τ_L)/r, b (τ_R − τ_L)/r)."""
         r, b = self.model.base.wheel_radius, self.model.base.half_track
         return (tau_R + tau_L) / r, b * (tau_R - tau_L) / r
+
+
+def _vector(values) -> np.ndarray:
+    """A C-ordered float64 copy or view, as the compiled core takes its arrays."""
+    return np.ascontiguousarray(values, dtype=float)
 
 
 def constraint_residuals(model: RobotModel, q, qdot) -> tuple[float, float]:

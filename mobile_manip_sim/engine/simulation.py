@@ -32,7 +32,7 @@ from ..scene.errors import UserError
 from ..scene.limits import ANGLE, SPEED
 from ..scene.loading import IntegratorSettings, Scene
 from ..scene.methods import COMPILED_STEPPERS, IDS, METHODS
-from . import adaptive_stepping, dense, layout, step_watch, stepping
+from . import adaptive_stepping, dense, layout, linearization, step_watch, stepping
 from . import status as status_codes
 from .arm_commands import ArmCommands
 from .arm_control import arm_settings, feedforward_masses, for_robot, scene_arm_controller
@@ -298,6 +298,17 @@ class Simulation(ArmCommands, BaseCommands, ScipySteps):
         return int(self.system.counters[RHS_EVALS])
 
     # --- commands ------------------------------------------------------------------------
+    def linearize(self, q=None, u=None):
+        """(∂f/∂x, ∂f/∂τ) of ẋ = f(x, τ), x = (q, u), τ = (τ_R, τ_L, τ_1, F_1, …), at (q, u)
+        (default: now), with the efforts, damping and locks in force: exact, by dual numbers
+        (`linearization.py`)."""
+        return linearization.linearize(self, q, u)
+
+    def step_jacobians(self, q=None, u=None, dt=None):
+        """(A, B) = (∂x⁺/∂x, ∂x⁺/∂τ) of one step of the run's fixed-step method (`linearize`'s
+        x and τ), the exact derivative of the step map (`linearization.py`)."""
+        return linearization.step_jacobians(self, q, u, dt)
+
     def set_efforts(self, wheels=None, joints=None) -> None:
         """Hold these efforts from now on: wheels (τ_R, τ_L) N·m, joints (τ_1, F_1, …)."""
         if joints is not None and self.arm_controller.active:

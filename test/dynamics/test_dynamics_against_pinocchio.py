@@ -83,3 +83,33 @@ def test_potential_energy_equals_pinocchio_potential_up_to_a_constant(seed):
     dV_ref = ref.potential_energy(q2) - ref.potential_energy(q)
     scale = max(abs(ref.potential_energy(q)), abs(ref.potential_energy(q2)), 1.0)
     assert abs((V2 - V1) - dV_ref) <= TOL * scale, (V2 - V1, dV_ref)
+
+
+@pytest.mark.parametrize("seed", SEEDS[::5] + [2000])
+def test_exact_jacobians_equal_projected_pinocchio_rnea_derivatives(seed):
+    """The core's dual-number Jacobians of u̇ against Pinocchio's analytic RNEA derivatives of the
+    ordinary multibody, projected: with u̇ solving Sᵀ rnea(q, S u, S u̇) = Q,
+    ∂u̇/∂u = −M⁻¹ Sᵀ ∂τ/∂v S, ∂u̇/∂q_k = −M⁻¹ Sᵀ ∂τ/∂q_k (a joint of the arm or a wheel: the same
+    coordinate in both), ∂u̇/∂Q = M⁻¹; the base's pose enters neither (both zero)."""
+    import pinocchio as pin
+    rng, model, dyn, ref, q, u, _ = random_case(seed, 10 if seed == 2000 else None)
+    nq, nu = model.n_q, model.n_u
+    Q = rng.normal(size=nu)
+    M, h = ref.mass_matrix(q), ref.bias(q, u)
+    ud = np.linalg.solve(M, Q - h)   # Pinocchio's own u̇
+    S = ref.S
+    dtau_dq, dtau_dv, _ = pin.computeRNEADerivatives(ref.model, ref.data,
+                                                     ref.full_configuration(q), S @ u, S @ ud)
+    s = np.concatenate([q, u, np.zeros(3)])
+    rates, d_dx, d_dQ = dyn.core.jacobians("", s, 0.0, Q, np.eye(nu), np.zeros(0), np.ones(nu),
+                                           dyn.gravity)
+    scale = max(1.0, np.abs(d_dx).max(), np.abs(d_dQ).max())
+    assert np.abs(rates[nq:] - ud).max() <= 1e-10 * max(1.0, np.abs(ud).max())
+    joints = list(range(3, nq))   # wheels, then the arm: q[3:] are Pinocchio's v[3:] too
+    expected = {"u": -np.linalg.solve(M, S.T @ dtau_dv @ S),
+                "joints": -np.linalg.solve(M, S.T @ dtau_dq[:, joints]),
+                "Q": np.linalg.inv(M)}
+    ours = {"u": d_dx[nq:, nq:], "joints": d_dx[nq:, joints], "Q": d_dQ[nq:]}
+    for name, value in expected.items():
+        assert np.abs(ours[name] - value).max() <= 1e-10 * scale, name
+    assert np.abs(d_dx[nq:, :3]).max() <= 1e-12 * scale   # x, y, yaw: the dynamics do not see them

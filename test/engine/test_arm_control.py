@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from executables import executable
-from mobile_manip_sim.dynamics import Dynamics, jit
+from mobile_manip_sim.dynamics import Dynamics, jit, kernels
 from mobile_manip_sim.engine import layout
 from mobile_manip_sim.engine.arm_control import default_controller, for_robot, gravity_efforts
 from mobile_manip_sim.engine.simulation import Simulation
@@ -228,7 +228,8 @@ def test_the_reduced_gravity_pass_is_the_inverse_dynamics_at_rest_on_random_robo
             q[6::2] = rng.uniform(0.3, 1.5, n)
             expected = dynamics.inverse_dynamics(q, np.zeros(robot.n_u), np.zeros(robot.n_u))[2:]
             out = np.zeros(2 * n)
-            gravity_efforts(dynamics.model_record, q, 9.81, dynamics.ws, out)   # frames: above
+            kernels.frames(dynamics.model_record, q, dynamics.ws)
+            gravity_efforts(dynamics.model_record, q, 9.81, dynamics.ws, out)
             assert np.allclose(out, expected, rtol=1e-12, atol=1e-12)
 
 

@@ -1,0 +1,398 @@
+// Python bindings of the compiled core (nanobind): `Dynamics`, one robot's model with a workspace
+// per scalar type, and `build_info`. Arrays in and out are NumPy float64, C order.
+#include <nanobind/nanobind.h>
+#include <nanobind/ndarray.h>
+#include <nanobind/stl/string.h>
+#include <nanobind/stl/tuple.h>
+
+#include <cstring>
+#include <ctime>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+#include "mms/articulated.hpp"
+#include "mms/dynamics.hpp"
+#include "mms/fixed_step.hpp"
+
+namespace nb = nanobind;
+using namespace nb::literals;
+
+namespace mms {
+namespace {
+
+using In = nb::ndarray<const double, nb::c_contig, nb::device::cpu>;
+using Out = nb::ndarray<nb::numpy, double>;
+using Block = Lanes<kLaneWidth>;
+constexpr int kDirections = 8;  // derivative directions per pass: one Lanes<8> per number
+using Directions = Lanes<kDirections>;
+using DualD = Dual<double, Directions>;
+
+Out new_array(std::initializer_list<size_t> shape, double** data) {
+  size_t count = 1;
+  for (size_t s : shape) count *= s;
+  double* buffer = new double[count ? count : 1];
+  std::memset(buffer, 0, sizeof(double) * (count ? count : 1));
+  nb::capsule owner(buffer, [](void* p) noexcept { delete[] static_cast<double*>(p); });
+  *data = buffer;
+  return Out(buffer, shape.size(), shape.begin(), owner);
+}
+
+void need(const In& a, size_t size, const char* name) {
+  if (a.size() != size)
+    throw std::invalid_argument(std::string(name) + ": expected " + std::to_string(size) +
+                                " numbers, got " + std::to_string(a.size()));
+}
+
+class Dynamics {
+ public:
+  Dynamics(BaseParameters base, In mount, In R0, In L, In mu, In J, double tip_mass)
+      : ws_(0), block_(0), system_(Model()), dual_system_(Model()) {
+    size_t n = L.size();
+    need(mount, 3, "mount");
+    need(R0, 9 * n, "R0");
+    need(mu, n, "mu");
+    need(J, 9 * n, "J");
+    model_.base = base;
+    for (int i = 0; i < 3; ++i) model_.mount[i] = mount.data()[i];
+    model_.R0.resize(n);
+    model_.J.resize(n);
+    for (size_t k = 0; k < n; ++k) {
+      model_.L.push_back(L.data()[k]);
+      model_.mu.push_back(mu.data()[k]);
+      for (int i = 0; i < 3; ++i)
+        for (int j = 0; j < 3; ++j) {
+          model_.R0[k][i][j] = R0.data()[9 * k + 3 * i + j];
+          model_.J[k][i][j] = J.data()[9 * k + 3 * i + j];
+        }
+    }
+    model_.tip_mass = tip_mass;
+    ws_ = Workspace<double>(model_.n());
+    block_ = Workspace<Block>(model_.n());
+    system_ = SystemWorkspace<double>(model_);
+    dual_system_ = SystemWorkspace<DualD>(model_);
+  }
+
+  int n() const { return model_.n(); }
+  int n_q() const { return model_.n_q(); }
+  int n_u() const { return model_.n_u(); }
+
+  Out inverse_dynamics(In q, In u, In ud, double g) {
+    check(q, u, ud);
+    double* Q;
+    Out out = new_array({size_t(n_u())}, &Q);
+    frames(model_, q.data(), ws_);
+    mms::inverse_dynamics(model_, q.data(), u.data(), ud.data(), g, ws_, Q);
+    return out;
+  }
+
+  Out mass_matrix(In q) {
+    need(q, n_q(), "q");
+    double* M;
+    Out out = new_array({size_t(n_u()), size_t(n_u())}, &M);
+    frames(model_, q.data(), ws_);
+    mms::mass_matrix(model_, ws_, q.data(), M);
+    return out;
+  }
+
+  Out forward_dynamics(In q, In u, In Q, double g, In moving) {
+    check(q, u, Q);
+    need(moving, n_u(), "moving");
+    double* ud;
+    Out out = new_array({size_t(n_u())}, &ud);
+    for (int k = 0; k < n_u(); ++k) ws_.moving[k] = moving.data()[k];
+    frames(model_, q.data(), ws_);
+    mms::forward_dynamics(model_, q.data(), u.data(), Q.data(), g, ws_, ud);
+    return out;
+  }
+
+  // The force each slide transmits in the last forward_dynamics (index k = 1 … n; 0 unused).
+  Out slide_forces() {
+    double* f;
+    Out out = new_array({size_t(n() + 1)}, &f);
+    for (int k = 0; k <= n(); ++k) f[k] = ws_.slide_force[k];
+    return out;
+  }
+
+  std::tuple<double, double> energy(In q, In u, double g) {
+    need(q, n_q(), "q");
+    need(u, n_u(), "u");
+    frames(model_, q.data(), ws_);
+    return {kinetic_energy(model_, q.data(), u.data(), ws_),
+            potential_energy(model_, q.data(), g, ws_)};
+  }
+
+  Out joint_origins(In q) {
+    need(q, n_q(), "q");
+    double* p;
+    Out out = new_array({size_t(n() + 2), 3}, &p);
+    frames(model_, q.data(), ws_);
+    for (int k = 0; k < n() + 2; ++k)
+      for (int i = 0; i < 3; ++i) p[3 * k + i] = ws_.O[k][i];
+    return out;
+  }
+
+  Out link_rotations(In q) {
+    need(q, n_q(), "q");
+    double* p;
+    Out out = new_array({size_t(n() + 1), 3, 3}, &p);
+    frames(model_, q.data(), ws_);
+    for (int k = 0; k < n() + 1; ++k)
+      for (int i = 0; i < 3; ++i)
+        for (int j = 0; j < 3; ++j) p[9 * k + 3 * i + j] = ws_.R[k][i][j];
+    return out;
+  }
+
+  Out configuration_rate(In q, In u) {
+    need(q, n_q(), "q");
+    need(u, n_u(), "u");
+    double* qdot;
+    Out out = new_array({size_t(n_q())}, &qdot);
+    mms::configuration_rate(model_, q.data(), u.data(), qdot);
+    return out;
+  }
+
+  // Many states at once, kLaneWidth per vector block: rows of q (m × n_q), u, Q, moving (m × n_u).
+  Out forward_dynamics_lanes(In q, In u, In Q, double g, In moving) {
+    size_t m = q.ndim() == 2 ? q.shape(0) : 0;
+    if (q.ndim() != 2 || q.shape(1) != size_t(n_q()))
+      throw std::invalid_argument("q: expected an array of shape (runs, " +
+                                  std::to_string(n_q()) + ")");
+    need(u, m * n_u(), "u");
+    need(Q, m * n_u(), "Q");
+    need(moving, m * n_u(), "moving");
+    double* ud;
+    Out out = new_array({m, size_t(n_u())}, &ud);
+    const int W = kLaneWidth, nq = n_q(), nu = n_u();
+    std::vector<Block> qb(nq), ub(nu), Qb(nu), udb(nu);
+    for (size_t start = 0; start < m; start += W) {
+      for (int lane = 0; lane < W; ++lane) {
+        size_t row = start + lane < m ? start + lane : m - 1;  // a short block repeats its last
+        for (int i = 0; i < nq; ++i) qb[i].set(lane, q.data()[row * nq + i]);
+        for (int i = 0; i < nu; ++i) {
+          ub[i].set(lane, u.data()[row * nu + i]);
+          Qb[i].set(lane, Q.data()[row * nu + i]);
+          block_.moving[i].set(lane, moving.data()[row * nu + i]);
+        }
+      }
+      frames(model_, qb.data(), block_);
+      mms::forward_dynamics(model_, qb.data(), ub.data(), Qb.data(), g, block_, udb.data());
+      for (int lane = 0; lane < W && start + lane < m; ++lane)
+        for (int i = 0; i < nu; ++i) ud[(start + lane) * nu + i] = udb[i][lane];
+    }
+    return out;
+  }
+
+  // ds/dt at s = (q, u, e, W) for a robot driven by efforts (system.hpp): Q_cmd (n_u), damping
+  // (n_u, or empty: none), moving (n_u: 1 free, 0 locked).
+  Out rates(In s, In Q_cmd, In damping, In moving, double g) {
+    set_effects(s, Q_cmd, damping, moving);
+    double* ds;
+    Out out = new_array({size_t(state_size(model_))}, &ds);
+    Effects<double> fx{g, Q_cmd.data(), damping.size() ? damping.data() : nullptr};
+    mms::rates(model_, fx, s.data(), ds, system_);
+    return out;
+  }
+
+  // One step of `method` (euler, semi_implicit_euler, rk4) of length h from s (fixed_step.hpp).
+  Out step(const std::string& method, In s, double h, In Q_cmd, In damping, In moving, double g) {
+    Method m = method_of(method);
+    set_effects(s, Q_cmd, damping, moving);
+    double* next;
+    Out out = new_array({size_t(state_size(model_))}, &next);
+    Effects<double> fx{g, Q_cmd.data(), damping.size() ? damping.data() : nullptr};
+    mms::step(m, model_, fx, s.data(), h, next, system_);
+    return out;
+  }
+
+  // Exact Jacobians by dual numbers (kDirections directions a pass, one vector register), of the
+  // rates (method "" : f = (q̇, u̇)) or of one step of a method (s⁺'s (q, u)), with respect to
+  // x = (q, u) and the efforts τ, whose generalized forces are Q_cmd + B (τ − τ₀) (B: n_u × n_τ,
+  // a zero column for an effort held at its limit): (value (n_x), ∂/∂x (n_x × n_x), ∂/∂τ
+  // (n_x × n_τ)), n_x = n_q + n_u.
+  std::tuple<Out, Out, Out> jacobians(const std::string& method, In s, double h, In Q_cmd, In B,
+                                      In damping, In moving, double g) {
+    const bool of_step = !method.empty();
+    Method m = of_step ? method_of(method) : Method::Euler;
+    set_effects(s, Q_cmd, damping, moving);
+    const int nq = n_q(), nu = n_u(), nx = nq + nu, ns = state_size(model_);
+    if (B.ndim() != 2 || B.shape(0) != size_t(nu))
+      throw std::invalid_argument("B: expected an array of shape (" + std::to_string(nu) +
+                                  ", efforts)");
+    const int ntau = static_cast<int>(B.shape(1)), total = nx + ntau;
+    double *value, *dx, *dtau;
+    Out o_value = new_array({size_t(nx)}, &value), o_dx = new_array({size_t(nx), size_t(nx)}, &dx),
+        o_dtau = new_array({size_t(nx), size_t(ntau)}, &dtau);
+    for (int k = 0; k < nu; ++k) dual_system_.dynamics.moving[k] = moving.data()[k];
+    std::vector<DualD> sd(ns), Qd(nu), out(ns);
+    Effects<DualD> fx{g, Qd.data(), damping.size() ? damping.data() : nullptr};
+    for (int first = 0; first < total; first += kDirections) {
+      // direction j (first ≤ j < first + kDirections) seeds x_j, or the effort j − n_x
+      auto seed = [&](int j) {
+        Directions d(0.0);
+        if (j >= first && j < first + kDirections) d.set(j - first, 1.0);
+        return d;
+      };
+      for (int i = 0; i < ns; ++i) sd[i] = DualD(s.data()[i], i < nx ? seed(i) : Directions(0.0));
+      for (int i = 0; i < nu; ++i) {
+        Directions d(0.0);
+        for (int j = 0; j < ntau; ++j) d = d + B.data()[i * ntau + j] * seed(nx + j);
+        Qd[i] = DualD(Q_cmd.data()[i], d);
+      }
+      if (of_step) mms::step(m, model_, fx, sd.data(), h, out.data(), dual_system_);
+      else mms::rates(model_, fx, sd.data(), out.data(), dual_system_);
+      for (int r = 0; r < nx; ++r) {
+        value[r] = out[r].val;
+        for (int lane = 0; lane < kDirections && first + lane < total; ++lane) {
+          int j = first + lane;
+          if (j < nx) dx[r * nx + j] = out[r].d[lane];
+          else dtau[r * ntau + j - nx] = out[r].d[lane];
+        }
+      }
+    }
+    return {o_value, o_dx, o_dtau};
+  }
+
+  // CPU seconds per call of this thread, over `calls` calls, for the benchmarks (bench/): the
+  // kernels alone, without the Python call around them.
+  double time_forward_dynamics(In q, In u, In Q, double g, In moving, int calls) {
+    check(q, u, Q);
+    need(moving, n_u(), "moving");
+    for (int k = 0; k < n_u(); ++k) ws_.moving[k] = moving.data()[k];
+    std::vector<double> ud(n_u());
+    return per_call(calls, [&] {
+      frames(model_, q.data(), ws_);
+      mms::forward_dynamics(model_, q.data(), u.data(), Q.data(), g, ws_, ud.data());
+    });
+  }
+
+  // … per lane-evaluation of one vector block of kLaneWidth runs (the rows of q, u, Q, moving).
+  double time_forward_dynamics_lanes(In q, In u, In Q, double g, In moving, int calls) {
+    const int W = kLaneWidth, nq = n_q(), nu = n_u();
+    need(q, size_t(W) * nq, "q");
+    need(u, size_t(W) * nu, "u");
+    need(Q, size_t(W) * nu, "Q");
+    need(moving, size_t(W) * nu, "moving");
+    std::vector<Block> qb(nq), ub(nu), Qb(nu), udb(nu);
+    for (int lane = 0; lane < W; ++lane) {
+      for (int i = 0; i < nq; ++i) qb[i].set(lane, q.data()[lane * nq + i]);
+      for (int i = 0; i < nu; ++i) {
+        ub[i].set(lane, u.data()[lane * nu + i]);
+        Qb[i].set(lane, Q.data()[lane * nu + i]);
+        block_.moving[i].set(lane, moving.data()[lane * nu + i]);
+      }
+    }
+    return per_call(calls, [&] {
+      frames(model_, qb.data(), block_);
+      mms::forward_dynamics(model_, qb.data(), ub.data(), Qb.data(), g, block_, udb.data());
+    }) / W;
+  }
+
+  double time_jacobians(const std::string& method, In s, double h, In Q_cmd, In B, In damping,
+                        In moving, double g, int calls) {
+    return per_call(calls, [&] { jacobians(method, s, h, Q_cmd, B, damping, moving, g); });
+  }
+
+ private:
+  template <class F>
+  static double per_call(int calls, F&& body) {
+    body();
+    timespec start, end;
+    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &start);
+    for (int i = 0; i < calls; ++i) body();
+    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &end);
+    double seconds = (end.tv_sec - start.tv_sec) + 1e-9 * (end.tv_nsec - start.tv_nsec);
+    return seconds / (calls > 0 ? calls : 1);
+  }
+
+  static Method method_of(const std::string& name) {
+    if (name == "euler") return Method::Euler;
+    if (name == "semi_implicit_euler") return Method::SemiImplicitEuler;
+    if (name == "rk4") return Method::Rk4;
+    throw std::invalid_argument("method: expected euler, semi_implicit_euler or rk4, got " + name);
+  }
+
+  void set_effects(const In& s, const In& Q_cmd, const In& damping, const In& moving) {
+    need(s, state_size(model_), "s");
+    need(Q_cmd, n_u(), "Q_cmd");
+    if (damping.size()) need(damping, n_u(), "damping");
+    need(moving, n_u(), "moving");
+    for (int k = 0; k < n_u(); ++k) system_.dynamics.moving[k] = moving.data()[k];
+  }
+
+  void check(const In& q, const In& u, const In& third) {
+    need(q, n_q(), "q");
+    need(u, n_u(), "u");
+    need(third, n_u(), "third argument (n_u)");
+  }
+
+  Model model_;
+  Workspace<double> ws_;
+  Workspace<Block> block_;
+  SystemWorkspace<double> system_;
+  SystemWorkspace<DualD> dual_system_;
+};
+
+// a*b + c, as this build computes it: a build that contracts it into one fused multiply-add
+// rounds once and gives another result than IEEE's two roundings (the test checks).
+double multiply_add(double a, double b, double c) { return a * b + c; }
+
+nb::dict build_info() {
+  nb::dict info;
+  info["compiler"] = std::string(__VERSION__);
+  info["flags"] = std::string(MMS_CXX_FLAGS);
+  info["lane_width"] = kLaneWidth;
+  info["derivative_directions"] = kDirections;
+#ifdef __FAST_MATH__
+  info["fast_math"] = true;
+#else
+  info["fast_math"] = false;
+#endif
+  return info;
+}
+
+}  // namespace
+}  // namespace mms
+
+NB_MODULE(_core, m) {
+  using mms::BaseParameters;
+  m.doc() = "mobile_manip_sim's compiled core: the Gibbs–Appell dynamics, generic in its scalar";
+  nb::class_<BaseParameters>(m, "BaseParameters")
+      .def(nb::init<>())
+      .def_rw("mass", &BaseParameters::mass)
+      .def_rw("yaw_inertia", &BaseParameters::yaw_inertia)
+      .def_rw("com_offset", &BaseParameters::com_offset)
+      .def_rw("wheel_radius", &BaseParameters::wheel_radius)
+      .def_rw("half_track", &BaseParameters::half_track)
+      .def_rw("wheel_inertia", &BaseParameters::wheel_inertia);
+  nb::class_<mms::Dynamics>(m, "Dynamics")
+      .def(nb::init<BaseParameters, mms::In, mms::In, mms::In, mms::In, mms::In, double>(),
+           "base"_a, "mount"_a, "R0"_a, "L"_a, "mu"_a, "J"_a, "tip_mass"_a)
+      .def_prop_ro("n", &mms::Dynamics::n)
+      .def_prop_ro("n_q", &mms::Dynamics::n_q)
+      .def_prop_ro("n_u", &mms::Dynamics::n_u)
+      .def("inverse_dynamics", &mms::Dynamics::inverse_dynamics, "q"_a, "u"_a, "ud"_a, "g"_a)
+      .def("mass_matrix", &mms::Dynamics::mass_matrix, "q"_a)
+      .def("forward_dynamics", &mms::Dynamics::forward_dynamics, "q"_a, "u"_a, "Q"_a, "g"_a,
+           "moving"_a)
+      .def("slide_forces", &mms::Dynamics::slide_forces)
+      .def("energy", &mms::Dynamics::energy, "q"_a, "u"_a, "g"_a)
+      .def("joint_origins", &mms::Dynamics::joint_origins, "q"_a)
+      .def("link_rotations", &mms::Dynamics::link_rotations, "q"_a)
+      .def("configuration_rate", &mms::Dynamics::configuration_rate, "q"_a, "u"_a)
+      .def("forward_dynamics_lanes", &mms::Dynamics::forward_dynamics_lanes, "q"_a, "u"_a,
+           "Q"_a, "g"_a, "moving"_a)
+      .def("rates", &mms::Dynamics::rates, "s"_a, "Q_cmd"_a, "damping"_a, "moving"_a, "g"_a)
+      .def("step", &mms::Dynamics::step, "method"_a, "s"_a, "h"_a, "Q_cmd"_a, "damping"_a,
+           "moving"_a, "g"_a)
+      .def("jacobians", &mms::Dynamics::jacobians, "method"_a, "s"_a, "h"_a, "Q_cmd"_a, "B"_a,
+           "damping"_a, "moving"_a, "g"_a)
+      .def("time_forward_dynamics", &mms::Dynamics::time_forward_dynamics, "q"_a, "u"_a, "Q"_a,
+           "g"_a, "moving"_a, "calls"_a)
+      .def("time_forward_dynamics_lanes", &mms::Dynamics::time_forward_dynamics_lanes, "q"_a,
+           "u"_a, "Q"_a, "g"_a, "moving"_a, "calls"_a)
+      .def("time_jacobians", &mms::Dynamics::time_jacobians, "method"_a, "s"_a, "h"_a,
+           "Q_cmd"_a, "B"_a, "damping"_a, "moving"_a, "g"_a, "calls"_a);
+  m.def("build_info", &mms::build_info);
+  m.def("multiply_add", &mms::multiply_add, "a"_a, "b"_a, "c"_a);
+}

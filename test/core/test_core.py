@@ -1,0 +1,212 @@
+"""The compiled core (mobile_manip_sim/core: C++ templates generic in their scalar) against the
+numba kernels it replaces, bit for bit while both exist, and against itself across its scalars:
+every lane of a vector block is its own double run bit for bit, a dual number's value is the double
+run bit for bit and its derivatives agree with central differences of the double run. And the
+build itself: IEEE arithmetic, no fast-math, no contraction of a*b + c into one rounding.
+"""
+from fractions import Fraction
+
+import numpy as np
+import pytest
+
+import robots
+from differences import best_agreement
+from mobile_manip_sim.core import build_info, compiled_dynamics, multiply_add
+from mobile_manip_sim.dynamics import articulated, kernels
+from mobile_manip_sim.dynamics.records import make_model, make_workspace
+from mobile_manip_sim.scene.coordinates import SLIDES_U, rod
+from mobile_manip_sim.scene.loading import load_scene
+
+LINK_COUNTS = [0, 1, 2, 3, 5, 8]
+
+
+def case(seed, n):
+    """A random robot of n links with a payload (or none), a random state with extensions up to
+    10 % past the stops, accelerations, forces, gravity and a random set of locked
+    pseudo-velocities: its numba records and its compiled core."""
+    rng = np.random.default_rng(seed)
+    robot = robots.random_robot(rng, n)
+    tip = 0.0 if seed % 3 == 0 else float(rng.uniform(0.1, 3.0))
+    q, u = robots.random_state(rng, robot, beyond=0.1)
+    nu = robot.n_u
+    moving = (rng.uniform(size=nu) > 0.3).astype(float)
+    return dict(rng=rng, robot=robot, tip=tip, q=q, u=u, ud=rng.normal(size=nu),
+                Q=rng.normal(size=nu), g=float(rng.uniform(0.0, 12.0)), moving=moving,
+                record=make_model(robot, tip), ws=make_workspace(n),
+                core=compiled_dynamics(robot, tip))
+
+
+def free_list(moving):
+    """The numba kernels' form of a locked set: the free indices, padded with −1."""
+    free = [k for k in range(moving.size) if moving[k]]
+    return np.array(free + [-1] * (moving.size - len(free)), dtype=np.int64)
+
+
+def identical(a, b):
+    return np.array_equal(np.asarray(a), np.asarray(b)) and np.asarray(a).shape == np.shape(b)
+
+
+@pytest.mark.parametrize("n", LINK_COUNTS)
+@pytest.mark.parametrize("seed", range(4))
+def test_every_kernel_equals_the_numba_kernel_bit_for_bit(seed, n):
+    c = case(seed * 10 + n, n)
+    record, ws, core, q, u = c["record"], c["ws"], c["core"], c["q"], c["u"]
+    nu = c["robot"].n_u
+    kernels.frames(record, q, ws)
+    Q = np.empty(nu)
+    kernels.gibbs_appell(record, q, u, c["ud"], c["g"], ws, Q)
+    assert identical(core.inverse_dynamics(q, u, c["ud"], c["g"]), Q)
+    M = np.empty((nu, nu))
+    kernels.mass_matrix(record, q, ws, np.zeros(nu), np.zeros(nu), np.zeros(nu), M)
+    assert identical(core.mass_matrix(q), M)
+    T = kernels.kinetic_energy(record, q, u, ws)
+    V = kernels.potential_energy(record, q, c["g"], ws)
+    assert core.energy(q, u, c["g"]) == (T, V)
+    assert identical(core.joint_origins(q), ws.O) and identical(core.link_rotations(q), ws.R)
+    qdot = np.empty(c["robot"].n_q)
+    kernels.configuration_rate(record, q, u, qdot)
+    assert identical(core.configuration_rate(q, u), qdot)
+    # the forward dynamics with a locked set, and what each locked slide transmits
+    ud = np.empty(nu)
+    articulated.forward_dynamics(record, q, u, c["Q"], c["g"], free_list(c["moving"]), ws, ud)
+    assert identical(core.forward_dynamics(q, u, c["Q"], c["g"], c["moving"]), ud)
+    for j in range(nu)[SLIDES_U]:
+        if not c["moving"][j]:
+            assert core.slide_forces()[rod(j)] == ws.slide_force[rod(j)]
+
+
+def test_the_paper_runs_states_give_the_numba_kernels_accelerations_bit_for_bit():
+    """Every state of the recorded paper runs (the suite's reference CSVs) and the paper's
+    efforts: the same u̇ from both engines."""
+    import csv
+    from pathlib import Path
+    scene = load_scene()
+    robot = scene.robot
+    record, ws = make_model(robot), make_workspace(robot.n_links)
+    core = compiled_dynamics(robot)
+    nq, nu = robot.n_q, robot.n_u
+    Q = np.random.default_rng(5).normal(size=nu)
+    data = Path(__file__).resolve().parents[1] / "engine" / "data"
+    rows = 0
+    for name in ("recorded_paper_rk4.csv", "recorded_paper_dop853.csv"):
+        with open(data / name) as handle:
+            for row in csv.DictReader(handle):
+                values = np.array([float(v) for v in list(row.values())[1:1 + nq + nu]])
+                q, u = values[:nq], values[nq:]
+                ud = np.empty(nu)
+                articulated.forward_dynamics(record, q, u, Q, 10.0, np.arange(nu), ws, ud)
+                assert identical(core.forward_dynamics(q, u, Q, 10.0, np.ones(nu)), ud)
+                rows += 1
+    assert rows > 100
+
+
+@pytest.mark.parametrize("n", [0, 2, 5])
+def test_every_lane_equals_its_own_run_bit_for_bit(n):
+    """Runs of different states and locked sets in vector blocks of `lane_width` (a short last
+    block too): each row is the double run of its own inputs."""
+    width = build_info()["lane_width"]
+    c = case(100 + n, n)
+    rng, robot, core = c["rng"], c["robot"], c["core"]
+    runs = 2 * width + 3
+    states = [robots.random_state(rng, robot, beyond=0.1) for _ in range(runs)]
+    q = np.array([s[0] for s in states])
+    u = np.array([s[1] for s in states])
+    Q = rng.normal(size=(runs, robot.n_u))
+    moving = (rng.uniform(size=(runs, robot.n_u)) > 0.3).astype(float)
+    lanes = core.forward_dynamics_lanes(q, u, Q, c["g"], moving)
+    for i in range(runs):
+        assert identical(lanes[i], core.forward_dynamics(q[i], u[i], Q[i], c["g"], moving[i]))
+    assert len({lanes[i].tobytes() for i in range(runs)}) == runs   # the lanes did differ
+
+
+def system_case(seed, n):
+    """`case` with damping on every pseudo-velocity (or none when seed is even) and the state
+    s = (q, u, e, W) of the engine's layout."""
+    c = case(seed, n)
+    nu = c["robot"].n_u
+    c["damping"] = c["rng"].uniform(0.0, 0.5, nu) if seed % 2 else np.zeros(0)
+    c["s"] = np.concatenate([c["q"], c["u"], c["rng"].normal(size=3)])
+    return c
+
+
+def numba_system(c):
+    """The engine's effort-mode system record for `case` c, as `engine.system.System` builds it."""
+    from mobile_manip_sim.engine.system import System
+
+    class Dyn:   # what System reads of a `dynamics.Dynamics`
+        model, model_record, ws, gravity = c["robot"], c["record"], c["ws"], c["g"]
+    locked = [k for k in range(c["robot"].n_u) if not c["moving"][k]]
+    system = System(Dyn, c["damping"] if c["damping"].size else None, locked)
+    system.Q_cmd[:] = c["Q"]
+    return system
+
+
+@pytest.mark.parametrize("n", [0, 1, 2, 5])
+@pytest.mark.parametrize("seed", [1, 2])
+def test_the_right_hand_side_and_every_step_equal_the_engines_bit_for_bit(seed, n):
+    """The effort-mode right-hand side (efforts, damping, locks, the work integral) and one step
+    of euler, semi-implicit Euler and rk4: the core's against the engine's numba kernels."""
+    from mobile_manip_sim.engine import fixed_step
+    from mobile_manip_sim.scene.methods import IDS
+    c = system_case(seed * 10 + n, n)
+    system, core, s = numba_system(c), c["core"], c["s"]
+    args = (c["Q"], c["damping"], c["moving"], c["g"])
+    assert identical(core.rates(s, *args), system.derivative(s))
+    for method in ("euler", "semi_implicit_euler", "rk4"):
+        out, stages = np.empty_like(s), np.empty((4, s.size))
+        fixed_step.step(IDS[method], system.data, s, 0.01, out, stages)
+        assert identical(core.step(method, s, 0.01, *args), out), method
+
+
+@pytest.mark.parametrize("method", ["", "euler", "semi_implicit_euler", "rk4"])
+@pytest.mark.parametrize("n", [0, 1, 2, 4, 8])
+def test_dual_jacobians_agree_with_central_differences_of_the_double_map(n, method):
+    """∂/∂(x, τ) of the rates (method "") and of one step, by dual numbers, against central
+    differences of the double map (Richardson-extrapolated, the best of a sweep of steps):
+    1e-8 relative to the Jacobian's size; the dual value is the double map bit for bit."""
+    c = system_case(200 + n, n)
+    core, s, g = c["core"], c["s"], c["g"]
+    nq, nu, h = c["robot"].n_q, c["robot"].n_u, 0.005
+    rng = c["rng"]
+    B = rng.normal(size=(nu, 3))          # three effort directions
+    tau0 = np.zeros(3)
+
+    def mapped(x, tau):
+        state = np.concatenate([x, s[nq + nu:]])
+        Q = c["Q"] + B @ tau
+        args = (Q, c["damping"], c["moving"], g)
+        out = core.step(method, state, h, *args) if method else core.rates(state, *args)
+        return out[:nq + nu]
+    value, d_dx, d_dtau = core.jacobians(method, s, h, c["Q"], B, c["damping"], c["moving"], g)
+    x = s[:nq + nu]
+    assert identical(value, mapped(x, tau0))
+    assert best_agreement(lambda x: mapped(x, tau0), x, d_dx) <= 1e-8
+    assert best_agreement(lambda tau: mapped(x, tau), tau0, d_dtau) <= 1e-8
+    if not method:
+        locked = [nq + k for k in range(nu) if not c["moving"][k]]
+        assert not np.any(d_dx[locked]) and not np.any(d_dtau[locked])   # u̇ ≡ 0 there
+
+
+def test_the_build_does_ieee_arithmetic_without_contraction():
+    """a·b + c rounds twice as IEEE says, unless the compiler fused it into one FMA (as GCC does
+    by default where the CPU has FMA): the chosen operands make the two results differ."""
+    info = build_info()
+    assert info["fast_math"] is False
+    assert "-ffp-contract=off" in info["flags"].split()
+    assert not any("fast-math" in flag and not flag.startswith("-fno-")
+                   for flag in info["flags"].split())
+    a, b, c = 1.0 + 2.0 ** -30, 1.0 - 2.0 ** -30, -1.0
+    fused = float(Fraction(a) * Fraction(b) + Fraction(c))   # one rounding
+    twice = a * b + c                                         # two (CPython is IEEE)
+    assert fused != twice
+    assert multiply_add(a, b, c) == twice
+    assert info["lane_width"] in (4, 8)
+
+
+def test_arrays_of_the_wrong_size_are_refused_naming_the_argument():
+    core = compiled_dynamics(load_scene().robot)
+    q, u = np.zeros(core.n_q), np.zeros(core.n_u)
+    with pytest.raises(ValueError, match=r"^q: expected 9 numbers, got 8$"):
+        core.forward_dynamics(q[:-1], u, u, 9.81, np.ones(core.n_u))
+    with pytest.raises(ValueError, match=r"^moving: expected 6 numbers, got 7$"):
+        core.forward_dynamics(q, u, u, 9.81, np.ones(core.n_u + 1))
