@@ -109,6 +109,8 @@ setup(
     install_requires=[
         "setuptools", "numpy", "scipy", "pyyaml", "mcap", "zstandard", "numba", "matplotlib",
         "dask[distributed]", "pyarrow", "foxglove-sdk",
+        # the browser view: a three.js page served with its client, scripts and assets
+        "viser",
         # ROS 2 Jazzy from PyPI wheels; on a ROS install these are already there (colcon does
         # not pip-install them).
         "ros-jazzy-rclpy", "ros-jazzy-common-interfaces", "ros-jazzy-rosgraph-msgs",
@@ -121,6 +123,8 @@ setup(
         # what `colcon build` needs to build the compiled core (pip gets them from
         # pyproject.toml's build requirements in its own isolated build environment)
         "nanobind", "cmake", "ninja",
+        # the browser view's tests drive chromium over its DevTools websocket, read screenshots
+        "websockets", "pillow",
     ]},
     zip_safe=False,
     maintainer="mobile_manip_sim developers",

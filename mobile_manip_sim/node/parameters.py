@@ -76,6 +76,11 @@ PARAMETERS = {
     "foxglove_host": Parameter("127.0.0.1", "Address the Foxglove server listens on: 127.0.0.1 "
                                             "this machine only; 0.0.0.0 every interface (a "
                                             "laptop on the network)."),
+    "browser_port": Parameter(0, "Port of the browser view inside the node (a local web page "
+                                 "drawing the robot, as simulate --view browser); 0 = off.",
+                              limits.PORT),
+    "browser_host": Parameter("127.0.0.1", "Address the browser view listens on: 127.0.0.1 this "
+                                           "machine only; 0.0.0.0 every interface."),
     "imu.noise.angular_velocity_stddev": Parameter(
         [0.0, 0.0, 0.0], "IMU: white-noise standard deviation of the rate gyro per axis "
                          "(x, y, z, rad/s); its variance is the message's covariance."),
@@ -212,6 +217,8 @@ class NodeParameters:
     publish_clock: bool
     foxglove_port: int             # 0 = off
     foxglove_host: str             # what the live view listens on
+    browser_port: int              # 0 = off
+    browser_host: str              # what the browser view listens on
     imu_noise: ImuNoise
     record: str                    # "" = off
     synchronous: bool
@@ -305,5 +312,6 @@ def _view_parameters(values: Mapping[str, object]) -> dict:
                 list(value) for name, value in values.items() if name.startswith(IMU_NOISE)}
     return dict(publish_tf=values["publish_tf"], frame_prefix=prefix,
                 publish_clock=values["publish_clock"], foxglove_port=values["foxglove_port"],
-                foxglove_host=host,
+                foxglove_host=host, browser_port=values["browser_port"],
+                browser_host=check_host(values["browser_host"], "browser_host"),
                 imu_noise=ImuNoise.from_settings(settings, IMU_NOISE.rstrip(".")))

@@ -162,6 +162,8 @@ class SimulatorNode(Node):
         if self.view.live is not None:
             log.info(f"live view: {self.view.live.url} (Foxglove: open connection, Foxglove "
                      f"WebSocket)")
+        if self.view.browser is not None:
+            log.info(f"view: {self.view.browser.url}")
 
     def _mode(self) -> str:
         """The start-up line's account of how the node is driven and paced."""

@@ -20,6 +20,9 @@ publication (stepping thread, outside the loop's lock) and `publish` puts them o
   ``foxglove_host`` (127.0.0.1 by default; 0.0.0.0 for another machine). It
   and the bag always get the WHOLE tree on /tf and /tf_static, whatever ``publish_tf`` says (the
   ROS graph may have robot_state_publisher; a viewer of the live view or a bag has not).
+- ``browser_port`` (not 0): a `view.browser.LiveBrowser` on ``browser_host``: the robot of the
+  URDF above in a local web page, every link from the tree at each publication (at most
+  `browser.FRAME_RATE` frames a second), with T + V and the impacts.
 """
 from __future__ import annotations
 
@@ -96,6 +99,17 @@ class NodeView:
             except UserError as error:   # the port in use: name the parameter
                 raise UserError("foxglove_port", error.problem) from None
 
+        self.browser = None
+        if params.browser_port:
+            from ..view.browser import LiveBrowser
+            from ..view.drawing import read_urdf
+            try:
+                self.browser = LiveBrowser(scene, read_urdf(self.latched[DESCRIPTION_TOPIC].data),
+                                           params.browser_port, params.browser_host,
+                                           paced=False, tree=tree, odom=params.odom_frame)
+            except UserError as error:   # the port in use: name the parameter
+                raise UserError("browser_port", error.problem) from None
+
     def messages(self, sim, k: int, stamp: int) -> dict:
         """Topic → message (or its CDR bytes) of publication ``k`` at ``stamp`` ns, ``sim`` at
         that state: /tf (whole tree), /imu, the latched ones at k = 0, /energy when a live
@@ -109,6 +123,8 @@ class NodeView:
             messages.update(self.latched)
         if self.live is not None and self.live.wants(ENERGY_TOPIC):
             messages[ENERGY_TOPIC] = energy(sim)
+        if self.browser is not None:
+            self.browser.show(sim, stamp)
         return messages
 
     def publish_latched(self, messages: dict, published: dict) -> None:
@@ -146,3 +162,6 @@ class NodeView:
         if self.live is not None:
             self.live.close()
             self.live = None
+        if self.browser is not None:
+            self.browser.close()
+            self.browser = None

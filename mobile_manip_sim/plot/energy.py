@@ -14,9 +14,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..recording.run import Run
 from ..scene.coordinates import ARM_U, WHEELS
 from ..scene.effects import settings as effect_settings
-from .run import Run
 
 
 def joint_rates(run: Run) -> np.ndarray:

@@ -14,11 +14,11 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from ..dynamics import constraint_residuals
+from ..recording.run import Run, dynamics_of, load_run
 from ..scene.coordinates import YAW, X, Y, q_slide, q_turn, u_slide, u_turn
 from ..scene.effects import settings as effect_settings
 from ..scene.errors import UserError
 from .energy import impact_losses, work
-from .run import Run, dynamics_of, load_run
 
 RESIDUAL_FLOOR = 1e-17      # |residual| plotted at least this, so exact zeros show on a log axis
 HEADING_MARKS = 12          # about this many heading arrows along the base's path

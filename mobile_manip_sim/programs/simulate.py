@@ -2,7 +2,8 @@
 
     simulate --scene FILE --duration S --sample-rate HZ --out FILE.csv
              [--method NAME] [--dt S] [--rtol R] [--atol A] [--record DIR] [--set KEY=VALUE]…
-             [--view [PORT]] [--view-host HOST] [--linger S]
+             [--view [PORT] | --view browser [--view-port PORT]] [--view-host HOST]
+             [--linger S]
 
 Columns: t, x, y, yaw, theta_R, theta_L, q1, l1, …, qn, ln, v, omega, qd1, ld1, …, qdn, ldn,
 energy (T + V, J) (`headless.csv_columns`); LF line ends. Without --scene the embedded paper
@@ -21,9 +22,14 @@ the run paced to real time, so the CSV and the bag are the same as without it. T
 listens on ``--view-host`` (default 127.0.0.1, this machine only; 0.0.0.0 lets another machine
 connect). After the run it keeps serving the last state until Ctrl-C or SIGTERM (status 0), or
 for ``--linger`` seconds; its stop never waits on a client (live_view.CLOSE_WAIT).
+
+``--view browser`` shows it in a web browser instead (view/browser.py: a local page on
+``--view-port``, default 8080, drawing the robot from its URDF, with T + V and the impacts),
+paced and lingering the same way; the line ``view: http://HOST:PORT/`` gives its address.
 """
 from __future__ import annotations
 
+import argparse
 import csv
 import os
 import stat
@@ -32,7 +38,6 @@ import time
 from pathlib import Path
 
 from ..runtime import cli
-from ..runtime.headless import csv_columns, csv_row, run, summary_line
 from ..runtime.progress import Progress
 from ..scene import limits, schema
 from ..scene.errors import UserError
@@ -41,6 +46,18 @@ from ..scene.loading import check_work, load_scene, make_integrator
 from ..scene.overrides import parse_assignments, scene_with
 
 DEFAULT_VIEW_PORT = 8765           # --view without a port: Foxglove's default
+BROWSER = "browser"                # --view browser: the browser view
+
+
+def view_choice(text: str):
+    """--view's value: a port number (the Foxglove view) or ``browser``."""
+    if text == BROWSER:
+        return BROWSER
+    try:
+        return int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"invalid int value: {text!r} (a port number, or "
+                                         f"{BROWSER})") from None
 
 
 def _main(argv) -> int:
@@ -57,10 +74,14 @@ def _main(argv) -> int:
     parser.add_argument("--atol", type=float, help="absolute tolerance of adaptive methods")
     parser.add_argument("--record", type=cli.path, metavar="DIR",
                         help="also record a rosbag2 (MCAP) bag to DIR")
-    parser.add_argument("--view", type=int, nargs="?", const=DEFAULT_VIEW_PORT, metavar="PORT",
-                        help="show the run live in Foxglove: a WebSocket server on PORT "
-                             f"(default {DEFAULT_VIEW_PORT}; 0: any free port), the run paced "
-                             "to real time")
+    parser.add_argument("--view", type=view_choice, nargs="?", const=DEFAULT_VIEW_PORT,
+                        metavar="PORT|browser",
+                        help="show the run live, paced to real time: in Foxglove (a WebSocket "
+                             f"server on PORT, default {DEFAULT_VIEW_PORT}; 0: any free port), "
+                             "or with 'browser' in a web page (--view-port)")
+    parser.add_argument("--view-port", type=int, default=None, metavar="PORT",
+                        help="with --view browser: the page's port (default 8080; 0: any free "
+                             "port)")
     parser.add_argument("--view-host", default=None, metavar="HOST",
                         help="address the live view listens on (default 127.0.0.1: this "
                              "machine only; 0.0.0.0: every interface, for another machine)")
@@ -89,14 +110,20 @@ def _main(argv) -> int:
     if args.view is None and (args.view_host is not None or args.linger is not None):
         raise UserError("--view-host" if args.view_host is not None else "--linger",
                         "needs --view")
+    if args.view_port is not None and args.view != BROWSER:
+        raise UserError("--view-port", "needs --view browser (a Foxglove port is --view PORT)")
     linger = None if args.linger is None else schema.number(
         args.linger, "--linger", lo=0.0, hi=limits.LINGER[1])
-    if args.view is not None:
+    if args.view == BROWSER:
+        view = _browser(args, scene, rate, duration)
+    elif args.view is not None:
         from ..ros.live_view import DEFAULT_HOST, PacedView
         schema.integer(args.view, "--view", lo=limits.PORT[0], hi=limits.PORT[1])
         view = PacedView(args.view, scene, rate, duration, args.view_host or DEFAULT_HOST)
         print(f"live view: {view.url} (Foxglove: open connection, Foxglove WebSocket)",
               flush=True)
+    # The engine (numba) loads after the view has started: a browser loads the page meanwhile.
+    from ..runtime.headless import csv_columns, csv_row, run, summary_line
     with CsvOutput(out) as output:
         recorder = None
         if args.record:
@@ -126,6 +153,8 @@ def _main(argv) -> int:
             if recorder:
                 recorder.close()
         wall = time.perf_counter() - start
+        if view and hasattr(view, "finish"):   # the browser view: the last sample drawn
+            view.finish()
         if sim.impacts and output.regular:
             output.write_impacts(out.with_suffix(".impacts.csv"), sim.impacts)
     simulated, wall = sim.timing or (sim.t, wall)
@@ -135,10 +164,26 @@ def _main(argv) -> int:
     return 0
 
 
+def _browser(args, scene, rate: float, duration: float):
+    """`--view browser`: the page, its address said on the first line."""
+    from ..ros.live_view import check_host
+    from ..ros.urdf import robot_description
+    from ..view.browser import DEFAULT_HOST, DEFAULT_PORT, LiveBrowser
+    from ..view.drawing import read_urdf
+
+    port = DEFAULT_PORT if args.view_port is None else schema.integer(
+        args.view_port, "--view-port", lo=limits.PORT[0], hi=limits.PORT[1])
+    host = check_host(args.view_host or DEFAULT_HOST, "--view-host")
+    view = LiveBrowser(scene, read_urdf(robot_description(scene)), port, host, rate, duration,
+                       port_key="--view-port")
+    print(f"view: {view.url}", flush=True)
+    return view
+
+
 def _linger(view, seconds: float | None) -> None:
     """After the run: the live view serves on for ``seconds`` (None: until Ctrl-C or SIGTERM,
     which end it with status 0), then stops without waiting on any client."""
-    print(f"live view: still serving {view.url} "
+    print(f"{'view' if hasattr(view, 'finish') else 'live view'}: still serving {view.url} "
           f"{'until Ctrl-C' if seconds is None else f'for {seconds:g} s'}", flush=True)
     try:
         threading.Event().wait(seconds)

@@ -163,3 +163,42 @@ def tf_message_cdr(stamp_ns: int, transforms) -> bytes:
         align(8)
         out.extend(struct.pack("<7d", *transform.translation, *transform.rotation))
     return bytes(out)
+
+
+def tf_message_transforms(data: bytes) -> list[tuple[int, tuple]]:
+    """The transforms of a tf2_msgs/TFMessage's CDR (either byte order), as (stamp ns,
+    (parent, child, translation, rotation x y z w)) — the inverse of `tf_message_cdr`, for bags
+    read where tf2_msgs is not installed. Damage is a ValueError."""
+    data = bytes(data)
+    if len(data) < ENCAPSULATION_HEADER or data[0] != 0 or data[1] not in (0, 1):
+        raise ValueError("not a CDR payload (bad encapsulation header)")
+    order = "<" if data[1] == 1 else ">"
+    at = ENCAPSULATION_HEADER
+
+    def take(fmt: str, size: int):
+        nonlocal at
+        at += -(at - ENCAPSULATION_HEADER) % size
+        values = struct.unpack_from(order + fmt, data, at)   # struct.error is a ValueError
+        at += struct.calcsize(order + fmt)
+        return values
+
+    def string() -> str:
+        nonlocal at
+        (length,) = take("I", 4)
+        if not 0 < length <= len(data) - at:
+            raise ValueError("string length beyond the payload")
+        text = data[at:at + length - 1].decode("utf-8")
+        at += length
+        return text
+
+    (count,) = take("I", 4)
+    if count > len(data) // 60:   # a transform takes at least 60 bytes
+        raise ValueError(f"{count} transforms cannot fit in {len(data)} bytes")
+    transforms = []
+    for _ in range(count):
+        sec, nanosec = take("iI", 4)
+        parent, child = string(), string()
+        values = take("7d", 8)
+        transforms.append((sec * 1_000_000_000 + nanosec,
+                           (parent, child, values[:3], values[3:])))
+    return transforms

@@ -2,9 +2,9 @@
 at the top of a module or inside a function, which runs later but is an arrow all the same — goes
 down the layer order or stays in its layer, and no modules import each other in a circle.
 
-The order: scene < core < dynamics < engine < runtime < ros < recording, batch < the adapters (node,
-replay, plot, sweep, bench, programs), which import anything below them and not each other; two
-folders of one rank do not import each other. The package's
+The order: scene < core < dynamics < engine < runtime < ros < recording, batch < view < the
+adapters (node, replay, plot, sweep, bench, programs), which import anything below them and not
+each other; two folders of one rank do not import each other. The package's
 own ``__init__`` (the version) is below every layer. A new top-level folder must be given its
 place in `LAYERS` (an unplaced one is reported, not skipped).
 
@@ -28,14 +28,15 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
 PACKAGE = "mobile_manip_sim"
-ADAPTERS = 7
+ADAPTERS = 8
 # batch/ (many runs stepped together) builds on the engine and the runtime, and sweep/ and
 # bench/ use it: below the adapters, beside recording/ (neither imports the other)
 # bench/ measures every other program (a sweep among them): the top floor
 # core/ (the compiled C++ core and its Python face) sits under dynamics/, which wraps it
+# view/ (the browser view) reads recorded runs and is shown by simulate, replay and the node
 LAYERS = {"scene": 0, "core": 1, "dynamics": 2, "engine": 3, "runtime": 4, "ros": 5,
-          "recording": 6, "batch": 6, "node": ADAPTERS, "replay": ADAPTERS, "plot": ADAPTERS,
-          "sweep": ADAPTERS, "bench": ADAPTERS + 1, "programs": ADAPTERS}
+          "recording": 6, "batch": 6, "view": 7, "node": ADAPTERS, "replay": ADAPTERS,
+          "plot": ADAPTERS, "sweep": ADAPTERS, "bench": ADAPTERS + 1, "programs": ADAPTERS}
 
 
 def modules(root: Path, package: str) -> dict[str, Path]:

@@ -20,7 +20,7 @@ ROSDEP_KEYS = {
     "matplotlib": "python3-matplotlib", "pinocchio": "pinocchio",
     "mujoco": "python3-mujoco-pip", "zstandard": "pip:zstandard", "mcap": "pip:mcap",
     "distributed": "pip:dask[distributed]", "dask": "pip:dask[distributed]",
-    "pyarrow": "pip:pyarrow", "foxglove": "pip:foxglove-sdk",
+    "pyarrow": "pip:pyarrow", "foxglove": "pip:foxglove-sdk", "viser": "pip:viser",
 }
 
 

@@ -48,10 +48,11 @@ def test_every_key_of_package_xml_resolves_on_jazzy():
 
 
 def test_what_rosdep_cannot_install_is_a_pip_requirement_named_where_users_look():
-    """The packages without a rule (mcap, zstandard, pyarrow, dask, foxglove-sdk) are in
+    """The packages without a rule (mcap, zstandard, pyarrow, dask, foxglove-sdk, viser) are in
     requirements.txt, which package.xml's export names; pip install . gets them from setup.py."""
     listed = {re.split(r"[\[<>=]", line)[0] for line in requirements()}
-    assert {"mcap", "zstandard", "pyarrow", "dask", "foxglove-sdk", "mcap-ros2-support"} <= listed
+    assert {"mcap", "zstandard", "pyarrow", "dask", "foxglove-sdk", "viser",
+            "mcap-ros2-support"} <= listed
     no_rule = set(FACTS["no_rule"])
     for name in listed:
         assert f"python3-{name}" in no_rule or f"python3-{name}-pip" in no_rule, name

@@ -21,9 +21,9 @@ from mobile_manip_sim.engine.simulation import DEFAULT_WHEEL_SPEED_GAINS, Simula
 from mobile_manip_sim.plot import cli as plot_cli
 from mobile_manip_sim.plot.energy import impact_losses, work
 from mobile_manip_sim.plot.figures import HEADING_MARKS, RESIDUAL_FLOOR, plot
-from mobile_manip_sim.plot.run import load_run
 from mobile_manip_sim.recording.bag_writer import BagWriter, qos_yaml
 from mobile_manip_sim.recording.headless import HeadlessRecorder
+from mobile_manip_sim.recording.run import load_run
 from mobile_manip_sim.runtime.headless import run as simulate_run
 from mobile_manip_sim.runtime.timeline import sample_times
 from mobile_manip_sim.scene.coordinates import (

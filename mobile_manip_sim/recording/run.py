@@ -1,6 +1,7 @@
-"""A run as the plots see it: the `Run` table, and one loader per input kind — a CSV written by
-`simulate` (`load_csv`; its impacts beside it in ``RUN.impacts.csv``) or a recorded bag
-(`load_bag`, through `recording.bag_format`) — producing the same table.
+"""A recorded run as the plots and the browser view see it: the `Run` table, and one loader per
+input kind — a CSV written by `simulate` (`load_csv`; its impacts beside it in
+``RUN.impacts.csv``) or a recorded bag (`load_bag`, through `bag_format`) — producing the same
+table.
 """
 from __future__ import annotations
 
@@ -12,8 +13,6 @@ from pathlib import Path
 import numpy as np
 
 from ..dynamics import Dynamics
-from ..recording import bag_format
-from ..recording.bag_format import IMPACT_FIELDS, impact_record
 from ..ros.topics import ARM_TOPIC as ARM_COMMANDS
 from ..ros.topics import CMD_VEL_TOPIC as CMD_VEL
 from ..ros.topics import JOINT_STATES_TOPIC as JOINT_STATES
@@ -25,6 +24,8 @@ from ..scene.coordinates import ARM_U
 from ..scene.effects import settings as effect_settings
 from ..scene.errors import UserError
 from ..scene.loading import Scene, load_scene
+from . import bag_format
+from .bag_format import IMPACT_FIELDS, impact_record
 
 
 @dataclass
@@ -164,7 +165,7 @@ def _read_impacts_csv(run_path: Path, n_links: int) -> list[dict]:
 def load_bag(path, scene_path=None) -> Run:
     """A recorded bag: /joint_states and /odom sampled at the /joint_states stamps; the scene
     from ``--scene`` or the ``scene.yaml`` attachment; impacts from ``impacts.json``."""
-    from ..recording.bag_reader import open_bag  # mcap: only bags need it
+    from .bag_reader import open_bag  # mcap: only bags need it
 
     path = Path(path)
     bag = open_bag(path)
