@@ -79,10 +79,7 @@ class LiveView:
         except ImportError:
             raise UserError("live view", "the Python package foxglove-sdk is not installed "
                                          "(pip install foxglove-sdk)") from None
-        low, high = limits.PORT
-        if isinstance(port, bool) or not isinstance(port, int) or not low <= port <= high:
-            raise UserError("port", f"{port!r} is not a port number ({low} to {high}; 0: any "
-                                    f"free one)")
+        check_port(port, "port")
         host = check_host(host, "host")
         self.host = host
         self._lock = threading.Lock()
@@ -191,6 +188,14 @@ class LiveView:
         stopper = threading.Thread(target=self.server.stop, name="live view stop", daemon=True)
         stopper.start()
         stopper.join(CLOSE_WAIT)
+
+
+def check_port(port, key: str) -> int:
+    """A port to listen on, 0 for any free one (one line naming ``key`` otherwise)."""
+    low, high = limits.PORT
+    if isinstance(port, bool) or not isinstance(port, int) or not low <= port <= high:
+        raise UserError(key, f"{port!r} is not a port number ({low} to {high}; 0: any free one)")
+    return port
 
 
 def check_host(host, key: str) -> str:

@@ -30,7 +30,6 @@ import numpy as np
 from ..ros.frames import ODOM, FrameTree
 from ..runtime.pacing import Pacer
 from ..runtime.timeline import NS, Grid
-from ..scene import limits
 from ..scene.errors import UserError
 from .drawing import Drawing
 
@@ -71,10 +70,9 @@ class BrowserView:
         except ImportError:
             raise UserError("browser view", "the Python package viser is not installed (pip "
                                             "install viser)") from None
-        low, high = limits.PORT
-        if isinstance(port, bool) or not isinstance(port, int) or not low <= port <= high:
-            raise UserError(port_key, f"{port!r} is not a port number ({low} to {high}; 0: any "
-                                      f"free one)")
+        # the live view's own check, imported here as the adapters import it (it loads rclpy)
+        from ..ros.live_view import check_port
+        check_port(port, port_key)
         self.host = host
         if port and _in_use(host, port):
             raise UserError(f"{port_key} {port}", f"cannot serve the browser view on {host}: "
