@@ -16,14 +16,15 @@ from __future__ import annotations
 import numpy as np
 
 try:
-    from ._core import BaseParameters, Dynamics, build_info, multiply_add
+    from ._core import BaseParameters, Dynamics, WheelLoop, build_info, multiply_add
 except ImportError as error:  # the extension was never built (or built for another Python)
     raise ImportError(
         "mobile_manip_sim's compiled core is not built: run `pip install -e .` (or "
         "`colcon build`), which needs a C++17 compiler, CMake ≥ 3.18 and nanobind "
         f"({error})") from error
 
-__all__ = ["BaseParameters", "Dynamics", "build_info", "compiled_dynamics", "multiply_add"]
+__all__ = ["BaseParameters", "Dynamics", "WheelLoop", "build_info", "compiled_dynamics",
+           "multiply_add"]
 
 
 def compiled_dynamics(robot, tip_mass: float = 0.0, wheel_inertia: bool = True) -> Dynamics:

@@ -235,3 +235,47 @@ def test_runs_stepped_in_lanes_equal_their_runs_stepped_alone_bit_for_bit(method
     for _ in range(200):
         x = core.step(method, x, 1e-3, Q[1], damping, moving[1], c["g"])
     assert identical(alone[1], x)
+
+
+@pytest.mark.parametrize("n", [0, 2])
+def test_the_wheel_speed_loop_equals_the_engines_bit_for_bit(n):
+    """A base under velocity commands: each wheel's saturated PI loop with conditional
+    integration, in the right-hand side and in a step of each method, against the engine's, on
+    states where the loops run free, saturate either way, and hold their integrals."""
+    from mobile_manip_sim.core import WheelLoop
+    from mobile_manip_sim.engine import fixed_step
+    from mobile_manip_sim.engine.system import (
+        WHEEL_KI,
+        WHEEL_KP,
+        WHEEL_LIMIT_L,
+        WHEEL_LIMIT_R,
+        WHEEL_TARGET_L,
+        WHEEL_TARGET_R,
+        WHEEL_VELOCITY_MODE,
+    )
+    from mobile_manip_sim.scene.methods import IDS
+    c = system_case(400 + n, n)
+    system, core, rng = numba_system(c), c["core"], c["rng"]
+    loop = WheelLoop()
+    saturated = 0
+    for trial in range(40):
+        loop.kp, loop.ki = rng.uniform(0.5, 5.0), rng.uniform(0.0, 30.0)
+        loop.limit_R, loop.limit_L = rng.uniform(0.05, 2.0, 2) if trial % 4 else (np.inf,) * 2
+        loop.target_R, loop.target_L = rng.normal(0.0, 10.0, 2)
+        control = system.control
+        control[WHEEL_VELOCITY_MODE] = 1.0
+        control[WHEEL_KP], control[WHEEL_KI] = loop.kp, loop.ki
+        control[WHEEL_LIMIT_R], control[WHEEL_LIMIT_L] = loop.limit_R, loop.limit_L
+        control[WHEEL_TARGET_R], control[WHEEL_TARGET_L] = loop.target_R, loop.target_L
+        s = c["s"].copy()
+        s[c["robot"].n_q:] = np.concatenate([rng.normal(size=c["robot"].n_u),
+                                              rng.normal(0.0, 0.2, 2), [0.0]])
+        args = (c["Q"], c["damping"], c["moving"], c["g"])
+        ds = system.derivative(s)
+        assert identical(core.rates(s, *args, loop), ds), trial
+        saturated += int(ds[c["robot"].n_q + c["robot"].n_u] == 0.0)
+        for method in ("euler", "semi_implicit_euler", "rk4"):
+            out, stages = np.empty_like(s), np.empty((4, s.size))
+            fixed_step.step(IDS[method], system.data, s, 0.01, out, stages)
+            assert identical(core.step(method, s, 0.01, *args, loop), out), (trial, method)
+    assert saturated > 0   # some integrals were held (the conditional integration acted)

@@ -187,22 +187,23 @@ class Dynamics {
 
   // ds/dt at s = (q, u, e, W) for a robot driven by efforts (system.hpp): Q_cmd (n_u), damping
   // (n_u, or empty: none), moving (n_u: 1 free, 0 locked).
-  Out rates(In s, In Q_cmd, In damping, In moving, double g) {
+  Out rates(In s, In Q_cmd, In damping, In moving, double g, const WheelLoop* wheels) {
     set_effects(s, Q_cmd, damping, moving);
     double* ds;
     Out out = new_array({size_t(state_size(model_))}, &ds);
-    Effects<double> fx{g, Q_cmd.data(), damping.size() ? damping.data() : nullptr};
+    Effects<double> fx{g, Q_cmd.data(), damping.size() ? damping.data() : nullptr, wheels};
     mms::rates(model_, fx, s.data(), ds, system_);
     return out;
   }
 
   // One step of `method` (euler, semi_implicit_euler, rk4) of length h from s (fixed_step.hpp).
-  Out step(const std::string& method, In s, double h, In Q_cmd, In damping, In moving, double g) {
+  Out step(const std::string& method, In s, double h, In Q_cmd, In damping, In moving, double g,
+           const WheelLoop* wheels) {
     Method m = method_of(method);
     set_effects(s, Q_cmd, damping, moving);
     double* next;
     Out out = new_array({size_t(state_size(model_))}, &next);
-    Effects<double> fx{g, Q_cmd.data(), damping.size() ? damping.data() : nullptr};
+    Effects<double> fx{g, Q_cmd.data(), damping.size() ? damping.data() : nullptr, wheels};
     mms::step(m, model_, fx, s.data(), h, next, system_);
     return out;
   }
@@ -467,6 +468,14 @@ NB_MODULE(_core, m) {
       .def_rw("wheel_radius", &BaseParameters::wheel_radius)
       .def_rw("half_track", &BaseParameters::half_track)
       .def_rw("wheel_inertia", &BaseParameters::wheel_inertia);
+  nb::class_<mms::WheelLoop>(m, "WheelLoop")
+      .def(nb::init<>())
+      .def_rw("kp", &mms::WheelLoop::kp)
+      .def_rw("ki", &mms::WheelLoop::ki)
+      .def_rw("limit_R", &mms::WheelLoop::limit_R)
+      .def_rw("limit_L", &mms::WheelLoop::limit_L)
+      .def_rw("target_R", &mms::WheelLoop::target_R)
+      .def_rw("target_L", &mms::WheelLoop::target_L);
   nb::class_<mms::Dynamics>(m, "Dynamics")
       .def(nb::init<BaseParameters, mms::In, mms::In, mms::In, mms::In, mms::In, double>(),
            "base"_a, "mount"_a, "R0"_a, "L"_a, "mu"_a, "J"_a, "tip_mass"_a)
@@ -484,9 +493,10 @@ NB_MODULE(_core, m) {
       .def("configuration_rate", &mms::Dynamics::configuration_rate, "q"_a, "u"_a)
       .def("forward_dynamics_lanes", &mms::Dynamics::forward_dynamics_lanes, "q"_a, "u"_a,
            "Q"_a, "g"_a, "moving"_a)
-      .def("rates", &mms::Dynamics::rates, "s"_a, "Q_cmd"_a, "damping"_a, "moving"_a, "g"_a)
+      .def("rates", &mms::Dynamics::rates, "s"_a, "Q_cmd"_a, "damping"_a, "moving"_a, "g"_a,
+           "wheels"_a.none() = nb::none())
       .def("step", &mms::Dynamics::step, "method"_a, "s"_a, "h"_a, "Q_cmd"_a, "damping"_a,
-           "moving"_a, "g"_a)
+           "moving"_a, "g"_a, "wheels"_a.none() = nb::none())
       .def("jacobians", &mms::Dynamics::jacobians, "method"_a, "s"_a, "h"_a, "Q_cmd"_a, "B"_a,
            "damping"_a, "moving"_a, "g"_a)
       .def("advance", &mms::Dynamics::advance, "method"_a, "s"_a, "h"_a, "steps"_a, "Q_cmd"_a,

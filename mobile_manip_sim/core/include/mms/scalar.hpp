@@ -145,6 +145,14 @@ inline double value(double a) { return a; }
 template <int W> inline Lanes<W> value(Lanes<W> a) { return a; }
 template <class T, class D> inline T value(const Dual<T, D>& a) { return a.val; }
 
+// comparisons of lanes, lane by lane: masks for `select`
+template <int W> inline typename Lanes<W>::Mask operator<(Lanes<W> a, Lanes<W> b) { return a.v < b.v; }
+template <int W> inline typename Lanes<W>::Mask operator>(Lanes<W> a, Lanes<W> b) { return a.v > b.v; }
+template <int W> inline typename Lanes<W>::Mask operator<(Lanes<W> a, double b) { return a.v < b; }
+template <int W> inline typename Lanes<W>::Mask operator>(Lanes<W> a, double b) { return a.v > b; }
+template <int W> inline typename Lanes<W>::Mask operator<(double a, Lanes<W> b) { return a < b.v; }
+template <int W> inline typename Lanes<W>::Mask operator>(double a, Lanes<W> b) { return a > b.v; }
+
 // is_zero(a): a == 0.0 per lane (the mask of `select`)
 inline bool is_zero(double a) { return a == 0.0; }
 template <int W> inline typename Lanes<W>::Mask is_zero(Lanes<W> a) { return a.v == 0.0; }

@@ -21,13 +21,37 @@ inline int controller_index(const Model& m) { return m.n_q() + m.n_u(); }
 inline int work_index(const Model& m) { return m.n_q() + m.n_u() + 2; }
 inline int state_size(const Model& m) { return m.n_q() + m.n_u() + 3; }
 
-// What a scene and its commands turn on, for one evaluation: the effort-mode system.
+// The wheel-speed loop of a base under velocity commands: each wheel's PI loop on its speed
+// θ̇ = (v ± b ω)/r, τ = sat(kp (θ̇* − θ̇) + ki e) within ±limit, its integral e (in the state)
+// stopped while τ is saturated in the direction of the error (conditional integration).
+struct WheelLoop {
+  double kp = 0, ki = 0;                  // N·m·s/rad, N·m/rad
+  double limit_R = 0, limit_L = 0;        // N·m, each wheel's own
+  double target_R = 0, target_L = 0;      // rad/s, θ̇*
+};
+
+// What a scene and its commands turn on, for one evaluation.
 template <class S>
 struct Effects {
   double gravity = 0;            // g, m/s² along −z
-  const S* Q_cmd = nullptr;      // (n_u) commanded generalized forces
+  const S* Q_cmd = nullptr;      // (n_u) commanded generalized forces (the wheels' unused when
+                                 // `wheels` drives them)
   const double* damping = nullptr;  // (n_u) viscous coefficients on u, or nullptr: no damping
+  const WheelLoop* wheels = nullptr;  // the wheel-speed loop, or nullptr: wheel efforts
 };
+
+// One wheel's PI loop (WheelLoop): its torque and its integral's rate.
+template <class S>
+inline void wheel_drive(double kp, double ki, double target, const S& speed, const S& integral,
+                        double limit, S& tau, S& rate) {
+  S error = target - speed;
+  S raw = kp * error + ki * integral;
+  S low = select(value(raw) < -limit, S(-limit), raw);   // max(raw, −limit)
+  tau = select(limit < value(low), S(limit), low);       // min(…, limit)
+  auto held = ((value(raw) > limit) & (value(error) > 0.0)) |
+              ((value(raw) < -limit) & (value(error) < 0.0));
+  rate = select(held, S(0.0), error);
+}
 
 // One evaluation's scratch beside the dynamics' workspace.
 template <class S>
@@ -52,6 +76,17 @@ void rates(const Model& model, const Effects<S>& fx, const S* s, S* ds, SystemWo
   const int e = controller_index(model);
   ds[e] = S(0.0);
   ds[e + 1] = S(0.0);
+  if (fx.wheels != nullptr) {
+    const WheelLoop& w = *fx.wheels;
+    double r = model.base.wheel_radius, b = model.base.half_track;
+    S tau_R, tau_L;
+    wheel_drive(w.kp, w.ki, w.target_R, (u[V] + b * u[OMEGA]) / r, s[e], w.limit_R, tau_R,
+                ds[e]);
+    wheel_drive(w.kp, w.ki, w.target_L, (u[V] - b * u[OMEGA]) / r, s[e + 1], w.limit_L, tau_L,
+                ds[e + 1]);
+    ws.Q[V] = (tau_R + tau_L) / r;
+    ws.Q[OMEGA] = b * (tau_R - tau_L) / r;
+  }
   S power = S(0.0);
   for (int k = 0; k < nu; ++k) power += ws.Q[k] * u[k];
   if (fx.damping != nullptr) {
