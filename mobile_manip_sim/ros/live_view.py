@@ -258,13 +258,7 @@ class PacedView:
 
     def sample(self, sim) -> None:
         k, stamp = self._k, self.grid.stamp(self._k)
-        if k == 0:
-            self.pacer.reanchor(stamp)
-        delay = self.pacer.delay(stamp)
-        if delay > 0:
-            time.sleep(delay)
-        else:
-            self.pacer.late(stamp, -delay)
+        self.pacer.wait_for(stamp, first=k == 0)
         self.view.publish(stamp, self.source.messages(sim, k, stamp))
         self._k += 1
 

@@ -62,6 +62,19 @@ class Pacer:
         self.anchor = (wall, stamp)
         return measured
 
+    def wait_for(self, stamp: int, first: bool = False,
+                 sleep: Callable[[float], None] = time.sleep) -> None:
+        """Sleep until the sample stamped ``stamp`` ns is due, pacing from it when it is a run's
+        ``first``; a sample already past is noted `late` (no burst to catch up). For the
+        headless views, which pace a run's own samples."""
+        if first:
+            self.reanchor(stamp)
+        delay = self.delay(stamp)
+        if delay > 0:
+            sleep(delay)
+        else:
+            self.late(stamp, -delay)
+
     def restart_window(self) -> None:
         """Measure the real-time factor from the current anchor on (after a report)."""
         self.window = self.anchor

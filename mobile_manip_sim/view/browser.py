@@ -263,13 +263,7 @@ class LiveBrowser:
         k, stamp = self._k, self.grid.stamp(self._k)
         self._k += 1
         if self.pacer is not None:
-            if k == 0:
-                self.pacer.reanchor(stamp)
-            delay = self.pacer.delay(stamp)
-            if delay > 0:
-                time.sleep(delay)
-            else:
-                self.pacer.late(stamp, -delay)
+            self.pacer.wait_for(stamp, first=k == 0)
         self.show(sim, stamp)
 
     def show(self, sim, stamp: int) -> None:

@@ -55,3 +55,16 @@ def test_the_tolerance_grows_with_a_long_publication_period():
     clock = FakeClock()
     pacer = Pacer(1.0, 1.0, clock)     # 1 Hz: 5 periods = 5 s of slack
     assert pacer.late(10 ** 9, 4.0) is None and pacer.late(10 ** 9, 6.0) is not None
+
+
+def test_wait_for_sleeps_until_a_sample_is_due_and_paces_on_from_a_late_one():
+    now, slept = [0.0], []
+    pacer = Pacer(1.0, 0.01, clock=lambda: now[0])
+    pacer.wait_for(0, first=True, sleep=slept.append)          # the run's first: due now
+    pacer.wait_for(500_000_000, sleep=slept.append)             # 0.5 s of simulation later
+    assert slept == [0.5]
+    now[0] = 2.0                                                 # the next one 1.4 s late
+    pacer.wait_for(600_000_000, sleep=slept.append)
+    assert slept == [0.5] and pacer.anchor == (2.0, 600_000_000)   # no burst to catch up
+    pacer.wait_for(700_000_000, sleep=slept.append)
+    assert len(slept) == 2 and abs(slept[1] - 0.1) < 1e-12
