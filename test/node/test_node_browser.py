@@ -13,7 +13,7 @@ from executables import executable
 from headless_browser import HEIGHT, WIDTH, Browser
 from mobile_manip_sim.ros.topics import ARM_TOPIC
 from ros_harness import NodeProcess, child_env, private_domain, spinning
-from test_browser import only_its_host, two_instants
+from test_browser import moved_pixels, requests_by_host, two_instants
 from waiting import wait_for
 
 DOMAIN_ID = private_domain(230, 232)
@@ -46,11 +46,14 @@ def test_the_node_shows_its_robot_moving_in_a_browser(tmp_path, warm_kernels):
                        "the node's browser view line", TIMEOUT)
         assert url.startswith("http://localhost:"), url
         with spinning(Driver, DOMAIN_ID), Browser() as browser:
-            two_instants(browser, url, (0, 0, WIDTH, HEIGHT))
-            only_its_host(browser, url)
+            first, second = two_instants(browser, url, (0, 0, WIDTH, HEIGHT))
+            outside, sockets = requests_by_host(browser, url)
     finally:
         status = node.stop()
     assert status == 0, node.output()
+    before, after, changed = moved_pixels(first, second, (0, 0, WIDTH, HEIGHT))
+    assert before >= 30 and after >= 30 and changed > 0.3 * before, (before, after, changed)
+    assert outside == [] and sockets, (outside, sockets)
 
 
 def test_bad_browser_parameters_are_one_line_naming_them():

@@ -157,12 +157,18 @@ def two_instants(browser: Browser, url: str, box) -> tuple[np.ndarray, np.ndarra
     return first, wait_for(moved, "the robot moving in the page", TIMEOUT)
 
 
-def only_its_host(browser: Browser, url: str) -> None:
+def requests_by_host(browser: Browser, url: str) -> tuple[list, list]:
+    """(the page's requests outside its host, its websocket requests), from the network log."""
     host = urlsplit(url).netloc
     outside = [u for u in browser.requests
                if urlsplit(u).scheme not in ("data", "blob") and urlsplit(u).netloc != host]
-    assert browser.requests and not outside, outside
-    assert any(urlsplit(u).scheme == "ws" for u in browser.requests), browser.requests
+    return outside, [u for u in browser.requests if urlsplit(u).scheme == "ws"]
+
+
+def moved_pixels(first: np.ndarray, second: np.ndarray, box) -> tuple[int, int, int]:
+    """(robot pixels in ``box`` in the first screenshot, in the second, pixels that changed)."""
+    before, after = robot_in(first, box), robot_in(second, box)
+    return int(before.sum()), int(after.sum()), int((before ^ after).sum())
 
 
 def stop(process: subprocess.Popen, status: int) -> None:
@@ -186,9 +192,10 @@ def test_a_live_run_moves_in_the_browser(tmp_path):
         with Browser() as browser:
             # where the robot goes is known once the run's CSV is: where it can reach till then
             first, second = two_instants(browser, url, projected_box(scene, reach(scene)))
-            only_its_host(browser, url)
+            outside, sockets = requests_by_host(browser, url)
     finally:
         stop(process, 130)
+    assert outside == [] and sockets, (outside, sockets)
     rows = csv_rows(out)   # complete rows, every one, up to where SIGINT stopped the run
     assert len(rows) >= 2 and np.allclose(np.diff(rows[:, 0]), 0.01)
     q_rows = rows[:, 1:1 + scene.robot.n_q]
@@ -222,10 +229,13 @@ def test_a_recorded_run_plays_in_the_browser(recorded, source):
     process, url = start(REPLAY, str(recorded / source), "--view", "browser")
     try:
         with Browser() as browser:
-            two_instants(browser, url, box)
-            only_its_host(browser, url)
+            first, second = two_instants(browser, url, box)
+            outside, sockets = requests_by_host(browser, url)
     finally:
         stop(process, 0)   # a player serves until Ctrl-C: status 0
+    before, after, changed = moved_pixels(first, second, box)
+    assert before >= 30 and after >= 30 and changed > 0.3 * before, (before, after, changed)
+    assert outside == [] and sockets, (outside, sockets)
 
 
 @pytest.mark.parametrize("args, problem", [
