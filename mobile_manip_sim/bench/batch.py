@@ -165,7 +165,7 @@ def dask_sweep(runs: list[dict], workers: int = 2) -> Timing | None:
     from ..sweep.runner import WarmKernels, run_chunk
     document = paper_document()
     with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                      dashboard_address=None, silence_logs=logging.ERROR) as cluster, \
+                      dashboard_address=None, silence_logs=logging.CRITICAL) as cluster, \
             Client(cluster) as client:
         client.register_plugin(WarmKernels())
         warm = client.map(run_chunk, [document] * workers, [list(enumerate(runs[:8]))] * workers,
