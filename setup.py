@@ -63,7 +63,7 @@ class CMakeBuild(build_ext):
             return super().build_extension(ext)
         compiler = os.environ.get("CXX", "c++")
         if not shutil.which(compiler):
-            _fail(f"building the compiled core needs a C++17 compiler ({compiler} not found): "
+            _fail(f"building the compiled core needs a C++20 compiler ({compiler} not found): "
                   f"apt install g++ (or set CXX)")
         cmake = _cmake()
         try:

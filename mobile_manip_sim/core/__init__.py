@@ -8,7 +8,9 @@ ahead of time with the package (`CMakeLists.txt`, driven by setup.py) and bound 
     s_next = core.step("rk4", s, h, Q_cmd, damping, moving, g)   # s = (q, u, e, W)
     value, d_dx, d_dtau = core.jacobians("rk4", s, h, Q_cmd, B, damping, moving, g)
 
-The sources are in ``include/mms/`` (the kernels) and ``src/bindings.cpp``; `build_info` says how
+`Stepper` is the fixed-step engine of one simulation, events and impacts included, on the
+simulation's own arrays (`engine/core_stepping.py` builds it). The sources are in
+``include/mms/`` (the kernels) and ``src/bindings.cpp``; `build_info` says how
 this copy was compiled (flags, vector width).
 """
 from __future__ import annotations
@@ -16,15 +18,15 @@ from __future__ import annotations
 import numpy as np
 
 try:
-    from ._core import BaseParameters, Dynamics, WheelLoop, build_info, multiply_add
+    from ._core import BaseParameters, Dynamics, Stepper, WheelLoop, build_info, multiply_add
 except ImportError as error:  # the extension was never built (or built for another Python)
     raise ImportError(
         "mobile_manip_sim's compiled core is not built: run `pip install -e .` (or "
-        "`colcon build`), which needs a C++17 compiler, CMake ≥ 3.18 and nanobind "
+        "`colcon build`), which needs a C++20 compiler (g++ ≥ 10), CMake ≥ 3.18 and nanobind "
         f"({error})") from error
 
-__all__ = ["BaseParameters", "Dynamics", "WheelLoop", "build_info", "compiled_dynamics",
-           "multiply_add"]
+__all__ = ["BaseParameters", "Dynamics", "Stepper", "WheelLoop", "build_info",
+           "compiled_dynamics", "multiply_add"]
 
 
 def compiled_dynamics(robot, tip_mass: float = 0.0, wheel_inertia: bool = True) -> Dynamics:

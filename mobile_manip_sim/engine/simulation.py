@@ -32,7 +32,7 @@ from ..scene.errors import UserError
 from ..scene.limits import ANGLE, SPEED
 from ..scene.loading import IntegratorSettings, Scene
 from ..scene.methods import COMPILED_STEPPERS, IDS, METHODS
-from . import adaptive_stepping, dense, layout, linearization, step_watch, stepping
+from . import adaptive_stepping, core_stepping, dense, layout, linearization, step_watch, stepping
 from . import status as status_codes
 from .arm_commands import ArmCommands
 from .arm_control import arm_settings, feedforward_masses, for_robot, scene_arm_controller
@@ -148,6 +148,7 @@ class Simulation(ArmCommands, BaseCommands, ScipySteps):
         self.stops.run[:] = 0.0   # no run of impacts for the Zeno guard
         self.stops.failed[0] = 0
         relock(self.system.data, self.stops)
+        self._stepper = self._fixed_stepper()
         self.impacts: list[Impact] = []
         self.impact_details: list[ImpactDetail] = []
         self.system.counters[:] = 0
@@ -159,6 +160,16 @@ class Simulation(ArmCommands, BaseCommands, ScipySteps):
         if self.arm_controller.active:
             self._start_arm()
         self.energy0 = self.total_energy()
+
+    def _fixed_stepper(self):
+        """The compiled C++ stepper of this simulation's own records (`core_stepping.py`), or None
+        where the numba kernels run it (an adaptive or SciPy method, an arm controller). Made at
+        every reset: a batch lane, a copy of its template's records, gets its own."""
+        method = METHODS[self.settings.method]
+        if core_stepping.CORE != "cpp" or not method.fixed_step or self.arm_controller.active:
+            return None
+        return core_stepping.fixed_stepper(self.dynamics, method.name, self.system, self.stops,
+                                           self._scratch)
 
     def load_kernels(self) -> None:
         """Load now (compile, if the warm-up did not) every compiled kernel that this
@@ -363,7 +374,11 @@ class Simulation(ArmCommands, BaseCommands, ScipySteps):
             self._advance_scipy(t_end)
             return
         while True:
-            status = self._advance(*self._core_args, self.s, self._clock, t_end, self._step_budget)
+            if self._stepper is not None:
+                status = self._stepper.advance(self.s, self._clock, t_end, self._step_budget)
+            else:
+                status = self._advance(*self._core_args, self.s, self._clock, t_end,
+                                       self._step_budget)
             self._after_compiled(status)
             if status == status_codes.DONE:
                 return
@@ -382,8 +397,12 @@ class Simulation(ArmCommands, BaseCommands, ScipySteps):
             return rows
         i = 0
         while i < times.size:
-            status, i = self._advance_samples(*self._core_args, self.s, self._clock, times, rows,
-                                              i, self._step_budget)
+            if self._stepper is not None:
+                status, i = self._stepper.advance_samples(self.s, self._clock, times, rows, i,
+                                                          self._step_budget)
+            else:
+                status, i = self._advance_samples(*self._core_args, self.s, self._clock, times,
+                                                  rows, i, self._step_budget)
             self._after_compiled(status)
         return rows
 

@@ -183,8 +183,8 @@ def _connect(args):
                                      f"{'s' if workers > 1 else ''}"):
             # the workers' own log lines stay off the terminal: every run's outcome comes back
             # through its future (a failed run is a row; a lost worker's chunk runs again or is
-            # a failed row), and what a worker logs besides is transient (a heartbeat missed on a loaded
-            # machine printed a 30-line traceback mid-sweep, and the sweep went on)
+            # a failed row), and what a worker logs besides is transient (a heartbeat missed on
+            # a loaded machine printed a 30-line traceback mid-sweep, and the sweep went on)
             cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
                                    dashboard_address=None, silence_logs=logging.CRITICAL)
             client = Client(cluster)

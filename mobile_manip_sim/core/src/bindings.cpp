@@ -15,6 +15,7 @@
 #include "mms/articulated.hpp"
 #include "mms/dynamics.hpp"
 #include "mms/fixed_step.hpp"
+#include "mms/stepping.hpp"
 
 namespace nb = nanobind;
 using namespace nb::literals;
@@ -39,10 +40,18 @@ Out new_array(std::initializer_list<size_t> shape, double** data) {
   return Out(buffer, shape.size(), shape.begin(), owner);
 }
 
-void need(const In& a, size_t size, const char* name) {
+template <class Array>
+void need(const Array& a, size_t size, const char* name) {
   if (a.size() != size)
     throw std::invalid_argument(std::string(name) + ": expected " + std::to_string(size) +
                                 " numbers, got " + std::to_string(a.size()));
+}
+
+Method method_of(const std::string& name) {
+  if (name == "euler") return Method::Euler;
+  if (name == "semi_implicit_euler") return Method::SemiImplicitEuler;
+  if (name == "rk4") return Method::Rk4;
+  throw std::invalid_argument("method: expected euler, semi_implicit_euler or rk4, got " + name);
 }
 
 class Dynamics {
@@ -78,6 +87,7 @@ class Dynamics {
   int n() const { return model_.n(); }
   int n_q() const { return model_.n_q(); }
   int n_u() const { return model_.n_u(); }
+  const Model& model() const { return model_; }
 
   Out inverse_dynamics(In q, In u, In ud, double g) {
     check(q, u, ud);
@@ -407,13 +417,6 @@ class Dynamics {
     return seconds / (calls > 0 ? calls : 1);
   }
 
-  static Method method_of(const std::string& name) {
-    if (name == "euler") return Method::Euler;
-    if (name == "semi_implicit_euler") return Method::SemiImplicitEuler;
-    if (name == "rk4") return Method::Rk4;
-    throw std::invalid_argument("method: expected euler, semi_implicit_euler or rk4, got " + name);
-  }
-
   void set_effects(const In& s, const In& Q_cmd, const In& damping, const In& moving) {
     need(s, state_size(model_), "s");
     need(Q_cmd, n_u(), "Q_cmd");
@@ -435,6 +438,122 @@ class Dynamics {
   SystemWorkspace<DualD> dual_system_;
   SystemWorkspace<Block> block_system_;
 };
+
+// The fixed-step engine of one simulation (stepping.hpp) on the engine's own arrays (run.hpp):
+// the Python objects stay the owners, and hold what the run is between calls.
+using I64 = nb::ndarray<std::int64_t, nb::c_contig, nb::device::cpu>;
+using Bools = nb::ndarray<bool, nb::c_contig, nb::device::cpu>;
+using F64 = nb::ndarray<double, nb::c_contig, nb::device::cpu>;
+
+class Stepper {
+ public:
+  Stepper(nb::object dynamics, const std::string& method, double gravity, In damping, I64 free,
+          In Q_cmd, In control, I64 counters, F64 holding, Bools watched, I64 resting, In stroke,
+          Bools permanent, int law, double restitution, double rest_speed, F64 log, F64 log_q,
+          F64 log_u, Bools log_free, I64 count, F64 runs, I64 failed, F64 out, F64 trial,
+          F64 stages, F64 forces, F64 samples, I64 crossed)
+      : owner_(dynamics),
+        method_(method_of(method)),
+        run_(nb::cast<Dynamics&>(dynamics).model(), int(out.size())) {
+    const Model& m = run_.model;
+    const size_t n = m.n(), nu = m.n_u(), nq = m.n_q(), size = out.size();
+    if (damping.size()) need(damping, nu, "damping");
+    need(free, nu, "free");
+    need(Q_cmd, nu, "Q_cmd");
+    need(control, 7, "control");
+    if (counters.size() < 5) throw std::invalid_argument("counters: expected 5 or more");
+    need(holding, 2, "holding");
+    need(watched, n, "watched");
+    need(resting, n, "resting");
+    need(stroke, 2 * n, "stroke");
+    need(permanent, nu, "permanent");
+    const size_t capacity = log.ndim() == 2 ? log.shape(0) : 0;
+    if (log.ndim() != 2 || log.shape(1) != LOG_COLUMNS)
+      throw std::invalid_argument("log: expected (capacity, " + std::to_string(LOG_COLUMNS) +
+                                  ")");
+    need(log_q, capacity * nq, "log_q");
+    need(log_u, capacity * 2 * nu, "log_u");
+    need(log_free, capacity * nu, "log_free");
+    need(count, 1, "count");
+    need(runs, n * 2 * RUN_FIELDS, "run");
+    need(failed, 1, "failed");
+    need(trial, size, "trial");
+    need(stages, 4 * size, "stages");
+    need(forces, size, "forces");
+    if (samples.size() < size_t(N_SAMPLES) + 2 * n)
+      throw std::invalid_argument("samples: too short");
+    need(crossed, std::max<size_t>(n, 1), "crossed");
+    if (size != size_t(state_size(m)))
+      throw std::invalid_argument("the fixed-step core runs effort and wheel-speed modes (a "
+                                  "state of " + std::to_string(state_size(m)) + " entries)");
+    arrays_ = nb::make_tuple(damping, free, Q_cmd, control, counters, holding, watched, resting,
+                             stroke, permanent, log, log_q, log_u, log_free, count, runs, failed,
+                             out, trial, stages, forces, samples, crossed);
+    run_.system = SystemArrays{.gravity = gravity,
+                               .damping = damping.size() ? damping.data() : nullptr,
+                               .free = free.data(),
+                               .Q_cmd = Q_cmd.data(),
+                               .control = control.data(),
+                               .counters = counters.data(),
+                               .holding = holding.data()};
+    run_.stops = StopsArrays{.watched = watched.data(),
+                             .resting = resting.data(),
+                             .stroke = stroke.data(),
+                             .permanent = permanent.data(),
+                             .law = law,
+                             .restitution = restitution,
+                             .rest_speed = rest_speed,
+                             .log = log.data(),
+                             .log_q = log_q.data(),
+                             .log_u = log_u.data(),
+                             .log_free = log_free.data(),
+                             .capacity = int(capacity),
+                             .count = count.data(),
+                             .run = runs.data(),
+                             .failed = failed.data()};
+    run_.step = StepArrays{.out = out.data(),
+                           .trial = trial.data(),
+                           .stages = stages.data(),
+                           .forces = forces.data(),
+                           .samples = samples.data(),
+                           .crossed = crossed.data()};
+  }
+
+  int advance(F64 s, F64 clock, double t_end, long max_steps) {
+    check(s, clock);
+    nb::gil_scoped_release free_the_interpreter;
+    return mms::advance(run_, method_, s.data(), clock.data(), t_end, max_steps);
+  }
+
+  std::tuple<int, long> advance_samples(F64 s, F64 clock, In times, F64 rows, long first,
+                                        long max_steps) {
+    check(s, clock);
+    const long n_times = long(times.size());
+    need(rows, size_t(n_times) * (run_.size + 1), "rows");
+    if (first < 0 || first > n_times) throw std::invalid_argument("first: out of range");
+    nb::gil_scoped_release free_the_interpreter;
+    Sampled done = mms::advance_samples(run_, method_, s.data(), clock.data(), times.data(),
+                                        n_times, rows.data(), first, max_steps);
+    return {int(done.status), done.next};
+  }
+
+  double total_energy(In s) {
+    need(s, run_.size, "s");
+    return mms::total_energy(run_, s.data());
+  }
+
+ private:
+  void check(const F64& s, const F64& clock) {
+    need(s, run_.size, "s");
+    need(clock, CLOCK_HOLDS + 1, "clock");
+  }
+
+  nb::object owner_;   // the Dynamics whose model the run uses
+  nb::object arrays_;  // the arrays the run points into, kept alive
+  Method method_;
+  Run run_;
+};
+
 
 // a*b + c, as this build computes it: a build that contracts it into one fused multiply-add
 // rounds once and gives another result than IEEE's two roundings (the test checks).
@@ -511,4 +630,18 @@ NB_MODULE(_core, m) {
            "Q_cmd"_a, "B"_a, "damping"_a, "moving"_a, "g"_a, "calls"_a);
   m.def("build_info", &mms::build_info);
   m.def("multiply_add", &mms::multiply_add, "a"_a, "b"_a, "c"_a);
+  nb::class_<mms::Stepper>(m, "Stepper")
+      .def(nb::init<nb::object, const std::string&, double, mms::In, mms::I64, mms::In, mms::In,
+                    mms::I64, mms::F64, mms::Bools, mms::I64, mms::In, mms::Bools, int, double,
+                    double, mms::F64, mms::F64, mms::F64, mms::Bools, mms::I64, mms::F64,
+                    mms::I64, mms::F64, mms::F64, mms::F64, mms::F64, mms::F64, mms::I64>(),
+           "dynamics"_a, "method"_a, "gravity"_a, "damping"_a, "free"_a, "Q_cmd"_a, "control"_a,
+           "counters"_a, "holding"_a, "watched"_a, "resting"_a, "stroke"_a, "permanent"_a,
+           "law"_a, "restitution"_a, "rest_speed"_a, "log"_a, "log_q"_a, "log_u"_a,
+           "log_free"_a, "count"_a, "run"_a, "failed"_a, "out"_a, "trial"_a, "stages"_a,
+           "forces"_a, "samples"_a, "crossed"_a)
+      .def("advance", &mms::Stepper::advance, "s"_a, "clock"_a, "t_end"_a, "max_steps"_a)
+      .def("advance_samples", &mms::Stepper::advance_samples, "s"_a, "clock"_a, "times"_a,
+           "rows"_a, "first"_a, "max_steps"_a)
+      .def("total_energy", &mms::Stepper::total_energy, "s"_a);
 }

@@ -18,34 +18,44 @@ namespace mms {
 
 enum class Method { Euler, SemiImplicitEuler, Rk4 };
 
-template <class S>
-void step(Method method, const Model& model, const Effects<S>& fx, const S* s, double h, S* out,
-          SystemWorkspace<S>& ws) {
-  const int n = state_size(model), nq = model.n_q(), nu = model.n_u();
-  auto& k = ws.k;
+// One step with the right-hand side `f(x, dx)` given (the engine's counts its stages and watches
+// the holding forces); k[0 … 3] are the stages (with `k1_ready`, k[0] already holds f(s)), x a
+// stage's state; n entries of s.
+template <class S, class F>
+void step_with(Method method, const Model& model, F&& f, const S* s, double h, S* out,
+               S* const* k, S* x, int n, bool k1_ready = false) {
+  const int nq = model.n_q();
   if (method == Method::Rk4) {
-    for (int stage = 0; stage < 4; ++stage) {
-      const S* x = s;
+    for (int stage = k1_ready ? 1 : 0; stage < 4; ++stage) {
+      const S* at = s;
       if (stage > 0) {  // s + c h k_(stage−1), c = ½, ½, 1
         double c = stage == 3 ? h : 0.5 * h;
-        for (int i = 0; i < n; ++i) ws.x[i] = s[i] + c * k[stage - 1][i];
-        x = ws.x.data();
+        for (int i = 0; i < n; ++i) x[i] = s[i] + c * k[stage - 1][i];
+        at = x;
       }
-      rates(model, fx, x, k[stage].data(), ws);
+      f(at, k[stage]);
     }
     for (int i = 0; i < n; ++i)
       out[i] = s[i] + h / 6.0 * (k[0][i] + 2.0 * k[1][i] + 2.0 * k[2][i] + k[3][i]);
     return;
   }
-  rates(model, fx, s, k[0].data(), ws);
+  if (!k1_ready) f(s, k[0]);
   if (method == Method::Euler) {
     for (int i = 0; i < n; ++i) out[i] = s[i] + h * k[0][i];
     return;
   }
   for (int i = nq; i < n; ++i) out[i] = s[i] + h * k[0][i];
-  configuration_rate(model, s, out + nq, k[1].data());
+  configuration_rate(model, s, out + nq, k[1]);
   for (int i = 0; i < nq; ++i) out[i] = s[i] + h * k[1][i];
-  (void)nu;
+}
+
+template <class S>
+void step(Method method, const Model& model, const Effects<S>& fx, const S* s, double h, S* out,
+          SystemWorkspace<S>& ws) {
+  S* k[4] = {ws.k[0].data(), ws.k[1].data(), ws.k[2].data(), ws.k[3].data()};
+  step_with(
+      method, model, [&](const S* at, S* rate) { rates(model, fx, at, rate, ws); }, s, h, out,
+      k, ws.x.data(), state_size(model));
 }
 
 }  // namespace mms
