@@ -1,7 +1,9 @@
-// Events inside a fixed step (docs/model.md, "Resting, leaving, and no Zeno"): a rod reaching an
-// end stop, a resting rod pulled off its stop. Both are roots in h' ∈ (0, h] of an event function
-// of the integrator's own step s0 → h' (so the located state is what the integrator itself
-// reaches): g = side·(stop − l_k) for a crossing, the least holding margin for a release.
+// Events inside a step (docs/model.md, "Resting, leaving, and no Zeno"): a rod reaching an end
+// stop, a resting rod pulled off its stop. Both are roots in h' ∈ (0, h] of an event function of
+// the state h' into the step along the step's path — for the fixed-step methods the integrator's
+// own step s0 → h' (so the located state is what the integrator itself reaches), for the
+// adaptive ones the step's dense output: g = side·(stop − l_k) for a crossing, the least holding
+// margin for a release.
 //
 // A crossing is flagged after a step when a rod's end value or the extremum of its cubic Hermite
 // path over the step leaves the stroke (a fast rod that crosses and comes back within one step is
@@ -21,6 +23,9 @@ namespace mms {
 
 constexpr int N_SAMPLES = 16;
 enum EventKind { CROSSING, RELEASE };
+
+// A step's path: `path(h', out)` writes the state h' into the step (h' > 0) into out — the
+// integrator's own step from its start (`OwnStep`), or an adaptive step's dense output.
 
 // One step of `method` from s of length h into out, the run's right-hand side counted and
 // watched (`derivative`); with k1_ready the first stage already holds f(s).
@@ -80,14 +85,23 @@ inline bool crossing_in_step(Run& run, const double* s0, const double* s1, doubl
   return false;
 }
 
-// The state h into the step from s0 (s0 itself for h ≤ 0), into out: the integrator's own step.
-inline void step_state(Run& run, Method method, const double* s0, double h, double* out) {
+// The state h into the step from s0 (s0 itself for h ≤ 0), into out, along `path`.
+template <class Path>
+inline void step_state(Run& run, Path& path, const double* s0, double h, double* out) {
   if (h <= 0.0) {
     for (int i = 0; i < run.size; ++i) out[i] = s0[i];
   } else {
-    run_step(run, method, s0, h, out);
+    path(h, out);
   }
 }
+
+// The fixed-step methods' path: the integrator's own step from s0.
+struct OwnStep {
+  Run& run;
+  Method method;
+  const double* s0;
+  void operator()(double h, double* out) const { run_step(run, method, s0, h, out); }
+};
 
 struct EventTarget {
   EventKind kind;
@@ -96,28 +110,30 @@ struct EventTarget {
   double stop = 0;
 };
 
-inline double event_value(Run& run, Method method, const EventTarget& e, const double* s0,
+template <class Path>
+inline double event_value(Run& run, Path& path, const EventTarget& e, const double* s0,
                           double h) {
   double* trial = run.step.trial;
-  step_state(run, method, s0, h, trial);
+  step_state(run, path, s0, h, trial);
   if (e.kind == CROSSING) return (e.stop - trial[e.i_l]) * e.side;
   return holding_margin(run, trial, run.stage(3));
 }
 
 // The root of g in (a, b] with g(a) ≥ 0 > g(b), by the Illinois method: the h' with g(h') ≤ 0
 // closest to the root (the state has just reached the event).
-inline double locate(Run& run, Method method, const EventTarget& e, const double* s0, double a,
+template <class Path>
+inline double locate(Run& run, Path& path, const EventTarget& e, const double* s0, double a,
                      double b) {
   const double h = b - a;
-  double ga = event_value(run, method, e, s0, a);
-  double gb = event_value(run, method, e, s0, b);
+  double ga = event_value(run, path, e, s0, a);
+  double gb = event_value(run, path, e, s0, b);
   double g_root = gb;  // g at b itself: the Illinois steps halve gb
   int last = 0;
   for (int i = 0; i < 200; ++i) {
     // with g(a) = 0 (a rod starting exactly at its stop) the secant would land on a itself
     double c = gb != ga && ga != 0.0 ? b - gb * (b - a) / (gb - ga) : 0.5 * (a + b);
     if (!(a < c && c < b)) c = 0.5 * (a + b);
-    double gc = event_value(run, method, e, s0, c);
+    double gc = event_value(run, path, e, s0, c);
     if (gc <= 0.0) {
       b = c;
       gb = gc;
@@ -153,7 +169,8 @@ struct Crossing {
 };
 
 // The earliest (h', rod k, side) at which a watched rod meets a stop within the step s0 → h.
-inline Crossing first_crossing(Run& run, Method method, const double* s0, double h) {
+template <class Path>
+inline Crossing first_crossing(Run& run, Path& path, const double* s0, double h) {
   double* samples = run.step.samples;
   std::int64_t* crossed = run.step.crossed;
   double* trial = run.step.trial;
@@ -161,7 +178,7 @@ inline Crossing first_crossing(Run& run, Method method, const double* s0, double
   int m = 0;
   for (int j = 1; j <= N_SAMPLES; ++j) samples[m++] = h * j / N_SAMPLES;
   // the instants where each rod's Hermite path over the step turns
-  step_state(run, method, s0, h, trial);
+  step_state(run, path, s0, h, trial);
   for (int k = 1; k <= n; ++k)
     if (run.stops.watched[k - 1]) {
       int i_l = q_slide(k), i_ld = ld_index(run, k);
@@ -172,7 +189,7 @@ inline Crossing first_crossing(Run& run, Method method, const double* s0, double
   // bracket the first crossing: every stop inside at samples[end − 1], some past at samples[end]
   int end = -1;
   for (int j = 0; j < m; ++j) {
-    step_state(run, method, s0, samples[j], trial);
+    step_state(run, path, s0, samples[j], trial);
     for (int k = 1; k <= n; ++k) {
       crossed[k - 1] = 0;
       if (run.stops.watched[k - 1]) {
@@ -194,20 +211,21 @@ inline Crossing first_crossing(Run& run, Method method, const double* s0, double
     if (side == 0) continue;
     EventTarget e{CROSSING, q_slide(k), side,
                   run.stops.stroke[2 * (k - 1) + (side < 0 ? 0 : 1)]};
-    double h_hit = locate(run, method, e, s0, a, samples[end]);
+    double h_hit = locate(run, path, e, s0, a, samples[end]);
     if (best.k == 0 || h_hit < best.h) best = Crossing{h_hit, k, side};
   }
   return best;
 }
 
 // The earliest h' in (0, h] at which a resting rod's stop would start to pull, or −1.
-inline double first_release(Run& run, Method method, const double* s0, double h) {
+template <class Path>
+inline double first_release(Run& run, Path& path, const double* s0, double h) {
   const EventTarget e{RELEASE};
   double before = 0.0;
   for (int j = 1; j <= N_SAMPLES; ++j) {
     double h_j = h * j / N_SAMPLES;
-    if (event_value(run, method, e, s0, h_j) < 0.0)
-      return locate(run, method, e, s0, before, h_j);
+    if (event_value(run, path, e, s0, h_j) < 0.0)
+      return locate(run, path, e, s0, before, h_j);
     before = h_j;
   }
   return -1.0;

@@ -43,19 +43,20 @@ inline Status step_with_events(Run& run, Method method, double* s, double h, dou
     clear_holding(run);
     run_step(run, method, s, h, out);
     if (!finite(out, run.size)) return NOT_FINITE;
+    OwnStep path{run, method, s};
     Crossing hit;
     if (any_watched(run) && crossing_in_step(run, s, out, h))
-      hit = first_crossing(run, method, s, h);
+      hit = first_crossing(run, path, s, h);
     double h_leave = -1.0;
     if (pull_seen(run, out))  // a stage (or the end) saw a stop pull: the first pull, located
-      h_leave = first_release(run, method, s, h);
+      h_leave = first_release(run, path, s, h);
     if (hit.k == 0 && h_leave < 0.0) {  // no event (or the Hermite path dipped, the step did not)
       std::copy(out, out + run.size, s);
       return DONE;
     }
     if (hit.k == 0 || (0.0 <= h_leave && h_leave < hit.h)) {
       // a resting rod is pulled off its stop: released at that instant, not a step later
-      step_state(run, method, s, h_leave, trial);
+      step_state(run, path, s, h_leave, trial);
       std::copy(trial, trial + run.size, s);
       h -= h_leave;
       t += h_leave;
@@ -63,7 +64,7 @@ inline Status step_with_events(Run& run, Method method, double* s, double h, dou
       if (run.stops.failed[0] != 0) return CONTACT_FAILED;
     } else {
       if (run.stops.count[0] + n > capacity) return CHATTER;  // the log is full within one step
-      step_state(run, method, s, hit.h, trial);
+      step_state(run, path, s, hit.h, trial);
       std::copy(trial, trial + run.size, s);
       s[q_slide(hit.k)] = run.stops.stroke[2 * (hit.k - 1) + (hit.side < 0 ? 0 : 1)];
       h -= hit.h;
