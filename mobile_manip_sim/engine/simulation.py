@@ -147,8 +147,8 @@ class Simulation(ArmCommands, BaseCommands, ScipySteps):
         self.stops.count[0] = 0
         self.stops.run[:] = 0.0   # no run of impacts for the Zeno guard
         self.stops.failed[0] = 0
-        relock(self.system.data, self.stops)
         self._stepper = self._fixed_stepper()
+        self._relock()
         self.impacts: list[Impact] = []
         self.impact_details: list[ImpactDetail] = []
         self.system.counters[:] = 0
@@ -187,10 +187,8 @@ class Simulation(ArmCommands, BaseCommands, ScipySteps):
         twin.dynamics.energy(twin.q, twin.u)
         twin.set_base_velocity(0.0, 0.0)
         twin.wheel_torques()
-        scr = twin._scratch
-        holding_margin(twin.system.data, twin.s, twin.resting, scr.stages[3], scr.forces)
-        release(twin.system.data, twin.stops, twin.s, scr.impact, scr.stages[3], scr.forces,
-                False)
+        twin._holding_margin()
+        twin._release()
         if twin.arm_controller.active:
             twin.arm_reference()
             twin.joint_efforts_applied()
@@ -223,7 +221,7 @@ class Simulation(ArmCommands, BaseCommands, ScipySteps):
         self.resting[:] = 0
         self.watched[:] = self.stop_law is not None
         self.stops.run[:] = 0.0
-        relock(self.system.data, self.stops)
+        self._relock()
         self._solver = None
         self._restart()
         self.energy0 += self.total_energy() - before
@@ -285,6 +283,8 @@ class Simulation(ArmCommands, BaseCommands, ScipySteps):
         return float(self.s[layout.work(self.nq, self.nu)])
 
     def total_energy(self) -> float:
+        if self._stepper is not None:
+            return self._stepper.total_energy(self.s)
         return float(self._total_energy(self.system.data, self.s))
 
     def energy_error(self) -> float:
@@ -300,7 +300,8 @@ class Simulation(ArmCommands, BaseCommands, ScipySteps):
         efforts held and the rods at rest locked (the IMU's source). Not counted among the
         evaluations, and it leaves the run untouched (its scratch is rewritten by every step)."""
         counters = self.system.counters.copy()
-        ds = self.system.derivative(self.s)
+        ds = (self._stepper.derivative(self.s) if self._stepper is not None
+              else self.system.derivative(self.s))
         self.system.counters[:] = counters
         return ds[self.nq:self.nq + self.nu]
 
@@ -353,13 +354,34 @@ class Simulation(ArmCommands, BaseCommands, ScipySteps):
         rod that the new command pulls off its stop is freed at this very instant (the steppers
         look for releases only inside steps; otherwise it would stay held a whole step)."""
         self._restart()
-        scr = self._scratch
-        if self.resting.any() and holding_margin(self.system.data, self.s, self.resting,
-                                                 scr.stages[3], scr.forces) < 0.0:
-            release(self.system.data, self.stops, self.s, scr.impact, scr.stages[3], scr.forces,
-                    False)
+        if self.resting.any() and self._holding_margin() < 0.0:
+            self._release()
             if self.stops.failed[0]:
                 self._contact_failed()
+
+    # --- the stops' kernels: the compiled stepper's where it runs the method -------------------
+    def _relock(self) -> None:
+        """The locks from the stops (the scene's locked DOFs, the resting rods)."""
+        if self._stepper is not None:
+            self._stepper.relock()
+        else:
+            relock(self.system.data, self.stops)
+
+    def _holding_margin(self) -> float:
+        """The least force a resting rod's stop pushes with now (N; +inf: none rests)."""
+        if self._stepper is not None:
+            return self._stepper.holding_margin(self.s)
+        scr = self._scratch
+        return holding_margin(self.system.data, self.s, self.resting, scr.stages[3], scr.forces)
+
+    def _release(self) -> None:
+        """Free, now, the resting rods their stops would have to pull."""
+        if self._stepper is not None:
+            self._stepper.release(self.s, False)
+            return
+        scr = self._scratch
+        release(self.system.data, self.stops, self.s, scr.impact, scr.stages[3], scr.forces,
+                False)
 
     # --- stepping ------------------------------------------------------------------------
     def advance_to(self, t_end: float) -> None:

@@ -542,6 +542,33 @@ class Stepper {
     return mms::total_energy(run_, s.data());
   }
 
+  // The locks from the stops (the scene's and the resting rods'), after Python changed them.
+  void relock() { mms::relock(run_); }
+
+  // Free the resting rods their stops would have to pull at s (in place); how many left.
+  int release(F64 s, bool at_root) {
+    need(s, run_.size, "s");
+    sync_locks(run_);
+    return mms::release(run_, s.data(), at_root);
+  }
+
+  // The least force a resting rod's stop pushes with at s (N; +inf when none rests).
+  double holding_margin(In s) {
+    need(s, run_.size, "s");
+    sync_locks(run_);
+    return mms::holding_margin(run_, s.data(), run_.stage(3));
+  }
+
+  // ds/dt at s with the locks in force (counted as the run's own evaluations are).
+  Out derivative(In s) {
+    need(s, run_.size, "s");
+    sync_locks(run_);
+    double* ds;
+    Out out = new_array({size_t(run_.size)}, &ds);
+    mms::derivative(run_, s.data(), ds);
+    return out;
+  }
+
  private:
   void check(const F64& s, const F64& clock) {
     need(s, run_.size, "s");
@@ -643,5 +670,9 @@ NB_MODULE(_core, m) {
       .def("advance", &mms::Stepper::advance, "s"_a, "clock"_a, "t_end"_a, "max_steps"_a)
       .def("advance_samples", &mms::Stepper::advance_samples, "s"_a, "clock"_a, "times"_a,
            "rows"_a, "first"_a, "max_steps"_a)
-      .def("total_energy", &mms::Stepper::total_energy, "s"_a);
+      .def("total_energy", &mms::Stepper::total_energy, "s"_a)
+      .def("relock", &mms::Stepper::relock)
+      .def("release", &mms::Stepper::release, "s"_a, "at_root"_a)
+      .def("holding_margin", &mms::Stepper::holding_margin, "s"_a)
+      .def("derivative", &mms::Stepper::derivative, "s"_a);
 }
