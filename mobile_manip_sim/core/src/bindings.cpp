@@ -6,12 +6,16 @@
 #include <nanobind/stl/tuple.h>
 
 #include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <memory>
 #include <cstring>
 #include <ctime>
 #include <stdexcept>
 #include <string>
 #include <vector>
 
+#include "mms/adaptive_solve.hpp"
 #include "mms/articulated.hpp"
 #include "mms/dynamics.hpp"
 #include "mms/fixed_step.hpp"
@@ -434,6 +438,168 @@ class Dynamics {
   SystemWorkspace<double> system_;
   SystemWorkspace<DualD> dual_system_;
   SystemWorkspace<Block> block_system_;
+
+  // --- the adaptive methods rk45 and dop853 (runge_kutta.hpp, adaptive_solve.hpp) ------------
+ public:
+  // Hairer's starting step (s) at s for a run over `span` seconds (`initial_step`).
+  double initial_step(const std::string& method, In s, double span, double rtol, double atol,
+                      double max_step, In Q_cmd, In damping, In moving, double g,
+                      const WheelLoop* wheels) {
+    Adaptive m = adaptive_of(method);
+    check_tolerances(rtol, atol);
+    set_effects(s, Q_cmd, damping, moving);
+    Effects<double> fx{g, Q_cmd.data(), damping.size() ? damping.data() : nullptr, wheels};
+    const int n = state_size(model_);
+    std::vector<double> f0(n), y(n), f(n);
+    mms::rates(model_, fx, s.data(), f0.data(), system_);
+    return mms::initial_step(m, model_, fx, s.data(), f0.data(), span, rtol, atol, max_step,
+                             y.data(), f.data(), system_);
+  }
+
+  // One accepted step of `method` from (t, s), trying h_abs first and never past t_bound
+  // (`accepted_step`; f(s) is evaluated first and not counted): (y₁, h taken, next h to try,
+  // right-hand sides, rejected tries); h = −1 when the step fell below 10 spacings of t. The
+  // step stays in hand for `dense_output`, with the efforts it was taken with.
+  std::tuple<Out, double, double, int, int> adaptive_step(const std::string& method, In s,
+                                                          double t, double h_abs,
+                                                          double t_bound, double rtol,
+                                                          double atol, In Q_cmd, In damping,
+                                                          In moving, double g,
+                                                          const WheelLoop* wheels) {
+    Adaptive m = adaptive_of(method);
+    check_tolerances(rtol, atol);
+    if (!(h_abs > 0.0)) throw std::invalid_argument("h_abs: expected a positive step");
+    set_effects(s, Q_cmd, damping, moving);
+    const int n = state_size(model_);
+    in_hand_ = std::make_unique<InHand>(m, n, rtol, atol, Q_cmd, damping, moving, g, wheels);
+    Solve<double>& solve = in_hand_->solve;
+    Effects<double> fx = in_hand_->effects();
+    solve.start.assign(s.data(), s.data() + n);
+    mms::rates(model_, fx, s.data(), solve.work.f_start.data(), system_);
+    AcceptedStep step = accepted_step(m, model_, fx, s.data(), t, h_abs, t_bound, rtol, atol,
+                                      solve.work, system_);
+    solve.t0 = t;
+    solve.h = step.h > 0.0 ? step.h : 0.0;
+    double* end;
+    Out out = new_array({size_t(n)}, &end);
+    std::copy(solve.work.end.begin(), solve.work.end.end(), end);
+    if (step.h < 0.0) std::copy(s.data(), s.data() + n, end);  // unchanged
+    return {out, step.h, step.h_next, step.evaluations, step.rejections};
+  }
+
+  // The last `adaptive_step`'s dense output at each θ of `thetas` (θ ∈ [0, 1]): (rows
+  // (len(thetas) × state), whether it came from the step's stages alone). `full`: the method's
+  // own interpolant (dop853's 7th order, 3 more right-hand sides); otherwise dop853 reads its
+  // stage-only extension where that is within the step's tolerance, as the solve does for samples.
+  std::tuple<Out, bool> dense_output(In thetas, bool full) {
+    if (!in_hand_ || in_hand_->solve.h <= 0.0)
+      throw std::invalid_argument("dense_output: no accepted step in hand (call adaptive_step)");
+    for (size_t i = 0; i < thetas.size(); ++i)
+      if (!(thetas.data()[i] >= 0.0 && thetas.data()[i] <= 1.0))
+        throw std::invalid_argument("thetas: expected values in [0, 1], got " +
+                                    std::to_string(thetas.data()[i]));
+    Solve<double>& solve = in_hand_->solve;
+    for (int k = 0; k < n_u(); ++k) system_.dynamics.moving[k] = in_hand_->moving[k];
+    solve.dense = DenseKind::None;
+    interpolant(solve, model_, in_hand_->effects(), full, system_);
+    const int n = state_size(model_);
+    double* rows;
+    Out out = new_array({thetas.size(), size_t(n)}, &rows);
+    for (size_t i = 0; i < thetas.size(); ++i)
+      dense_eval(solve.method, n, solve.work.dense, solve.start.data(), solve.h,
+                 thetas.data()[i], rows + i * n);
+    return {out, solve.dense == DenseKind::FromStages};
+  }
+
+  // A run of `method` from s at t = times[0]… (no events: stops and impacts are the engine's),
+  // its state at each of the increasing `times` (s) read from the step in hand's dense output
+  // (adaptive_solve.hpp): (rows (len(times) × state), accepted steps, right-hand sides,
+  // rejected tries). The first solve starts at t = 0 with Hairer's starting step.
+  std::tuple<Out, long, long, long> adaptive_run(const std::string& method, In s, In times,
+                                                 double rtol, double atol, In Q_cmd, In damping,
+                                                 In moving, double g, const WheelLoop* wheels,
+                                                 long max_steps) {
+    Adaptive m = adaptive_of(method);
+    check_tolerances(rtol, atol);
+    set_effects(s, Q_cmd, damping, moving);
+    double previous = 0.0;
+    for (size_t i = 0; i < times.size(); ++i) {
+      double t_i = times.data()[i];
+      if (!(std::isfinite(t_i) && t_i >= previous))
+        throw std::invalid_argument("times: expected finite increasing times from 0, got " +
+                                    std::to_string(t_i) + " at index " + std::to_string(i));
+      previous = t_i;
+    }
+    const int n = state_size(model_);
+    Effects<double> fx{g, Q_cmd.data(), damping.size() ? damping.data() : nullptr, wheels};
+    Solve<double> solve(m, n, rtol, atol);
+    std::vector<double> x(s.data(), s.data() + n);
+    double t = 0.0;
+    double* rows;
+    Out out = new_array({times.size(), size_t(n)}, &rows);
+    SolveStatus status = SolveStatus::Done;
+    {
+      nb::gil_scoped_release free_the_interpreter;
+      for (size_t i = 0; i < times.size() && status == SolveStatus::Done; ++i) {
+        status = mms::advance(solve, model_, fx, t, x.data(), times.data()[i],
+                              max_steps - solve.steps, system_);
+        std::copy(x.begin(), x.end(), rows + i * n);
+      }
+    }
+    if (status != SolveStatus::Done) throw std::runtime_error(solve_failure(status, solve));
+    return {out, solve.steps, solve.evaluations, solve.rejections};
+  }
+
+ private:
+  // The step in hand of `adaptive_step`, and the efforts it was taken with (`dense_output`'s
+  // extra stages evaluate with them).
+  struct InHand {
+    Solve<double> solve;
+    std::vector<double> Q_cmd, damping, moving;
+    double g;
+    WheelLoop wheels;
+    bool has_wheels;
+    InHand(Adaptive m, int n, double rtol, double atol, const In& Q, const In& c, const In& mv,
+           double g_, const WheelLoop* w)
+        : solve(m, n, rtol, atol), Q_cmd(Q.data(), Q.data() + Q.size()),
+          damping(c.data(), c.data() + c.size()), moving(mv.data(), mv.data() + mv.size()),
+          g(g_), wheels(w ? *w : WheelLoop()), has_wheels(w != nullptr) {}
+    Effects<double> effects() const {
+      return {g, Q_cmd.data(), damping.empty() ? nullptr : damping.data(),
+              has_wheels ? &wheels : nullptr};
+    }
+  };
+
+  static Adaptive adaptive_of(const std::string& name) {
+    if (name == "rk45") return Adaptive::Rk45;
+    if (name == "dop853") return Adaptive::Dop853;
+    throw std::invalid_argument("method: expected rk45 or dop853, got " + name);
+  }
+
+  static void check_tolerances(double rtol, double atol) {
+    if (!(rtol > 0.0 && std::isfinite(rtol)))
+      throw std::invalid_argument("rtol: expected a positive number, got " + std::to_string(rtol));
+    if (!(atol > 0.0 && std::isfinite(atol)))
+      throw std::invalid_argument("atol: expected a positive number, got " + std::to_string(atol));
+  }
+
+  static std::string solve_failure(SolveStatus status, const Solve<double>& solve) {
+    char text[160];
+    if (status == SolveStatus::Budget)
+      std::snprintf(text, sizeof text, "t = %.9g s: the run used its %ld steps", solve.t0,
+                    solve.steps);
+    else if (status == SolveStatus::NotFinite)
+      std::snprintf(text, sizeof text, "t = %.9g s: the state became non-finite", solve.t0);
+    else if (std::isnan(solve.h_next))
+      std::snprintf(text, sizeof text, "t = %.9g s: a stage overflowed (its error estimate is NaN)",
+                    solve.t0);
+    else
+      std::snprintf(text, sizeof text, "t = %.9g s: the step fell below 10 spacings of t (h = %.3g s)",
+                    solve.t0, solve.h_next);
+    return text;
+  }
+
+  std::unique_ptr<InHand> in_hand_;
 };
 
 // a*b + c, as this build computes it: a build that contracts it into one fused multiply-add
@@ -508,7 +674,17 @@ NB_MODULE(_core, m) {
       .def("time_forward_dynamics_lanes", &mms::Dynamics::time_forward_dynamics_lanes, "q"_a,
            "u"_a, "Q"_a, "g"_a, "moving"_a, "calls"_a)
       .def("time_jacobians", &mms::Dynamics::time_jacobians, "method"_a, "s"_a, "h"_a,
-           "Q_cmd"_a, "B"_a, "damping"_a, "moving"_a, "g"_a, "calls"_a);
+           "Q_cmd"_a, "B"_a, "damping"_a, "moving"_a, "g"_a, "calls"_a)
+      .def("initial_step", &mms::Dynamics::initial_step, "method"_a, "s"_a, "span"_a, "rtol"_a,
+           "atol"_a, "max_step"_a, "Q_cmd"_a, "damping"_a, "moving"_a, "g"_a,
+           "wheels"_a.none() = nb::none())
+      .def("adaptive_step", &mms::Dynamics::adaptive_step, "method"_a, "s"_a, "t"_a, "h_abs"_a,
+           "t_bound"_a, "rtol"_a, "atol"_a, "Q_cmd"_a, "damping"_a, "moving"_a, "g"_a,
+           "wheels"_a.none() = nb::none())
+      .def("dense_output", &mms::Dynamics::dense_output, "thetas"_a, "full"_a)
+      .def("adaptive_run", &mms::Dynamics::adaptive_run, "method"_a, "s"_a, "times"_a, "rtol"_a,
+           "atol"_a, "Q_cmd"_a, "damping"_a, "moving"_a, "g"_a, "wheels"_a.none() = nb::none(),
+           "max_steps"_a = 10'000'000);
   m.def("build_info", &mms::build_info);
   m.def("multiply_add", &mms::multiply_add, "a"_a, "b"_a, "c"_a);
 }
