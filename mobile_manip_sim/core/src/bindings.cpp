@@ -497,7 +497,7 @@ class Dynamics {
     for (size_t i = 0; i < thetas.size(); ++i)
       if (!(thetas.data()[i] >= 0.0 && thetas.data()[i] <= 1.0))
         throw std::invalid_argument("thetas: expected values in [0, 1], got " +
-                                    std::to_string(thetas.data()[i]));
+                                    number(thetas.data()[i]));
     Solve<double>& solve = in_hand_->solve;
     for (int k = 0; k < n_u(); ++k) system_.dynamics.moving[k] = in_hand_->moving[k];
     solve.dense = DenseKind::None;
@@ -527,7 +527,7 @@ class Dynamics {
       double t_i = times.data()[i];
       if (!(std::isfinite(t_i) && t_i >= previous))
         throw std::invalid_argument("times: expected finite increasing times from 0, got " +
-                                    std::to_string(t_i) + " at index " + std::to_string(i));
+                                    number(t_i) + " at index " + std::to_string(i));
       previous = t_i;
     }
     const int n = state_size(model_);
@@ -578,9 +578,15 @@ class Dynamics {
 
   static void check_tolerances(double rtol, double atol) {
     if (!(rtol > 0.0 && std::isfinite(rtol)))
-      throw std::invalid_argument("rtol: expected a positive number, got " + std::to_string(rtol));
+      throw std::invalid_argument("rtol: expected a positive number, got " + number(rtol));
     if (!(atol > 0.0 && std::isfinite(atol)))
-      throw std::invalid_argument("atol: expected a positive number, got " + std::to_string(atol));
+      throw std::invalid_argument("atol: expected a positive number, got " + number(atol));
+  }
+
+  static std::string number(double x) {
+    char text[32];
+    std::snprintf(text, sizeof text, "%g", x);
+    return text;
   }
 
   static std::string solve_failure(SolveStatus status, const Solve<double>& solve) {
