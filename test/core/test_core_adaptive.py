@@ -215,3 +215,28 @@ def test_bad_input_is_refused_in_one_line_naming_it():
     core.adaptive_step("dop853", s, 0.0, 0.01, np.inf, 1e-6, 1e-9, *args)
     with pytest.raises(ValueError, match=r"^thetas: expected values in \[0, 1\], got 1\.5"):
         core.dense_output(np.array([0.5, 1.5]), True)
+    s_bad = s.copy()
+    s_bad[3] = np.nan
+    with pytest.raises(ValueError, match=r"^s: expected finite numbers, got nan at index 3$"):
+        core.adaptive_run("rk45", s_bad, np.array([0.1]), 1e-6, 1e-9, *args)
+
+
+def test_a_run_that_cannot_go_on_says_why_in_one_line():
+    """Efforts of 1e100 (accelerations the steps cannot follow): the step shrinks below 10
+    spacings of t and the run stops saying so; a stalled step leaves no step in hand; a run
+    stops after its step budget."""
+    _, core, s, (Q, damping, moving, g) = paper_case()
+    huge = np.full_like(Q, 1e100)
+    with pytest.raises(RuntimeError, match=r"^t = \S+ s: the step fell below 10 spacings of t "
+                                           r"\(h = \S+ s\)$"):
+        core.adaptive_run("dop853", s, np.array([0.1]), 1e-6, 1e-9, huge, damping, moving, g)
+    y, h, h_next, _, rejections = core.adaptive_step("rk45", s, 1.0, 1e-3, np.inf, 1e-6, 1e-9,
+                                                     huge, damping, moving, g)
+    spacing = np.spacing(1.0)
+    assert h == -1.0 and h_next < 10 * spacing <= h_next / 0.2 and identical(y, s)
+    assert rejections > 5
+    with pytest.raises(ValueError, match=r"^dense_output: no accepted step in hand"):
+        core.dense_output(THETAS, True)
+    with pytest.raises(RuntimeError, match=r"^t = \S+ s: the run used its 5 steps$"):
+        core.adaptive_run("rk45", s, np.array([1.5]), 1e-6, 1e-9, Q, damping, moving, g,
+                          max_steps=5)

@@ -448,6 +448,7 @@ class Dynamics {
     Adaptive m = adaptive_of(method);
     check_tolerances(rtol, atol);
     set_effects(s, Q_cmd, damping, moving);
+    check_finite(s, "s");
     Effects<double> fx{g, Q_cmd.data(), damping.size() ? damping.data() : nullptr, wheels};
     const int n = state_size(model_);
     std::vector<double> f0(n), y(n), f(n);
@@ -470,6 +471,7 @@ class Dynamics {
     check_tolerances(rtol, atol);
     if (!(h_abs > 0.0)) throw std::invalid_argument("h_abs: expected a positive step");
     set_effects(s, Q_cmd, damping, moving);
+    check_finite(s, "s");
     const int n = state_size(model_);
     in_hand_ = std::make_unique<InHand>(m, n, rtol, atol, Q_cmd, damping, moving, g, wheels);
     Solve<double>& solve = in_hand_->solve;
@@ -522,6 +524,7 @@ class Dynamics {
     Adaptive m = adaptive_of(method);
     check_tolerances(rtol, atol);
     set_effects(s, Q_cmd, damping, moving);
+    check_finite(s, "s");
     double previous = 0.0;
     for (size_t i = 0; i < times.size(); ++i) {
       double t_i = times.data()[i];
@@ -581,6 +584,13 @@ class Dynamics {
       throw std::invalid_argument("rtol: expected a positive number, got " + number(rtol));
     if (!(atol > 0.0 && std::isfinite(atol)))
       throw std::invalid_argument("atol: expected a positive number, got " + number(atol));
+  }
+
+  static void check_finite(const In& a, const char* name) {
+    for (size_t i = 0; i < a.size(); ++i)
+      if (!std::isfinite(a.data()[i]))
+        throw std::invalid_argument(std::string(name) + ": expected finite numbers, got " +
+                                    number(a.data()[i]) + " at index " + std::to_string(i));
   }
 
   static std::string number(double x) {
