@@ -15,6 +15,7 @@ import pytest
 from scipy import integrate
 
 import robots
+from differences import best_agreement
 from mobile_manip_sim.engine import runge_kutta as rk
 from mobile_manip_sim.engine.simulation import Simulation
 from mobile_manip_sim.engine.stepping import CLOCK_STEPS
@@ -197,6 +198,31 @@ def test_a_sampled_run_of_the_compiled_loop_equals_the_engines_bit_for_bit(metho
     assert np.ptp(rows[:, :sim.nq], axis=0).max() > 0.1   # the robot did move
 
 
+@pytest.mark.parametrize("method", METHODS)
+@pytest.mark.parametrize("n", [0, 2, 5])
+def test_dual_jacobians_of_a_step_agree_with_central_differences_of_the_double_step(n, method):
+    """∂y₁/∂(x, τ) of one step of a given length (the dual-number instance of the same kernels)
+    against central differences of the double step (`adaptive_step` accepting that length):
+    1e-8 relative to the Jacobian's size; the dual value is the double step bit for bit."""
+    c = system_case(600 + n, n)
+    core, s, rng = c["core"], c["s"], c["rng"]
+    nq, nu, h = c["robot"].n_q, c["robot"].n_u, 0.005
+    B, tau0 = rng.normal(size=(nu, 3)), np.zeros(3)
+
+    def mapped(x, tau):
+        state = np.concatenate([x, s[nq + nu:]])
+        y, taken, *_ = core.adaptive_step(method, state, 0.0, h, np.inf, 1e3, 1e3,
+                                          c["Q"] + B @ tau, c["damping"], c["moving"], c["g"])
+        assert taken == h
+        return y[:nq + nu]
+    value, d_dx, d_dtau = core.jacobians(method, s, h, c["Q"], B, c["damping"], c["moving"],
+                                         c["g"])
+    x = s[:nq + nu]
+    assert identical(value, mapped(x, tau0))
+    assert best_agreement(lambda x: mapped(x, tau0), x, d_dx) <= 1e-8
+    assert best_agreement(lambda tau: mapped(x, tau), tau0, d_dtau) <= 1e-8
+
+
 def test_bad_input_is_refused_in_one_line_naming_it():
     _, core, s, args = paper_case()
     with pytest.raises(ValueError, match=r"^method: expected rk45 or dop853, got rk4$"):
@@ -215,6 +241,9 @@ def test_bad_input_is_refused_in_one_line_naming_it():
     core.adaptive_step("dop853", s, 0.0, 0.01, np.inf, 1e-6, 1e-9, *args)
     with pytest.raises(ValueError, match=r"^thetas: expected values in \[0, 1\], got 1\.5"):
         core.dense_output(np.array([0.5, 1.5]), True)
+    with pytest.raises(ValueError, match=r"^method: expected euler, semi_implicit_euler, rk4, "
+                                         r"rk45 or dop853, got rk5$"):
+        core.jacobians("rk5", s, 0.01, args[0], np.eye(args[0].size), *args[1:])
     s_bad = s.copy()
     s_bad[3] = np.nan
     with pytest.raises(ValueError, match=r"^s: expected finite numbers, got nan at index 3$"):

@@ -213,7 +213,8 @@ class Dynamics {
   }
 
   // Exact Jacobians by dual numbers (kDirections directions a pass, one vector register), of the
-  // rates (method "" : f = (q̇, u̇)) or of one step of a method (s⁺'s (q, u)), with respect to
+  // rates (method "" : f = (q̇, u̇)) or of one step of a method (s⁺'s (q, u); rk45 and dop853:
+  // a step of length h, without error control), with respect to
   // x = (q, u) and the efforts τ, whose generalized forces are Q_cmd + B (τ − τ₀) (B: n_u × n_τ,
   // a zero column for an effort held at its limit): (value (n_x), ∂/∂x (n_x × n_x), ∂/∂τ
   // (n_x × n_τ)), n_x = n_q + n_u.
@@ -243,7 +244,7 @@ class Dynamics {
     if (damping.size()) need(damping, nu, "damping");
     const int ntau = efforts_of(B, 3);
     if (B.shape(0) != m) throw std::invalid_argument("B: expected one matrix a state");
-    method_of(method.empty() ? "euler" : method);  // a bad name fails before the loop
+    if (!method.empty()) differentiated_step(method);  // a bad name fails before the loop
     double *value, *dx, *dtau;
     Out o_value = new_array({m, size_t(nx)}, &value),
         o_dx = new_array({m, size_t(nx), size_t(nx)}, &dx),
@@ -359,8 +360,8 @@ class Dynamics {
   void jacobians_into(const std::string& method, const double* s, double h, const double* Q_cmd,
                       const double* B, int ntau, const double* damping, const double* moving,
                       double g, double* value, double* dx, double* dtau) {
-    const bool of_step = !method.empty();
-    Method m = of_step ? method_of(method) : Method::Euler;
+    const bool of_step = !method.empty(), adaptive = of_step && differentiated_step(method);
+    Method m = of_step && !adaptive ? method_of(method) : Method::Euler;
     const int nu = n_u(), nx = n_q() + nu, ns = state_size(model_), total = nx + ntau;
     for (int k = 0; k < nu; ++k) dual_system_.dynamics.moving[k] = moving[k];
     std::vector<DualD> sd(ns), Qd(nu), out(ns);
@@ -378,7 +379,8 @@ class Dynamics {
         for (int j = 0; j < ntau; ++j) d = d + B[i * ntau + j] * seed(nx + j);
         Qd[i] = DualD(Q_cmd[i], d);
       }
-      if (of_step) mms::step(m, model_, fx, sd.data(), h, out.data(), dual_system_);
+      if (adaptive) adaptive_step_map(adaptive_of(method), fx, sd.data(), h, out.data());
+      else if (of_step) mms::step(m, model_, fx, sd.data(), h, out.data(), dual_system_);
       else mms::rates(model_, fx, sd.data(), out.data(), dual_system_);
       for (int r = 0; r < nx; ++r) {
         value[r] = out[r].val;
@@ -573,6 +575,24 @@ class Dynamics {
     }
   };
 
+  // y₁ of one rk45 or dop853 step of the given length h from s (no error control), in dual
+  // numbers: the step map whose derivatives `jacobians` gives for these methods.
+  void adaptive_step_map(Adaptive m, const Effects<DualD>& fx, const DualD* s, double h,
+                         DualD* out) {
+    if (!dual_step_) dual_step_ = std::make_unique<StepWork<DualD>>(state_size(model_));
+    mms::rates(model_, fx, s, dual_step_->f_start.data(), dual_system_);
+    stages(m, model_, fx, s, h, *dual_step_, dual_system_);
+    std::copy(dual_step_->end.begin(), dual_step_->end.end(), out);
+  }
+
+  // Whether `jacobians` differentiates a step of this adaptive method (else of a fixed-step one).
+  static bool differentiated_step(const std::string& name) {
+    if (name == "rk45" || name == "dop853") return true;
+    if (name == "euler" || name == "semi_implicit_euler" || name == "rk4") return false;
+    throw std::invalid_argument(
+        "method: expected euler, semi_implicit_euler, rk4, rk45 or dop853, got " + name);
+  }
+
   static Adaptive adaptive_of(const std::string& name) {
     if (name == "rk45") return Adaptive::Rk45;
     if (name == "dop853") return Adaptive::Dop853;
@@ -616,6 +636,7 @@ class Dynamics {
   }
 
   std::unique_ptr<InHand> in_hand_;
+  std::unique_ptr<StepWork<DualD>> dual_step_;
 };
 
 // a*b + c, as this build computes it: a build that contracts it into one fused multiply-add
