@@ -199,6 +199,37 @@ def test_a_sampled_run_of_the_compiled_loop_equals_the_engines_bit_for_bit(metho
 
 
 @pytest.mark.parametrize("method", METHODS)
+def test_a_run_restarted_at_effort_changes_equals_the_engines_bit_for_bit(method):
+    """New efforts at 0.3 s and twice within one step near 0.75 s: each change ends the solve
+    there and the next starts with the last step's length (`restart`); the samples, steps and
+    right-hand sides are the engine's (its `set_efforts` restarts its solve the same way)."""
+    scene = smooth_paper_scene()
+    sim = Simulation(scene, make_integrator(scene.integrator, method, rtol=1e-8, atol=1e-10))
+    s0, system = sim.s.copy(), sim.system
+    times, changes = np.linspace(0.0, 1.5, 151)[1:], [0.3, 0.7501, 0.7502]
+    rng = np.random.default_rng(3)
+    efforts, engine_rows, previous = [system.Q_cmd.copy()], [], 0.0
+    for change in changes:
+        engine_rows.append(sim.sample(times[(times > previous) & (times <= change)]))
+        sim.advance_to(change)
+        sim.set_efforts(rng.uniform(-0.3, 0.3, 2), rng.uniform(-5.0, 5.0, 4))
+        efforts.append(system.Q_cmd.copy())
+        previous = change
+    engine_rows.append(sim.sample(times[times > previous]))
+    rows, steps, evaluations, _ = sim.dynamics.core.adaptive_run(
+        method, s0, times, 1e-8, 1e-10, np.array(efforts), system.damping, moving_of(system),
+        float(system.data.gravity), changes=changes)
+    assert identical(rows, np.concatenate(engine_rows)[:, :-1])
+    assert steps == sim._clock[CLOCK_STEPS] and evaluations == system.counters[RHS_EVALS]
+    # the efforts did change the run: the same run without the changes differs after 0.3 s
+    unchanged = sim.dynamics.core.adaptive_run(method, s0, times, 1e-8, 1e-10, efforts[0],
+                                               system.damping, moving_of(system),
+                                               float(system.data.gravity))[0]
+    assert identical(rows[times < 0.3], unchanged[times < 0.3])
+    assert np.abs(rows[-1] - unchanged[-1]).max() > 1e-3
+
+
+@pytest.mark.parametrize("method", METHODS)
 @pytest.mark.parametrize("n", [0, 2, 5])
 def test_dual_jacobians_of_a_step_agree_with_central_differences_of_the_double_step(n, method):
     """∂y₁/∂(x, τ) of one step of a given length (the dual-number instance of the same kernels)
@@ -238,6 +269,13 @@ def test_bad_input_is_refused_in_one_line_naming_it():
     with pytest.raises(ValueError, match=r"^times: expected finite increasing times from 0, "
                                          r"got 0\.1 at index 2$"):
         core.adaptive_run("dop853", s, np.array([0.1, 0.2, 0.1]), 1e-6, 1e-9, *args)
+    with pytest.raises(ValueError, match=r"^changes: expected finite increasing times from 0, "
+                                         r"got -1 at index 0$"):
+        core.adaptive_run("dop853", s, np.array([0.1]), 1e-6, 1e-9, np.tile(args[0], (2, 1)),
+                          *args[1:], changes=[-1.0])
+    with pytest.raises(ValueError, match=r"^Q_cmd \(a row of efforts before and after each "
+                                         r"change\): expected 18 numbers, got 6$"):
+        core.adaptive_run("dop853", s, np.array([0.1]), 1e-6, 1e-9, *args, changes=[0.1, 0.2])
     core.adaptive_step("dop853", s, 0.0, 0.01, np.inf, 1e-6, 1e-9, *args)
     with pytest.raises(ValueError, match=r"^thetas: expected values in \[0, 1\], got 1\.5"):
         core.dense_output(np.array([0.5, 1.5]), True)

@@ -4,6 +4,7 @@
 #include <nanobind/ndarray.h>
 #include <nanobind/stl/string.h>
 #include <nanobind/stl/tuple.h>
+#include <nanobind/stl/vector.h>
 
 #include <algorithm>
 #include <cmath>
@@ -515,28 +516,33 @@ class Dynamics {
     return {out, solve.dense == DenseKind::FromStages};
   }
 
-  // A run of `method` from s at t = times[0]… (no events: stops and impacts are the engine's),
-  // its state at each of the increasing `times` (s) read from the step in hand's dense output
-  // (adaptive_solve.hpp): (rows (len(times) × state), accepted steps, right-hand sides,
-  // rejected tries). The first solve starts at t = 0 with Hairer's starting step.
+  // A run of `method` from s at t = 0 (no events: stops and impacts are the engine's), its
+  // state at each of the increasing `times` (s) read from the step in hand's dense output
+  // (adaptive_solve.hpp): (rows (len(times) × state), accepted steps, right-hand sides, rejected
+  // tries). The efforts change at each of the increasing `changes` (s) to the next row of Q_cmd
+  // ((len(changes) + 1) × n_u), and the solve restarts there (a discontinuity of the right-hand
+  // side): the run reaches that instant exactly, and a change at a sample's time comes first.
   std::tuple<Out, long, long, long> adaptive_run(const std::string& method, In s, In times,
                                                  double rtol, double atol, In Q_cmd, In damping,
                                                  In moving, double g, const WheelLoop* wheels,
-                                                 long max_steps) {
+                                                 long max_steps,
+                                                 const std::vector<double>& changes) {
     Adaptive m = adaptive_of(method);
     check_tolerances(rtol, atol);
-    set_effects(s, Q_cmd, damping, moving);
+    const int n = state_size(model_), nu = n_u();
+    need(s, n, "s");
     check_finite(s, "s");
-    double previous = 0.0;
-    for (size_t i = 0; i < times.size(); ++i) {
-      double t_i = times.data()[i];
-      if (!(std::isfinite(t_i) && t_i >= previous))
-        throw std::invalid_argument("times: expected finite increasing times from 0, got " +
-                                    number(t_i) + " at index " + std::to_string(i));
-      previous = t_i;
-    }
-    const int n = state_size(model_);
-    Effects<double> fx{g, Q_cmd.data(), damping.size() ? damping.data() : nullptr, wheels};
+    need(Q_cmd, (changes.size() + 1) * nu, "Q_cmd (a row of efforts before and after each change)");
+    if (damping.size()) need(damping, nu, "damping");
+    need(moving, nu, "moving");
+    for (int k = 0; k < nu; ++k) system_.dynamics.moving[k] = moving.data()[k];
+    check_times(times.data(), times.size(), "times");
+    check_times(changes.data(), changes.size(), "changes");
+    auto effects = [&](size_t segment) {
+      return Effects<double>{g, Q_cmd.data() + segment * nu,
+                             damping.size() ? damping.data() : nullptr, wheels};
+    };
+    Effects<double> fx = effects(0);
     Solve<double> solve(m, n, rtol, atol);
     std::vector<double> x(s.data(), s.data() + n);
     double t = 0.0;
@@ -545,9 +551,18 @@ class Dynamics {
     SolveStatus status = SolveStatus::Done;
     {
       nb::gil_scoped_release free_the_interpreter;
+      size_t segment = 0;
       for (size_t i = 0; i < times.size() && status == SolveStatus::Done; ++i) {
-        status = mms::advance(solve, model_, fx, t, x.data(), times.data()[i],
-                              max_steps - solve.steps, system_);
+        while (status == SolveStatus::Done && segment < changes.size() &&
+               changes[segment] <= times.data()[i]) {
+          status = mms::advance(solve, model_, fx, t, x.data(), changes[segment],
+                                max_steps - solve.steps, system_);
+          restart(solve);
+          fx = effects(++segment);
+        }
+        if (status == SolveStatus::Done)
+          status = mms::advance(solve, model_, fx, t, x.data(), times.data()[i],
+                                max_steps - solve.steps, system_);
         std::copy(x.begin(), x.end(), rows + i * n);
       }
     }
@@ -606,6 +621,18 @@ class Dynamics {
       throw std::invalid_argument("atol: expected a positive number, got " + number(atol));
   }
 
+  // Finite, from 0 and never decreasing.
+  static void check_times(const double* times, size_t count, const char* name) {
+    double previous = 0.0;
+    for (size_t i = 0; i < count; ++i) {
+      if (!(std::isfinite(times[i]) && times[i] >= previous))
+        throw std::invalid_argument(std::string(name) +
+                                    ": expected finite increasing times from 0, got " +
+                                    number(times[i]) + " at index " + std::to_string(i));
+      previous = times[i];
+    }
+  }
+
   static void check_finite(const In& a, const char* name) {
     for (size_t i = 0; i < a.size(); ++i)
       if (!std::isfinite(a.data()[i]))
@@ -630,8 +657,9 @@ class Dynamics {
       std::snprintf(text, sizeof text, "t = %.9g s: a stage overflowed (its error estimate is NaN)",
                     solve.t0);
     else
-      std::snprintf(text, sizeof text, "t = %.9g s: the step fell below 10 spacings of t (h = %.3g s)",
-                    solve.t0, solve.h_next);
+      std::snprintf(text, sizeof text,
+                    "t = %.9g s: the step fell below 10 spacings of t (h = %.3g s)", solve.t0,
+                    solve.h_next);
     return text;
   }
 
@@ -721,7 +749,7 @@ NB_MODULE(_core, m) {
       .def("dense_output", &mms::Dynamics::dense_output, "thetas"_a, "full"_a)
       .def("adaptive_run", &mms::Dynamics::adaptive_run, "method"_a, "s"_a, "times"_a, "rtol"_a,
            "atol"_a, "Q_cmd"_a, "damping"_a, "moving"_a, "g"_a, "wheels"_a.none() = nb::none(),
-           "max_steps"_a = 10'000'000);
+           "max_steps"_a = 10'000'000, "changes"_a = std::vector<double>());
   m.def("build_info", &mms::build_info);
   m.def("multiply_add", &mms::multiply_add, "a"_a, "b"_a, "c"_a);
 }
