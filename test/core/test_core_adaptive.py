@@ -2,9 +2,11 @@
 adaptive_solve.hpp), against the numba engine's kernels they replace (engine/runge_kutta.py,
 engine/adaptive_stepping.py), bit for bit while both exist: the initial step, every accepted
 step, its next size, its right-hand sides and rejections, and its dense output at several θ
-over runs of many steps; a whole sampled run of the compiled loop (no events) against the
-engine's. And facts of their own: the dense output starts at the step's start and ends at its
-end, and converges at its order against a tight reference solution of SciPy's.
+over runs of many steps; whole sampled runs of the compiled loop (no events; with effort
+changes, where the solve restarts) against the engine's. And facts of their own: the dense output
+starts at the step's start and ends at its end, and converges at its order against a tight
+reference solution of SciPy's; the dual-number instance of a step agrees with central differences
+of the double one; a run that cannot go on, or bad input, says why in one line.
 """
 import copy
 import importlib.util
