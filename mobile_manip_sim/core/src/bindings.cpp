@@ -4,14 +4,19 @@
 #include <nanobind/ndarray.h>
 #include <nanobind/stl/string.h>
 #include <nanobind/stl/tuple.h>
+#include <nanobind/stl/vector.h>
 
 #include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <memory>
 #include <cstring>
 #include <ctime>
 #include <stdexcept>
 #include <string>
 #include <vector>
 
+#include "mms/adaptive_solve.hpp"
 #include "mms/articulated.hpp"
 #include "mms/dynamics.hpp"
 #include "mms/fixed_step.hpp"
@@ -219,7 +224,8 @@ class Dynamics {
   }
 
   // Exact Jacobians by dual numbers (kDirections directions a pass, one vector register), of the
-  // rates (method "" : f = (q̇, u̇)) or of one step of a method (s⁺'s (q, u)), with respect to
+  // rates (method "" : f = (q̇, u̇)) or of one step of a method (s⁺'s (q, u); rk45 and dop853:
+  // a step of length h, without error control), with respect to
   // x = (q, u) and the efforts τ, whose generalized forces are Q_cmd + B (τ − τ₀) (B: n_u × n_τ,
   // a zero column for an effort held at its limit): (value (n_x), ∂/∂x (n_x × n_x), ∂/∂τ
   // (n_x × n_τ)), n_x = n_q + n_u.
@@ -249,7 +255,7 @@ class Dynamics {
     if (damping.size()) need(damping, nu, "damping");
     const int ntau = efforts_of(B, 3);
     if (B.shape(0) != m) throw std::invalid_argument("B: expected one matrix a state");
-    method_of(method.empty() ? "euler" : method);  // a bad name fails before the loop
+    if (!method.empty()) differentiated_step(method);  // a bad name fails before the loop
     double *value, *dx, *dtau;
     Out o_value = new_array({m, size_t(nx)}, &value),
         o_dx = new_array({m, size_t(nx), size_t(nx)}, &dx),
@@ -365,8 +371,8 @@ class Dynamics {
   void jacobians_into(const std::string& method, const double* s, double h, const double* Q_cmd,
                       const double* B, int ntau, const double* damping, const double* moving,
                       double g, double* value, double* dx, double* dtau) {
-    const bool of_step = !method.empty();
-    Method m = of_step ? method_of(method) : Method::Euler;
+    const bool of_step = !method.empty(), adaptive = of_step && differentiated_step(method);
+    Method m = of_step && !adaptive ? method_of(method) : Method::Euler;
     const int nu = n_u(), nx = n_q() + nu, ns = state_size(model_), total = nx + ntau;
     for (int k = 0; k < nu; ++k) dual_system_.dynamics.moving[k] = moving[k];
     std::vector<DualD> sd(ns), Qd(nu), out(ns);
@@ -384,7 +390,8 @@ class Dynamics {
         for (int j = 0; j < ntau; ++j) d = d + B[i * ntau + j] * seed(nx + j);
         Qd[i] = DualD(Q_cmd[i], d);
       }
-      if (of_step) mms::step(m, model_, fx, sd.data(), h, out.data(), dual_system_);
+      if (adaptive) adaptive_step_map(adaptive_of(method), fx, sd.data(), h, out.data());
+      else if (of_step) mms::step(m, model_, fx, sd.data(), h, out.data(), dual_system_);
       else mms::rates(model_, fx, sd.data(), out.data(), dual_system_);
       for (int r = 0; r < nx; ++r) {
         value[r] = out[r].val;
@@ -437,6 +444,230 @@ class Dynamics {
   SystemWorkspace<double> system_;
   SystemWorkspace<DualD> dual_system_;
   SystemWorkspace<Block> block_system_;
+
+  // --- the adaptive methods rk45 and dop853 (runge_kutta.hpp, adaptive_solve.hpp) ------------
+ public:
+  // Hairer's starting step (s) at s for a run over `span` seconds (`initial_step`).
+  double initial_step(const std::string& method, In s, double span, double rtol, double atol,
+                      double max_step, In Q_cmd, In damping, In moving, double g,
+                      const WheelLoop* wheels) {
+    Adaptive m = adaptive_of(method);
+    check_tolerances(rtol, atol);
+    set_effects(s, Q_cmd, damping, moving);
+    check_finite(s, "s");
+    Effects<double> fx{g, Q_cmd.data(), damping.size() ? damping.data() : nullptr, wheels};
+    const int n = state_size(model_);
+    std::vector<double> f0(n), y(n), f(n);
+    mms::rates(model_, fx, s.data(), f0.data(), system_);
+    return mms::initial_step(m, model_, fx, s.data(), f0.data(), span, rtol, atol, max_step,
+                             y.data(), f.data(), system_);
+  }
+
+  // One accepted step of `method` from (t, s), trying h_abs first and never past t_bound
+  // (`accepted_step`; f(s) is evaluated first and not counted): (y₁, h taken, next h to try,
+  // right-hand sides, rejected tries); h = −1 when the step fell below 10 spacings of t. The
+  // step stays in hand for `dense_output`, with the efforts it was taken with.
+  std::tuple<Out, double, double, int, int> adaptive_step(const std::string& method, In s,
+                                                          double t, double h_abs,
+                                                          double t_bound, double rtol,
+                                                          double atol, In Q_cmd, In damping,
+                                                          In moving, double g,
+                                                          const WheelLoop* wheels) {
+    Adaptive m = adaptive_of(method);
+    check_tolerances(rtol, atol);
+    if (!(h_abs > 0.0)) throw std::invalid_argument("h_abs: expected a positive step");
+    set_effects(s, Q_cmd, damping, moving);
+    check_finite(s, "s");
+    const int n = state_size(model_);
+    in_hand_ = std::make_unique<InHand>(m, n, rtol, atol, Q_cmd, damping, moving, g, wheels);
+    Solve<double>& solve = in_hand_->solve;
+    Effects<double> fx = in_hand_->effects();
+    solve.start.assign(s.data(), s.data() + n);
+    mms::rates(model_, fx, s.data(), solve.work.f_start.data(), system_);
+    AcceptedStep step = accepted_step(m, model_, fx, s.data(), t, h_abs, t_bound, rtol, atol,
+                                      solve.work, system_);
+    solve.t0 = t;
+    solve.h = step.h > 0.0 ? step.h : 0.0;
+    double* end;
+    Out out = new_array({size_t(n)}, &end);
+    std::copy(solve.work.end.begin(), solve.work.end.end(), end);
+    if (step.h < 0.0) std::copy(s.data(), s.data() + n, end);  // unchanged
+    return {out, step.h, step.h_next, step.evaluations, step.rejections};
+  }
+
+  // The last `adaptive_step`'s dense output at each θ of `thetas` (θ ∈ [0, 1]): (rows
+  // (len(thetas) × state), whether it came from the step's stages alone). `full`: the method's
+  // own interpolant (dop853's 7th order, 3 more right-hand sides); otherwise dop853 reads its
+  // stage-only extension where that is within the step's tolerance, as the solve does for samples.
+  std::tuple<Out, bool> dense_output(In thetas, bool full) {
+    if (!in_hand_ || in_hand_->solve.h <= 0.0)
+      throw std::invalid_argument("dense_output: no accepted step in hand (call adaptive_step)");
+    for (size_t i = 0; i < thetas.size(); ++i)
+      if (!(thetas.data()[i] >= 0.0 && thetas.data()[i] <= 1.0))
+        throw std::invalid_argument("thetas: expected values in [0, 1], got " +
+                                    number(thetas.data()[i]));
+    Solve<double>& solve = in_hand_->solve;
+    for (int k = 0; k < n_u(); ++k) system_.dynamics.moving[k] = in_hand_->moving[k];
+    solve.dense = DenseKind::None;
+    interpolant(solve, model_, in_hand_->effects(), full, system_);
+    const int n = state_size(model_);
+    double* rows;
+    Out out = new_array({thetas.size(), size_t(n)}, &rows);
+    for (size_t i = 0; i < thetas.size(); ++i)
+      dense_eval(solve.method, n, solve.work.dense, solve.start.data(), solve.h,
+                 thetas.data()[i], rows + i * n);
+    return {out, solve.dense == DenseKind::FromStages};
+  }
+
+  // A run of `method` from s at t = 0 (no events: stops and impacts are the engine's), its
+  // state at each of the increasing `times` (s) read from the step in hand's dense output
+  // (adaptive_solve.hpp): (rows (len(times) × state), accepted steps, right-hand sides, rejected
+  // tries). The efforts change at each of the increasing `changes` (s) to the next row of Q_cmd
+  // ((len(changes) + 1) × n_u), and the solve restarts there (a discontinuity of the right-hand
+  // side): the run reaches that instant exactly, and a change at a sample's time comes first.
+  std::tuple<Out, long, long, long> adaptive_run(const std::string& method, In s, In times,
+                                                 double rtol, double atol, In Q_cmd, In damping,
+                                                 In moving, double g, const WheelLoop* wheels,
+                                                 long max_steps,
+                                                 const std::vector<double>& changes) {
+    Adaptive m = adaptive_of(method);
+    check_tolerances(rtol, atol);
+    const int n = state_size(model_), nu = n_u();
+    need(s, n, "s");
+    check_finite(s, "s");
+    need(Q_cmd, (changes.size() + 1) * nu, "Q_cmd (a row of efforts before and after each change)");
+    if (damping.size()) need(damping, nu, "damping");
+    need(moving, nu, "moving");
+    for (int k = 0; k < nu; ++k) system_.dynamics.moving[k] = moving.data()[k];
+    check_times(times.data(), times.size(), "times");
+    check_times(changes.data(), changes.size(), "changes");
+    auto effects = [&](size_t segment) {
+      return Effects<double>{g, Q_cmd.data() + segment * nu,
+                             damping.size() ? damping.data() : nullptr, wheels};
+    };
+    Effects<double> fx = effects(0);
+    Solve<double> solve(m, n, rtol, atol);
+    std::vector<double> x(s.data(), s.data() + n);
+    double t = 0.0;
+    double* rows;
+    Out out = new_array({times.size(), size_t(n)}, &rows);
+    SolveStatus status = SolveStatus::Done;
+    {
+      nb::gil_scoped_release free_the_interpreter;
+      size_t segment = 0;
+      for (size_t i = 0; i < times.size() && status == SolveStatus::Done; ++i) {
+        while (status == SolveStatus::Done && segment < changes.size() &&
+               changes[segment] <= times.data()[i]) {
+          status = mms::advance(solve, model_, fx, t, x.data(), changes[segment],
+                                max_steps - solve.steps, system_);
+          restart(solve);
+          fx = effects(++segment);
+        }
+        if (status == SolveStatus::Done)
+          status = mms::advance(solve, model_, fx, t, x.data(), times.data()[i],
+                                max_steps - solve.steps, system_);
+        std::copy(x.begin(), x.end(), rows + i * n);
+      }
+    }
+    if (status != SolveStatus::Done) throw std::runtime_error(solve_failure(status, solve));
+    return {out, solve.steps, solve.evaluations, solve.rejections};
+  }
+
+ private:
+  // The step in hand of `adaptive_step`, and the efforts it was taken with (`dense_output`'s
+  // extra stages evaluate with them).
+  struct InHand {
+    Solve<double> solve;
+    std::vector<double> Q_cmd, damping, moving;
+    double g;
+    WheelLoop wheels;
+    bool has_wheels;
+    InHand(Adaptive m, int n, double rtol, double atol, const In& Q, const In& c, const In& mv,
+           double g_, const WheelLoop* w)
+        : solve(m, n, rtol, atol), Q_cmd(Q.data(), Q.data() + Q.size()),
+          damping(c.data(), c.data() + c.size()), moving(mv.data(), mv.data() + mv.size()),
+          g(g_), wheels(w ? *w : WheelLoop()), has_wheels(w != nullptr) {}
+    Effects<double> effects() const {
+      return {g, Q_cmd.data(), damping.empty() ? nullptr : damping.data(),
+              has_wheels ? &wheels : nullptr};
+    }
+  };
+
+  // y₁ of one rk45 or dop853 step of the given length h from s (no error control), in dual
+  // numbers: the step map whose derivatives `jacobians` gives for these methods.
+  void adaptive_step_map(Adaptive m, const Effects<DualD>& fx, const DualD* s, double h,
+                         DualD* out) {
+    if (!dual_step_) dual_step_ = std::make_unique<StepWork<DualD>>(state_size(model_));
+    mms::rates(model_, fx, s, dual_step_->f_start.data(), dual_system_);
+    stages(m, model_, fx, s, h, *dual_step_, dual_system_);
+    std::copy(dual_step_->end.begin(), dual_step_->end.end(), out);
+  }
+
+  // Whether `jacobians` differentiates a step of this adaptive method (else of a fixed-step one).
+  static bool differentiated_step(const std::string& name) {
+    if (name == "rk45" || name == "dop853") return true;
+    if (name == "euler" || name == "semi_implicit_euler" || name == "rk4") return false;
+    throw std::invalid_argument(
+        "method: expected euler, semi_implicit_euler, rk4, rk45 or dop853, got " + name);
+  }
+
+  static Adaptive adaptive_of(const std::string& name) {
+    if (name == "rk45") return Adaptive::Rk45;
+    if (name == "dop853") return Adaptive::Dop853;
+    throw std::invalid_argument("method: expected rk45 or dop853, got " + name);
+  }
+
+  static void check_tolerances(double rtol, double atol) {
+    if (!(rtol > 0.0 && std::isfinite(rtol)))
+      throw std::invalid_argument("rtol: expected a positive number, got " + number(rtol));
+    if (!(atol > 0.0 && std::isfinite(atol)))
+      throw std::invalid_argument("atol: expected a positive number, got " + number(atol));
+  }
+
+  // Finite, from 0 and never decreasing.
+  static void check_times(const double* times, size_t count, const char* name) {
+    double previous = 0.0;
+    for (size_t i = 0; i < count; ++i) {
+      if (!(std::isfinite(times[i]) && times[i] >= previous))
+        throw std::invalid_argument(std::string(name) +
+                                    ": expected finite increasing times from 0, got " +
+                                    number(times[i]) + " at index " + std::to_string(i));
+      previous = times[i];
+    }
+  }
+
+  static void check_finite(const In& a, const char* name) {
+    for (size_t i = 0; i < a.size(); ++i)
+      if (!std::isfinite(a.data()[i]))
+        throw std::invalid_argument(std::string(name) + ": expected finite numbers, got " +
+                                    number(a.data()[i]) + " at index " + std::to_string(i));
+  }
+
+  static std::string number(double x) {
+    char text[32];
+    std::snprintf(text, sizeof text, "%g", x);
+    return text;
+  }
+
+  static std::string solve_failure(SolveStatus status, const Solve<double>& solve) {
+    char text[160];
+    if (status == SolveStatus::Budget)
+      std::snprintf(text, sizeof text, "t = %.9g s: the run used its %ld steps", solve.t0,
+                    solve.steps);
+    else if (status == SolveStatus::NotFinite)
+      std::snprintf(text, sizeof text, "t = %.9g s: the state became non-finite", solve.t0);
+    else if (std::isnan(solve.h_next))
+      std::snprintf(text, sizeof text, "t = %.9g s: a stage overflowed (its error estimate is NaN)",
+                    solve.t0);
+    else
+      std::snprintf(text, sizeof text,
+                    "t = %.9g s: the step fell below 10 spacings of t (h = %.3g s)", solve.t0,
+                    solve.h_next);
+    return text;
+  }
+
+  std::unique_ptr<InHand> in_hand_;
+  std::unique_ptr<StepWork<DualD>> dual_step_;
 };
 
 // The fixed-step engine of one simulation (stepping.hpp) on the engine's own arrays (run.hpp):
@@ -654,7 +885,17 @@ NB_MODULE(_core, m) {
       .def("time_forward_dynamics_lanes", &mms::Dynamics::time_forward_dynamics_lanes, "q"_a,
            "u"_a, "Q"_a, "g"_a, "moving"_a, "calls"_a)
       .def("time_jacobians", &mms::Dynamics::time_jacobians, "method"_a, "s"_a, "h"_a,
-           "Q_cmd"_a, "B"_a, "damping"_a, "moving"_a, "g"_a, "calls"_a);
+           "Q_cmd"_a, "B"_a, "damping"_a, "moving"_a, "g"_a, "calls"_a)
+      .def("initial_step", &mms::Dynamics::initial_step, "method"_a, "s"_a, "span"_a, "rtol"_a,
+           "atol"_a, "max_step"_a, "Q_cmd"_a, "damping"_a, "moving"_a, "g"_a,
+           "wheels"_a.none() = nb::none())
+      .def("adaptive_step", &mms::Dynamics::adaptive_step, "method"_a, "s"_a, "t"_a, "h_abs"_a,
+           "t_bound"_a, "rtol"_a, "atol"_a, "Q_cmd"_a, "damping"_a, "moving"_a, "g"_a,
+           "wheels"_a.none() = nb::none())
+      .def("dense_output", &mms::Dynamics::dense_output, "thetas"_a, "full"_a)
+      .def("adaptive_run", &mms::Dynamics::adaptive_run, "method"_a, "s"_a, "times"_a, "rtol"_a,
+           "atol"_a, "Q_cmd"_a, "damping"_a, "moving"_a, "g"_a, "wheels"_a.none() = nb::none(),
+           "max_steps"_a = 10'000'000, "changes"_a = std::vector<double>());
   m.def("build_info", &mms::build_info);
   m.def("multiply_add", &mms::multiply_add, "a"_a, "b"_a, "c"_a);
   nb::class_<mms::Stepper>(m, "Stepper")
