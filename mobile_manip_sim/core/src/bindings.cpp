@@ -459,8 +459,9 @@ class Dynamics {
     const int n = state_size(model_);
     std::vector<double> f0(n), y(n), f(n);
     mms::rates(model_, fx, s.data(), f0.data(), system_);
-    return mms::initial_step(m, model_, fx, s.data(), f0.data(), span, rtol, atol, max_step,
-                             y.data(), f.data(), system_);
+    SystemRhs<double> rhs{model_, fx, system_};
+    return mms::initial_step(m, rhs, s.data(), f0.data(), span, rtol, atol, max_step, y.data(),
+                             f.data());
   }
 
   // One accepted step of `method` from (t, s), trying h_abs first and never past t_bound
@@ -484,8 +485,8 @@ class Dynamics {
     Effects<double> fx = in_hand_->effects();
     solve.start.assign(s.data(), s.data() + n);
     mms::rates(model_, fx, s.data(), solve.work.f_start.data(), system_);
-    AcceptedStep step = accepted_step(m, model_, fx, s.data(), t, h_abs, t_bound, rtol, atol,
-                                      solve.work, system_);
+    SystemRhs<double> rhs{model_, fx, system_};
+    AcceptedStep step = accepted_step(m, rhs, s.data(), t, h_abs, t_bound, rtol, atol, solve.work);
     solve.t0 = t;
     solve.h = step.h > 0.0 ? step.h : 0.0;
     double* end;
@@ -509,7 +510,9 @@ class Dynamics {
     Solve<double>& solve = in_hand_->solve;
     for (int k = 0; k < n_u(); ++k) system_.dynamics.moving[k] = in_hand_->moving[k];
     solve.dense = DenseKind::None;
-    interpolant(solve, model_, in_hand_->effects(), full, system_);
+    Effects<double> fx = in_hand_->effects();
+    SystemRhs<double> rhs{model_, fx, system_};
+    interpolant(solve, rhs, full);
     const int n = state_size(model_);
     double* rows;
     Out out = new_array({thetas.size(), size_t(n)}, &rows);
@@ -558,14 +561,16 @@ class Dynamics {
       for (size_t i = 0; i < times.size() && status == SolveStatus::Done; ++i) {
         while (status == SolveStatus::Done && segment < changes.size() &&
                changes[segment] <= times.data()[i]) {
-          status = mms::advance(solve, model_, fx, t, x.data(), changes[segment],
-                                max_steps - solve.steps, system_);
+          SystemRhs<double> rhs{model_, fx, system_};
+          status = mms::advance(solve, rhs, t, x.data(), changes[segment],
+                                max_steps - solve.steps);
           restart(solve);
           fx = effects(++segment);
         }
-        if (status == SolveStatus::Done)
-          status = mms::advance(solve, model_, fx, t, x.data(), times.data()[i],
-                                max_steps - solve.steps, system_);
+        if (status == SolveStatus::Done) {
+          SystemRhs<double> rhs{model_, fx, system_};
+          status = mms::advance(solve, rhs, t, x.data(), times.data()[i], max_steps - solve.steps);
+        }
         std::copy(x.begin(), x.end(), rows + i * n);
       }
     }
@@ -599,7 +604,8 @@ class Dynamics {
                          DualD* out) {
     if (!dual_step_) dual_step_ = std::make_unique<StepWork<DualD>>(state_size(model_));
     mms::rates(model_, fx, s, dual_step_->f_start.data(), dual_system_);
-    stages(m, model_, fx, s, h, *dual_step_, dual_system_);
+    SystemRhs<DualD> rhs{model_, fx, dual_system_};
+    stages(m, rhs, s, h, *dual_step_);
     std::copy(dual_step_->end.begin(), dual_step_->end.end(), out);
   }
 

@@ -53,10 +53,9 @@ void restart(Solve<S>& solve) {
 // The next accepted step (see the header). NotFinite leaves the bad y₁ in solve.work.end;
 // Stalled (the step fell below 10 spacings of t) leaves no step in hand and the step tried in
 // solve.h_next.
-template <class S>
-SolveStatus take_step(Solve<S>& solve, const Model& model, const Effects<S>& fx, double t,
-                      const S* s, SystemWorkspace<S>& ws) {
-  const int n = state_size(model);
+template <class S, class F>
+SolveStatus take_step(Solve<S>& solve, F& f, double t, const S* s) {
+  const int n = f.size();
   StepWork<S>& work = solve.work;
   const double inf = std::numeric_limits<double>::infinity();
   if (solve.h > 0.0) {
@@ -66,17 +65,17 @@ SolveStatus take_step(Solve<S>& solve, const Model& model, const Effects<S>& fx,
   } else {
     solve.t0 = t;
     solve.start.assign(s, s + n);
-    rates(model, fx, solve.start.data(), work.f_start.data(), ws);
+    f(solve.start.data(), work.f_start.data());
     solve.evaluations += 1;
     if (solve.h_next <= 0.0) {
-      solve.h_next = initial_step(solve.method, model, fx, solve.start.data(),
-                                  work.f_start.data(), inf, solve.rtol, solve.atol, inf,
-                                  work.end.data(), work.f_end.data(), ws);
+      solve.h_next = initial_step(solve.method, f, solve.start.data(), work.f_start.data(), inf,
+                                  solve.rtol, solve.atol, inf, work.end.data(),
+                                  work.f_end.data());
       solve.evaluations += 1;
     }
   }
-  AcceptedStep step = accepted_step(solve.method, model, fx, solve.start.data(), solve.t0,
-                                    solve.h_next, inf, solve.rtol, solve.atol, work, ws);
+  AcceptedStep step = accepted_step(solve.method, f, solve.start.data(), solve.t0, solve.h_next,
+                                    inf, solve.rtol, solve.atol, work);
   solve.evaluations += step.evaluations;
   solve.rejections += step.rejections;
   if (step.h < 0.0) {
@@ -94,20 +93,19 @@ SolveStatus take_step(Solve<S>& solve, const Model& model, const Effects<S>& fx,
 }
 
 // The step in hand's dense output, built on first use (see the header).
-template <class S>
-void interpolant(Solve<S>& solve, const Model& model, const Effects<S>& fx, bool for_events,
-                 SystemWorkspace<S>& ws) {
+template <class S, class F>
+void interpolant(Solve<S>& solve, F& f, bool for_events) {
   if (solve.dense == DenseKind::Full ||
       (solve.dense == DenseKind::FromStages && !for_events))
     return;
-  const int n = state_size(model);
+  const int n = f.size();
   if (!for_events && dense_from_stages(solve.method, n, solve.start.data(), solve.h, solve.work,
                                        solve.rtol, solve.atol)) {
     solve.dense = DenseKind::FromStages;
     return;
   }
   solve.evaluations +=
-      dense_prepare(solve.method, model, fx, solve.start.data(), solve.h, solve.work, ws);
+      dense_prepare(solve.method, f, solve.start.data(), solve.h, solve.work);
   solve.dense = DenseKind::Full;
 }
 
@@ -136,24 +134,22 @@ bool inside_step(Solve<S>& solve, int n, double& t, S* s, double t_end) {
 }
 
 // Move (t, s) to t_end inside the step in hand: true; false when a new step is needed.
-template <class S>
-bool reach(Solve<S>& solve, const Model& model, const Effects<S>& fx, double& t, S* s,
-           double t_end, SystemWorkspace<S>& ws) {
-  const int n = state_size(model);
+template <class S, class F>
+bool reach(Solve<S>& solve, F& f, double& t, S* s, double t_end) {
+  const int n = f.size();
   if (inside_step(solve, n, t, s, t_end)) return true;
   if (solve.h <= 0.0 || t_end > solve.t0 + solve.h) return false;
-  interpolant(solve, model, fx, false, ws);  // t_end is inside: build what inside_step reads
+  interpolant(solve, f, false);  // t_end is inside: build what inside_step reads
   return inside_step(solve, n, t, s, t_end);
 }
 
 // Advance (t, s) to exactly t_end (s), taking at most max_steps steps (Budget: call again).
-template <class S>
-SolveStatus advance(Solve<S>& solve, const Model& model, const Effects<S>& fx, double& t, S* s,
-                    double t_end, long max_steps, SystemWorkspace<S>& ws) {
+template <class S, class F>
+SolveStatus advance(Solve<S>& solve, F& f, double& t, S* s, double t_end, long max_steps) {
   long taken = 0;
-  while (!reach(solve, model, fx, t, s, t_end, ws)) {
+  while (!reach(solve, f, t, s, t_end)) {
     if (taken >= max_steps) return SolveStatus::Budget;
-    SolveStatus status = take_step(solve, model, fx, t, s, ws);
+    SolveStatus status = take_step(solve, f, t, s);
     if (status != SolveStatus::Done) return status;
     ++taken;
   }

@@ -12,8 +12,10 @@
 //            (`dense_from_stages`). f(y₁) enters neither error estimate, so a rejected step
 //            does not evaluate it (11 right-hand sides; an accepted one 12).
 //
-// The right-hand side is `rates` (system.hpp) of the state s = (q, u, e, W); it is autonomous
-// (the efforts are held through a step). Time in seconds, h the step (s); the tolerances are
+// The right-hand side is a functor F: f(x, dx) writes ds/dt at x, f.size() is the state size —
+// `SystemRhs`, system.hpp's `rates` of the state s = (q, u, e, W) with its effects, or the
+// engine's own evaluation (run.hpp), which also counts and watches; it is autonomous (the
+// efforts are held through a step). Time in seconds, h the step (s); the tolerances are
 // per component of s, in its own units. The tableaus are tableaus.hpp (generated data).
 //
 // Step-size control as Hairer and SciPy: ‖err‖ < 1 accepts; after an accepted step
@@ -53,6 +55,16 @@ inline const Tableau& tableau(Adaptive method) {
 inline double first_min(double a, double b) { return b < a ? b : a; }
 inline double first_max(double a, double b) { return b > a ? b : a; }
 
+// `rates` of a robot with its effects and workspace, as the right-hand side a method steps.
+template <class S>
+struct SystemRhs {
+  const Model& model;
+  const Effects<S>& fx;
+  SystemWorkspace<S>& ws;
+  int size() const { return state_size(model); }
+  void operator()(const S* x, S* dx) const { rates(model, fx, x, dx, ws); }
+};
+
 // One step's arrays (n = state size), allocated once per run.
 template <class S>
 struct StepWork {
@@ -82,24 +94,22 @@ void stage_state(int n, const S* s, const RealOf<S>& h, const double* a, int n_t
 
 // The stages k₁…k_{n_stages−1} of a step of length h from s (k₀ = work.f_start) and its end
 // state y₁ into work.end (the stages' state scratch too: it must not alias s).
-template <class S>
-void stages(Adaptive method, const Model& model, const Effects<S>& fx, const S* s,
-            const RealOf<S>& h, StepWork<S>& work, SystemWorkspace<S>& ws) {
+template <class S, class F>
+void stages(Adaptive method, F& f, const S* s, const RealOf<S>& h, StepWork<S>& work) {
   const Tableau& tab = tableau(method);
-  const int n = state_size(model);
+  const int n = f.size();
   work.k[0] = work.f_start;
   for (int stage = 1; stage < tab.n_stages; ++stage) {
     stage_state(n, s, h, tab.a[stage], stage, work.k, work.end.data());
-    rates(model, fx, work.end.data(), work.k[stage].data(), ws);
+    f(work.end.data(), work.k[stage].data());
   }
   stage_state(n, s, h, tab.b, tab.n_stages, work.k, work.end.data());
 }
 
 // f(y₁) into work.f_end and k[n_stages].
-template <class S>
-void end_derivative(Adaptive method, const Model& model, const Effects<S>& fx,
-                    StepWork<S>& work, SystemWorkspace<S>& ws) {
-  rates(model, fx, work.end.data(), work.f_end.data(), ws);
+template <class S, class F>
+void end_derivative(Adaptive method, F& f, StepWork<S>& work) {
+  f(work.end.data(), work.f_end.data());
   work.k[tableau(method).n_stages] = work.f_end;
 }
 
@@ -125,12 +135,11 @@ inline bool error_needs_end_derivative(Adaptive method) {
 
 // One step of length h from s with f(s) in work.f_start: y₁ in work.end, f(y₁) in work.f_end,
 // the stages in work.k and the error estimates. Returns the right-hand sides it evaluated.
-template <class S>
-int rk_step(Adaptive method, const Model& model, const Effects<S>& fx, const S* s,
-            const RealOf<S>& h, StepWork<S>& work, SystemWorkspace<S>& ws) {
-  stages(method, model, fx, s, h, work, ws);
-  end_derivative(method, model, fx, work, ws);
-  error_estimates(method, state_size(model), h, work);
+template <class S, class F>
+int rk_step(Adaptive method, F& f, const S* s, const RealOf<S>& h, StepWork<S>& work) {
+  stages(method, f, s, h, work);
+  end_derivative(method, f, work);
+  error_estimates(method, f.size(), h, work);
   return tableau(method).n_stages;
 }
 
@@ -187,18 +196,17 @@ double scaled_rms(int n, const S* x, const S* s, double rtol, double atol) {
 // 1e-5); one explicit Euler step gives d2 = ‖(f(s + h0 f0) − f0)/sc‖/h0, and
 // h1 = (0.01/max(d1, d2))^(1/(p̂+1)). Returns min(100 h0, h1, span, max_step) for a run over
 // `span` seconds. Costs one right-hand side, evaluated at y_scratch into f_scratch.
-template <class S>
-double initial_step(Adaptive method, const Model& model, const Effects<S>& fx, const S* s,
-                    const S* f0, double span, double rtol, double atol, double max_step,
-                    S* y_scratch, S* f_scratch, SystemWorkspace<S>& ws) {
+template <class S, class F>
+double initial_step(Adaptive method, F& f, const S* s, const S* f0, double span, double rtol,
+                    double atol, double max_step, S* y_scratch, S* f_scratch) {
   static_assert(std::is_same<RealOf<S>, double>::value, "step-size control decides per run");
-  const int n = state_size(model);
+  const int n = f.size();
   if (span == 0.0) return 0.0;
   double d0 = scaled_rms(n, s, s, rtol, atol), d1 = scaled_rms(n, f0, s, rtol, atol);
   double h0 = d0 < 1e-5 || d1 < 1e-5 ? 1e-6 : 0.01 * d0 / d1;
   h0 = first_min(h0, span);
   for (int i = 0; i < n; ++i) y_scratch[i] = s[i] + h0 * f0[i];
-  rates(model, fx, y_scratch, f_scratch, ws);
+  f(y_scratch, f_scratch);
   for (int i = 0; i < n; ++i) f_scratch[i] -= f0[i];
   double d2 = scaled_rms(n, f_scratch, s, rtol, atol) / h0;
   double h1 = d1 <= 1e-15 && d2 <= 1e-15
@@ -212,11 +220,10 @@ double initial_step(Adaptive method, const Model& model, const Effects<S>& fx, c
 // dense-output stages into k[13…15] and writes dense[0…6] = the F₀…F₆ of dop853.f (in state
 // units: F₀ = Δy, F₁ = h f₀ − Δy, F₂ = 2Δy − h(f₀ + f₁), F₃₊ᵣ = h Σ_i d_ri k_i); dense[0] is the
 // stage-state scratch first. Returns the right-hand sides it evaluated (0 or 3).
-template <class S>
-int dense_prepare(Adaptive method, const Model& model, const Effects<S>& fx, const S* s,
-                  const RealOf<S>& h, StepWork<S>& work, SystemWorkspace<S>& ws) {
+template <class S, class F>
+int dense_prepare(Adaptive method, F& f, const S* s, const RealOf<S>& h, StepWork<S>& work) {
   const Tableau& tab = tableau(method);
-  const int n = state_size(model);
+  const int n = f.size();
   auto& k = work.k;
   auto& dense = work.dense;
   if (method == Adaptive::Rk45) {
@@ -231,7 +238,7 @@ int dense_prepare(Adaptive method, const Model& model, const Effects<S>& fx, con
   }
   for (int stage = tab.n_stages + 1; stage < tab.n_extended; ++stage) {
     stage_state(n, s, h, tab.a[stage], stage, k, dense[0].data());
-    rates(model, fx, dense[0].data(), k[stage].data(), ws);
+    f(dense[0].data(), k[stage].data());
   }
   for (int i = 0; i < n; ++i) {
     S dy = work.end[i] - s[i];
@@ -321,11 +328,10 @@ struct AcceptedStep {
 // Steps from (t, s) with f(s) in work.f_start, shrinking the step from h_abs until one is
 // accepted, never past t_bound: the new state in work.end, f(y₁) in work.f_end (evaluated
 // last), the stages in work.k.
-template <class S>
-AcceptedStep accepted_step(Adaptive method, const Model& model, const Effects<S>& fx,
-                           const S* s, double t, double h_abs, double t_bound, double rtol,
-                           double atol, StepWork<S>& work, SystemWorkspace<S>& ws) {
-  const int n = state_size(model);
+template <class S, class F>
+AcceptedStep accepted_step(Adaptive method, F& f, const S* s, double t, double h_abs,
+                           double t_bound, double rtol, double atol, StepWork<S>& work) {
+  const int n = f.size();
   const double min_step =
       10.0 * std::fabs(std::nextafter(t, std::numeric_limits<double>::infinity()) - t);
   const bool end_first = error_needs_end_derivative(method);
@@ -339,10 +345,10 @@ AcceptedStep accepted_step(Adaptive method, const Model& model, const Effects<S>
       return result;
     }
     double h = first_min(t + h_abs, t_bound) - t;
-    stages(method, model, fx, s, h, work, ws);
+    stages(method, f, s, h, work);
     result.evaluations += stage_calls;
     if (end_first) {
-      end_derivative(method, model, fx, work, ws);
+      end_derivative(method, f, work);
       result.evaluations += 1;
     }
     error_estimates(method, n, h, work);
@@ -350,7 +356,7 @@ AcceptedStep accepted_step(Adaptive method, const Model& model, const Effects<S>
     double h_next = next_step(method, norm, std::fabs(h), retried);
     if (norm < 1.0) {  // a NaN norm (an overflow in a stage) rejects the step
       if (!end_first) {
-        end_derivative(method, model, fx, work, ws);
+        end_derivative(method, f, work);
         result.evaluations += 1;
       }
       result.h = h;
