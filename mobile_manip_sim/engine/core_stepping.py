@@ -1,25 +1,32 @@
-"""The fixed-step engine compiled ahead of time: the C++ core's `Stepper` (core/include/mms/
-stepping.hpp) on a simulation's own arrays — its system record (`system.SystemData`), its stops
-and their impact log (`stops.StopsData`) and its step scratch (`stepping.StepScratch`) — so that
-everything a run is stays where Python reads it between calls.
+"""The engine compiled ahead of time: the C++ core's `Stepper` (core/include/mms/
+stepping.hpp for the fixed-step methods, adaptive_stepping.hpp for rk45 and dop853) on a
+simulation's own arrays — its system record (`system.SystemData`), its stops and their impact log
+(`stops.StopsData`) and its step scratch (`stepping.StepScratch`) — so that everything a run is
+stays where Python reads it between calls (but for an adaptive run's step in hand).
 
-It runs the fixed-step methods in effort mode and under wheel-speed commands, events, impacts,
-rests, releases and the Zeno guard included, and equals the numba kernels of `stepping.py` bit
-for bit (test/core/test_core_stepping.py). A run whose arm is driven by a controller still takes
-the numba kernels. ``MOBILE_MANIP_SIM_CORE=numba`` takes them for every run (the reference while
-both exist).
+It runs euler, semi-implicit Euler, rk4, rk45 and dop853 in effort mode and under wheel-speed
+commands, events, impacts, rests, releases, the Zeno guard and the crawl limits included, and
+equals the numba kernels of `stepping.py` and `adaptive_stepping.py` bit for bit
+(test/core/test_core_stepping.py). A run whose arm is driven by a controller, and SciPy's radau
+and bdf, still take their old paths; ``MOBILE_MANIP_SIM_CORE=numba`` takes the numba kernels for
+every run (the reference while both exist).
 """
 from __future__ import annotations
 
 import os
+
+import numpy as np
 
 from ..core import Stepper
 
 CORE = os.environ.get("MOBILE_MANIP_SIM_CORE", "cpp")
 
 
-def fixed_stepper(dynamics, method: str, system, stops, scratch) -> Stepper:
-    """The compiled stepper of a simulation's records (`Dynamics.core` its robot)."""
+def compiled_stepper(dynamics, method: str, system, stops, scratch, solve=None) -> Stepper:
+    """The compiled stepper of a simulation's records (`Dynamics.core` its robot); `solve` the
+    adaptive methods' (`adaptive_stepping.Solve`: its tolerances and its crawl count)."""
+    rtol, atol = (solve.tolerance if solve is not None else (0.0, 0.0))
+    watch = solve.watch if solve is not None else np.zeros(3)
     data = system.data
     law = stops.law
     return Stepper(dynamics.core, method, float(data.gravity), data.damping, data.free,
@@ -28,4 +35,4 @@ def fixed_stepper(dynamics, method: str, system, stops, scratch) -> Stepper:
                    float(law.restitution), float(law.rest_speed), stops.log, stops.log_q,
                    stops.log_u, stops.log_free, stops.count, stops.run, stops.failed,
                    scratch.out, scratch.trial, scratch.stages, scratch.forces, scratch.samples,
-                   scratch.crossed)
+                   scratch.crossed, float(rtol), float(atol), watch)

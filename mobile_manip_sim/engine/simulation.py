@@ -102,6 +102,7 @@ class Simulation(ArmCommands, BaseCommands, ScipySteps):
         method = METHODS[self.settings.method]
         self._core = CORES.get(method.stepper)
         self._solve = None
+        self._stepper = None   # made by `reset` (`_compiled_stepper`)
         if method.fixed_step:
             self._step_budget = budget
         else:
@@ -147,7 +148,7 @@ class Simulation(ArmCommands, BaseCommands, ScipySteps):
         self.stops.count[0] = 0
         self.stops.run[:] = 0.0   # no run of impacts for the Zeno guard
         self.stops.failed[0] = 0
-        self._stepper = self._fixed_stepper()
+        self._stepper = self._compiled_stepper()
         self._relock()
         self.impacts: list[Impact] = []
         self.impact_details: list[ImpactDetail] = []
@@ -161,15 +162,15 @@ class Simulation(ArmCommands, BaseCommands, ScipySteps):
             self._start_arm()
         self.energy0 = self.total_energy()
 
-    def _fixed_stepper(self):
+    def _compiled_stepper(self):
         """The compiled C++ stepper of this simulation's own records (`core_stepping.py`), or None
-        where the numba kernels run it (an adaptive or SciPy method, an arm controller). Made at
-        every reset: a batch lane, a copy of its template's records, gets its own."""
+        where the numba kernels or SciPy run it (radau, bdf; an arm controller). Made at every
+        reset: a batch lane, a copy of its template's records, gets its own."""
         method = METHODS[self.settings.method]
-        if core_stepping.CORE != "cpp" or not method.fixed_step or self.arm_controller.active:
+        if (core_stepping.CORE != "cpp" or self._core is None or self.arm_controller.active):
             return None
-        return core_stepping.fixed_stepper(self.dynamics, method.name, self.system, self.stops,
-                                           self._scratch)
+        return core_stepping.compiled_stepper(self.dynamics, method.name, self.system, self.stops,
+                                              self._scratch, self._solve)
 
     def load_kernels(self) -> None:
         """Load now (compile, if the warm-up did not) every compiled kernel that this
@@ -344,9 +345,17 @@ class Simulation(ArmCommands, BaseCommands, ScipySteps):
         if not np.array_equal(before[0], Q) or before[1] != self.velocity_mode:
             self._command_changed()
 
+    def _step_in_hand(self) -> tuple[float, float]:
+        """An adaptive run's step in hand: (start, length) in s; length 0: none."""
+        if self._stepper is not None:
+            return self._stepper.step_in_hand()
+        return adaptive_stepping.step_in_hand(self._solve)
+
     def _restart(self) -> None:
         """The right-hand side changes here: adaptive solves end at the current (t, s)."""
-        if self._solve is not None:
+        if self._stepper is not None:
+            self._stepper.restart()
+        elif self._solve is not None:
             adaptive_stepping.restart(self._solve)
 
     def _command_changed(self) -> None:
@@ -389,8 +398,8 @@ class Simulation(ArmCommands, BaseCommands, ScipySteps):
         if t_end < self.t:
             raise UserError("t_end", f"{t_end} is before the current time {self.t}")
         t_end = float(t_end)   # the bound calls take the types of their first call
-        if self._solve is not None and self._inside_step(self._core_args[0], self._solve, self.s,
-                                                         self._clock, t_end):
+        if (self._stepper is None and self._solve is not None
+                and self._inside_step(self._core_args[0], self._solve, self.s, self._clock, t_end)):
             return   # most targets of an adaptive run: inside the step in hand, interpolated
         if self._core is None:
             self._advance_scipy(t_end)
@@ -433,10 +442,11 @@ class Simulation(ArmCommands, BaseCommands, ScipySteps):
         if status == status_codes.NOT_FINITE:
             self._fail(self._scratch.out)
         if status == status_codes.CRAWLING:
-            t_before, h = adaptive_stepping.step_in_hand(self._solve)
+            t_before, h = self._step_in_hand()
             self._cannot_follow(t_before, step_watch.describe(self._solve.watch, t_before, h))
         if status == status_codes.STALLED:   # as SciPy's "step below the spacing of t"
-            h = adaptive_stepping.next_step(self._solve)
+            h = (self._stepper.next_step() if self._stepper is not None
+                 else adaptive_stepping.next_step(self._solve))
             self._cannot_follow(self.t, "a stage overflowed (its error estimate is NaN)"
                                 if math.isnan(h) else
                                 f"the step fell below 10 spacings of t (h = {h:.3g} s)")

@@ -1,10 +1,12 @@
-"""The compiled fixed-step engine (core/include/mms/stepping.hpp: steps, crossing checks, event
-location, impacts, rests, releases, the Zeno guard and the energy ledger) against the numba
-kernels it replaces (engine/stepping.py), bit for bit while both exist: on every scene the package
-ships and on random robots whose rods hit, rest, are pulled off their stops and are held by the
-Zeno guard, each with its commands changed mid-run, for each fixed-step method. Compared: every
-sampled state and its energy, the clock (steps, the ledger of the law's losses and the holds),
-the stage counters, every impact with its details, and which rods rest and are watched.
+"""The compiled engine (core/include/mms/stepping.hpp and adaptive_stepping.hpp: steps, crossing
+checks, event location on the step or its dense output, impacts, rests, releases, the Zeno guard
+and the energy ledger) against the numba kernels it replaces (engine/stepping.py,
+engine/adaptive_stepping.py), bit for bit while both exist: on every scene the package ships
+and on random robots whose rods hit, rest, are pulled off their stops and are held by the Zeno
+guard, each with its commands changed mid-run, for each fixed-step method and rk45 and dop853.
+Compared: every sampled state and its energy, the clock (steps, the ledger of the law's losses
+and the holds), the stage counters, every impact with its details, and which rods rest and are
+watched.
 """
 from dataclasses import replace
 from pathlib import Path
@@ -22,15 +24,18 @@ CONFIG = Path(__file__).resolve().parents[2] / "mobile_manip_sim" / "config"
 # (a scene whose arm a controller drives still runs on the numba kernels: not compared here)
 SCENES = sorted(p for p in CONFIG.glob("*.yaml")
                 if p.name != "simulator.params.yaml" and load_scene(p).controller is None)
-METHODS = ["euler", "semi_implicit_euler", "rk4"]
+METHODS = ["euler", "semi_implicit_euler", "rk4", "rk45", "dop853"]
+# each method's settings: the fixed steps at 1 kHz, the adaptive ones at tolerances of use
+SETTINGS = {"euler": dict(dt=1e-3), "semi_implicit_euler": dict(dt=1e-3), "rk4": dict(dt=1e-3),
+            "rk45": dict(rtol=1e-7, atol=1e-10), "dop853": dict(rtol=1e-9, atol=1e-12)}
 
 
-def outcome(scene, method: str, core: str, monkeypatch, commands=(), dt=1e-3, t_end=1.0):
+def outcome(scene, method: str, core: str, monkeypatch, commands=(), t_end=1.0):
     """A run of `scene` by `core` ("numba" or "cpp"), sampled at 100 Hz; `commands` are
     (t, function of the simulation) applied when the run reaches t. A small step budget makes
     each compiled call return often, as a node's do."""
     monkeypatch.setattr(core_stepping, "CORE", core)
-    sim = Simulation(scene, replace(scene.integrator, method=method, dt=dt))
+    sim = Simulation(scene, replace(scene.integrator, method=method, **SETTINGS[method]))
     assert (sim._stepper is not None) == (core == "cpp")
     sim._step_budget = 97
     times = np.arange(1, int(round(t_end / 0.01)) + 1) * 0.01
@@ -122,7 +127,7 @@ def test_a_zeno_run_of_bounces_is_held_bit_for_bit(restitution, method, monkeypa
     scene = bouncing_rod_scene(restitution)
     reference = outcome(scene, method, "numba", monkeypatch, t_end=2.0)
     if method != "euler":
-        assert reference["clock"][6] == 1, "the case must reach a Zeno hold"   # CLOCK_HOLDS
+        assert reference["clock"][6] >= 1, "the case must reach a Zeno hold"   # CLOCK_HOLDS
     assert_identical(outcome(scene, method, "cpp", monkeypatch, t_end=2.0), reference)
 
 

@@ -348,8 +348,12 @@ def engine_step_ends(doc, method, settings, t_end):
     ends = {}
     for t in np.linspace(0.0, t_end, 2001)[1:]:
         sim.advance_to(t)
-        solve = sim._solve
-        ends[solve.status[adaptive_stepping.STEP_T0]] = solve.work[rk.WORK_Y1][layout.q_slide(1)]
+        if sim._stepper is not None:   # the compiled engine's step in hand
+            ends[sim._stepper.step_in_hand()[0]] = sim._stepper.step_end()[layout.q_slide(1)]
+        else:
+            solve = sim._solve
+            ends[solve.status[adaptive_stepping.STEP_T0]] = solve.work[rk.WORK_Y1][
+                layout.q_slide(1)]
     assert len(ends) > 1
     return list(ends.values())
 

@@ -21,7 +21,7 @@ import pytest
 from scipy import integrate, optimize
 
 from engine_cases import HORIZONTAL_AXIS, one_link_doc, simulation
-from mobile_manip_sim.engine import adaptive_stepping, layout
+from mobile_manip_sim.engine import layout
 
 G, MASS, R_C, J = 10.0, 1.0, 0.5, 0.0008
 INERTIA = MASS / 3.0 + J
@@ -128,7 +128,7 @@ def step_in_use(sim):
     """The step (s) the method takes now: dt, or the adaptive step in hand."""
     if sim._solve is None:
         return sim.settings.dt
-    return float(sim._solve.status[adaptive_stepping.STEP_H])
+    return float(sim._step_in_hand()[1])
 
 
 @pytest.mark.parametrize("method, settings, near, windows", CASES,

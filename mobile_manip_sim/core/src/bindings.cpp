@@ -20,6 +20,7 @@
 #include "mms/articulated.hpp"
 #include "mms/dynamics.hpp"
 #include "mms/fixed_step.hpp"
+#include "mms/adaptive_stepping.hpp"
 #include "mms/stepping.hpp"
 
 namespace nb = nanobind;
@@ -676,8 +677,9 @@ class Dynamics {
   std::unique_ptr<StepWork<DualD>> dual_step_;
 };
 
-// The fixed-step engine of one simulation (stepping.hpp) on the engine's own arrays (run.hpp):
-// the Python objects stay the owners, and hold what the run is between calls.
+// The engine of one simulation — a fixed-step method (stepping.hpp) or rk45, dop853 with their
+// solve (adaptive_stepping.hpp) — on the engine's own arrays (run.hpp): the Python objects stay
+// the owners, and hold what the run is between calls (but an adaptive run's step in hand).
 using I64 = nb::ndarray<std::int64_t, nb::c_contig, nb::device::cpu>;
 using Bools = nb::ndarray<bool, nb::c_contig, nb::device::cpu>;
 using F64 = nb::ndarray<double, nb::c_contig, nb::device::cpu>;
@@ -688,10 +690,8 @@ class Stepper {
           In Q_cmd, In control, I64 counters, F64 holding, Bools watched, I64 resting, In stroke,
           Bools permanent, int law, double restitution, double rest_speed, F64 log, F64 log_q,
           F64 log_u, Bools log_free, I64 count, F64 runs, I64 failed, F64 out, F64 trial,
-          F64 stages, F64 forces, F64 samples, I64 crossed)
-      : owner_(dynamics),
-        method_(method_of(method)),
-        run_(nb::cast<Dynamics&>(dynamics).model(), int(out.size())) {
+          F64 stages, F64 forces, F64 samples, I64 crossed, double rtol, double atol, F64 watch)
+      : owner_(dynamics), run_(nb::cast<Dynamics&>(dynamics).model(), int(out.size())) {
     const Model& m = run_.model;
     const size_t n = m.n(), nu = m.n_u(), nq = m.n_q(), size = out.size();
     if (damping.size()) need(damping, nu, "damping");
@@ -720,12 +720,22 @@ class Stepper {
     if (samples.size() < size_t(N_SAMPLES) + 2 * n)
       throw std::invalid_argument("samples: too short");
     need(crossed, std::max<size_t>(n, 1), "crossed");
+    need(watch, 3, "watch");
+    if (method == "rk45" || method == "dop853") {
+      if (!(rtol > 0.0 && atol > 0.0))
+        throw std::invalid_argument("rtol, atol: expected positive tolerances");
+      adaptive_ = std::make_unique<AdaptiveRun>(
+          method == "rk45" ? Adaptive::Rk45 : Adaptive::Dop853, int(size), rtol, atol,
+          watch.data());
+    } else {
+      method_ = method_of(method);
+    }
     if (size != size_t(state_size(m)))
       throw std::invalid_argument("the fixed-step core runs effort and wheel-speed modes (a "
                                   "state of " + std::to_string(state_size(m)) + " entries)");
     arrays_ = nb::make_tuple(damping, free, Q_cmd, control, counters, holding, watched, resting,
                              stroke, permanent, log, log_q, log_u, log_free, count, runs, failed,
-                             out, trial, stages, forces, samples, crossed);
+                             out, trial, stages, forces, samples, crossed, watch);
     run_.system = SystemArrays{.gravity = gravity,
                                .damping = damping.size() ? damping.data() : nullptr,
                                .free = free.data(),
@@ -759,6 +769,7 @@ class Stepper {
   int advance(F64 s, F64 clock, double t_end, long max_steps) {
     check(s, clock);
     nb::gil_scoped_release free_the_interpreter;
+    if (adaptive_) return mms::advance(run_, *adaptive_, s.data(), clock.data(), t_end, max_steps);
     return mms::advance(run_, method_, s.data(), clock.data(), t_end, max_steps);
   }
 
@@ -769,14 +780,38 @@ class Stepper {
     need(rows, size_t(n_times) * (run_.size + 1), "rows");
     if (first < 0 || first > n_times) throw std::invalid_argument("first: out of range");
     nb::gil_scoped_release free_the_interpreter;
-    Sampled done = mms::advance_samples(run_, method_, s.data(), clock.data(), times.data(),
-                                        n_times, rows.data(), first, max_steps);
+    Sampled done =
+        adaptive_ ? mms::advance_samples(run_, *adaptive_, s.data(), clock.data(), times.data(),
+                                         n_times, rows.data(), first, max_steps)
+                  : mms::advance_samples(run_, method_, s.data(), clock.data(), times.data(),
+                                         n_times, rows.data(), first, max_steps);
     return {int(done.status), done.next};
   }
 
   double total_energy(In s) {
     need(s, run_.size, "s");
     return mms::total_energy(run_, s.data());
+  }
+
+  // An adaptive run: a discontinuity now (a command changed): its solve restarts here.
+  void restart() {
+    if (adaptive_) mms::restart(*adaptive_);
+  }
+
+  // An adaptive run's step in hand (start, length; length 0: none) and its next step to try.
+  std::tuple<double, double> step_in_hand() const {
+    return adaptive_ ? std::tuple<double, double>{adaptive_->solve.t0, adaptive_->solve.h}
+                     : std::tuple<double, double>{0.0, 0.0};
+  }
+  double next_step() const { return adaptive_ ? adaptive_->solve.h_next : 0.0; }
+
+  // An adaptive run's step in hand's end state y₁.
+  Out step_end() const {
+    if (!adaptive_) throw std::invalid_argument("step_end: not an adaptive run");
+    double* y;
+    Out out = new_array({size_t(run_.size)}, &y);
+    std::copy(adaptive_->solve.work.end.begin(), adaptive_->solve.work.end.end(), y);
+    return out;
   }
 
   // The locks from the stops (the scene's and the resting rods'), after Python changed them.
@@ -814,8 +849,9 @@ class Stepper {
 
   nb::object owner_;   // the Dynamics whose model the run uses
   nb::object arrays_;  // the arrays the run points into, kept alive
-  Method method_;
+  Method method_ = Method::Rk4;
   Run run_;
+  std::unique_ptr<AdaptiveRun> adaptive_;  // rk45, dop853: the solve; null for a fixed step
 };
 
 
@@ -908,16 +944,21 @@ NB_MODULE(_core, m) {
       .def(nb::init<nb::object, const std::string&, double, mms::In, mms::I64, mms::In, mms::In,
                     mms::I64, mms::F64, mms::Bools, mms::I64, mms::In, mms::Bools, int, double,
                     double, mms::F64, mms::F64, mms::F64, mms::Bools, mms::I64, mms::F64,
-                    mms::I64, mms::F64, mms::F64, mms::F64, mms::F64, mms::F64, mms::I64>(),
+                    mms::I64, mms::F64, mms::F64, mms::F64, mms::F64, mms::F64, mms::I64, double,
+                    double, mms::F64>(),
            "dynamics"_a, "method"_a, "gravity"_a, "damping"_a, "free"_a, "Q_cmd"_a, "control"_a,
            "counters"_a, "holding"_a, "watched"_a, "resting"_a, "stroke"_a, "permanent"_a,
            "law"_a, "restitution"_a, "rest_speed"_a, "log"_a, "log_q"_a, "log_u"_a,
            "log_free"_a, "count"_a, "run"_a, "failed"_a, "out"_a, "trial"_a, "stages"_a,
-           "forces"_a, "samples"_a, "crossed"_a)
+           "forces"_a, "samples"_a, "crossed"_a, "rtol"_a, "atol"_a, "watch"_a)
       .def("advance", &mms::Stepper::advance, "s"_a, "clock"_a, "t_end"_a, "max_steps"_a)
       .def("advance_samples", &mms::Stepper::advance_samples, "s"_a, "clock"_a, "times"_a,
            "rows"_a, "first"_a, "max_steps"_a)
       .def("total_energy", &mms::Stepper::total_energy, "s"_a)
+      .def("restart", &mms::Stepper::restart)
+      .def("step_in_hand", &mms::Stepper::step_in_hand)
+      .def("next_step", &mms::Stepper::next_step)
+      .def("step_end", &mms::Stepper::step_end)
       .def("relock", &mms::Stepper::relock)
       .def("release", &mms::Stepper::release, "s"_a, "at_root"_a)
       .def("holding_margin", &mms::Stepper::holding_margin, "s"_a)

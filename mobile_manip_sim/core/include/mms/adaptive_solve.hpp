@@ -50,11 +50,10 @@ void restart(Solve<S>& solve) {
   solve.h = 0.0;
 }
 
-// The next accepted step (see the header). NotFinite leaves the bad y₁ in solve.work.end;
-// Stalled (the step fell below 10 spacings of t) leaves no step in hand and the step tried in
-// solve.h_next.
+// The start of the next step: after the step in hand (FSAL: from y₁ with f(y₁)), or a new solve
+// at (t, s) with f(s) evaluated and, unless a restart left one to try, `initial_step`'s size.
 template <class S, class F>
-SolveStatus take_step(Solve<S>& solve, F& f, double t, const S* s) {
+void begin_step(Solve<S>& solve, F& f, double t, const S* s) {
   const int n = f.size();
   StepWork<S>& work = solve.work;
   const double inf = std::numeric_limits<double>::infinity();
@@ -74,8 +73,18 @@ SolveStatus take_step(Solve<S>& solve, F& f, double t, const S* s) {
       solve.evaluations += 1;
     }
   }
+}
+
+// The accepted step from the start `begin_step` set. NotFinite leaves the bad y₁ in
+// solve.work.end; Stalled (the step fell below 10 spacings of t) leaves no step in hand and the
+// step tried in solve.h_next.
+template <class S, class F>
+SolveStatus finish_step(Solve<S>& solve, F& f) {
+  const int n = f.size();
+  StepWork<S>& work = solve.work;
   AcceptedStep step = accepted_step(solve.method, f, solve.start.data(), solve.t0, solve.h_next,
-                                    inf, solve.rtol, solve.atol, work);
+                                    std::numeric_limits<double>::infinity(), solve.rtol,
+                                    solve.atol, work);
   solve.evaluations += step.evaluations;
   solve.rejections += step.rejections;
   if (step.h < 0.0) {
@@ -90,6 +99,13 @@ SolveStatus take_step(Solve<S>& solve, F& f, double t, const S* s) {
   for (int i = 0; i < n; ++i)
     if (!std::isfinite(value(work.end[i]))) return SolveStatus::NotFinite;
   return SolveStatus::Done;
+}
+
+// The next accepted step (see the header).
+template <class S, class F>
+SolveStatus take_step(Solve<S>& solve, F& f, double t, const S* s) {
+  begin_step(solve, f, t, s);
+  return finish_step(solve, f);
 }
 
 // The step in hand's dense output, built on first use (see the header).
@@ -116,13 +132,15 @@ void interpolate(const Solve<S>& solve, int n, double h_into, S* out) {
              out);
 }
 
-// Move (t, s) to t_end when it lies in the step in hand and its interpolant is built (or t_end
-// is the step's end): true; otherwise false, nothing changed.
+// Move (t, s) to t_end when it lies in the step in hand — up to its event, when `event_h` points
+// at one's instant into the step — and its interpolant is built (or t_end is the step's end):
+// true; otherwise false, nothing changed.
 template <class S>
-bool inside_step(Solve<S>& solve, int n, double& t, S* s, double t_end) {
+bool inside_step(Solve<S>& solve, int n, double& t, S* s, double t_end,
+                 const double* event_h = nullptr) {
   if (t_end <= t) return true;
-  if (solve.h <= 0.0 || t_end > solve.t0 + solve.h) return false;
-  if (t_end == solve.t0 + solve.h) {
+  if (solve.h <= 0.0 || t_end > solve.t0 + (event_h ? *event_h : solve.h)) return false;
+  if (t_end == solve.t0 + solve.h && !event_h) {
     for (int i = 0; i < n; ++i) s[i] = solve.work.end[i];  // the step's end, exactly
   } else if (solve.dense == DenseKind::None) {
     return false;

@@ -28,8 +28,8 @@ enum Control { WHEEL_VELOCITY_MODE, WHEEL_KP, WHEEL_KI, WHEEL_LIMIT_R, WHEEL_LIM
 // law's losses, what holds removed beyond them, how many impacts were held
 enum ClockEntry { CLOCK_T0, CLOCK_DT, CLOCK_K, CLOCK_STEPS, CLOCK_LOST, CLOCK_HELD, CLOCK_HOLDS };
 // why a call returned (engine/status.py)
-enum Status { DONE = 0, BUDGET = 1, LOG_FULL = 2, NOT_FINITE = 3, CHATTER = 4,
-              CONTACT_FAILED = 7 };
+enum Status { DONE = 0, BUDGET = 1, LOG_FULL = 2, NOT_FINITE = 3, CHATTER = 4, STALLED = 5,
+              CRAWLING = 6, CONTACT_FAILED = 7 };
 // an impact-log row's columns (engine/impact_log.py)
 enum LogColumn { LOG_TIME, LOG_LINK, LOG_SIDE, LOG_LD_BEFORE, LOG_LD_AFTER, LOG_LOST, LOG_RESTING,
                  LOG_HELD, LOG_HOLD_LOST, LOG_HOLD_BOUND, LOG_COLUMNS };

@@ -1,0 +1,211 @@
+// The adaptive engine: rk45 and dop853 (runge_kutta.hpp, adaptive_solve.hpp) with error control,
+// advancing a run to a target time (or through sample times) with every step, crossing check,
+// event location on the step's dense output, impact, rest and release, the Zeno guard and the
+// crawl limits inside (engine/adaptive_stepping.py is the reference, operation for operation).
+//
+// One solve runs from its start until a discontinuity (an impact, a release, a command change:
+// `restart`); the step is never cut at a target or a sample. The last accepted step stays in hand:
+// targets inside it are read from its dense output, built only when a target, a sample or an
+// event lies in the step. An event found in the step ends the solve there: it is applied once a
+// target passes it, and the solve restarts from the event, trying the length of the step that
+// held it. The simulated time is clock[CLOCK_T0] (CLOCK_K stays 0).
+//
+// The crawl limits (engine/step_watch.py): an adaptive method that cannot follow the solution
+// shrinks its step towards the spacing of numbers and crawls on; FLOOR_STEPS accepted steps in a
+// row shorter than STEP_FLOOR × max(1 s, t), or BUDGET_STEPS steps that advance time by less
+// than BUDGET_SPAN, end the call with CRAWLING.
+#pragma once
+
+#include <cmath>
+#include <vector>
+
+#include "adaptive_solve.hpp"
+#include "stepping.hpp"
+
+namespace mms {
+
+constexpr double STEP_FLOOR = 1e-12;  // of max(1 s, t)
+constexpr int FLOOR_STEPS = 50;
+constexpr int BUDGET_STEPS = 5000;
+constexpr double BUDGET_SPAN = 0.01;  // s of simulated time per BUDGET_STEPS steps
+// watch[...]: steps in a row below the floor; start (s) and steps of the budget's window
+enum WatchEntry { WATCH_SHORT, WATCH_MARK, WATCH_STEPS };
+
+// After an accepted step h (s) from t_before (s): true when the solver is crawling.
+inline bool watch_step(double* watch, double t_before, double h) {
+  if (std::isnan(watch[WATCH_MARK])) watch[WATCH_MARK] = t_before;
+  watch[WATCH_STEPS] += 1.0;
+  bool short_step = h < STEP_FLOOR * std::max(1.0, std::fabs(t_before));
+  watch[WATCH_SHORT] = short_step ? watch[WATCH_SHORT] + 1.0 : 0.0;
+  if (watch[WATCH_SHORT] >= FLOOR_STEPS) return true;
+  if (watch[WATCH_STEPS] >= BUDGET_STEPS) {
+    if (t_before + h - watch[WATCH_MARK] < BUDGET_SPAN) return true;
+    watch[WATCH_MARK] = t_before + h;
+    watch[WATCH_STEPS] = 0.0;
+  }
+  return false;
+}
+
+// The run's right-hand side as the methods step it: counted, the holding forces watched.
+struct RunRhs {
+  Run& run;
+  int size() const { return run.size; }
+  void operator()(const double* x, double* dx) const { derivative(run, x, dx); }
+};
+
+// An adaptive step's path for the events: its dense output from its start.
+struct DensePath {
+  const Solve<double>& solve;
+  int n;
+  void operator()(double h, double* out) const { interpolate(solve, n, h, out); }
+};
+
+enum StepEvent { NO_EVENT, IMPACT, LEAVE };
+
+// The solve of an adaptive run and the first event of its step in hand.
+struct AdaptiveRun {
+  Solve<double> solve;
+  StepEvent event = NO_EVENT;
+  double event_h = 0;  // s into the step
+  int event_k = 0, event_side = 0;  // an impact's rod (1-based) and stop (−1 lower, +1 upper)
+  std::vector<double> event_state;  // the state at the event (l_k exactly at the stop)
+  double* watch;  // (3) the crawl limits' count (WatchEntry), Python's
+  AdaptiveRun(Adaptive method, int n, double rtol, double atol, double* watch_)
+      : solve(method, n, rtol, atol), event_state(n), watch(watch_) {}
+};
+
+// A discontinuity at the current (t, s): the next step starts a new solve there.
+inline void restart(AdaptiveRun& a) {
+  restart(a.solve);
+  a.event = NO_EVENT;
+}
+
+// The first event in the step in hand: a watched rod reaching a stop, or the instant a resting
+// rod's stop would start to pull, whichever comes first (the other is found again by the solve
+// restarted there).
+inline void locate_event(Run& run, AdaptiveRun& a) {
+  Solve<double>& solve = a.solve;
+  const double* start = solve.start.data();
+  const double h = solve.h;
+  RunRhs f{run};
+  // every evaluation of the step sampled the holding forces: read before the interpolant's
+  // stages evaluate anything else
+  const bool pulled = any_resting(run) && run.system.holding[HOLDING_LEAST_MARGIN] < 0.0;
+  if (any_watched(run) && crossing_in_step(run, start, solve.work.end.data(), h)) {
+    interpolant(solve, f, true);
+    DensePath path{solve, run.size};
+    Crossing hit = first_crossing(run, path, start, h);
+    if (hit.k != 0) {
+      interpolate(solve, run.size, hit.h, a.event_state.data());
+      a.event_state[q_slide(hit.k)] =
+          run.stops.stroke[2 * (hit.k - 1) + (hit.side < 0 ? 0 : 1)];
+      a.event = IMPACT;
+      a.event_h = hit.h;
+      a.event_k = hit.k;
+      a.event_side = hit.side;
+    }
+  }
+  if (pulled) {
+    interpolant(solve, f, true);
+    DensePath path{solve, run.size};
+    double h_leave = first_release(run, path, start, h);
+    if (h_leave >= 0.0 && (a.event == NO_EVENT || h_leave < a.event_h)) {
+      interpolate(solve, run.size, h_leave, a.event_state.data());
+      a.event = LEAVE;
+      a.event_h = h_leave;
+    }
+  }
+}
+
+// One accepted step after the step in hand (or starting a new solve at (t, s)), its first event
+// located. DONE, NOT_FINITE (the bad state in run.step.out), STALLED or CRAWLING.
+inline Status take_step(Run& run, AdaptiveRun& a, const double* s, double* clock) {
+  Solve<double>& solve = a.solve;
+  RunRhs f{run};
+  begin_step(solve, f, clock[CLOCK_T0], s);
+  clear_holding(run);
+  SolveStatus status = finish_step(solve, f);
+  if (status == SolveStatus::Stalled) return STALLED;
+  clock[CLOCK_STEPS] += 1.0;
+  a.event = NO_EVENT;
+  if (status == SolveStatus::NotFinite) {
+    std::copy(solve.work.end.begin(), solve.work.end.end(), run.step.out);
+    return NOT_FINITE;
+  }
+  if (watch_step(a.watch, solve.t0, solve.h)) return CRAWLING;
+  locate_event(run, a);
+  return DONE;
+}
+
+// Move (t, s) to the event of the step in hand, apply it, and restart the solve there.
+inline void apply_event(Run& run, AdaptiveRun& a, double* s, double* clock) {
+  const double t = a.solve.t0 + a.event_h;
+  std::copy(a.event_state.begin(), a.event_state.end(), s);
+  clock[CLOCK_T0] = t;
+  if (a.event == IMPACT)
+    book(clock, impact(run, s, a.event_k, a.event_side, t));
+  else
+    release(run, s, true);
+  restart(a);
+}
+
+inline bool inside_step(Run& run, AdaptiveRun& a, double* s, double* clock, double t_end) {
+  return inside_step(a.solve, run.size, clock[CLOCK_T0], s, t_end,
+                     a.event != NO_EVENT ? &a.event_h : nullptr);
+}
+
+// Move (t, s) to t_end inside the step in hand, or to its event when t_end lies past it (which is
+// then applied): true when (t, s) is at t_end, false when a new step is needed.
+inline bool reach(Run& run, AdaptiveRun& a, double* s, double* clock, double t_end) {
+  if (inside_step(run, a, s, clock, t_end)) return true;
+  const Solve<double>& solve = a.solve;
+  if (solve.h <= 0.0) return false;
+  if (a.event != NO_EVENT) {
+    if (t_end > solve.t0 + a.event_h) {
+      apply_event(run, a, s, clock);
+      return false;
+    }
+  } else if (t_end > solve.t0 + solve.h) {
+    return false;
+  }
+  RunRhs f{run};
+  interpolant(a.solve, f, false);  // t_end is inside: build what `inside_step` reads
+  return inside_step(run, a, s, clock, t_end);
+}
+
+// Advance (t, s) to exactly t_end. DONE, or BUDGET after max_steps steps, LOG_FULL, NOT_FINITE,
+// STALLED, CRAWLING, CONTACT_FAILED.
+inline Status advance(Run& run, AdaptiveRun& a, double* s, double* clock, double t_end,
+                      long max_steps) {
+  sync_locks(run);
+  const long room = run.stops.capacity / 2;
+  long taken = 0;
+  while (!reach(run, a, s, clock, t_end)) {
+    if (run.stops.failed[0] != 0) return CONTACT_FAILED;
+    if (taken >= max_steps) return BUDGET;
+    if (run.stops.count[0] > room) return LOG_FULL;
+    Status status = take_step(run, a, s, clock);
+    if (status != DONE) return status;
+    ++taken;
+  }
+  return DONE;
+}
+
+// `advance` to each of times[first:], writing (s, T + V) into rows[i]; the budget counts steps
+// only (a sample inside the step in hand costs none).
+inline Sampled advance_samples(Run& run, AdaptiveRun& a, double* s, double* clock,
+                               const double* times, long n_times, double* rows, long first,
+                               long max_steps) {
+  const double steps = clock[CLOCK_STEPS];
+  for (long i = first; i < n_times; ++i) {
+    Status status = advance(run, a, s, clock, times[i],
+                            max_steps - long(clock[CLOCK_STEPS] - steps));
+    if (status != DONE) return {status, i};
+    double* row = rows + i * (run.size + 1);
+    std::copy(s, s + run.size, row);
+    row[run.size] = total_energy(run, s);
+  }
+  return {DONE, n_times};
+}
+
+}  // namespace mms
