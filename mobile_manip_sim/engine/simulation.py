@@ -32,15 +32,15 @@ from ..scene.errors import UserError
 from ..scene.limits import ANGLE, SPEED
 from ..scene.loading import IntegratorSettings, Scene
 from ..scene.methods import COMPILED_STEPPERS, IDS, METHODS
-from . import adaptive_stepping, core_stepping, dense, layout, linearization, step_watch, stepping
+from . import adaptive_stepping, dense, layout, linearization, step_watch, stepping
 from . import status as status_codes
 from .arm_commands import ArmCommands
 from .arm_control import arm_settings, feedforward_masses, for_robot, scene_arm_controller
 from .base_commands import BaseCommands, command, finite_forces
-from .events import holding_margin
+from .core_calls import CoreCalls
 from .impact_log import Impact, ImpactDetail, collect
 from .scipy_steps import ScipySteps
-from .stops import make_impact_scratch, make_stops, release, relock
+from .stops import make_impact_scratch, make_stops
 from .system import RHS_EVALS, WHEEL_VELOCITY_MODE, System
 
 # The compiled core of each `Method.stepper` (SciPy's solvers have none: stepped from Python).
@@ -61,7 +61,7 @@ def hold_warning(line: str) -> None:
     warnings.warn(line, RuntimeWarning, stacklevel=4)
 
 
-class Simulation(ArmCommands, BaseCommands, ScipySteps):
+class Simulation(ArmCommands, BaseCommands, ScipySteps, CoreCalls):
     def __init__(self, scene: Scene, integrator: IntegratorSettings | None = None,
                  arm_controller: ArmController | None = None):
         """`arm_controller`: how the arm is driven; None takes the scene's ``controller:``
@@ -161,16 +161,6 @@ class Simulation(ArmCommands, BaseCommands, ScipySteps):
         if self.arm_controller.active:
             self._start_arm()
         self.energy0 = self.total_energy()
-
-    def _compiled_stepper(self):
-        """The compiled C++ stepper of this simulation's own records (`core_stepping.py`), or None
-        where the numba kernels or SciPy run it (radau, bdf; an arm controller). Made at every
-        reset: a batch lane, a copy of its template's records, gets its own."""
-        method = METHODS[self.settings.method]
-        if (core_stepping.CORE != "cpp" or self._core is None or self.arm_controller.active):
-            return None
-        return core_stepping.compiled_stepper(self.dynamics, method.name, self.system, self.stops,
-                                              self._scratch, self._solve)
 
     def load_kernels(self) -> None:
         """Load now (compile, if the warm-up did not) every compiled kernel that this
@@ -345,19 +335,6 @@ class Simulation(ArmCommands, BaseCommands, ScipySteps):
         if not np.array_equal(before[0], Q) or before[1] != self.velocity_mode:
             self._command_changed()
 
-    def _step_in_hand(self) -> tuple[float, float]:
-        """An adaptive run's step in hand: (start, length) in s; length 0: none."""
-        if self._stepper is not None:
-            return self._stepper.step_in_hand()
-        return adaptive_stepping.step_in_hand(self._solve)
-
-    def _restart(self) -> None:
-        """The right-hand side changes here: adaptive solves end at the current (t, s)."""
-        if self._stepper is not None:
-            self._stepper.restart()
-        elif self._solve is not None:
-            adaptive_stepping.restart(self._solve)
-
     def _command_changed(self) -> None:
         """A discontinuity of the right-hand side: adaptive solvers restart here, and a resting
         rod that the new command pulls off its stop is freed at this very instant (the steppers
@@ -367,30 +344,6 @@ class Simulation(ArmCommands, BaseCommands, ScipySteps):
             self._release()
             if self.stops.failed[0]:
                 self._contact_failed()
-
-    # --- the stops' kernels: the compiled stepper's where it runs the method -------------------
-    def _relock(self) -> None:
-        """The locks from the stops (the scene's locked DOFs, the resting rods)."""
-        if self._stepper is not None:
-            self._stepper.relock()
-        else:
-            relock(self.system.data, self.stops)
-
-    def _holding_margin(self) -> float:
-        """The least force a resting rod's stop pushes with now (N; +inf: none rests)."""
-        if self._stepper is not None:
-            return self._stepper.holding_margin(self.s)
-        scr = self._scratch
-        return holding_margin(self.system.data, self.s, self.resting, scr.stages[3], scr.forces)
-
-    def _release(self) -> None:
-        """Free, now, the resting rods their stops would have to pull."""
-        if self._stepper is not None:
-            self._stepper.release(self.s, False)
-            return
-        scr = self._scratch
-        release(self.system.data, self.stops, self.s, scr.impact, scr.stages[3], scr.forces,
-                False)
 
     # --- stepping ------------------------------------------------------------------------
     def advance_to(self, t_end: float) -> None:

@@ -19,6 +19,7 @@ import os
 import signal
 import sys
 import time
+import warnings
 from pathlib import Path
 
 from ..runtime import cli
@@ -185,8 +186,10 @@ def _connect(args):
             # through its future (a failed run is a row; a lost worker's chunk runs again or is
             # a failed row), and what a worker logs besides is transient (a heartbeat missed on
             # a loaded machine printed a 30-line traceback mid-sweep, and the sweep went on)
-            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                                   dashboard_address=None, silence_logs=logging.CRITICAL)
+            with warnings.catch_warnings():   # "Port 8787 is already in use": another
+                warnings.simplefilter("ignore")   # cluster's; ours serves no dashboard anyway
+                cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                                       dashboard_address=None, silence_logs=logging.CRITICAL)
             client = Client(cluster)
     from .runner import IgnoreInterrupts, WarmKernels
     try:

@@ -51,6 +51,8 @@ def leaves(obj, path: str, seen: dict, out: list) -> list:
         out.append((path, type(obj).__name__, len(obj)))
         for name, item in zip(names, obj, strict=True):
             leaves(item, f"{path}.{name}", seen, out)
+    elif not hasattr(obj, "__dict__"):   # a compiled core's object (its own arrays or the sim's)
+        out.append((path, type(obj).__name__))
     elif dataclasses.is_dataclass(obj):
         out.append((path, type(obj).__name__))
         for f in dataclasses.fields(obj):

@@ -75,16 +75,16 @@ void begin_step(Solve<S>& solve, F& f, double t, const S* s) {
   }
 }
 
-// The accepted step from the start `begin_step` set. NotFinite leaves the bad y₁ in
+// The accepted step from the start `begin_step` set, never past t_bound. NotFinite leaves the bad y₁ in
 // solve.work.end; Stalled (the step fell below 10 spacings of t) leaves no step in hand and the
 // step tried in solve.h_next.
 template <class S, class F>
-SolveStatus finish_step(Solve<S>& solve, F& f) {
+SolveStatus finish_step(Solve<S>& solve, F& f,
+                        double t_bound = std::numeric_limits<double>::infinity()) {
   const int n = f.size();
   StepWork<S>& work = solve.work;
   AcceptedStep step = accepted_step(solve.method, f, solve.start.data(), solve.t0, solve.h_next,
-                                    std::numeric_limits<double>::infinity(), solve.rtol,
-                                    solve.atol, work);
+                                    t_bound, solve.rtol, solve.atol, work);
   solve.evaluations += step.evaluations;
   solve.rejections += step.rejections;
   if (step.h < 0.0) {

@@ -124,7 +124,8 @@ inline Status take_step(Run& run, AdaptiveRun& a, const double* s, double* clock
   RunRhs f{run};
   begin_step(solve, f, clock[CLOCK_T0], s);
   clear_holding(run);
-  SolveStatus status = finish_step(solve, f);
+  // no step across an update of sampled controllers (their held efforts jump there)
+  SolveStatus status = finish_step(solve, f, next_update(run, clock[CLOCK_UPDATES]));
   if (status == SolveStatus::Stalled) return STALLED;
   clock[CLOCK_STEPS] += 1.0;
   a.event = NO_EVENT;
@@ -173,11 +174,10 @@ inline bool reach(Run& run, AdaptiveRun& a, double* s, double* clock, double t_e
   return inside_step(run, a, s, clock, t_end);
 }
 
-// Advance (t, s) to exactly t_end. DONE, or BUDGET after max_steps steps, LOG_FULL, NOT_FINITE,
-// STALLED, CRAWLING, CONTACT_FAILED.
-inline Status advance(Run& run, AdaptiveRun& a, double* s, double* clock, double t_end,
-                      long max_steps) {
-  sync_locks(run);
+// Advance (t, s) to exactly t_end with no update due before it. DONE, or BUDGET after max_steps
+// steps, LOG_FULL, NOT_FINITE, STALLED, CRAWLING, CONTACT_FAILED.
+inline Status advance_between_updates(Run& run, AdaptiveRun& a, double* s, double* clock,
+                                      double t_end, long max_steps) {
   const long room = run.stops.capacity / 2;
   long taken = 0;
   while (!reach(run, a, s, clock, t_end)) {
@@ -189,6 +189,19 @@ inline Status advance(Run& run, AdaptiveRun& a, double* s, double* clock, double
     ++taken;
   }
   return DONE;
+}
+
+// Advance (t, s) to exactly t_end, the sampled controllers updated on the way (the steps end
+// there and the solve restarts there).
+inline Status advance(Run& run, AdaptiveRun& a, double* s, double* clock, double t_end,
+                      long max_steps) {
+  sync_locks(run);
+  return advance_with_updates(
+      run, s, clock, t_end, max_steps,
+      [&](double t_stop, long budget) {
+        return advance_between_updates(run, a, s, clock, t_stop, budget);
+      },
+      [&] { restart(a); });
 }
 
 // `advance` to each of times[first:], writing (s, T + V) into rows[i]; the budget counts steps

@@ -24,9 +24,11 @@ enum Holding { HOLDING_ON, HOLDING_LEAST_MARGIN };
 // control[...]: the wheel-speed PI loop
 enum Control { WHEEL_VELOCITY_MODE, WHEEL_KP, WHEEL_KI, WHEEL_LIMIT_R, WHEEL_LIMIT_L,
                WHEEL_TARGET_R, WHEEL_TARGET_L };
-// clock[...]: the time line k·dt from t0, steps taken, and the energy ledger of the impacts: the
-// law's losses, what holds removed beyond them, how many impacts were held
-enum ClockEntry { CLOCK_T0, CLOCK_DT, CLOCK_K, CLOCK_STEPS, CLOCK_LOST, CLOCK_HELD, CLOCK_HOLDS };
+// clock[...]: the time line k·dt from t0, steps taken, the energy ledger of the impacts (the law's
+// losses, what holds removed beyond them, how many impacts were held), and how many updates the
+// sampled controllers took (the next is due at CLOCK_UPDATES / rate)
+enum ClockEntry { CLOCK_T0, CLOCK_DT, CLOCK_K, CLOCK_STEPS, CLOCK_LOST, CLOCK_HELD, CLOCK_HOLDS,
+                  CLOCK_UPDATES, CLOCK_ENTRIES };
 // why a call returned (engine/status.py)
 enum Status { DONE = 0, BUDGET = 1, LOG_FULL = 2, NOT_FINITE = 3, CHATTER = 4, STALLED = 5,
               CRAWLING = 6, CONTACT_FAILED = 7 };
@@ -44,6 +46,9 @@ struct SystemArrays {
   const double* control = nullptr;  // (7) the wheel-speed loop (Control)
   std::int64_t* counters = nullptr;  // (5 or more) Counter
   double* holding = nullptr;     // (2) Holding
+  double rate = 0;               // Hz: the controllers' update rate; 0: continuous
+  double* held = nullptr;        // (n_u) the efforts sampled controllers hold between updates
+                                 // (the wheel-speed loop's τ_R, τ_L first)
 };
 
 // The end stops and their log.
@@ -166,6 +171,11 @@ inline void clear_holding(Run& run) {
   run.system.holding[HOLDING_LEAST_MARGIN] = std::numeric_limits<double>::infinity();
 }
 
+inline WheelLoop wheel_loop(const double* control) {
+  return WheelLoop{control[WHEEL_KP],      control[WHEEL_KI],      control[WHEEL_LIMIT_R],
+                   control[WHEEL_LIMIT_L], control[WHEEL_TARGET_R], control[WHEEL_TARGET_L]};
+}
+
 // ds/dt at s (system.hpp's `rates`), counting its stages; while a rod rests, every evaluation —
 // each stage of every step — samples the holding forces, so that a pull inside a step is noticed
 // where a stage saw it.
@@ -175,15 +185,19 @@ inline void derivative(Run& run, const double* s, double* ds) {
   const double* control = run.system.control;
   WheelLoop wheels;
   const WheelLoop* loop = nullptr;
+  const double* held = nullptr;
   if (control[WHEEL_VELOCITY_MODE] != 0.0) {
     counters[CONTROL_STAGE] += 1;
-    wheels = WheelLoop{control[WHEEL_KP], control[WHEEL_KI], control[WHEEL_LIMIT_R],
-                       control[WHEEL_LIMIT_L], control[WHEEL_TARGET_R], control[WHEEL_TARGET_L]};
-    loop = &wheels;
+    if (run.system.rate > 0.0) {
+      held = run.system.held;
+    } else {
+      wheels = wheel_loop(control);
+      loop = &wheels;
+    }
   }
   if (run.system.damping != nullptr) counters[DAMPING_STAGE] += 1;
   if (run.system.free[run.n_u() - 1] < 0) counters[REDUCED_SOLVE] += 1;
-  Effects<double> fx{run.system.gravity, run.system.Q_cmd, run.system.damping, loop};
+  Effects<double> fx{run.system.gravity, run.system.Q_cmd, run.system.damping, loop, held};
   rates(run.model, fx, s, ds, run.ws);
   if (run.system.holding[HOLDING_ON] != 0.0) {
     double margin = holding_margin_now(run);

@@ -317,6 +317,20 @@ void dense_eval(Adaptive method, int n, const std::vector<std::vector<S>>& dense
   }
 }
 
+// h, moved by ulps, so that t + h rounds to t_end exactly (t_end − t rounded may miss it by one;
+// a step that ended an ulp short of a bound would leave a step of 1e-18 s).
+inline double step_to(double t, double t_end, double h) {
+  for (int i = 0; i < 4; ++i) {
+    if (t + h < t_end)
+      h = std::nextafter(h, std::numeric_limits<double>::infinity());
+    else if (t + h > t_end)
+      h = std::nextafter(h, -std::numeric_limits<double>::infinity());
+    else
+      break;
+  }
+  return h;
+}
+
 // What `accepted_step` did: the step taken and the next to try (s), its right-hand sides and
 // rejected tries. h = −1 when the step fell below 10 spacings of t (the state unchanged; h_next
 // then holds the step that was tried, NaN after a stage overflowed).
@@ -344,7 +358,11 @@ AcceptedStep accepted_step(Adaptive method, F& f, const S* s, double t, double h
       result.h_next = h_abs;
       return result;
     }
-    double h = first_min(t + h_abs, t_bound) - t;
+    double t_new = first_min(t + h_abs, t_bound);
+    if (t + 1.01 * h_abs >= t_bound)  // (never with t_bound = inf)
+      t_new = t_bound;  // not a remainder under 1 % of a step left for a step of its own
+    double h = t_new - t;
+    if (t_new == t_bound) h = step_to(t, t_bound, h);  // cut at the bound: t + h is it exactly
     stages(method, f, s, h, work);
     result.evaluations += stage_calls;
     if (end_first) {

@@ -1,6 +1,7 @@
 // The fixed-step engine: advance a run to a target time (or through sample times) with every
-// step, crossing check, event location, impact, rest and release inside (engine/stepping.py is
-// the reference, operation for operation). The time line: t = t0 + k·dt with an integer step
+// step, crossing check, event location, impact, rest and release inside, and the updates of
+// sampled controllers (engine/stepping.py and engine/sampling.py are the reference, operation for
+// operation). The time line: t = t0 + k·dt with an integer step
 // count k (long runs land exactly on k·dt); a target off that grid ends in one shorter step,
 // after which the grid restarts there. A call returns after `max_steps` steps (BUDGET) so that
 // the caller can act on signals, and when the impact log needs emptying (LOG_FULL).
@@ -16,6 +17,66 @@ inline bool finite(const double* s, int n) {
   for (int i = 0; i < n; ++i)
     if (!std::isfinite(s[i])) return false;
   return true;
+}
+
+// --- sampled controllers (engine/sampling.py): the wheel-speed loop updated at the control rate,
+// its torques held between updates. An update is a discrete map at t_m = m / rate, outside the
+// right-hand side: τ_m = sat(law(s(t_m))) held until t_{m+1}, each integral advanced by one
+// forward-Euler step of its rate (control_toolbox's compute_command with conditional
+// integration), then, as at a command change, a resting rod the new efforts pull is released.
+// The steps end at every update (a step boundary, as a command change is).
+
+// The instant (s) of the next update after `updates` of them; +inf when continuous, or when no
+// controller drives (the wheels under torque commands): such a run is not cut at updates.
+inline double next_update(const Run& run, double updates) {
+  if (run.system.rate > 0.0 && run.velocity_mode()) return updates / run.system.rate;
+  return std::numeric_limits<double>::infinity();
+}
+
+// The update at the current instant: the wheel loop's torques into system.held, its integrals in
+// s advanced by one period of their rates; a resting rod pulled off its stop released. CONTACT_
+// FAILED when that release's contact solve failed, else DONE.
+inline Status apply_update(Run& run, double* s, double* clock) {
+  clock[CLOCK_UPDATES] += 1.0;
+  const double period = 1.0 / run.system.rate;
+  const int nq = run.n_q(), nu = run.n_u(), e = nq + nu;
+  for (int k = 0; k < nu; ++k) run.ws.Q[k] = run.system.Q_cmd[k];
+  if (run.velocity_mode()) {
+    const WheelLoop w = wheel_loop(run.system.control);
+    const double r = run.model.base.wheel_radius, b = run.model.base.half_track;
+    const double v = s[nq + V], om = s[nq + OMEGA];
+    double* held = run.system.held;
+    double rate_R, rate_L;
+    wheel_drive(w.kp, w.ki, w.target_R, (v + b * om) / r, s[e], w.limit_R, held[0], rate_R);
+    wheel_drive(w.kp, w.ki, w.target_L, (v - b * om) / r, s[e + 1], w.limit_L, held[1], rate_L);
+    s[e] += period * rate_R;
+    s[e + 1] += period * rate_L;
+    run.ws.Q[V] = (held[0] + held[1]) / r;
+    run.ws.Q[OMEGA] = b * (held[0] - held[1]) / r;
+  }
+  if (any_resting(run) && holding_margin(run, s, run.stage(3)) < 0.0) release(run, s, false);
+  return run.stops.failed[0] != 0 ? CONTACT_FAILED : DONE;
+}
+
+// `advance` (either engine's, `between` the updates) with the sampled controllers updated on the
+// way at each of their instants up to t_end, t_end included; `after_update` is what the engine
+// does once an update is applied (the adaptive solves restart).
+template <class Between, class AfterUpdate>
+inline Status advance_with_updates(Run& run, double* s, double* clock, double t_end,
+                                   long max_steps, Between&& between, AfterUpdate&& after_update) {
+  if (run.system.rate <= 0.0) return between(t_end, max_steps);
+  const double steps = clock[CLOCK_STEPS];
+  while (true) {
+    double t_update = next_update(run, clock[CLOCK_UPDATES]);
+    bool due = t_update <= t_end;
+    Status status = between(t_update < t_end ? t_update : t_end,
+                            max_steps - long(clock[CLOCK_STEPS] - steps));
+    if (status == DONE && due) {
+      status = apply_update(run, s, clock);
+      after_update();
+    }
+    if (status != DONE || !due) return status;
+  }
 }
 
 inline void book(double* clock, const ImpactEnergies& e) {
@@ -96,11 +157,11 @@ inline Status grid_step(Run& run, Method method, double* s, double* clock, bool&
   return DONE;
 }
 
-// Advance s to exactly t_end. DONE, or BUDGET after max_steps steps, LOG_FULL when the impact
-// log needs emptying, NOT_FINITE (s then holds the last finite state), CHATTER, CONTACT_FAILED.
-inline Status advance(Run& run, Method method, double* s, double* clock, double t_end,
-                      long max_steps) {
-  sync_locks(run);
+// Advance s to exactly t_end with no update due before it. DONE, or BUDGET after max_steps
+// steps, LOG_FULL when the impact log needs emptying, NOT_FINITE (s then holds the last finite
+// state), CHATTER, CONTACT_FAILED.
+inline Status advance_between_updates(Run& run, Method method, double* s, double* clock,
+                                      double t_end, long max_steps) {
   const double dt = clock[CLOCK_DT];
   const double steps = (t_end - clock[CLOCK_T0]) / dt;
   const double whole = std::floor(steps + 1e-9);
@@ -126,6 +187,18 @@ inline Status advance(Run& run, Method method, double* s, double* clock, double 
     clock[CLOCK_K] = 0.0;
   }
   return DONE;
+}
+
+// Advance s to exactly t_end, the sampled controllers updated on the way (a step ends there).
+inline Status advance(Run& run, Method method, double* s, double* clock, double t_end,
+                      long max_steps) {
+  sync_locks(run);
+  return advance_with_updates(
+      run, s, clock, t_end, max_steps,
+      [&](double t_stop, long budget) {
+        return advance_between_updates(run, method, s, clock, t_stop, budget);
+      },
+      [] {});
 }
 
 struct Sampled {

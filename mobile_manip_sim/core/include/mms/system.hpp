@@ -38,6 +38,8 @@ struct Effects {
                                  // `wheels` drives them)
   const double* damping = nullptr;  // (n_u) viscous coefficients on u, or nullptr: no damping
   const WheelLoop* wheels = nullptr;  // the wheel-speed loop, or nullptr: wheel efforts
+  const double* held_wheels = nullptr;  // (τ_R, τ_L) N·m: a sampled wheel-speed loop's torques,
+                                        // held since its last update (`wheels` then nullptr)
 };
 
 // One wheel's PI loop (WheelLoop): its torque and its integral's rate.
@@ -86,6 +88,11 @@ void rates(const Model& model, const Effects<S>& fx, const S* s, S* ds, SystemWo
                 ds[e + 1]);
     ws.Q[V] = (tau_R + tau_L) / r;
     ws.Q[OMEGA] = b * (tau_R - tau_L) / r;
+  } else if (fx.held_wheels != nullptr) {  // sampled: the last update's torques (ė = 0)
+    double r = model.base.wheel_radius, b = model.base.half_track;
+    double tau_R = fx.held_wheels[0], tau_L = fx.held_wheels[1];
+    ws.Q[V] = S((tau_R + tau_L) / r);
+    ws.Q[OMEGA] = S(b * (tau_R - tau_L) / r);
   }
   S power = S(0.0);
   for (int k = 0; k < nu; ++k) power += ws.Q[k] * u[k];
