@@ -206,7 +206,8 @@ def main(argv=None) -> int:
     parser.add_argument("--out", default=str(HERE / "NODE.md"), help="markdown file to write")
     args = parser.parse_args(argv)
 
-    env = interfaces_build.environment(interfaces_build.build(), ros_harness.child_env(DOMAIN_ID))
+    interfaces_build.installed()   # tf2_msgs, for /tf: tools/bootstrap.sh builds it into the venv
+    env = ros_harness.child_env(DOMAIN_ID)
     # Both integrators' kernels compiled (or loaded) here, so that no node compiles one while
     # it is being measured.
     ros_harness.warm_kernels(("rk4", 0.001), (None, None))

@@ -50,7 +50,7 @@ def resimulate(bag) -> str:
 
 def test_a_follow_joint_trajectory_client_gets_jtcs_answers_and_the_run_resimulates(
         interfaces_prefix, tmp_path):
-    env = interfaces_build.environment(interfaces_prefix, child_env(DOMAIN_ID))
+    env = child_env(DOMAIN_ID)
     bag = tmp_path / "trajectory_run"
     node = start(tmp_path, env, "-p", "arm_controller:=joint_trajectory", "-p", f"record:={bag}")
     try:
@@ -230,8 +230,8 @@ def test_without_control_msgs_the_topic_works_and_the_node_says_so_once(probe, t
     from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
     publisher = probe.node.create_publisher(JointTrajectory,
                                             "/joint_trajectory_controller/joint_trajectory", 10)
-    node = start(tmp_path, child_env(DOMAIN_ID), "-p", "arm_controller:=joint_trajectory",
-                 "-r", "__node:=topic_sim", probe=probe)
+    node = start(tmp_path, interfaces_build.without(child_env(DOMAIN_ID)),
+                 "-p", "arm_controller:=joint_trajectory", "-r", "__node:=topic_sim", probe=probe)
     target = [0.2, 0.6, -0.3, 0.4]
     try:
         wait_for(lambda: publisher.get_subscription_count() > 0, "the trajectory subscription")

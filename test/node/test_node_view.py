@@ -56,7 +56,8 @@ RELIABLE = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
 
 @pytest.fixture(scope="module")
 def tf2_env():
-    return interfaces_build.environment(interfaces_build.build(), child_env(DOMAIN_ID))
+    interfaces_build.installed()
+    return child_env(DOMAIN_ID)
 
 
 class Probe:
