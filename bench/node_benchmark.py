@@ -17,7 +17,7 @@ command timeout off). This process subscribes to /clock and measures:
   Foxglove client (test/helpers/foxglove_client.js under Node.js) subscribed to every channel,
   against the same node without the server, in alternating phases of the same run (CPU time).
 The node publishes what it publishes by default: the whole tree on /tf and /tf_static (with
-tf2_msgs built by test/helpers/interfaces_build.py), /imu, /robot_description.
+tf2_msgs as tools/bootstrap.sh builds it into the venv), /imu, /robot_description.
 Prints a markdown table and writes it to --out.
 """
 from __future__ import annotations

@@ -4,8 +4,8 @@
 (control_msgs/msg/JointTrajectoryControllerState). The goals' logic is ROS-free
 (trajectory_goals.py); here only messages in and out.
 
-Without control_msgs (PyPI has no wheel: tools/build_interfaces.sh builds it) the topic still
-works, the action and the state are off, and the node says so in one line.
+Without control_msgs (PyPI has no wheel: tools/bootstrap.sh builds it into .venv) the topic
+still works, the action and the state are off, and the node says so in one line.
 
 Threads: a goal's execute callback (an executor thread) submits it and waits for its outcome;
 the stepping thread applies goals at segment starts (`segment_start`), publishes the feedback
@@ -247,6 +247,6 @@ class TrajectoryInterface:
         """After __init__'s log lines: say once when the action is off."""
         if not self.available:
             self._info("arm_controller joint_trajectory: control_msgs does not import (source a "
-                       "ROS install, or build it with tools/build_interfaces.sh); no "
+                       "ROS install, or run tools/bootstrap.sh, which builds it into .venv); no "
                        "follow_joint_trajectory action or controller_state, the "
                        "joint_trajectory topic works")

@@ -1,6 +1,6 @@
 """/tf and /tf_static payloads (`cdr.tf_message_cdr`, encoded without tf2_msgs) are what rclpy
-serialises where tf2_msgs is installed (built by tools/build_interfaces.sh), byte for byte, and
-decode with rosbags and mcap_ros2 from the bundled definition; the bundled type hash is
+serialises where tf2_msgs is installed (built into the venv by tools/bootstrap.sh), byte for
+byte, and decode with rosbags and mcap_ros2 from the bundled definition; the bundled type hash is
 rosidl's and rosbags'."""
 import json
 import subprocess
