@@ -27,6 +27,7 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import Trigger
+from tf2_msgs.msg import TFMessage
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from bag_rewrite import rewrite_bag
@@ -130,7 +131,7 @@ class Probe:
     """Receives every topic a bag holds (decoded, with its wall arrival time) and publishes
     effort commands."""
 
-    TYPES = {"/joint_states": JointState, "/odom": Odometry, "/clock": Clock,
+    TYPES = {"/joint_states": JointState, "/odom": Odometry, "/clock": Clock, "/tf": TFMessage,
              WHEELS: Float64MultiArray, ARM: Float64MultiArray}
 
     def __init__(self, context: Context):
@@ -534,8 +535,9 @@ def test_replay_publishes_the_recorded_messages_in_order_at_the_recorded_rate(pr
         assert probe.messages(topic) == [m for _, m in expected], topic
     # The pacing itself (from the offset, at the rate, never early) is checked on a fake clock
     # in test_replay.py: arrival times here would race with the machine's load.
-    # … and /robot_description, latched, played first (its t = 0 message, before the start)
-    assert f"played {sum(len(v) for v in recorded.values()) + 1} messages" in result.stdout
+    # … and /robot_description and /tf_static, latched, played first (their t = 0 messages,
+    # before the start)
+    assert f"played {sum(len(v) for v in recorded.values()) + 2} messages" in result.stdout
     # The time printed is the playing's: at least the bag's span at that rate (paced, never
     # early), and it leaves out the wait for subscribers and the final acknowledgements.
     played_in = float(re.search(r" in ([\d.]+) s \(rate", result.stdout)[1])
