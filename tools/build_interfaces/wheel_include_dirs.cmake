@@ -2,7 +2,7 @@
 # Python and NumPy include folders of the machine the wheels were built on
 # (/opt/python/cp311-cp311/include/python3.11, that machine's numpy/_core/include), and CMake
 # refuses a target whose include folders do not exist. Included after each package's project()
-# (CMAKE_PROJECT_INCLUDE), this points those two at this interpreter's and this NumPy's include
+# (each_package.cmake), this points those two at this interpreter's and this NumPy's include
 # folders once the package's directory is processed, every find_package done: the wheels' own
 # files are left as they are.
 function(_use_this_pythons_include_dirs)
