@@ -17,7 +17,7 @@ command timeout off). This process subscribes to /clock and measures:
   Foxglove client (test/helpers/foxglove_client.js under Node.js) subscribed to every channel,
   against the same node without the server, in alternating phases of the same run (CPU time).
 The node publishes what it publishes by default: the whole tree on /tf and /tf_static (with
-tf2_msgs built by test/helpers/interfaces_build.py), /imu, /robot_description.
+tf2_msgs as tools/bootstrap.sh builds it into the venv), /imu, /robot_description.
 Prints a markdown table and writes it to --out.
 """
 from __future__ import annotations
@@ -206,7 +206,8 @@ def main(argv=None) -> int:
     parser.add_argument("--out", default=str(HERE / "NODE.md"), help="markdown file to write")
     args = parser.parse_args(argv)
 
-    env = interfaces_build.environment(interfaces_build.build(), ros_harness.child_env(DOMAIN_ID))
+    interfaces_build.installed()   # tf2_msgs, for /tf: tools/bootstrap.sh builds it into the venv
+    env = ros_harness.child_env(DOMAIN_ID)
     # Both integrators' kernels compiled (or loaded) here, so that no node compiles one while
     # it is being measured.
     ros_harness.warm_kernels(("rk4", 0.001), (None, None))

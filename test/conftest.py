@@ -37,7 +37,7 @@ def warm_kernels():
 
 @pytest.fixture(scope="session")
 def interfaces_prefix():
-    """tf2_msgs and control_msgs, built once (cached across sessions by their definitions'
-    hash: interfaces_build.py); the install prefix."""
+    """tf2_msgs and control_msgs, built into the venv by tools/bootstrap.sh: checked to import
+    in a fresh process (interfaces_build.py); the venv's prefix, where they are installed."""
     import interfaces_build
-    return interfaces_build.build()
+    return interfaces_build.installed()

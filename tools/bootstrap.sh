@@ -5,24 +5,9 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-# talking WHAT COMMAND...: run COMMAND, saying "still WHAT" every 10 s while it runs
-# (`pip install --quiet` prints nothing for minutes). Ctrl-C stops it too.
-talking() {
-  local what=$1 waited=0 pid
-  shift
-  "$@" &
-  pid=$!
-  trap 'kill "$pid" 2>/dev/null; exit 130' INT TERM
-  while kill -0 "$pid" 2>/dev/null; do
-    sleep 1
-    waited=$((waited + 1))
-    if ((waited % 10 == 0)) && kill -0 "$pid" 2>/dev/null; then
-      echo "bootstrap: still $what ($waited s)"
-    fi
-  done
-  trap - INT TERM
-  wait "$pid"
-}
+# talking WHAT COMMAND...: a line every 10 s while COMMAND is silent (tools/talking.sh)
+. tools/talking.sh
+TALKING_AS=bootstrap
 
 if [ ! -x .venv/bin/python ]; then
   echo "bootstrap: creating .venv"
@@ -34,8 +19,24 @@ echo "bootstrap: installing the package and its test dependencies, and building 
 # --no-compile: no byte-compiling of every installed module up front (tens of seconds); Python
 # writes the .pyc of what it imports on first use.
 talking "installing" .venv/bin/python -m pip install --quiet --no-compile -e '.[test]'
+# tf2_msgs (/tf) and control_msgs (the arm's trajectory action) have no PyPI wheels: built from
+# the definitions in tools/interfaces/ into .venv, beside the ROS 2 wheels (nothing to source).
+# A second run finds them built and says so. If the build fails, the set-up goes on: the node
+# runs without /tf and the trajectory action, and says so when it starts.
+echo "bootstrap: building tf2_msgs and control_msgs into .venv (PyPI has no wheels of them)"
+interfaces=built
+bash tools/build_interfaces.sh .venv tf2_msgs control_msgs || {
+  status=$?
+  if ((status > 128)); then exit "$status"; fi   # stopped (Ctrl-C), not failed
+  interfaces=failed
+}
 # Compile every numba kernel now, so that no run — the node above all — compiles at run time;
 # the warm-up says how long it takes and names each kernel as it starts.
 echo "bootstrap: compiling the numba kernels"
 .venv/bin/python -m mobile_manip_sim.programs.warmup
-echo "bootstrap: done"
+if [ "$interfaces" = built ]; then
+  echo "bootstrap: done"
+else
+  echo "bootstrap: done, without tf2_msgs and control_msgs (their build failed: the lines above" \
+    "say where): the node runs without /tf and the trajectory action"
+fi

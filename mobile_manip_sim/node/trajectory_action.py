@@ -4,8 +4,8 @@
 (control_msgs/msg/JointTrajectoryControllerState). The goals' logic is ROS-free
 (trajectory_goals.py); here only messages in and out.
 
-Without control_msgs (PyPI has no wheel: tools/build_interfaces.sh builds it) the topic still
-works, the action and the state are off, and the node says so in one line.
+Without control_msgs (PyPI has no wheel: tools/bootstrap.sh builds it into .venv) the topic
+still works, the action and the state are off, and the node says so in one line.
 
 Threads: a goal's execute callback (an executor thread) submits it and waits for its outcome;
 the stepping thread applies goals at segment starts (`segment_start`), publishes the feedback
@@ -38,6 +38,7 @@ from ..ros.topics import (
 from ..ros.trajectory_goals import Codes, Goal, JointTolerance, Point, TrajectoryGoals, errors
 from ..ros.trajectory_wire import arrays, read_trajectory
 from ..runtime.timeline import NS
+from ..scene.coordinates import ARM_Q, ARM_U
 
 WAIT_POLL = 0.5   # s: an execute callback checks this often that the node still runs
 MAX_GOALS = 2     # action goals accepted and not yet answered (the active one and its successor)
@@ -204,7 +205,7 @@ class TrajectoryInterface:
     def segment_start(self, sim, now_ns: int, apply):
         """At a segment start: the goals' step (trajectory_goals.Step), feedback and state
         published; ``apply(trajectory)`` puts a trajectory into the engine."""
-        q, u = sim.q[-len(self.names):], sim.u[-len(self.names):]
+        q, u = sim.q[ARM_Q], sim.u[ARM_U]   # (not q[-n:]: an armless robot has n = 0)
         desired = sim.arm_reference()
         step = self.goals.segment_start(now_ns, desired, (q.copy(), u.copy()), apply)
         if step.feedback is not None and step.feedback[0].handle is not None and self.available:
@@ -247,6 +248,6 @@ class TrajectoryInterface:
         """After __init__'s log lines: say once when the action is off."""
         if not self.available:
             self._info("arm_controller joint_trajectory: control_msgs does not import (source a "
-                       "ROS install, or build it with tools/build_interfaces.sh); no "
+                       "ROS install, or run tools/bootstrap.sh, which builds it into .venv); no "
                        "follow_joint_trajectory action or controller_state, the "
                        "joint_trajectory topic works")

@@ -6,8 +6,8 @@ publication (stepping thread, outside the loop's lock) and `publish` puts them o
   (both wheels, every arm revolute and prismatic child) at each publication, stamped with its
   simulated time, from `frames.FrameTree`, the one owner of the frames; ``base`` — odom_frame →
   base_frame only (for users who run robot_state_publisher on /robot_description and
-  /joint_states); ``none`` — no /tf. Both need tf2_msgs (a ROS install, or
-  tools/build_interfaces.sh): without it the node says so once and runs on.
+  /joint_states); ``none`` — no /tf. Both need tf2_msgs (a ROS install's, or the one
+  tools/bootstrap.sh builds into .venv): without it the node says so once and runs on.
 - /tf and /tf_static are ABSOLUTE names, as tf2_ros (robot_state_publisher) publishes them:
   robots in namespaces share one tree, their frames kept apart by ``frame_prefix``.
 - /tf_static (``all`` only): ONE message holding every fixed joint, transient local, depth 1,
@@ -79,8 +79,8 @@ class NodeView:
                 from tf2_msgs.msg import TFMessage
             except ImportError:
                 self.warnings.append("publish_tf: tf2_msgs does not import (source a ROS "
-                                     "install, or build it with tools/build_interfaces.sh); "
-                                     "no /tf")
+                                     "install, or run tools/bootstrap.sh, which builds it into "
+                                     ".venv); no /tf")
             else:
                 # Absolute, as tf2_ros publishes them: namespaced robots share one tree
                 # (frame_prefix keeps their frames apart); -r /tf:=tf keeps it in the namespace.

@@ -187,7 +187,7 @@ def _problem(topic: str, type_name: str) -> str | None:
     try:
         message_class(type_name)
     except UserError as error:
-        hint = " (build it with tools/build_interfaces.sh, or source a ROS install)" \
+        hint = " (tools/bootstrap.sh builds it into .venv, or source a ROS install)" \
             if type_name == TF_TYPE else ""
         return f"{error.key}: {error.problem}{hint}"
     return None

@@ -172,8 +172,7 @@ def test_every_page_with_examples_has_one_that_runs():
     for page in PAGES:
         found = [b for b in blocks(page) if b.language in RUN]
         runnable = [b for b in found if not b.marker]
-        # interfaces.md's one example downloads and builds (test_interfaces_build.py runs it)
-        if found and page.name != "interfaces.md":
+        if found:
             assert runnable, f"{page.name}: no block runs"
     assert [page.name for page in PAGES if page.name != "index.md"
             and any(b.language in RUN for b in blocks(page))]

@@ -1,10 +1,10 @@
-"""What a tf listener sees of the node, for test_node_view.py (run in a process that imports
-tf2_msgs: interfaces_build.environment). Subscribes to /tf, /tf_static (transient local, as
-tf2_ros does), NAMESPACE/robot_description (transient local), NAMESPACE/joint_states and
-NAMESPACE/odom, collects until /tf brought COUNT messages (or STATIC latched /tf_static messages
-when COUNT is 0) — COUNT from each publisher of a frame prefix in PREFIXES (comma-separated; a
-listener that heard one publisher first could otherwise fill its count before it heard the
-other) — then prints one JSON document:
+"""What a tf listener sees of the node, for test_node_view.py (run by the venv's Python, which
+imports tf2_msgs: tools/bootstrap.sh builds it into the venv). Subscribes to /tf, /tf_static
+(transient local, as tf2_ros does), NAMESPACE/robot_description (transient local),
+NAMESPACE/joint_states and NAMESPACE/odom, collects until /tf brought COUNT messages (or STATIC
+latched /tf_static messages when COUNT is 0) — COUNT from each publisher of a frame prefix in
+PREFIXES (comma-separated; a listener that heard one publisher first could otherwise fill its count
+before it heard the other) — then prints one JSON document:
 
     view_listener.py COUNT [NAMESPACE] [STATIC] [PREFIXES]
 

@@ -50,7 +50,7 @@ def resimulate(bag) -> str:
 
 def test_a_follow_joint_trajectory_client_gets_jtcs_answers_and_the_run_resimulates(
         interfaces_prefix, tmp_path):
-    env = interfaces_build.environment(interfaces_prefix, child_env(DOMAIN_ID))
+    env = child_env(DOMAIN_ID)
     bag = tmp_path / "trajectory_run"
     node = start(tmp_path, env, "-p", "arm_controller:=joint_trajectory", "-p", f"record:={bag}")
     try:
@@ -226,12 +226,41 @@ def test_the_default_node_holds_the_initial_pose_and_compiles_nothing_after_star
     assert "compiled " not in output and "compiling" not in output, output
 
 
+def test_an_armless_robot_runs_under_the_trajectory_controller_with_control_msgs(
+        interfaces_prefix, probe, tmp_path):
+    """A robot without an arm, arm_controller joint_trajectory (the default), control_msgs
+    installed: the base steps on, and the controller's state names no joint (the arm's slice
+    taken as q[-n:] was the whole q for n = 0: the simulation paused at t = 0)."""
+    import yaml
+    from control_msgs.msg import JointTrajectoryControllerState
+
+    from engine_cases import base_only_doc
+    states = []
+    subscription = probe.node.create_subscription(
+        JointTrajectoryControllerState, "/joint_trajectory_controller/controller_state",
+        states.append, 10)
+    path = tmp_path / "base.yaml"
+    path.write_text(yaml.safe_dump(base_only_doc()))
+    node = start(tmp_path, child_env(DOMAIN_ID), "-p", f"scene:={path}", "-r",
+                 "__node:=armless_sim", probe=probe)
+    try:
+        first = wait_for(lambda: probe.snapshot("joints"), "a joint state")[0]
+        wait_for(lambda: probe.snapshot("joints")[-1][0] >= first[0] + 2 * 10 ** 8,
+                 "0.2 s of states")
+        wait_for(lambda: states, "a controller state")
+    finally:
+        probe.node.destroy_subscription(subscription)
+        assert node.stop() == 0, node.output()
+    assert "simulation failed" not in node.output(), node.output()
+    assert list(states[0].joint_names) == [] and list(states[0].feedback.positions) == []
+
+
 def test_without_control_msgs_the_topic_works_and_the_node_says_so_once(probe, tmp_path):
     from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
     publisher = probe.node.create_publisher(JointTrajectory,
                                             "/joint_trajectory_controller/joint_trajectory", 10)
-    node = start(tmp_path, child_env(DOMAIN_ID), "-p", "arm_controller:=joint_trajectory",
-                 "-r", "__node:=topic_sim", probe=probe)
+    node = start(tmp_path, interfaces_build.without(child_env(DOMAIN_ID)),
+                 "-p", "arm_controller:=joint_trajectory", "-r", "__node:=topic_sim", probe=probe)
     target = [0.2, 0.6, -0.3, 0.4]
     try:
         wait_for(lambda: publisher.get_subscription_count() > 0, "the trajectory subscription")

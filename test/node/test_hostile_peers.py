@@ -25,7 +25,6 @@ from sensor_msgs.msg import JointState
 from std_srvs.srv import SetBool
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
-import interfaces_build
 from executables import executable
 from raw_websocket import RawClient, stalled
 from ros_harness import NodeProcess, child_env, on_domain, private_domain, spinning, wait_for
@@ -66,7 +65,7 @@ def started(tmp_path, *args, env=None) -> NodeProcess:
 @pytest.fixture
 def action_env(interfaces_prefix):
     """A node's and a client's environment with control_msgs (FollowJointTrajectory)."""
-    return interfaces_build.environment(interfaces_prefix, child_env(DOMAIN_ID))
+    return child_env(DOMAIN_ID)
 
 
 def stalled_client(port: int, feed=lambda: None) -> RawClient:

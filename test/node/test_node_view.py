@@ -1,6 +1,6 @@
 """What the node shows (node/view.py), as users see it: the `simulator` executable in its
-own process, tf listeners in processes of their own that import tf2_msgs (built once by
-interfaces_build.py), a probe node in this process, real DDS on a private domain.
+own process, tf listeners in processes of their own that import tf2_msgs (built into the venv by
+tools/bootstrap.sh), a probe node in this process, real DDS on a private domain.
 
 - every link frame composed from /tf and /tf_static equals Pinocchio's forward kinematics on the
   node's own /robot_description at the published joint positions (paper robot, random 5-link arm);
@@ -56,7 +56,8 @@ RELIABLE = QoSProfile(depth=1000, reliability=ReliabilityPolicy.RELIABLE)
 
 @pytest.fixture(scope="module")
 def tf2_env():
-    return interfaces_build.environment(interfaces_build.build(), child_env(DOMAIN_ID))
+    interfaces_build.installed()
+    return child_env(DOMAIN_ID)
 
 
 class Probe:

@@ -27,6 +27,7 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Float64MultiArray, String
 from std_srvs.srv import Trigger
+from tf2_msgs.msg import TFMessage
 from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
 
 from bag_rewrite import rewrite_bag
@@ -130,7 +131,7 @@ class Probe:
     """Receives every topic a bag holds (decoded, with its wall arrival time) and publishes
     effort commands."""
 
-    TYPES = {"/joint_states": JointState, "/odom": Odometry, "/clock": Clock,
+    TYPES = {"/joint_states": JointState, "/odom": Odometry, "/clock": Clock, "/tf": TFMessage,
              WHEELS: Float64MultiArray, ARM: Float64MultiArray}
 
     def __init__(self, context: Context):
@@ -534,8 +535,9 @@ def test_replay_publishes_the_recorded_messages_in_order_at_the_recorded_rate(pr
         assert probe.messages(topic) == [m for _, m in expected], topic
     # The pacing itself (from the offset, at the rate, never early) is checked on a fake clock
     # in test_replay.py: arrival times here would race with the machine's load.
-    # … and /robot_description, latched, played first (its t = 0 message, before the start)
-    assert f"played {sum(len(v) for v in recorded.values()) + 1} messages" in result.stdout
+    # … and /robot_description and /tf_static, latched, played first (their t = 0 messages,
+    # before the start)
+    assert f"played {sum(len(v) for v in recorded.values()) + 2} messages" in result.stdout
     # The time printed is the playing's: at least the bag's span at that rate (paced, never
     # early), and it leaves out the wait for subscribers and the final acknowledgements.
     played_in = float(re.search(r" in ([\d.]+) s \(rate", result.stdout)[1])
@@ -699,10 +701,7 @@ def rclpy_type_hashes() -> dict:
         hashes = {}
         for index, type_name in enumerate(sorted(set(TOPIC_TYPES.values()))):
             package, _, name = type_name.partition("/msg/")
-            try:
-                kind = getattr(importlib.import_module(f"{package}.msg"), name)
-            except ImportError:   # tf2_msgs: no PyPI wheel (test_tf_messages builds it)
-                continue
+            kind = getattr(importlib.import_module(f"{package}.msg"), name)
             node.create_publisher(kind, f"/type_hash_{index}", 1)
             info = node.get_publishers_info_by_topic(f"/type_hash_{index}")
             hashes[type_name] = str(info[0].topic_type_hash)
@@ -712,7 +711,7 @@ def rclpy_type_hashes() -> dict:
     return hashes
 
 
-def test_a_node_bag_carries_rclpys_type_hashes(node_run):
+def test_a_node_bag_carries_rclpys_type_hashes(node_run, interfaces_prefix):
     """RIHS01 hashes in metadata.yaml and in each channel's metadata, as Jazzy's `ros2 bag
     record` writes them: equal to what rclpy reports for each type (and to rosbags' own)."""
     bag, _, _ = node_run
@@ -720,8 +719,7 @@ def test_a_node_bag_carries_rclpys_type_hashes(node_run):
     typestore = get_typestore(Stores.ROS2_JAZZY)
     assert all(re.fullmatch(r"RIHS01_[0-9a-f]{64}", h) for h in expected.values()), expected
     assert all(typestore.hash_rihs01(name) == h for name, h in expected.items())
-    assert set(TOPIC_TYPES.values()) - set(expected) == {"tf2_msgs/msg/TFMessage"}
-    expected["tf2_msgs/msg/TFMessage"] = typestore.hash_rihs01("tf2_msgs/msg/TFMessage")
+    assert set(expected) == set(TOPIC_TYPES.values())   # tf2_msgs too: built into the venv
     info = yaml.safe_load((bag / "metadata.yaml").read_text())["rosbag2_bagfile_information"]
     topics = [entry["topic_metadata"] for entry in info["topics_with_message_count"]]
     assert {t["name"] for t in topics} == set(TOPIC_TYPES)

@@ -1,6 +1,6 @@
 """/tf and /tf_static payloads (`cdr.tf_message_cdr`, encoded without tf2_msgs) are what rclpy
-serialises where tf2_msgs is installed (built by tools/build_interfaces.sh), byte for byte, and
-decode with rosbags and mcap_ros2 from the bundled definition; the bundled type hash is
+serialises where tf2_msgs is installed (built into the venv by tools/bootstrap.sh), byte for
+byte, and decode with rosbags and mcap_ros2 from the bundled definition; the bundled type hash is
 rosidl's and rosbags'."""
 import json
 import subprocess
@@ -12,7 +12,6 @@ from mcap.records import Schema
 from mcap_ros2.decoder import DecoderFactory
 from rosbags.typesys import Stores, get_typestore
 
-import interfaces_build
 from mobile_manip_sim.ros.cdr import TF_MESSAGE_TYPE, tf_message_cdr
 from mobile_manip_sim.ros.frames import FrameTree
 from mobile_manip_sim.ros.message_definitions import BUNDLED, definition_text, type_hash
@@ -60,9 +59,8 @@ print(json.dumps(out))
 
 
 def test_payloads_equal_rclpys_serialisation_with_tf2_msgs(interfaces_prefix):
-    env = interfaces_build.environment(interfaces_prefix, dict(__import__("os").environ))
     cases = payloads()
-    result = subprocess.run([sys.executable, "-c", RCLPY_SERIALISE], env=env, text=True,
+    result = subprocess.run([sys.executable, "-c", RCLPY_SERIALISE], text=True,
                             input=json.dumps([(n, s, as_dicts(t)) for n, s, t in cases]),
                             capture_output=True, timeout=120)
     assert result.returncode == 0, result.stderr

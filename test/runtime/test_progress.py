@@ -269,16 +269,18 @@ def test_the_warm_up_says_how_long_it_takes_and_names_each_kernel_first():
 
 
 def test_bootstrap_says_still_while_a_silent_command_runs():
-    """tools/bootstrap.sh's `talking` (the script itself is not run here: it would reinstall the
-    venv): a line every 10 s while the command is silent, and the command's status kept."""
-    script = Path(__file__).resolve().parents[2] / "tools" / "bootstrap.sh"
-    text = script.read_text()
-    function = text[text.index("talking() {"):text.index("\n}\n", text.index("talking() {")) + 3]
-    command = f'{function}\ntalking "waiting" bash -c "sleep 11; exit 3"'
+    """tools/talking.sh's `talking`, as tools/bootstrap.sh uses it (bootstrap itself is not run
+    here: it would reinstall the venv): a line every 10 s while the command is silent, and the
+    command's status kept."""
+    tools = Path(__file__).resolve().parents[2] / "tools"
+    command = f'. {tools / "talking.sh"}; TALKING_AS=bootstrap\n' \
+              f'talking "waiting" bash -c "sleep 11; exit 3"'
     result = subprocess.run(["bash", "-c", command], capture_output=True, text=True,
                             timeout=SAFETY)
     assert result.returncode == 3 and result.stdout == "bootstrap: still waiting (10 s)\n"
-    for phase in ("upgrading pip", "installing the package", "compiling the numba kernels"):
+    text = (tools / "bootstrap.sh").read_text()
+    for phase in ("upgrading pip", "installing the package", "building tf2_msgs and control_msgs",
+                  "compiling the numba kernels"):
         assert f'echo "bootstrap: {phase}' in text   # a line before each phase
 
 
