@@ -422,7 +422,9 @@ def test_every_goal_is_answered_and_a_stop_while_one_runs_is_clean(action_env, t
         failed = answers["failed_segment"]
         assert failed["status"] == 6 and failed["reset"], failed
         assert failed["text"].startswith("simulation failed in the segment after t = "), failed
-        assert failed["text"] in node.output()
+        # the node logs the line as it answers: the answer may reach the client first
+        wait_for(lambda: failed["text"] in node.output(), "the failure's line in the node's log",
+                 TIMEOUT)
         stop_while_a_goal_runs(node, signal.SIGINT, action_env)
     finally:
         node.stop()
