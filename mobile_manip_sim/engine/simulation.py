@@ -23,16 +23,17 @@ import numpy as np
 from ..dynamics import Dynamics
 from ..dynamics.jit import Bound
 from ..scene.arm_controller import ArmController
+from ..scene.controller import control_rate as control_rate_of
 from ..scene.controller import outside_stroke
 from ..scene.coordinates import ARM_Q, ARM_U, OMEGA, V, arm_width
 from ..scene.effects import settings as effect_settings
 from ..scene.errors import SimulationError as SimulationError
 from ..scene.errors import StepLimitError as StepLimitError
 from ..scene.errors import UserError
-from ..scene.limits import ANGLE, SPEED
+from ..scene.limits import ANGLE, CONTROL_RATE, SPEED
 from ..scene.loading import IntegratorSettings, Scene
 from ..scene.methods import COMPILED_STEPPERS, IDS, METHODS
-from . import adaptive_stepping, dense, layout, linearization, step_watch, stepping
+from . import adaptive_stepping, dense, layout, linearization, sampling, step_watch, stepping
 from . import status as status_codes
 from .arm_commands import ArmCommands
 from .arm_control import arm_settings, feedforward_masses, for_robot, scene_arm_controller
@@ -57,15 +58,29 @@ ELASTIC_SEMI_IMPLICIT = ("semi_implicit_euler with end stops that rebound (resti
 DEFAULT_WHEEL_SPEED_GAINS = (2.0, 20.0)
 
 
+def checked_control_rate(rate) -> float:
+    """The controllers' update rate (Hz), checked: a UserError naming controller.rate."""
+    try:
+        rate = float(rate)
+    except (TypeError, ValueError):
+        raise UserError("controller.rate", f"expected a number (Hz), got {rate!r}") from None
+    if not CONTROL_RATE[0] <= rate <= CONTROL_RATE[1]:
+        raise UserError("controller.rate", f"expected a number in [{CONTROL_RATE[0]:g}, "
+                                           f"{CONTROL_RATE[1]:g}] Hz (0: continuous), got {rate}")
+    return rate
+
+
 def hold_warning(line: str) -> None:
     warnings.warn(line, RuntimeWarning, stacklevel=4)
 
 
 class Simulation(ArmCommands, BaseCommands, ScipySteps):
     def __init__(self, scene: Scene, integrator: IntegratorSettings | None = None,
-                 arm_controller: ArmController | None = None):
+                 arm_controller: ArmController | None = None, control_rate: float | None = None):
         """`arm_controller`: how the arm is driven; None takes the scene's ``controller:``
-        section (and its command at t = 0), or effort mode when the scene has none."""
+        section (and its command at t = 0), or effort mode when the scene has none.
+        `control_rate`: the controllers' update rate (Hz; 0: continuous, `sampling.py`); None
+        takes the scene's ``controller.rate``."""
         self.scene = scene
         self.settings = integrator or scene.integrator
         model = scene.robot
@@ -77,9 +92,13 @@ class Simulation(ArmCommands, BaseCommands, ScipySteps):
                                         model)
         arm = (arm_settings(self.arm_controller, effects.effort_limits)
                if self.arm_controller.active else None)
+        self.control_rate = checked_control_rate(
+            control_rate_of(scene.controller) if control_rate is None else control_rate)
         self.system = System(self.dynamics, effects.generalized_damping(model.base), effects.locked,
                              arm, feedforward_masses(self.dynamics.model_record,
-                                                     self.arm_controller.model_error))
+                                                     self.arm_controller.model_error),
+                             self.control_rate)
+        self.sampled = self.control_rate > 0.0
         self.nq, self.nu = model.n_q, model.n_u
         self.stop_law = effects.stop_law
         if (self.settings.method == "semi_implicit_euler" and self.stop_law is not None
@@ -116,6 +135,7 @@ class Simulation(ArmCommands, BaseCommands, ScipySteps):
         self._reach = Bound(adaptive_stepping.reach)
         self._locate_event = Bound(adaptive_stepping.locate_event)
         self._watch_step = Bound(step_watch.watch_step)
+        self._update = Bound(sampling.update_at_instant)
         self.set_wheel_speed_gains(*DEFAULT_WHEEL_SPEED_GAINS)
         # says, on one line, that a hold removed more than the Zeno guard's bound (the node
         # replaces it by its logger's warning)
@@ -158,7 +178,39 @@ class Simulation(ArmCommands, BaseCommands, ScipySteps):
                          None if self.arm_controller.active else self.scene.joint_efforts)
         if self.arm_controller.active:
             self._start_arm()
+        self.system.held[:] = 0.0
+        if self.controllers_sampled:   # the controllers' first update, at t = 0
+            self._update_controllers()
+        self._hold_pressed_rods()
         self.energy0 = self.total_energy()
+
+    def _update_controllers(self) -> None:
+        """The sampled controllers' update due now (`sampling.update_at_instant`)."""
+        self._clock[stepping.CLOCK_UPDATES] += 1.0
+        failed = self._update(self.system.data, self.stops, self._scratch, self.s)
+        self._restart()
+        if failed:
+            self._contact_failed()
+
+    @property
+    def controllers_sampled(self) -> bool:
+        """Sampled controllers drive now (the arm's, or the wheels' under cmd_vel)."""
+        return self.sampled and (self.arm_controller.active or self.velocity_mode)
+
+    @property
+    def next_update(self) -> float:
+        """The instant (s) of the sampled controllers' next update (`sampling.next_update`);
+        inf when continuous or when none drives."""
+        return (self._clock[stepping.CLOCK_UPDATES] / self.system.data.rate
+                if self.controllers_sampled else math.inf)
+
+    def _resume_updates(self) -> None:
+        """A sampled controller starts driving now with none driving before: its updates resume
+        on the instants m T from the first after now (at a command, the controller's last update
+        has passed: the command is taken at the next)."""
+        if self.sampled and not self.controllers_sampled:
+            self._clock[stepping.CLOCK_UPDATES] = math.floor(self.t * self.control_rate
+                                                             + 1e-9) + 1
 
     def load_kernels(self) -> None:
         """Load now (compile, if the warm-up did not) every compiled kernel that this
@@ -169,7 +221,8 @@ class Simulation(ArmCommands, BaseCommands, ScipySteps):
         untouched), so that no compile happens while a node runs (the kernels are bound per
         argument types, which the twin shares)."""
         twin = Simulation(self.scene, self.settings,
-                          None if self._arm_section is not None else self.arm_controller)
+                          None if self._arm_section is not None else self.arm_controller,
+                          self.control_rate)
         twin.advance_to(twin.t + 1e-3)
         twin.acceleration()
         twin.qdot()
@@ -177,6 +230,7 @@ class Simulation(ArmCommands, BaseCommands, ScipySteps):
         twin.set_base_velocity(0.0, 0.0)
         twin.wheel_torques()
         scr = twin._scratch
+        twin._update(twin.system.data, twin.stops, scr, twin.s)   # a sampled controller's update
         holding_margin(twin.system.data, twin.s, twin.resting, scr.stages[3], scr.forces)
         release(twin.system.data, twin.stops, twin.s, scr.impact, scr.stages[3], scr.forces,
                 False)
@@ -213,9 +267,37 @@ class Simulation(ArmCommands, BaseCommands, ScipySteps):
         self.watched[:] = self.stop_law is not None
         self.stops.run[:] = 0.0
         relock(self.system.data, self.stops)
+        self._hold_pressed_rods()
         self._solver = None
         self._restart()
         self.energy0 += self.total_energy() - before
+
+    def _hold_pressed_rods(self) -> None:
+        """A rod exactly at one of its stops and at rest (l̇ = 0) rests there from this instant,
+        held, when its stop pushes: set resting, then freed again at once if its stop would
+        have to pull (`stops.release`: the contact law at the level of accelerations, every
+        such rod together). Left free, a rod pressed into its stop would hit it at the first
+        step, and with a rebound of the size of the round-off (e > 0) hit it again a few µs
+        later, without end: its rebound is too small to resolve in time."""
+        if self.stop_law is None:
+            return
+        stroke, resting, watched = self.stroke, self.resting, self.watched
+        found = False
+        for k in range(1, len(resting) + 1):
+            if resting[k - 1] or not watched[k - 1] or self.s[layout.ld(self.nq, k)] != 0.0:
+                continue
+            l_k = self.s[layout.q_slide(k)]
+            side = -1 if l_k == stroke[k - 1, 0] else 1 if l_k == stroke[k - 1, 1] else 0
+            if side:
+                resting[k - 1], watched[k - 1] = side, False
+                found = True
+        if found:
+            relock(self.system.data, self.stops)
+            scr = self._scratch
+            release(self.system.data, self.stops, self.s, scr.impact, scr.stages[3], scr.forces,
+                    False)
+            if self.stops.failed[0]:
+                self._contact_failed()
 
     @staticmethod
     def _state_vector(values, size: int, key: str, bound: float) -> np.ndarray:
@@ -356,12 +438,16 @@ class Simulation(ArmCommands, BaseCommands, ScipySteps):
         if t_end < self.t:
             raise UserError("t_end", f"{t_end} is before the current time {self.t}")
         t_end = float(t_end)   # the bound calls take the types of their first call
-        if self._solve is not None and self._inside_step(self._core_args[0], self._solve, self.s,
-                                                         self._clock, t_end):
+        if (self._solve is not None and t_end < self.next_update
+                and self._inside_step(self._core_args[0], self._solve, self.s, self._clock, t_end)):
             return   # most targets of an adaptive run: inside the step in hand, interpolated
         if self._core is None:
-            self._advance_scipy(t_end)
-            return
+            while True:   # each update of sampled controllers due up to t_end on the way
+                t_update = self.next_update
+                self._advance_scipy(min(t_end, t_update))
+                if t_update > t_end:
+                    return
+                self._update_controllers()
         while True:
             status = self._advance(*self._core_args, self.s, self._clock, t_end, self._step_budget)
             self._after_compiled(status)
