@@ -49,8 +49,11 @@ def test_the_stall_case_runs_through_with_every_method_sampled(method):
     for k in range(1, int(t_end * 10) + 1):
         sim.advance_to(k / 10)
     assert sim.t == t_end
-    assert sim.u[V] == pytest.approx(1.0, abs=0.01)
-    assert abs(sim.energy_error()) < 1e-6 * max(1.0, abs(sim.work))
+    # saturated, the base takes some 6 s to reach its speed (0.905 m/s at 5 s, radau and bdf
+    # alike to 6e-7), never beyond it by more than the loop's overshoot
+    assert sim.u[V] == pytest.approx(1.0 if t_end == 20.0 else 0.9046, abs=0.01)
+    order_one = method in ("euler", "semi_implicit_euler")   # energy drift of order dt
+    assert abs(sim.energy_error()) < (1e-2 if order_one else 1e-6) * max(1.0, abs(sim.work))
 
 
 def held_wheel_pi(sim, t_end, rate):
