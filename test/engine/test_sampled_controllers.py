@@ -53,7 +53,9 @@ def test_the_stall_case_runs_through_with_every_method_sampled(method):
     # alike to 6e-7), never beyond it by more than the loop's overshoot
     assert sim.u[V] == pytest.approx(1.0 if t_end == 20.0 else 0.9046, abs=0.01)
     if method not in ("euler", "semi_implicit_euler"):   # theirs drifts by O(dt): 1.25 J and
-        assert abs(sim.energy_error()) < 1e-6 * max(1.0, abs(sim.work))   # 0.05 J over 20 s
+        # 0.05 J over 20 s; SciPy's bdf 8e-6 J over 5 s
+        tolerance = 1e-4 if method == "bdf" else 1e-6
+        assert abs(sim.energy_error()) < tolerance * max(1.0, abs(sim.work))
 
 
 def held_wheel_pi(sim, t_end, rate):
