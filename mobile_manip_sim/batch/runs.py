@@ -129,8 +129,7 @@ class Batch:
                 self.errors[i] = str(UserError("robot.arm.links", "the lanes of a batch have one "
                                                                   "number of links"))
                 self.sims[i] = None
-        self.compiled = np.array([sim is not None and METHODS[sim.settings.method].fixed_step
-                                  for sim in self.sims], dtype=bool)
+        self.compiled = self._compiled()
         self._records = None
         self._logs = None         # each compiled lane's own impact log (`lanes.impact_logs`)
         self.block = 1            # samples in the next compiled call (grown to BLOCK_SECONDS)
@@ -213,7 +212,14 @@ class Batch:
     def _state_size(self) -> int:
         return next((sim.s.size for sim in self.sims if sim is not None), 0)
 
+    def _compiled(self) -> np.ndarray:
+        """The lanes the compiled call runs: those of a fixed-step method whose controllers
+        are not sampled now (the compiled lanes take no controller updates, `sampling.py`)."""
+        return np.array([sim is not None and METHODS[sim.settings.method].fixed_step
+                         and not sim.controllers_sampled for sim in self.sims], dtype=bool)
+
     def _run(self, times: np.ndarray, rows, progress) -> None:
+        self.compiled = self._compiled()   # a command may have started a sampled controller
         start, in_calls = time.thread_time(), self._caller_in_calls
         for i in np.flatnonzero(self.ok & ~self.compiled):
             self._scalar_lane(i, times, rows)
@@ -257,7 +263,7 @@ class Batch:
         chosen = np.flatnonzero(self.compiled)
         sims = [self.sims[i] for i in chosen]
         key = [(sim.system.data, sim.s, sim.stops, sim._scratch, sim._clock) for sim in sims]
-        if self._records is None or any(
+        if self._records is None or len(key) != len(self._records[0]) or any(
                 any(a is not b for a, b in zip(old, new, strict=True))
                 for old, new in zip(self._records[0], key, strict=True)):
             lane_of = np.full(self.size, -1, dtype=np.int64)

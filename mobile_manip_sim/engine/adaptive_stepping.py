@@ -33,15 +33,19 @@ from . import layout
 from . import runge_kutta as rk
 from .dense import Interpolant, interpolate
 from .events import crossing_in_step, first_crossing, first_release
+from .sampling import next_update
 from .status import BUDGET, CONTACT_FAILED, CRAWLING, DONE, LOG_FULL, NOT_FINITE, STALLED
 from .step_watch import clear, make_watch, watch_step
 from .stepping import (
     CLOCK_STEPS,
     CLOCK_T0,
+    CLOCK_UPDATES,
     any_watched,
+    apply_update,
     book,
     copy_into,
     finite,
+    stretch_end,
     total_energy,
 )
 from .stops import any_resting, impact, release
@@ -208,8 +212,9 @@ def take_step(method, system, stops, scr, solve, s, clock):
             status[H_NEXT] = rk.initial_step(method, system, start, f0, math.inf, rtol, atol,
                                              math.inf, y1, f1)
     clear_holding(system)
-    h, h_next = rk.accepted_step(method, system, start, status[STEP_T0], status[H_NEXT], math.inf,
-                                 rtol, atol, work)
+    # no step across an update of sampled controllers (their held efforts jump there)
+    h, h_next = rk.accepted_step(method, system, start, status[STEP_T0], status[H_NEXT],
+                                 next_update(system, clock[CLOCK_UPDATES]), rtol, atol, work)
     if h < 0.0:
         status[STEP_H] = 0.0
         return STALLED
@@ -287,7 +292,27 @@ def reach(method, system, stops, scr, solve, s, clock, t_end):
 def advance(method, system, stops, scr, solve, s, clock, t_end, max_steps):
     """Advance (t, s) to exactly t_end (s). Returns DONE, or BUDGET after max_steps steps,
     LOG_FULL when the impact log needs emptying, NOT_FINITE (scr.out holds the bad state) or
-    STALLED (the step fell below 10 ulps of t; solve.status[H_NEXT] the step tried)."""
+    STALLED (the step fell below 10 ulps of t; solve.status[H_NEXT] the step tried). Sampled
+    controllers are updated on the way at each of their instants up to t_end, t_end included
+    (`sampling.py`); the steps end there (`take_step`) and the solve restarts there."""
+    if system.rate <= 0.0:
+        return advance_between_updates(method, system, stops, scr, solve, s, clock, t_end,
+                                       max_steps)
+    steps = clock[CLOCK_STEPS]
+    while True:
+        t_stop, due = stretch_end(system, clock, t_end)
+        status = advance_between_updates(method, system, stops, scr, solve, s, clock, t_stop,
+                                         max_steps - int(clock[CLOCK_STEPS] - steps))
+        if status == DONE and due:
+            status = apply_update(system, stops, scr, s, clock)
+            restart(solve)
+        if status != DONE or not due:
+            return status
+
+
+@jit
+def advance_between_updates(method, system, stops, scr, solve, s, clock, t_end, max_steps):
+    """`advance` with no update of sampled controllers due before t_end."""
     room = stops.log.shape[0] // 2
     taken = 0
     while not reach(method, system, stops, scr, solve, s, clock, t_end):

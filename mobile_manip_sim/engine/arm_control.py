@@ -263,3 +263,15 @@ def arm_efforts(system, s, ds):
         ref[LAST_TAU, j] = tau
         ds[i_z + j] = 0.0 if (raw > limit and e > 0.0) or (raw < -limit and e < 0.0) else e
     ds[i_clock] = 1.0
+
+
+@jit_inline
+def held_arm_efforts(system, s, ds):
+    """Sampled (`sampling.py`): the efforts of the last update, held, into system.Q[2:]; the
+    integrals z change only at updates (ż = 0), the reference clock runs (τ̇ = 1)."""
+    nq, nu = layout.sizes(system)
+    i_z, i_clock = layout.arm_integrals(nq, nu), layout.reference_clock(nq, nu)
+    for j in range(indices.arm_width(nu)):
+        system.Q[indices.arm_u(j)] = system.held[indices.arm_u(j)]
+        ds[i_z + j] = 0.0
+    ds[i_clock] = 1.0

@@ -48,6 +48,10 @@ class BaseCommands:
         if not control[WHEEL_VELOCITY_MODE]:
             e = layout.controller(self.nq, self.nu)
             self.s[e:e + 2] = 0.0   # a fresh loop: no integral carried over from an earlier one
+            # sampled, the loop's torques come at its next update; until then the wheels keep
+            # the torques they were commanded, as a drive holds its last command
+            self.system.held[:2] = self.wheel_efforts
+            self._resume_updates()
             control[WHEEL_VELOCITY_MODE] = 1.0
         if not np.array_equal(before, control):
             self._command_changed()
@@ -71,9 +75,12 @@ class BaseCommands:
         self._restart()
 
     def wheel_torques(self) -> np.ndarray:
-        """(τ_R, τ_L) acting now, N·m: the commanded ones, or the PI loop's in velocity mode."""
+        """(τ_R, τ_L) acting now, N·m: the commanded ones, or the PI loop's in velocity mode
+        (sampled: those of its last update, held)."""
         if not self.velocity_mode:
             return np.array(self.wheel_efforts, dtype=float)
+        if self.system.data.rate > 0.0:
+            return self.system.held[:2].copy()
         return np.array(wheel_speed_torques(self.system.data, self.s))
 
     @property

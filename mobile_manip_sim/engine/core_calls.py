@@ -8,7 +8,7 @@ numba.
 from __future__ import annotations
 
 from ..scene.methods import METHODS
-from . import adaptive_stepping, core_stepping
+from . import adaptive_stepping, core_stepping, layout
 from .events import holding_margin
 from .stops import release, relock
 
@@ -23,6 +23,30 @@ class CoreCalls:
             return None
         return core_stepping.compiled_stepper(self.dynamics, method.name, self.system, self.stops,
                                               self._scratch, self._solve)
+
+    def load_kernels(self) -> None:
+        """Load now (compile, if the warm-up did not) every compiled kernel that this
+        simulation's run may call from Python later — a step, an adaptive step's interpolation,
+        the release check of a command, a switch to cmd_vel and the wheel-speed loop's torques,
+        the arm's reference and efforts, and what a node's publication reads: q̇, u̇, T and V —
+        by calling each once on a twin (same scene, settings and arm controller; this one is
+        untouched), so that no compile happens while a node runs (the kernels are bound per
+        argument types, which the twin shares)."""
+        twin = type(self)(self.scene, self.settings,
+                          None if self._arm_section is not None else self.arm_controller,
+                          self.control_rate)
+        twin.advance_to(twin.t + 1e-3)
+        twin.acceleration()
+        twin.qdot()
+        twin.dynamics.energy(twin.q, twin.u)
+        twin.set_base_velocity(0.0, 0.0)
+        twin.wheel_torques()
+        twin._update(twin.system.data, twin.stops, twin._scratch, twin.s)   # a sampled update
+        twin._holding_margin()
+        twin._release()
+        if twin.arm_controller.active:
+            twin.arm_reference()
+            twin.joint_efforts_applied()
 
     def _step_in_hand(self) -> tuple[float, float]:
         """An adaptive run's step in hand: (start, length) in s; length 0: none."""
@@ -60,3 +84,28 @@ class CoreCalls:
         scr = self._scratch
         release(self.system.data, self.stops, self.s, scr.impact, scr.stages[3], scr.forces,
                 False)
+
+    def _hold_pressed_rods(self) -> None:
+        """A rod exactly at one of its stops and at rest (l̇ = 0) rests there from this instant,
+        held, when its stop pushes: set resting, then freed again at once if its stop would
+        have to pull (`stops.release`: the contact law at the level of accelerations, every
+        such rod together). Left free, a rod pressed into its stop would hit it at the first
+        step, and with a rebound of the size of the round-off (e > 0) hit it again a few µs
+        later, without end: its rebound is too small to resolve in time."""
+        if self.stop_law is None:
+            return
+        stroke, resting, watched = self.stroke, self.resting, self.watched
+        found = False
+        for k in range(1, len(resting) + 1):
+            if resting[k - 1] or not watched[k - 1] or self.s[layout.ld(self.nq, k)] != 0.0:
+                continue
+            l_k = self.s[layout.q_slide(k)]
+            side = -1 if l_k == stroke[k - 1, 0] else 1 if l_k == stroke[k - 1, 1] else 0
+            if side:
+                resting[k - 1], watched[k - 1] = side, False
+                found = True
+        if found:
+            self._relock()
+            self._release()
+            if self.stops.failed[0]:
+                self._contact_failed()

@@ -5,7 +5,8 @@ simulation's own arrays — its system record (`system.SystemData`), its stops a
 stays where Python reads it between calls (but for an adaptive run's step in hand).
 
 It runs euler, semi-implicit Euler, rk4, rk45 and dop853 in effort mode and under wheel-speed
-commands, events, impacts, rests, releases, the Zeno guard and the crawl limits included, and
+commands (the loop continuous or sampled, `sampling.py`), events, impacts, rests, releases, the
+Zeno guard and the crawl limits included, and
 equals the numba kernels of `stepping.py` and `adaptive_stepping.py` bit for bit
 (test/core/test_core_stepping.py). A run whose arm is driven by a controller, and SciPy's radau
 and bdf, still take their old paths; ``MOBILE_MANIP_SIM_CORE=numba`` takes the numba kernels for
@@ -35,4 +36,4 @@ def compiled_stepper(dynamics, method: str, system, stops, scratch, solve=None) 
                    float(law.restitution), float(law.rest_speed), stops.log, stops.log_q,
                    stops.log_u, stops.log_free, stops.count, stops.run, stops.failed,
                    scratch.out, scratch.trial, scratch.stages, scratch.forces, scratch.samples,
-                   scratch.crossed, float(rtol), float(atol), watch)
+                   scratch.crossed, float(rtol), float(atol), watch, float(data.rate), data.held)

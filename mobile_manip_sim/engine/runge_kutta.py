@@ -332,6 +332,20 @@ def dense_eval(method_id, coeffs, s, h, theta, y_out):
 
 
 @jit
+def step_to(t, t_end, h):
+    """h, moved by ulps, so that t + h rounds to t_end exactly (t_end − t rounded may miss it by
+    one; a step that ended an ulp short of an update instant would leave a step of 1e-18 s)."""
+    for _ in range(4):
+        if t + h < t_end:
+            h = np.nextafter(h, np.inf)
+        elif t + h > t_end:
+            h = np.nextafter(h, -np.inf)
+        else:
+            break
+    return h
+
+
+@jit
 def accepted_step(method_id, system, s, t, h_abs, t_bound, rtol, atol, work):
     """Steps from (t, s) with f(s) in work[WORK_F0], shrinking h until one is accepted: the new
     state and its f in work[WORK_Y1], work[WORK_F1] (f(y₁) evaluated last), the stages in
@@ -346,7 +360,11 @@ def accepted_step(method_id, system, s, t, h_abs, t_bound, rtol, atol, work):
         if not h_abs >= min_step:   # also a NaN step (from a NaN error norm): fails, never loops
             return -1.0, h_abs
         t_new = min(t + h_abs, t_bound)
+        if t + 1.01 * h_abs >= t_bound:   # (never with t_bound = inf)
+            t_new = t_bound   # not a remainder under 1 % of a step left for a step of its own
         h = t_new - t
+        if t_new == t_bound:   # cut at the bound: an h whose end t + h is the bound exactly
+            h = step_to(t, t_bound, h)
         # f(y₁) only once it is needed: a rejected dop853 step costs 11 right-hand sides, not 12
         end_first = error_needs_end_derivative(method_id)
         _stages(method_id, system, s, f0, h, y1, K)

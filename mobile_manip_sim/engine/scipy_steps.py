@@ -64,10 +64,12 @@ class ScipySteps:
         if adaptive_stepping.step_in_hand(self._solve)[1] == 0.0:   # a new solve at (t, s)
             derivative = self.system.derivative
             settings = self.settings
+            bound = self.next_update   # no step across an update of sampled controllers
+            first = adaptive_stepping.next_step(self._solve) or None
             self._solver = scipy_solver(settings.method)(
-                lambda _t, y: derivative(y), self.t, self.s.copy(), math.inf,
+                lambda _t, y: derivative(y), self.t, self.s.copy(), bound,
                 rtol=max(settings.rtol, SCIPY_MIN_RTOL), atol=settings.atol,
-                first_step=adaptive_stepping.next_step(self._solve) or None)
+                first_step=None if first is None else min(first, bound - self.t))
         solver = self._solver
         adaptive_stepping.begin_step(self._solve, t_before, solver.y)
         return solver, solver.step()

@@ -23,6 +23,7 @@ import numpy as np
 from ..dynamics import Dynamics
 from ..dynamics.jit import Bound
 from ..scene.arm_controller import ArmController
+from ..scene.controller import control_rate as control_rate_of
 from ..scene.controller import outside_stroke
 from ..scene.coordinates import ARM_Q, ARM_U, OMEGA, V, arm_width
 from ..scene.effects import settings as effect_settings
@@ -32,13 +33,14 @@ from ..scene.errors import UserError
 from ..scene.limits import ANGLE, SPEED
 from ..scene.loading import IntegratorSettings, Scene
 from ..scene.methods import COMPILED_STEPPERS, IDS, METHODS
-from . import adaptive_stepping, dense, layout, linearization, step_watch, stepping
+from . import adaptive_stepping, dense, layout, linearization, sampling, step_watch, stepping
 from . import status as status_codes
 from .arm_commands import ArmCommands
 from .arm_control import arm_settings, feedforward_masses, for_robot, scene_arm_controller
 from .base_commands import BaseCommands, command, finite_forces
 from .core_calls import CoreCalls
 from .impact_log import Impact, ImpactDetail, collect
+from .sampled_controllers import SampledControllers, checked_control_rate
 from .scipy_steps import ScipySteps
 from .stops import make_impact_scratch, make_stops
 from .system import RHS_EVALS, WHEEL_VELOCITY_MODE, System
@@ -61,11 +63,13 @@ def hold_warning(line: str) -> None:
     warnings.warn(line, RuntimeWarning, stacklevel=4)
 
 
-class Simulation(ArmCommands, BaseCommands, ScipySteps, CoreCalls):
+class Simulation(ArmCommands, BaseCommands, ScipySteps, CoreCalls, SampledControllers):
     def __init__(self, scene: Scene, integrator: IntegratorSettings | None = None,
-                 arm_controller: ArmController | None = None):
+                 arm_controller: ArmController | None = None, control_rate: float | None = None):
         """`arm_controller`: how the arm is driven; None takes the scene's ``controller:``
-        section (and its command at t = 0), or effort mode when the scene has none."""
+        section (and its command at t = 0), or effort mode when the scene has none.
+        `control_rate`: the controllers' update rate (Hz; 0: continuous, `sampling.py`); None
+        takes the scene's ``controller.rate``."""
         self.scene = scene
         self.settings = integrator or scene.integrator
         model = scene.robot
@@ -77,9 +81,13 @@ class Simulation(ArmCommands, BaseCommands, ScipySteps, CoreCalls):
                                         model)
         arm = (arm_settings(self.arm_controller, effects.effort_limits)
                if self.arm_controller.active else None)
+        self.control_rate = checked_control_rate(
+            control_rate_of(scene.controller) if control_rate is None else control_rate)
         self.system = System(self.dynamics, effects.generalized_damping(model.base), effects.locked,
                              arm, feedforward_masses(self.dynamics.model_record,
-                                                     self.arm_controller.model_error))
+                                                     self.arm_controller.model_error),
+                             self.control_rate)
+        self.sampled = self.control_rate > 0.0
         self.nq, self.nu = model.n_q, model.n_u
         self.stop_law = effects.stop_law
         if (self.settings.method == "semi_implicit_euler" and self.stop_law is not None
@@ -117,6 +125,7 @@ class Simulation(ArmCommands, BaseCommands, ScipySteps, CoreCalls):
         self._reach = Bound(adaptive_stepping.reach)
         self._locate_event = Bound(adaptive_stepping.locate_event)
         self._watch_step = Bound(step_watch.watch_step)
+        self._update = Bound(sampling.update_at_instant)
         self.set_wheel_speed_gains(*DEFAULT_WHEEL_SPEED_GAINS)
         # says, on one line, that a hold removed more than the Zeno guard's bound (the node
         # replaces it by its logger's warning)
@@ -160,29 +169,11 @@ class Simulation(ArmCommands, BaseCommands, ScipySteps, CoreCalls):
                          None if self.arm_controller.active else self.scene.joint_efforts)
         if self.arm_controller.active:
             self._start_arm()
+        self.system.held[:] = 0.0
+        if self.controllers_sampled:   # the controllers' first update, at t = 0
+            self._update_controllers()
+        self._hold_pressed_rods()
         self.energy0 = self.total_energy()
-
-    def load_kernels(self) -> None:
-        """Load now (compile, if the warm-up did not) every compiled kernel that this
-        simulation's run may call from Python later — a step, an adaptive step's interpolation,
-        the release check of a command, a switch to cmd_vel and the wheel-speed loop's torques,
-        the arm's reference and efforts, and what a node's publication reads: q̇, u̇, T and V —
-        by calling each once on a twin (same scene, settings and arm controller; this one is
-        untouched), so that no compile happens while a node runs (the kernels are bound per
-        argument types, which the twin shares)."""
-        twin = Simulation(self.scene, self.settings,
-                          None if self._arm_section is not None else self.arm_controller)
-        twin.advance_to(twin.t + 1e-3)
-        twin.acceleration()
-        twin.qdot()
-        twin.dynamics.energy(twin.q, twin.u)
-        twin.set_base_velocity(0.0, 0.0)
-        twin.wheel_torques()
-        twin._holding_margin()
-        twin._release()
-        if twin.arm_controller.active:
-            twin.arm_reference()
-            twin.joint_efforts_applied()
 
     def set_state(self, q, u) -> None:
         """Put the robot in configuration ``q`` (n_q: x, y, θ, φ_R, φ_L, then q_k, l_k per
@@ -213,6 +204,7 @@ class Simulation(ArmCommands, BaseCommands, ScipySteps, CoreCalls):
         self.watched[:] = self.stop_law is not None
         self.stops.run[:] = 0.0
         self._relock()
+        self._hold_pressed_rods()
         self._solver = None
         self._restart()
         self.energy0 += self.total_energy() - before
@@ -351,12 +343,16 @@ class Simulation(ArmCommands, BaseCommands, ScipySteps, CoreCalls):
         if t_end < self.t:
             raise UserError("t_end", f"{t_end} is before the current time {self.t}")
         t_end = float(t_end)   # the bound calls take the types of their first call
-        if (self._stepper is None and self._solve is not None
+        if (self._stepper is None and self._solve is not None and t_end < self.next_update
                 and self._inside_step(self._core_args[0], self._solve, self.s, self._clock, t_end)):
             return   # most targets of an adaptive run: inside the step in hand, interpolated
         if self._core is None:
-            self._advance_scipy(t_end)
-            return
+            while True:   # each update of sampled controllers due up to t_end on the way
+                t_update = self.next_update
+                self._advance_scipy(min(t_end, t_update))
+                if t_update > t_end:
+                    return
+                self._update_controllers()
         while True:
             if self._stepper is not None:
                 status = self._stepper.advance(self.s, self._clock, t_end, self._step_budget)

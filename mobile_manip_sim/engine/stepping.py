@@ -28,14 +28,18 @@ from .events import (
     step_state,
 )
 from .fixed_step import inlined_step, step
+from .sampling import next_update, update_at_instant
 from .status import BUDGET, CHATTER, CONTACT_FAILED, DONE, LOG_FULL, NOT_FINITE  # why it returned
 from .stops import any_resting, impact, release
 from .system import HOLDING_LEAST_MARGIN, clear_holding
 
 # clock[...] entries: CLOCK_LOST the energy the impact law removed (J), CLOCK_HELD the energy holds
-# removed beyond it (J), CLOCK_HOLDS how many impacts were held (`stops.impact`)
-CLOCK_T0, CLOCK_DT, CLOCK_K, CLOCK_STEPS, CLOCK_LOST, CLOCK_HELD, CLOCK_HOLDS = range(7)
-CLOCK_SIZE = 7
+# removed beyond it (J), CLOCK_HOLDS how many impacts were held (`stops.impact`), CLOCK_UPDATES
+# how many updates the sampled controllers took (`sampling.py`; the next is due at
+# CLOCK_UPDATES · period)
+(CLOCK_T0, CLOCK_DT, CLOCK_K, CLOCK_STEPS, CLOCK_LOST, CLOCK_HELD, CLOCK_HOLDS,
+ CLOCK_UPDATES) = range(8)
+CLOCK_SIZE = 8
 
 StepScratch = namedtuple("StepScratch", [
     "out",      # (size,) the step's end state
@@ -195,7 +199,41 @@ def grid_step_end(method, system, stops, scr, s, clock, dt, t):
 @jit
 def advance(method, system, stops, scr, s, clock, t_end, max_steps):
     """Advance s to exactly t_end (s). Returns DONE, or BUDGET after max_steps steps, LOG_FULL
-    when the impact log needs emptying, NOT_FINITE (s then holds the last finite state)."""
+    when the impact log needs emptying, NOT_FINITE (s then holds the last finite state).
+    Sampled controllers are updated on the way at each of their instants up to t_end, t_end
+    included (`sampling.py`): a step ends there, as at a target off the grid."""
+    if system.rate <= 0.0:
+        return advance_between_updates(method, system, stops, scr, s, clock, t_end, max_steps)
+    steps = clock[CLOCK_STEPS]
+    while True:
+        t_stop, due = stretch_end(system, clock, t_end)
+        status = advance_between_updates(method, system, stops, scr, s, clock, t_stop,
+                                         max_steps - int(clock[CLOCK_STEPS] - steps))
+        if status == DONE and due:
+            status = apply_update(system, stops, scr, s, clock)
+        if status != DONE or not due:
+            return status
+
+
+@jit_inline
+def stretch_end(system, clock, t_end):
+    """Where the next stretch of `advance` ends: (t_end, or the next update of sampled
+    controllers when it comes first, and whether that update is due there)."""
+    t_update = next_update(system, clock[CLOCK_UPDATES])
+    return min(t_end, t_update), t_update <= t_end
+
+
+@jit_inline
+def apply_update(system, stops, scr, s, clock):
+    """The update of sampled controllers due now (`sampling.update_at_instant`): DONE, or
+    CONTACT_FAILED."""
+    clock[CLOCK_UPDATES] += 1.0
+    return CONTACT_FAILED if update_at_instant(system, stops, scr, s) else DONE
+
+
+@jit
+def advance_between_updates(method, system, stops, scr, s, clock, t_end, max_steps):
+    """`advance` with no update of sampled controllers due before t_end."""
     dt = clock[CLOCK_DT]
     steps = (t_end - clock[CLOCK_T0]) / dt
     whole = math.floor(steps + 1e-9)

@@ -28,7 +28,14 @@ from ..dynamics.articulated import articulated_forward_dynamics
 from ..dynamics.jit import ENABLED, jit, jit_inline
 from ..scene.coordinates import OMEGA, V, arm_width
 from . import layout
-from .arm_control import ARM_ON, ARM_SEGMENT, ARM_SEGMENTS, N_ARM_SETTINGS, arm_efforts
+from .arm_control import (
+    ARM_ON,
+    ARM_SEGMENT,
+    ARM_SEGMENTS,
+    N_ARM_SETTINGS,
+    arm_efforts,
+    held_arm_efforts,
+)
 from .arm_reference import WIDTH
 
 # counters[...] indices
@@ -70,6 +77,11 @@ SystemData = namedtuple("SystemData", [
     "arm_scratch",  # (5, n_u) scratch of the inverse-dynamics passes (row SCRATCH_ZERO stays zero)
     "ff_masses",    # the feed-forward's masses: (0,) for the plant's own, else a model
                     # error's (`arm_control.feedforward_masses`, read by `feedforward_model`)
+    # the sampled controllers (`sampling.py`)
+    "rate",      # Hz, the controllers' update rate; 0: continuous controllers
+    "held",      # (n_u,) the efforts the sampled controllers hold between updates, laid out as
+                 # the efforts τ = (τ_R, τ_L, τ_1, F_1, …): the wheel-speed loop's wheel torques
+                 # (N·m), the arm controller's joint efforts; read only while they drive
 ])
 
 # The record of a system without an arm controller (effort mode): the same fields, a class of its
@@ -89,10 +101,27 @@ def system_data(data) -> SystemData:
 
 @jit_inline
 def arm_controller_stage(system, s, ds):
-    """The arm controller's efforts (`arm_control.arm_efforts`), while it is on."""
+    """The arm controller's efforts while it is on: its law at s (`arm_control.arm_efforts`),
+    or, sampled, the efforts of its last update held (`arm_control.held_arm_efforts`)."""
     if system.arm[ARM_ON] != 0.0:
         system.counters[ARM_CONTROL_STAGE] += 1
+        if system.rate > 0.0:
+            held_arm_efforts(system, s, ds)
+        else:
+            arm_efforts(system, s, ds)
+
+
+@jit_inline
+def arm_law_while_on(system, s, ds):
+    if system.arm[ARM_ON] != 0.0:
         arm_efforts(system, s, ds)
+
+
+def arm_law(system, s, ds):
+    """The arm controller's law at s (`arm_control.arm_efforts`) while it is on, whether sampled
+    or not: the sampled update's (`sampling.py`); compiled, nothing at all for an
+    `EffortSystemData` (`_arm_law_by_class`), which need not compile the law."""
+    arm_law_while_on(system, s, ds)
 
 
 def arm_stage(system, s, ds):
@@ -116,6 +145,12 @@ if ENABLED:
         if system.instance_class is EffortSystemData:
             return lambda system, s, ds: None
         return lambda system, s, ds: arm_controller_stage(system, s, ds)
+
+    @overload(arm_law, inline=_inline_the_empty_stage)
+    def _arm_law_by_class(system, s, ds):
+        if system.instance_class is EffortSystemData:
+            return lambda system, s, ds: None
+        return lambda system, s, ds: arm_law_while_on(system, s, ds)
 
 
 @jit_inline
@@ -173,7 +208,10 @@ def applied_forces(system, s, ds):
     if control[WHEEL_VELOCITY_MODE] != 0.0:
         system.counters[CONTROL_STAGE] += 1
         r, b = model.base.wheel_radius, model.base.half_track
-        tau_R, tau_L, ds[i_e], ds[i_e + 1] = wheel_speed_loop(control, r, b, s, nq, nu)
+        if system.rate > 0.0:   # sampled: the torques of the last update, held (ė = 0)
+            tau_R, tau_L = system.held[0], system.held[1]
+        else:
+            tau_R, tau_L, ds[i_e], ds[i_e + 1] = wheel_speed_loop(control, r, b, s, nq, nu)
         Q[V] = (tau_R + tau_L) / r
         Q[OMEGA] = b * (tau_R - tau_L) / r
     arm_stage(system, s, ds)
@@ -276,10 +314,11 @@ class System:
     """Holds the compiled `SystemData` record and the Python-side view of the effects."""
 
     def __init__(self, dynamics, damping: np.ndarray | None, locked: list[int], arm=None,
-                 ff_masses=None):
+                 ff_masses=None, rate: float = 0.0):
         """`arm`: the arm controller's (settings, gains, limits) of `arm_control.arm_settings`,
         or None (effort mode: no controller states, no controller stage); `ff_masses` the
-        feed-forward's masses of `arm_control.feedforward_masses` (None: the plant's)."""
+        feed-forward's masses of `arm_control.feedforward_masses` (None: the plant's);
+        `rate` the controllers' update rate (Hz; 0: continuous, `sampling.py`)."""
         self.dynamics = dynamics
         nu = dynamics.model.n_u
         n_arm = arm_width(nu) if arm is not None else 0
@@ -301,7 +340,9 @@ class System:
                                np.array([0.0, math.inf]), settings, gains, limits, np.zeros(1),
                                np.zeros((1, n_arm, WIDTH)), self.arm_ref,
                                np.zeros((5, nu if arm is not None else 0)),
-                               np.zeros(0) if ff_masses is None else ff_masses)
+                               np.zeros(0) if ff_masses is None else ff_masses,
+                               float(rate), np.zeros(nu))
+        self.held = self.data.held
         self.set_locked(())
         size = layout.state_size(nu) + (layout.arm_state_size(nu) if arm is not None else 0)
         self._scratch = np.zeros(size)

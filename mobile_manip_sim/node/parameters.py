@@ -119,6 +119,12 @@ PARAMETERS = {
                                 "of the wheel-speed loop (N·m·s/rad).", limits.WHEEL_SPEED_GAIN),
     "wheel_speed.ki": Parameter(DEFAULT_WHEEL_SPEED_GAINS[1], "Velocity mode: integral gain of "
                                 "the wheel-speed loop (N·m/rad).", limits.WHEEL_SPEED_GAIN),
+    "controller_rate": Parameter(-1.0, "Update rate (Hz) of the simulated controllers (the "
+                                       "wheel-speed loop, the arm controller), as ros2_control's "
+                                       "controller manager's update_rate: their efforts are held "
+                                       "between updates; 0 = continuous controllers; -1 = the "
+                                       "scene's controller.rate.",
+                                 (-1.0, limits.CONTROL_RATE[1])),
     "sync_timeout": Parameter(1.0, "Synchronous mode: wall seconds to wait for a command before "
                                    "holding the last one (and saying so).", limits.SYNC_TIMEOUT),
     "integrator.method": Parameter("", f"Integrator overriding the scene's ({', '.join(METHODS)}"
@@ -226,6 +232,7 @@ class NodeParameters:
     base_command: str              # one of BASE_COMMANDS
     cmd_vel_stamped: bool
     wheel_speed_gains: tuple[float, float]   # (kp, ki)
+    controller_rate: float | None  # Hz; None = the scene's controller.rate
     method: str | None             # integrator overrides; None = the scene's
     dt: float | None
     rtol: float | None
@@ -244,6 +251,8 @@ def value_problem(name: str, value) -> str | None:
     Checked at start-up and for every change while running."""
     if isinstance(value, float) and not math.isfinite(value):
         return f"must be finite, got {value}"
+    if name == "controller_rate" and isinstance(value, (int, float)) and -1.0 < value < 0.0:
+        return f"must be -1 (the scene's), 0 (continuous) or a rate in Hz, got {value:g}"
     if (name == "real_time_factor" and isinstance(value, (int, float))
             and 0.0 < value < MIN_REAL_TIME_FACTOR):
         return (f"must be 0 (as fast as possible) or at least {MIN_REAL_TIME_FACTOR:g}, got "
@@ -285,6 +294,7 @@ def read(values: Mapping[str, object]) -> NodeParameters:
         sync_timeout=values["sync_timeout"], base_command=values["base_command"],
         cmd_vel_stamped=values["cmd_vel_stamped"],
         wheel_speed_gains=(values["wheel_speed.kp"], values["wheel_speed.ki"]),
+        controller_rate=None if values["controller_rate"] < 0.0 else values["controller_rate"],
         method=values["integrator.method"] or None, dt=values["integrator.dt"] or None,
         rtol=values["integrator.rtol"] or None, atol=values["integrator.atol"] or None,
         arm_controller=ArmController(

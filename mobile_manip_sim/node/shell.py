@@ -299,7 +299,8 @@ class SimulatorNode(Node):
         return any(pub.get_subscription_count() > 0 for pub in publishers if pub is not None)
 
     def _new_engine(self) -> Simulation:
-        sim = Simulation(self.scene, self._settings, arm_controller=self.arm_controller)
+        sim = Simulation(self.scene, self._settings, arm_controller=self.arm_controller,
+                         control_rate=self.params.controller_rate)
         sim.set_wheel_speed_gains(*self.params.wheel_speed_gains)
         sim.hold_warning = self.get_logger().warning   # a hold over its bound: one line
         return sim

@@ -3,6 +3,7 @@ headless run (`arm_controller.ArmController`, docs/controllers.md) and the comma
 t = 0.
 
     controller:
+      rate: 1000               # Hz, the controllers' update rate (0: continuous); optional
       arm_controller: position # effort | position | velocity | joint_trajectory (old name: arm)
       feedforward: gravity     # none | gravity | computed_torque
       gains: {kp: 300, ki: [...], kd: ...}   # one number or one per arm joint; optional
@@ -36,10 +37,18 @@ from .arm_controller import (
 )
 from .coordinates import arm_size, arm_slide
 from .errors import UserError
-from .limits import ANGLE, DURATION, MASS, MODEL_ERROR, SPEED, TRAJECTORY_POINTS
+from .limits import ANGLE, CONTROL_RATE, DURATION, MASS, MODEL_ERROR, SPEED, TRAJECTORY_POINTS
 
 MODE_KEY, OLD_MODE_KEY = "arm_controller", "arm"   # the old name is still read
 COMMAND_KEYS = tuple(mode.command for mode in MODES.values() if mode.controlled)
+
+# Hz: the update rate of the simulated controllers (the wheel-speed loop, the arm controller), as
+# ros2_control's controller manager's update_rate. 1 kHz: the rate of the arms' own control
+# boxes and of many ros2_control drivers (100 Hz, the controller manager's default, is a
+# deployment's choice for slow loops; the arm's default gains, 20 rad/s of bandwidth, lose
+# little phase at 1 kHz: 0.01 rad of hold delay at 20 rad/s). 0: continuous controllers, for
+# idealised studies.
+DEFAULT_CONTROL_RATE = 1000.0
 
 
 @dataclass(frozen=True)
@@ -49,6 +58,12 @@ class ControllerSection:
     # (times, positions, velocities, accelerations), the last two None when the points give
     # none; None: hold the initial pose
     command: object = None
+    rate: float = DEFAULT_CONTROL_RATE   # Hz, the controllers' update rate (0: continuous)
+
+
+def control_rate(section: ControllerSection | None) -> float:
+    """The controllers' update rate (Hz) of a scene's section, the default when it has none."""
+    return DEFAULT_CONTROL_RATE if section is None else section.rate
 
 
 def parse_controller(doc, robot, stroke_limits_on: bool) -> ControllerSection | None:
@@ -59,7 +74,9 @@ def parse_controller(doc, robot, stroke_limits_on: bool) -> ControllerSection | 
     path = "controller"
     doc = schema.mapping(doc, path)
     schema.keys(doc, path, optional=(MODE_KEY, OLD_MODE_KEY, "feedforward", "gains",
-                                     "model_error", *COMMAND_KEYS))
+                                     "model_error", "rate", *COMMAND_KEYS))
+    rate = (schema.number(doc["rate"], f"{path}.rate", lo=CONTROL_RATE[0], hi=CONTROL_RATE[1])
+            if "rate" in doc else DEFAULT_CONTROL_RATE)
     if MODE_KEY in doc and OLD_MODE_KEY in doc:
         raise UserError(f"{path}.{OLD_MODE_KEY}", f"the old name of {MODE_KEY}: give one")
     key = OLD_MODE_KEY if OLD_MODE_KEY in doc else MODE_KEY
@@ -97,7 +114,7 @@ def parse_controller(doc, robot, stroke_limits_on: bool) -> ControllerSection | 
             _check_stroke(command, stroke, names, key)
     elif command is not None:
         command = _trajectory(command, n_arm, stroke, names)
-    return ControllerSection(controller, command)
+    return ControllerSection(controller, command, rate)
 
 
 def _model_error(doc) -> ModelError:

@@ -37,6 +37,7 @@ MODEL_ERROR = (-0.9, 10.0)
 MODEL_PAYLOAD = (-1.0, MASS[1])    # kg the feed-forward assumes; negative: the scene's payload
 TRAJECTORY_POINTS = 100_000        # points of one arm trajectory
 REVOLUTE_TARGET = 1e4              # rad, |a revolute joint's set-point or trajectory point|
+CONTROL_RATE = (0.0, 1e6)          # Hz: the controllers' update rate (0: continuous controllers)
 
 # --- the node's parameters (besides the gains and the integrator overrides, 0 = the scene's)
 PUBLISH_RATE = (0.001, 100000.0)   # Hz of simulated time

@@ -8,6 +8,7 @@ Compared: every sampled state and its energy, the clock (steps, the ledger of th
 and the holds), the stage counters, every impact with its details, and which rods rest and are
 watched.
 """
+import copy
 from dataclasses import replace
 from pathlib import Path
 
@@ -15,7 +16,7 @@ import numpy as np
 import pytest
 
 import robots
-from engine_cases import one_link_doc
+from engine_cases import one_link_doc, paper_doc
 from mobile_manip_sim.engine import core_stepping
 from mobile_manip_sim.engine.simulation import Simulation
 from mobile_manip_sim.scene.loading import load_scene, parse_scene
@@ -24,18 +25,20 @@ CONFIG = Path(__file__).resolve().parents[2] / "mobile_manip_sim" / "config"
 # (a scene whose arm a controller drives still runs on the numba kernels: not compared here)
 SCENES = sorted(p for p in CONFIG.glob("*.yaml")
                 if p.name != "simulator.params.yaml" and load_scene(p).controller is None)
+PAPER = paper_doc()
 METHODS = ["euler", "semi_implicit_euler", "rk4", "rk45", "dop853"]
 # each method's settings: the fixed steps at 1 kHz, the adaptive ones at tolerances of use
 SETTINGS = {"euler": dict(dt=1e-3), "semi_implicit_euler": dict(dt=1e-3), "rk4": dict(dt=1e-3),
             "rk45": dict(rtol=1e-7, atol=1e-10), "dop853": dict(rtol=1e-9, atol=1e-12)}
 
 
-def outcome(scene, method: str, core: str, monkeypatch, commands=(), t_end=1.0):
+def outcome(scene, method: str, core: str, monkeypatch, commands=(), t_end=1.0, rate=None):
     """A run of `scene` by `core` ("numba" or "cpp"), sampled at 100 Hz; `commands` are
     (t, function of the simulation) applied when the run reaches t. A small step budget makes
     each compiled call return often, as a node's do."""
     monkeypatch.setattr(core_stepping, "CORE", core)
-    sim = Simulation(scene, replace(scene.integrator, method=method, **SETTINGS[method]))
+    sim = Simulation(scene, replace(scene.integrator, method=method, **SETTINGS[method]),
+                     control_rate=rate)
     assert (sim._stepper is not None) == (core == "cpp")
     sim._step_budget = 97
     times = np.arange(1, int(round(t_end / 0.01)) + 1) * 0.01
@@ -129,6 +132,21 @@ def test_a_zeno_run_of_bounces_is_held_bit_for_bit(restitution, method, monkeypa
     if method != "euler":
         assert reference["clock"][6] >= 1, "the case must reach a Zeno hold"   # CLOCK_HOLDS
     assert_identical(outcome(scene, method, "cpp", monkeypatch, t_end=2.0), reference)
+
+
+@pytest.mark.parametrize("method", METHODS)
+@pytest.mark.parametrize("rate", [0.0, 100.0, 1000.0])
+def test_the_wheel_speed_loop_continuous_or_sampled_runs_bit_for_bit(rate, method, monkeypatch):
+    """The paper scene driven by cmd_vel through wheels limited to 0.3 N·m (the loop saturates
+    and holds its integrals), the loop continuous or updated at 100 Hz and 1 kHz (its torques
+    held between updates, each update a step boundary), a new command mid-run."""
+    doc = copy.deepcopy(PAPER)
+    doc["effects"] = {**doc.get("effects", {}), "effort_limits": {"wheels": 0.3}}
+    scene = parse_scene(doc)
+    commands = ((0.05, lambda sim: sim.set_base_velocity(1.0, 0.0)),
+                (0.5, lambda sim: sim.set_base_velocity(0.2, 0.8)))
+    reference = outcome(scene, method, "numba", monkeypatch, commands, rate=rate)
+    assert_identical(outcome(scene, method, "cpp", monkeypatch, commands, rate=rate), reference)
 
 
 def test_the_random_cases_reach_every_kind_of_event(monkeypatch):

@@ -38,9 +38,12 @@ ZERO_GAINS = dict(kp=0.0, ki=0.0, kd=0.0)
 
 
 def paper_scene(method="rk4", **effects):
-    """The paper robot at rest with no efforts (rk4 at 1 kHz unless told), plus `effects`."""
+    """The paper robot at rest with no efforts (rk4 at 1 kHz unless told), plus `effects`; its
+    controllers continuous (controller.rate 0: the law of engine/arm_control.py at every
+    evaluation, which these tests check; the sampled controllers' are test_sampled_controllers)."""
     doc = copy.deepcopy(load_scene().document)
     doc["efforts"] = {"wheels": [0.0, 0.0], "joints": [0.0] * 4}
+    doc["controller"] = {"rate": 0}
     doc["integrator"] = ({"method": "rk4", "dt": 1e-3} if method == "rk4"
                          else {"method": method, "rtol": 1e-10, "atol": 1e-12})
     doc["effects"].update(effects)

@@ -18,6 +18,7 @@ def paper(method="rk4", locked=True, **effects):
     if locked:
         doc["effects"]["locked_joints"] = ARM_JOINTS
     doc["effects"].update(effects)
+    doc["controller"] = {"rate": 0}   # the continuous loop (sampled: test_sampled_controllers)
     doc["integrator"] = {"method": method, "dt": 1e-3} if method == "rk4" else {"method": method}
     return Simulation(parse_scene(doc))
 

@@ -690,7 +690,8 @@ class Stepper {
           In Q_cmd, In control, I64 counters, F64 holding, Bools watched, I64 resting, In stroke,
           Bools permanent, int law, double restitution, double rest_speed, F64 log, F64 log_q,
           F64 log_u, Bools log_free, I64 count, F64 runs, I64 failed, F64 out, F64 trial,
-          F64 stages, F64 forces, F64 samples, I64 crossed, double rtol, double atol, F64 watch)
+          F64 stages, F64 forces, F64 samples, I64 crossed, double rtol, double atol, F64 watch,
+          double rate, F64 held)
       : owner_(dynamics), run_(nb::cast<Dynamics&>(dynamics).model(), int(out.size())) {
     const Model& m = run_.model;
     const size_t n = m.n(), nu = m.n_u(), nq = m.n_q(), size = out.size();
@@ -721,6 +722,8 @@ class Stepper {
       throw std::invalid_argument("samples: too short");
     need(crossed, std::max<size_t>(n, 1), "crossed");
     need(watch, 3, "watch");
+    need(held, nu, "held");
+    if (!(rate >= 0.0)) throw std::invalid_argument("rate: expected a rate ≥ 0 (Hz)");
     if (method == "rk45" || method == "dop853") {
       if (!(rtol > 0.0 && atol > 0.0))
         throw std::invalid_argument("rtol, atol: expected positive tolerances");
@@ -735,14 +738,16 @@ class Stepper {
                                   "state of " + std::to_string(state_size(m)) + " entries)");
     arrays_ = nb::make_tuple(damping, free, Q_cmd, control, counters, holding, watched, resting,
                              stroke, permanent, log, log_q, log_u, log_free, count, runs, failed,
-                             out, trial, stages, forces, samples, crossed, watch);
+                             out, trial, stages, forces, samples, crossed, watch, held);
     run_.system = SystemArrays{.gravity = gravity,
                                .damping = damping.size() ? damping.data() : nullptr,
                                .free = free.data(),
                                .Q_cmd = Q_cmd.data(),
                                .control = control.data(),
                                .counters = counters.data(),
-                               .holding = holding.data()};
+                               .holding = holding.data(),
+                               .rate = rate,
+                               .held = held.data()};
     run_.stops = StopsArrays{.watched = watched.data(),
                              .resting = resting.data(),
                              .stroke = stroke.data(),
@@ -844,7 +849,7 @@ class Stepper {
  private:
   void check(const F64& s, const F64& clock) {
     need(s, run_.size, "s");
-    need(clock, CLOCK_HOLDS + 1, "clock");
+    need(clock, CLOCK_ENTRIES, "clock");
   }
 
   nb::object owner_;   // the Dynamics whose model the run uses
@@ -945,12 +950,13 @@ NB_MODULE(_core, m) {
                     mms::I64, mms::F64, mms::Bools, mms::I64, mms::In, mms::Bools, int, double,
                     double, mms::F64, mms::F64, mms::F64, mms::Bools, mms::I64, mms::F64,
                     mms::I64, mms::F64, mms::F64, mms::F64, mms::F64, mms::F64, mms::I64, double,
-                    double, mms::F64>(),
+                    double, mms::F64, double, mms::F64>(),
            "dynamics"_a, "method"_a, "gravity"_a, "damping"_a, "free"_a, "Q_cmd"_a, "control"_a,
            "counters"_a, "holding"_a, "watched"_a, "resting"_a, "stroke"_a, "permanent"_a,
            "law"_a, "restitution"_a, "rest_speed"_a, "log"_a, "log_q"_a, "log_u"_a,
            "log_free"_a, "count"_a, "run"_a, "failed"_a, "out"_a, "trial"_a, "stages"_a,
-           "forces"_a, "samples"_a, "crossed"_a, "rtol"_a, "atol"_a, "watch"_a)
+           "forces"_a, "samples"_a, "crossed"_a, "rtol"_a, "atol"_a, "watch"_a, "rate"_a,
+           "held"_a)
       .def("advance", &mms::Stepper::advance, "s"_a, "clock"_a, "t_end"_a, "max_steps"_a)
       .def("advance_samples", &mms::Stepper::advance_samples, "s"_a, "clock"_a, "times"_a,
            "rows"_a, "first"_a, "max_steps"_a)

@@ -1,0 +1,54 @@
+"""The sampled controllers as `Simulation` drives them from Python (a mixin): the rate, whether
+one drives now, the instant of the next update, the update at a reset and between SciPy's steps
+(the compiled cores apply the others on the way, `sampling.py`), and where the updates resume when
+a controller starts driving.
+"""
+from __future__ import annotations
+
+import math
+
+from ..scene.errors import UserError
+from ..scene.limits import CONTROL_RATE
+from . import stepping
+
+
+def checked_control_rate(rate) -> float:
+    """The controllers' update rate (Hz), checked: a UserError naming controller.rate."""
+    try:
+        rate = float(rate)
+    except (TypeError, ValueError):
+        raise UserError("controller.rate", f"expected a number (Hz), got {rate!r}") from None
+    if not CONTROL_RATE[0] <= rate <= CONTROL_RATE[1]:
+        raise UserError("controller.rate", f"expected a number in [{CONTROL_RATE[0]:g}, "
+                                           f"{CONTROL_RATE[1]:g}] Hz (0: continuous), got {rate}")
+    return rate
+
+
+class SampledControllers:
+    def _update_controllers(self) -> None:
+        """The sampled controllers' update due now (`sampling.update_at_instant`)."""
+        self._clock[stepping.CLOCK_UPDATES] += 1.0
+        failed = self._update(self.system.data, self.stops, self._scratch, self.s)
+        self._restart()
+        if failed:
+            self._contact_failed()
+
+    @property
+    def controllers_sampled(self) -> bool:
+        """Sampled controllers drive now (the arm's, or the wheels' under cmd_vel)."""
+        return self.sampled and (self.arm_controller.active or self.velocity_mode)
+
+    @property
+    def next_update(self) -> float:
+        """The instant (s) of the sampled controllers' next update (`sampling.next_update`);
+        inf when continuous or when none drives."""
+        return (self._clock[stepping.CLOCK_UPDATES] / self.system.data.rate
+                if self.controllers_sampled else math.inf)
+
+    def _resume_updates(self) -> None:
+        """A sampled controller starts driving now with none driving before: its updates resume
+        on the instants m T from the first after now (at a command, the controller's last update
+        has passed: the command is taken at the next)."""
+        if self.sampled and not self.controllers_sampled:
+            self._clock[stepping.CLOCK_UPDATES] = math.floor(self.t * self.control_rate
+                                                             + 1e-9) + 1
