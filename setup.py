@@ -70,7 +70,11 @@ class CMakeBuild(build_ext):
             import nanobind  # noqa: F401
         except ImportError:
             _fail("building the compiled core needs nanobind: pip install nanobind")
-        tag = hashlib.sha1(sys.executable.encode()).hexdigest()[:8]
+        # one build directory per set of tools: a CMake cache names its cmake and ninja, and pip's
+        # isolated builds bring their own in a temporary directory (a second `pip install .`
+        # reused the first one's cache and failed: its ninja was gone)
+        tools = "\0".join([sys.executable, cmake, shutil.which("ninja") or ""])
+        tag = hashlib.sha1(tools.encode()).hexdigest()[:8]
         build_dir = Path(self.build_temp).resolve() / f"core-{tag}"
         build_dir.mkdir(parents=True, exist_ok=True)
         configure = [cmake, str(ext.source_dir), f"-DPython_EXECUTABLE={sys.executable}",
