@@ -4,7 +4,6 @@ there), real DDS on a random domain. Without tf2_msgs (hidden from the node's pr
 says so in one line and runs on. The whole tree (publish_tf all): test_node_view.py."""
 import itertools
 import os
-import random
 import signal
 import subprocess
 import sys
@@ -12,7 +11,7 @@ import threading
 
 import interfaces_build
 from executables import executable
-from ros_harness import child_env
+from ros_harness import child_env, private_domain
 
 SIMULATOR = executable("simulator")
 LISTENER = os.path.join(os.path.dirname(__file__), "..", "helpers", "tf_listener.py")
@@ -22,7 +21,7 @@ PERIOD_NS = 10 ** 7   # publish_rate 100 Hz
 def test_publish_tf_base_carries_odom_to_base_footprint_alone_at_every_publication(
         interfaces_prefix, tmp_path):
     """publish_tf base (for users who run robot_state_publisher): /tf carries the base alone."""
-    env = child_env(random.randrange(1, 100))
+    env = child_env(private_domain(1, 99))
     listener = subprocess.Popen([sys.executable, LISTENER, "200"], env=env,
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     node = subprocess.Popen([SIMULATOR, "--ros-args", "-p", "integrator.method:=rk4",
@@ -46,7 +45,7 @@ def test_publish_tf_base_carries_odom_to_base_footprint_alone_at_every_publicati
 
 
 def test_without_tf2_msgs_the_node_says_so_once_and_runs(tmp_path):
-    env = interfaces_build.without(child_env(random.randrange(1, 100)))
+    env = interfaces_build.without(child_env(private_domain(1, 99)))
     node = subprocess.Popen([SIMULATOR, "--ros-args", "-p", "real_time_factor:=5.0"], env=env,
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     timer = threading.Timer(60.0, node.kill)   # bounds the wait for the start-up lines

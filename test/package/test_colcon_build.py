@@ -75,9 +75,10 @@ def test_built_simulate_runs_the_embedded_default_scene(workspace):
 def test_built_simulator_starts_publishes_and_stops_cleanly(workspace):
     """The built node comes up (its first /clock reaches a subscriber) and exits 0 on SIGINT
     (the wait is a hang guard, not a timing)."""
-    import random
     import signal
-    domain = str(200 + random.randrange(30))
+
+    from ros_harness import private_domain
+    domain = str(private_domain(200, 229))
     env = dict(os.environ, PATH=f"{BIN}:{os.environ['PATH']}", ROS_DOMAIN_ID=domain,
                ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     node = subprocess.Popen(["bash", "-c",
