@@ -27,6 +27,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..core import LaneSet
+from ..engine.core_stepping import CORE
 from ..engine.simulation import Simulation
 from ..engine.stepping import BUDGET
 from ..engine.system import system_data
@@ -106,7 +108,10 @@ class Batch:
     def _start(self, scenes: list, sims: list, threads: int | None,
                time_limit: float | None, vector: bool = True) -> None:
         self.size = len(scenes)
-        self.vector = bool(vector) and compiled.ENABLED
+        # the C++ core's lanes (`core.LaneSet`), or numba's (`lanes.py`, `blocks.py`: the
+        # reference while both exist, MOBILE_MANIP_SIM_CORE=numba)
+        self.cpp = CORE == "cpp"
+        self.vector = bool(vector) and (self.cpp or compiled.ENABLED)
         # grid steps of each lane taken in vector lanes and alone (`blocks.lane_paths`)
         self.paths = np.zeros((self.size, 2), dtype=np.int64)
         self.threads = threads
@@ -216,7 +221,9 @@ class Batch:
         """The lanes the compiled call runs: those of a fixed-step method whose controllers
         are not sampled now (the compiled lanes take no controller updates, `sampling.py`)."""
         return np.array([sim is not None and METHODS[sim.settings.method].fixed_step
-                         and not sim.controllers_sampled for sim in self.sims], dtype=bool)
+                         and not sim.controllers_sampled
+                         and (sim._stepper is not None or not self.cpp)
+                         for sim in self.sims], dtype=bool)
 
     def _run(self, times: np.ndarray, rows, progress) -> None:
         self.compiled = self._compiled()   # a command may have started a sampled controller
@@ -262,12 +269,18 @@ class Batch:
         lane's records were replaced (a command that grew them, a reset)."""
         chosen = np.flatnonzero(self.compiled)
         sims = [self.sims[i] for i in chosen]
-        key = [(sim.system.data, sim.s, sim.stops, sim._scratch, sim._clock) for sim in sims]
+        key = [(sim.system.data, sim.s, sim.stops, sim._scratch, sim._clock, sim._stepper)
+               for sim in sims]
         if self._records is None or len(key) != len(self._records[0]) or any(
                 any(a is not b for a, b in zip(old, new, strict=True))
                 for old, new in zip(self._records[0], key, strict=True)):
             lane_of = np.full(self.size, -1, dtype=np.int64)
             lane_of[chosen] = np.arange(len(sims))
+            if self.cpp:
+                self._records = (key, lane_of, LaneSet([sim._stepper for sim in sims],
+                                                       [sim.s for sim in sims],
+                                                       [sim._clock for sim in sims]), None)
+                return self._records[1], self._records[2]
             lists = (np.array([sim._core_args[0] for sim in sims], dtype=np.int64),
                      compiled.lane_list([system_data(sim.system.data) for sim in sims]),
                      compiled.lane_list([sim.stops for sim in sims]),
@@ -282,7 +295,8 @@ class Batch:
         lane_of, lists = self._lists()
         first_sim = self.sims[lanes[0]]
         budget = first_sim._step_budget
-        threads = _set_threads(self.threads or 1 << 30)
+        threads = (min(self.threads or 1 << 30, len(os.sched_getaffinity(0))) if self.cpp
+                   else _set_threads(self.threads or 1 << 30))
         code = np.zeros(self.size, dtype=np.int64)
         failure = np.zeros(self.size, dtype=np.int64)
         next_sample = np.zeros(self.size, dtype=np.int64)
@@ -300,7 +314,11 @@ class Batch:
             block_start = started = time.perf_counter()
             while pending.size:
                 cpu, own = time.process_time(), time.thread_time()
-                if self.vector:
+                if self.cpp:
+                    lists.advance(pending, lane_of[pending], times, last, out, out_t, write,
+                                  budget, code, next_sample, failure, *logs, self.paths,
+                                  self.vector, threads)
+                elif self.vector:
                     blocks = _blocks()
                     slots, records = blocks.group_slots(pending, lane_of[pending],
                                                         self._records[3])

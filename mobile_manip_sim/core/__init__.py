@@ -8,8 +8,10 @@ ahead of time with the package (`CMakeLists.txt`, driven by setup.py) and bound 
     s_next = core.step("rk4", s, h, Q_cmd, damping, moving, g)   # s = (q, u, e, W)
     value, d_dx, d_dtau = core.jacobians("rk4", s, h, Q_cmd, B, damping, moving, g)
 
-`Stepper` is the fixed-step engine of one simulation, events and impacts included, on the
-simulation's own arrays (`engine/core_stepping.py` builds it). The sources are in
+`Stepper` is the engine of one simulation, events and impacts included, on the
+simulation's own arrays (`engine/core_stepping.py` builds it); `LaneSet` advances the steppers
+of a batch's fixed-step lanes together, over threads, their plain steps in vector blocks
+(`batch/runs.py`). The sources are in
 ``include/mms/`` (the kernels) and ``src/bindings.cpp``; `build_info` says how
 this copy was compiled (flags, vector width).
 """
@@ -18,14 +20,22 @@ from __future__ import annotations
 import numpy as np
 
 try:
-    from ._core import BaseParameters, Dynamics, Stepper, WheelLoop, build_info, multiply_add
+    from ._core import (
+        BaseParameters,
+        Dynamics,
+        LaneSet,
+        Stepper,
+        WheelLoop,
+        build_info,
+        multiply_add,
+    )
 except ImportError as error:  # the extension was never built (or built for another Python)
     raise ImportError(
         "mobile_manip_sim's compiled core is not built: run `pip install -e .` (or "
         "`colcon build`), which needs a C++20 compiler (g++ ≥ 10), CMake ≥ 3.18 and nanobind "
         f"({error})") from error
 
-__all__ = ["BaseParameters", "Dynamics", "Stepper", "WheelLoop", "build_info",
+__all__ = ["BaseParameters", "Dynamics", "LaneSet", "Stepper", "WheelLoop", "build_info",
            "compiled_dynamics", "multiply_add"]
 
 

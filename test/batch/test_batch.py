@@ -11,6 +11,7 @@ import pytest
 
 from mobile_manip_sim.batch import Batch
 from mobile_manip_sim.batch import lanes as lanes_module
+from mobile_manip_sim.batch import runs as runs_module
 from mobile_manip_sim.batch.lanes import LOG_ROWS
 from mobile_manip_sim.runtime import headless
 from mobile_manip_sim.runtime.timeline import sample_times
@@ -166,7 +167,13 @@ def test_a_lane_whose_own_impact_log_fills_pauses_and_goes_on_with_the_same_bits
     advance = lanes_module.advance_fixed
     monkeypatch.setattr(lanes_module, "advance_fixed",
                         lambda *args: calls.append(args[6].size) or advance(*args))
-    if lanes_module.ENABLED:   # the lanes' plain steps four at a time (`blocks.py`)
+    if runs_module.CORE == "cpp":   # the C++ core's lanes (`core.LaneSet`)
+        class CountedLanes(runs_module.LaneSet):
+            def advance(self, *args):
+                calls.append(args[0].size)
+                return super().advance(*args)
+        monkeypatch.setattr(runs_module, "LaneSet", CountedLanes)
+    elif lanes_module.ENABLED:   # numba's lanes' plain steps four at a time (`blocks.py`)
         from mobile_manip_sim.batch import blocks
         in_blocks = blocks.advance_blocks
         monkeypatch.setattr(blocks, "advance_blocks",

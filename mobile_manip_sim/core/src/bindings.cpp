@@ -21,6 +21,7 @@
 #include "mms/dynamics.hpp"
 #include "mms/fixed_step.hpp"
 #include "mms/adaptive_stepping.hpp"
+#include "mms/lanes.hpp"
 #include "mms/stepping.hpp"
 
 namespace nb = nanobind;
@@ -836,6 +837,13 @@ class Stepper {
     return mms::holding_margin(run_, s.data(), run_.stage(3));
   }
 
+  // The run and its method, for a batch's lanes (`LaneSet`): a fixed-step run only.
+  Run& run() { return run_; }
+  Method method() const {
+    if (adaptive_) throw std::invalid_argument("lanes: a batch's lanes take fixed-step runs");
+    return method_;
+  }
+
   // ds/dt at s with the locks in force (counted as the run's own evaluations are).
   Out derivative(In s) {
     need(s, run_.size, "s");
@@ -859,6 +867,101 @@ class Stepper {
   std::unique_ptr<AdaptiveRun> adaptive_;  // rk45, dop853: the solve; null for a fixed step
 };
 
+
+// A batch's lanes (lanes.hpp): the steppers of its simulations with their states and clocks,
+// advanced together by `advance` over several threads, without the GIL. Each lane's records
+// stay its simulation's; this only holds them (and keeps them alive) for the calls.
+class LaneSet {
+ public:
+  LaneSet(nb::list steppers, nb::list states, nb::list clocks)
+      : steppers_(steppers), states_(states), clocks_(clocks) {
+    const size_t m = nb::len(steppers);
+    if (nb::len(states) != m || nb::len(clocks) != m)
+      throw std::invalid_argument("lanes: one stepper, state and clock per lane");
+    for (size_t i = 0; i < m; ++i) {
+      Stepper& stepper = nb::cast<Stepper&>(steppers[i]);
+      F64 s = nb::cast<F64>(states[i]), clock = nb::cast<F64>(clocks[i]);
+      Run& run = stepper.run();
+      need(s, run.size, "s");
+      need(clock, CLOCK_ENTRIES, "clock");
+      if (i > 0 && run.size != lanes_[0].run->size)
+        throw std::invalid_argument("lanes: the lanes of a batch have one state size");
+      lanes_.push_back(Lane{&run, stepper.method(), s.data(), clock.data()});
+    }
+  }
+
+  // Every lane lanes[j] (its records at index records[j]) from next_sample[lane] towards sample
+  // `last`: code, next_sample and failure per lane as batch/lanes.py's `advance_fixed` gives
+  // them; rows (N × samples × (size + 1)) and rows_t (N × samples) its samples with `write`
+  // (else one row per lane, never written); log … count each lane's own impact log; paths
+  // (N × 2) its grid steps taken in vector blocks and alone. `vector`: plain grid steps in
+  // vector blocks; `threads` threads.
+  void advance(I64 lanes, I64 records, In times, long last, F64 rows, F64 rows_t, bool write,
+               long budget, I64 code, I64 next_sample, I64 failure, F64 log, F64 log_q, F64 log_u,
+               Bools log_free, I64 count, I64 paths, bool vector, int threads) {
+    const size_t m = lanes.size(), n_lanes = code.size();
+    need(records, m, "records");
+    need(next_sample, n_lanes, "next_sample");
+    need(failure, n_lanes, "failure");
+    need(count, n_lanes, "count");
+    need(paths, 2 * n_lanes, "paths");
+    if (last < 0 || size_t(last) > times.size()) throw std::invalid_argument("last: out of range");
+    if (rows.ndim() != 3 || rows.shape(0) != n_lanes || rows_t.ndim() != 2 ||
+        rows_t.shape(0) != n_lanes)
+      throw std::invalid_argument("rows, rows_t: expected one block of rows per lane");
+    const size_t size = lanes_.empty() ? 0 : lanes_[0].run->size;
+    if (write && (rows.shape(1) < size_t(last) || rows.shape(2) != size + 1 ||
+                  rows_t.shape(1) < size_t(last)))
+      throw std::invalid_argument("rows: expected (lanes, samples, state + 1)");
+    if (log.ndim() != 3 || log.shape(0) != n_lanes || log.shape(2) != LOG_COLUMNS)
+      throw std::invalid_argument("log: expected (lanes, rows, " + std::to_string(LOG_COLUMNS) +
+                                  ")");
+    const size_t log_rows = log.shape(1);
+    std::vector<long> chosen(m), record(m);
+    for (size_t j = 0; j < m; ++j) {
+      chosen[j] = long(lanes.data()[j]);
+      record[j] = long(records.data()[j]);
+      if (chosen[j] < 0 || size_t(chosen[j]) >= n_lanes || record[j] < 0 ||
+          size_t(record[j]) >= lanes_.size())
+        throw std::invalid_argument("lanes, records: out of range");
+    }
+    if (!lanes_.empty()) {
+      const Run& run = *lanes_[0].run;
+      need(log_q, n_lanes * log_rows * run.n_q(), "log_q");
+      need(log_u, n_lanes * log_rows * 2 * run.n_u(), "log_u");
+      need(log_free, n_lanes * log_rows * run.n_u(), "log_free");
+    }
+    const LaneCall call{times.data(), last, write, budget};
+    auto out_of = [&, rows_stride = rows.shape(1) * rows.shape(2), t_stride = rows_t.shape(1)](
+                      long lane) {
+      const Run& run = *lanes_[0].run;
+      return LaneOut{rows.data() + lane * rows_stride, rows_t.data() + lane * t_stride,
+                     LaneLog{log.data() + lane * log_rows * LOG_COLUMNS,
+                             log_q.data() + lane * log_rows * run.n_q(),
+                             log_u.data() + lane * log_rows * 2 * run.n_u(),
+                             log_free.data() + lane * log_rows * run.n_u(), count.data() + lane,
+                             int(log_rows)}};
+    };
+    nb::gil_scoped_release free_the_interpreter;
+    on_threads(std::max(threads, 1), long(m), [&](long j) {
+      const long lane = chosen[j];
+      LaneFlow flow;
+      flow.at = next_sample.data()[lane];
+      LaneOut out = out_of(lane);
+      int status = DONE;
+      code.data()[lane] = run_lane(lanes_[record[j]], flow, call, out, status,
+                                   paths.data() + 2 * lane + 1);
+      next_sample.data()[lane] = flow.at;
+      failure.data()[lane] = status;
+    });
+  }
+
+  size_t size() const { return lanes_.size(); }
+
+ private:
+  nb::object steppers_, states_, clocks_;  // kept alive while the lanes point into them
+  std::vector<Lane> lanes_;
+};
 
 // a*b + c, as this build computes it: a build that contracts it into one fused multiply-add
 // rounds once and gives another result than IEEE's two roundings (the test checks).
@@ -969,4 +1072,11 @@ NB_MODULE(_core, m) {
       .def("release", &mms::Stepper::release, "s"_a, "at_root"_a)
       .def("holding_margin", &mms::Stepper::holding_margin, "s"_a)
       .def("derivative", &mms::Stepper::derivative, "s"_a);
+  nb::class_<mms::LaneSet>(m, "LaneSet")
+      .def(nb::init<nb::list, nb::list, nb::list>(), "steppers"_a, "states"_a, "clocks"_a)
+      .def("advance", &mms::LaneSet::advance, "lanes"_a, "records"_a, "times"_a, "last"_a,
+           "rows"_a, "rows_t"_a, "write"_a, "budget"_a, "code"_a, "next_sample"_a, "failure"_a,
+           "log"_a, "log_q"_a, "log_u"_a, "log_free"_a, "count"_a, "paths"_a, "vector"_a,
+           "threads"_a)
+      .def("__len__", &mms::LaneSet::size);
 }

@@ -152,19 +152,39 @@ inline void relock(Run& run) {
   sync_locks(run);
 }
 
-// min over resting rods of the force (N) its stop pushes with, right after a `derivative`
-// (> 0 while every stop pushes; +inf when none rests). The stop pushes outward only: +l at the
-// lower stop (side −1), −l at the upper (+1).
-inline double holding_margin_now(const Run& run) {
+// min over resting rods of the force (N) its stop pushes with, `net(k)` the force rod k's slide
+// transmits less its applied force (+inf when none rests). The stop pushes outward only: +l at
+// the lower stop (side −1), −l at the upper (+1).
+template <class Net>
+inline double least_margin(const Run& run, Net&& net) {
   double margin = std::numeric_limits<double>::infinity();
   for (int k = 1; k <= run.n(); ++k) {
     std::int64_t side = run.stops.resting[k - 1];
-    if (side != 0) {
-      double force = run.ws.dynamics.slide_force[k] - run.ws.Q[u_slide(k)];
-      margin = std::min(margin, -double(side) * force);
-    }
+    if (side != 0) margin = std::min(margin, -double(side) * net(k));
   }
   return margin;
+}
+
+// … right after a `derivative` (> 0 while every stop pushes)
+inline double holding_margin_now(const Run& run) {
+  return least_margin(run, [&](int k) {
+    return run.ws.dynamics.slide_force[k] - run.ws.Q[u_slide(k)];
+  });
+}
+
+// While a rod rests, every evaluation samples the holding forces: the least margin so far.
+inline void watch_holding(Run& run, double margin) {
+  if (margin < run.system.holding[HOLDING_LEAST_MARGIN])
+    run.system.holding[HOLDING_LEAST_MARGIN] = margin;
+}
+
+// The stages one evaluation of ds/dt runs, counted (counters[...]).
+inline void count_evaluation(Run& run) {
+  auto& counters = run.system.counters;
+  counters[RHS_EVALS] += 1;
+  if (run.system.control[WHEEL_VELOCITY_MODE] != 0.0) counters[CONTROL_STAGE] += 1;
+  if (run.system.damping != nullptr) counters[DAMPING_STAGE] += 1;
+  if (run.system.free[run.n_u() - 1] < 0) counters[REDUCED_SOLVE] += 1;
 }
 
 inline void clear_holding(Run& run) {
@@ -180,14 +200,12 @@ inline WheelLoop wheel_loop(const double* control) {
 // each stage of every step — samples the holding forces, so that a pull inside a step is noticed
 // where a stage saw it.
 inline void derivative(Run& run, const double* s, double* ds) {
-  auto& counters = run.system.counters;
-  counters[RHS_EVALS] += 1;
+  count_evaluation(run);
   const double* control = run.system.control;
   WheelLoop wheels;
   const WheelLoop* loop = nullptr;
   const double* held = nullptr;
   if (control[WHEEL_VELOCITY_MODE] != 0.0) {
-    counters[CONTROL_STAGE] += 1;
     if (run.system.rate > 0.0) {
       held = run.system.held;
     } else {
@@ -195,15 +213,9 @@ inline void derivative(Run& run, const double* s, double* ds) {
       loop = &wheels;
     }
   }
-  if (run.system.damping != nullptr) counters[DAMPING_STAGE] += 1;
-  if (run.system.free[run.n_u() - 1] < 0) counters[REDUCED_SOLVE] += 1;
   Effects<double> fx{run.system.gravity, run.system.Q_cmd, run.system.damping, loop, held};
   rates(run.model, fx, s, ds, run.ws);
-  if (run.system.holding[HOLDING_ON] != 0.0) {
-    double margin = holding_margin_now(run);
-    if (margin < run.system.holding[HOLDING_LEAST_MARGIN])
-      run.system.holding[HOLDING_LEAST_MARGIN] = margin;
-  }
+  if (run.system.holding[HOLDING_ON] != 0.0) watch_holding(run, holding_margin_now(run));
 }
 
 // The force (N) the stop of each resting rod k must push with along the rod to hold it, into

@@ -138,15 +138,14 @@ inline Status step_with_events(Run& run, Method method, double* s, double h, dou
   return CHATTER;
 }
 
-// One whole step dt on the grid, events and releases included. Returns the status; k1_ready says
-// on return whether the first stage now holds f(s) for the next step (the release check
-// computed it).
-inline Status grid_step(Run& run, Method method, double* s, double* clock, bool& k1_ready) {
+// What a whole grid step does once its step s → run.step.out is taken (`run_step` here, or a
+// vector block of lanes, lanes.hpp): a non-finite end, a crossing or a pull turns it into the
+// step with its events; else the end is taken. k1_ready says on return whether the first stage
+// now holds f(s) for the next step (the release check computed it).
+inline Status grid_step_end(Run& run, Method method, double* s, double* clock, bool& k1_ready) {
   const double dt = clock[CLOCK_DT];
-  clear_holding(run);
   const double t = clock[CLOCK_T0] + clock[CLOCK_K] * dt;
   double* out = run.step.out;
-  run_step(run, method, s, dt, out, k1_ready);
   k1_ready = false;
   if (!finite(out, run.size)) return NOT_FINITE;
   // the holding forces need f(out), the next step's first stage: computed once
@@ -155,6 +154,14 @@ inline Status grid_step(Run& run, Method method, double* s, double* clock, bool&
   std::copy(out, out + run.size, s);
   k1_ready = any_resting(run);
   return DONE;
+}
+
+// One whole step dt on the grid, events and releases included. Returns the status; k1_ready says
+// on entry whether the first stage holds f(s), and on return whether it does for the next step.
+inline Status grid_step(Run& run, Method method, double* s, double* clock, bool& k1_ready) {
+  clear_holding(run);
+  run_step(run, method, s, clock[CLOCK_DT], run.step.out, k1_ready);
+  return grid_step_end(run, method, s, clock, k1_ready);
 }
 
 // Advance s to exactly t_end with no update due before it. DONE, or BUDGET after max_steps
