@@ -868,6 +868,8 @@ class Stepper {
 };
 
 
+constexpr long kLaneGroup = 64;  // lanes per thread's group, among which vector blocks form
+
 // A batch's lanes (lanes.hpp): the steppers of its simulations with their states and clocks,
 // advanced together by `advance` over several threads, without the GIL. Each lane's records
 // stay its simulation's; this only holds them (and keeps them alive) for the calls.
@@ -943,7 +945,34 @@ class LaneSet {
                              int(log_rows)}};
     };
     nb::gil_scoped_release free_the_interpreter;
-    on_threads(std::max(threads, 1), long(m), [&](long j) {
+    threads = std::max(threads, 1);
+    if (vector) {  // groups of lanes, one thread's each, among which the blocks form
+      const long group = std::min<long>(kLaneGroup, std::max<long>(kLaneWidth,
+                                                                   (long(m) + threads - 1) / threads));
+      on_threads(threads, (long(m) + group - 1) / group, [&](long g) {
+        const long start = g * group, size = std::min<long>(group, long(m) - start);
+        std::vector<Lane*> members(size);
+        std::vector<LaneFlow> flows(size);
+        std::vector<LaneOut> outs;
+        std::vector<std::int64_t*> lane_paths(size);
+        for (long j = 0; j < size; ++j) {
+          const long lane = chosen[start + j];
+          members[j] = &lanes_[record[start + j]];
+          flows[j].at = next_sample.data()[lane];
+          outs.push_back(out_of(lane));
+          lane_paths[j] = paths.data() + 2 * lane;
+        }
+        run_group<kLaneWidth>(members.data(), flows.data(), outs.data(), lane_paths.data(),
+                              int(size), call, [&](long j, int c, int status) {
+                                const long lane = chosen[start + j];
+                                code.data()[lane] = c;
+                                next_sample.data()[lane] = flows[j].at;
+                                failure.data()[lane] = status;
+                              });
+      });
+      return;
+    }
+    on_threads(threads, long(m), [&](long j) {
       const long lane = chosen[j];
       LaneFlow flow;
       flow.at = next_sample.data()[lane];

@@ -69,8 +69,8 @@ inline void add_body(Mat6<S>& IA, Spatial<S>& pA, const RigidInertia<S>& body,
 
 // u̇ = M(q)⁻¹ (Q − h(q, u)) in O(n), gravity g (m/s², along −z) included. Q (n_u): applied
 // generalized forces; ws.moving (n_u): 1 free, 0 locked (locked ones get u̇ = 0). Needs `frames`.
-template <class S>
-void forward_dynamics(const Model& model, const S* q, const S* u, const S* Q, double g,
+template <class S, class P>
+void forward_dynamics(const ModelOf<P>& model, const S* q, const S* u, const S* Q, double g,
                       Workspace<S>& ws, S* ud) {
   const int n = model.n();
   auto& Sk = ws.Sk;
@@ -171,9 +171,9 @@ void forward_dynamics(const Model& model, const S* q, const S* u, const S* Q, do
 
   // 3. the root: base (v, ω) with its own mass, yaw inertia and wheels
   const auto& base = model.base;
-  double M_pw = base.mass, I_pw = base.yaw_inertia, d = base.com_offset;
-  double r = base.wheel_radius, b = base.half_track;
-  double wheels = 2.0 * base.wheel_inertia / (r * r);
+  P M_pw = base.mass, I_pw = base.yaw_inertia, d = base.com_offset;
+  P r = base.wheel_radius, b = base.half_track;
+  P wheels = 2.0 * base.wheel_inertia / (r * r);
   const S& vv = u[V];
   const S& om = u[OMEGA];
   // S_0ᵀ I^A S_0 with s_v = (0, x_0), s_ω = (z, 0); a_g = (0, g z)

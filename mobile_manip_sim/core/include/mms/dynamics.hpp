@@ -48,8 +48,8 @@ template <class S>
 inline Vec3<S> column(const Mat3<S>& R, int c) { return {R[0][c], R[1][c], R[2][c]}; }
 
 // Position pass: R_k = R_{k−1} · R0_k · Rz(q_k), O_{k+1} = O_k + l_k x_k (docs/model.md frames).
-template <class S>
-void frames(const Model& model, const S* q, Workspace<S>& ws) {
+template <class S, class P>
+void frames(const ModelOf<P>& model, const S* q, Workspace<S>& ws) {
   const int n = model.n();
   auto& R = ws.R;
   S c = cos_(q[YAW]), s = sin_(q[YAW]);
@@ -61,12 +61,12 @@ void frames(const Model& model, const S* q, Workspace<S>& ws) {
   ws.O[1] = add(ws.O[0], matvec(R[0], mount));
   for (int k = 1; k <= n; ++k) {
     S cq = cos_(q[q_turn(k)]), sq = sin_(q[q_turn(k)]);
-    const Mat3d& R0 = model.R0[k - 1];
+    const Mat3<P>& R0 = model.R0[k - 1];
     for (int i = 0; i < 3; ++i) {  // (R_{k−1} · R0_k) row i, then · Rz(q_k)
-      const auto& P = R[k - 1][i];
-      S a0 = P[0] * R0[0][0] + P[1] * R0[1][0] + P[2] * R0[2][0];
-      S a1 = P[0] * R0[0][1] + P[1] * R0[1][1] + P[2] * R0[2][1];
-      S a2 = P[0] * R0[0][2] + P[1] * R0[1][2] + P[2] * R0[2][2];
+      const auto& row = R[k - 1][i];
+      S a0 = row[0] * R0[0][0] + row[1] * R0[1][0] + row[2] * R0[2][0];
+      S a1 = row[0] * R0[0][1] + row[1] * R0[1][1] + row[2] * R0[2][1];
+      S a2 = row[0] * R0[0][2] + row[1] * R0[1][2] + row[2] * R0[2][2];
       R[k][i][0] = a0 * cq + a1 * sq;
       R[k][i][1] = -a0 * sq + a1 * cq;
       R[k][i][2] = a2;
@@ -78,16 +78,16 @@ void frames(const Model& model, const S* q, Workspace<S>& ws) {
 }
 
 // ∫η dη and ∫η² dη over the rod, η ∈ [l − L, l]
-template <class S>
-inline void rod_moments(const S& l, double L, S& s1, S& s2) {
+template <class S, class P>
+inline void rod_moments(const S& l, const P& L, S& s1, S& s2) {
   s1 = L * (l - 0.5 * L);
   S t = l - L;
   s2 = (l * l * l - t * (t * t)) / 3.0;
 }
 
 // L·(J α + ω × J ω) in the world frame, J (kg·m, link frame) per unit length
-template <class S>
-inline Vec3<S> cross_section_moment(const Mat3<S>& Rk, const Mat3d& Jk, double Lk,
+template <class S, class P>
+inline Vec3<S> cross_section_moment(const Mat3<S>& Rk, const Mat3<P>& Jk, const P& Lk,
                                     const Vec3<S>& alpha, const Vec3<S>& omega) {
   Vec3<S> ab = tmatvec(Rk, alpha), wb = tmatvec(Rk, omega);
   return scale(Lk, matvec(Rk, add(matvec(Jk, ab), cross(wb, matvec(Jk, wb)))));
@@ -96,8 +96,8 @@ inline Vec3<S> cross_section_moment(const Mat3<S>& Rk, const Mat3d& Jk, double L
 // Inverse dynamics Q = ∂S/∂u̇ = M(q) u̇ + h(q, u), gravity g (m/s², along −z) included: one
 // outward pass (ω_k, α_k, a_{O_k}; rod forces F_k, moments N_k) and one inward pass (accumulated
 // f, n projected on z_k, x_k, then the base). Needs `frames`.
-template <class S>
-void inverse_dynamics(const Model& model, const S* q, const S* u, const S* ud, double g,
+template <class S, class P>
+void inverse_dynamics(const ModelOf<P>& model, const S* q, const S* u, const S* ud, double g,
                       Workspace<S>& ws, S* Q) {
   const int n = model.n();
   const auto& base = model.base;
@@ -116,7 +116,7 @@ void inverse_dynamics(const Model& model, const S* q, const S* u, const S* ud, d
     const S& qdd = ud[u_turn(k)];
     const S& ldd = ud[u_slide(k)];
     const S& l = q[q_slide(k)];
-    double Lk = model.L[k - 1], muk = model.mu[k - 1];
+    P Lk = model.L[k - 1], muk = model.mu[k - 1];
     const Vec3<S>& xk = ws.x[k];
     const Vec3<S>& zk = ws.z[k];
     alpha = add(alpha, axpy(qdd, zk, cross(omega, scale(qd, zk))));
@@ -142,18 +142,18 @@ void inverse_dynamics(const Model& model, const S* q, const S* u, const S* ud, d
     Q[u_slide(k)] = dot(xk, f);
   }
   Vec3<S> m_A = add(m, cross(m_w, f));
-  double M_pw = base.mass, I_pw = base.yaw_inertia, d = base.com_offset;
-  double r = base.wheel_radius, b = base.half_track;
-  double wheels = 2.0 * base.wheel_inertia / (r * r);
+  P M_pw = base.mass, I_pw = base.yaw_inertia, d = base.com_offset;
+  P r = base.wheel_radius, b = base.half_track;
+  P wheels = 2.0 * base.wheel_inertia / (r * r);
   Q[V] = dot(x0, f) + M_pw * (vd - d * om * om) + wheels * vd;
   Q[OMEGA] = m_A[2] + M_pw * d * (v * om + d * omd) + I_pw * omd + wheels * (b * b) * omd;
 }
 
 // Rigid-body inertia about A of rod k (1 … n): ∫ over η ∈ [l_k − L_k, l_k] of μ_k at
 // p = O_k + η x_k, plus L_k R J Rᵀ. Needs `frames`.
-template <class S>
-RigidInertia<S> rod_inertia(const Model& model, const S* q, const Workspace<S>& ws, int k) {
-  double Lk = model.L[k - 1], muk = model.mu[k - 1];
+template <class S, class P>
+RigidInertia<S> rod_inertia(const ModelOf<P>& model, const S* q, const Workspace<S>& ws, int k) {
+  P Lk = model.L[k - 1], muk = model.mu[k - 1];
   S s1, s2;
   rod_moments(q[q_slide(k)], Lk, s1, s2);
   Vec3<S> r = sub(ws.O[k], ws.O[0]);
@@ -163,7 +163,7 @@ RigidInertia<S> rod_inertia(const Model& model, const S* q, const Workspace<S>& 
   body.h = scale(muk, axpy(Lk, r, scale(s1, xk)));
   S rr = dot(r, r), rx = dot(r, xk);
   // μ [L (|r|² 1 − r rᵀ) + s1 (2 r·x 1 − r xᵀ − x rᵀ) + s2 (1 − x xᵀ)]
-  double a = muk * Lk;
+  P a = muk * Lk;
   S b = muk * s1, c = muk * s2;
   S diag = a * rr + 2.0 * b * rx + c;
   auto& I = body.I;
@@ -174,7 +174,7 @@ RigidInertia<S> rod_inertia(const Model& model, const S* q, const Workspace<S>& 
   I[4] = -a * r[0] * r[2] - b * (r[0] * xk[2] + xk[0] * r[2]) - c * xk[0] * xk[2];
   I[5] = -a * r[1] * r[2] - b * (r[1] * xk[2] + xk[1] * r[2]) - c * xk[1] * xk[2];
   // the cross-section: L R J Rᵀ, the same about any point
-  const Mat3d& J = model.J[k - 1];
+  const Mat3<P>& J = model.J[k - 1];
   const Mat3<S>& Rk = ws.R[k];
   Mat3<S> RJ;
   for (int i = 0; i < 3; ++i)
@@ -192,9 +192,9 @@ RigidInertia<S> rod_inertia(const Model& model, const S* q, const Workspace<S>& 
 }
 
 // Rigid-body inertia about A of the payload, a point mass at the tip O_{n+1}. Needs `frames`.
-template <class S>
-RigidInertia<S> payload_inertia(const Model& model, const Workspace<S>& ws) {
-  double m = model.tip_mass;
+template <class S, class P>
+RigidInertia<S> payload_inertia(const ModelOf<P>& model, const Workspace<S>& ws) {
+  P m = model.tip_mass;
   Vec3<S> t = sub(ws.O[model.n() + 1], ws.O[0]);
   S tt = dot(t, t);
   return {S(m), scale(m, t),
@@ -204,8 +204,8 @@ RigidInertia<S> payload_inertia(const Model& model, const Workspace<S>& ws) {
 
 // Sk[k] (6 × 2, about A): (z_k, (O_k − A) × z_k) for q̇_k and (0, x_k) for l̇_k; Sk[0]:
 // (0, x_0) for v and (z, 0) for ω (constant in base_link). Needs `frames`.
-template <class S>
-void motion_subspaces(const Model& model, Workspace<S>& ws) {
+template <class S, class P>
+void motion_subspaces(const ModelOf<P>& model, Workspace<S>& ws) {
   auto& Sk = ws.Sk;
   for (int c = 0; c < 2; ++c) Sk[0][c].fill(S(0.0));
   Sk[0][0][3] = ws.x[0][0];
@@ -226,8 +226,8 @@ void motion_subspaces(const Model& model, Workspace<S>& ws) {
 // M(q) by composite rigid bodies, O(n²), into M (n_u × n_u, row-major). Needs `frames`.
 // M_ij = s_iᵀ I^c_{max(i,j)} s_j, I^c_k the composite inertia of rods k … n about A; the base
 // and wheels add their own terms to the (v, ω) block, as in `inverse_dynamics`.
-template <class S>
-void mass_matrix(const Model& model, Workspace<S>& ws, const S* q, S* M) {
+template <class S, class P>
+void mass_matrix(const ModelOf<P>& model, Workspace<S>& ws, const S* q, S* M) {
   const int n = model.n(), nu = model.n_u();
   const auto& Sk = ws.Sk;
   motion_subspaces(model, ws);
@@ -255,9 +255,9 @@ void mass_matrix(const Model& model, Workspace<S>& ws, const S* q, S* M) {
     }
   }
   const auto& base = model.base;
-  double M_pw = base.mass, I_pw = base.yaw_inertia, d = base.com_offset;
-  double r = base.wheel_radius, b = base.half_track;
-  double wheels = 2.0 * base.wheel_inertia / (r * r);
+  P M_pw = base.mass, I_pw = base.yaw_inertia, d = base.com_offset;
+  P r = base.wheel_radius, b = base.half_track;
+  P wheels = 2.0 * base.wheel_inertia / (r * r);
   const Vec3<S>& x0 = ws.x[0];
   M[V * nu + V] = comp.m + M_pw + wheels;
   M[V * nu + OMEGA] = M[OMEGA * nu + V] =
@@ -266,11 +266,11 @@ void mass_matrix(const Model& model, Workspace<S>& ws, const S* q, S* M) {
 }
 
 // T = Σ ½∫μ|v|² + ½ ω·(J L) ω over rods, plus the base and wheels. Needs `frames`.
-template <class S>
-S kinetic_energy(const Model& model, const S* q, const S* u, const Workspace<S>& ws) {
+template <class S, class P>
+S kinetic_energy(const ModelOf<P>& model, const S* q, const S* u, const Workspace<S>& ws) {
   const auto& base = model.base;
-  double M_pw = base.mass, I_pw = base.yaw_inertia, d = base.com_offset;
-  double r = base.wheel_radius, b = base.half_track, I_w = base.wheel_inertia;
+  P M_pw = base.mass, I_pw = base.yaw_inertia, d = base.com_offset;
+  P r = base.wheel_radius, b = base.half_track, I_w = base.wheel_inertia;
   S v = u[V], om = u[OMEGA];
   S T = 0.5 * M_pw * (v * v + d * d * om * om) + 0.5 * I_pw * om * om;
   S right = v + b * om, left = v - b * om;
@@ -281,7 +281,7 @@ S kinetic_energy(const Model& model, const S* q, const S* u, const Workspace<S>&
     const Vec3<S>& xk = ws.x[k];
     omega = axpy(u[u_turn(k)], column(ws.R[k], 2), omega);
     const S& l = q[q_slide(k)];
-    double Lk = model.L[k - 1];
+    P Lk = model.L[k - 1];
     S s1, s2;
     rod_moments(l, Lk, s1, s2);
     Vec3<S> bv = axpy(u[u_slide(k)], xk, v_O);  // v(η) = b + η c
@@ -295,8 +295,8 @@ S kinetic_energy(const Model& model, const S* q, const S* u, const Workspace<S>&
 }
 
 // V = g Σ μ ∫ z(η) dη + g m_tip z_tip (the base moves in the plane). Needs `frames`.
-template <class S>
-S potential_energy(const Model& model, const S* q, double g, const Workspace<S>& ws) {
+template <class S, class P>
+S potential_energy(const ModelOf<P>& model, const S* q, double g, const Workspace<S>& ws) {
   const int n = model.n();
   S V_sum = S(0.0);
   for (int k = 1; k <= n; ++k) {
@@ -308,9 +308,9 @@ S potential_energy(const Model& model, const S* q, double g, const Workspace<S>&
 }
 
 // q̇ from u with the nonholonomic constraints built in: ẋ = v cos yaw, θ̇_R = (v + bω)/r, …
-template <class S>
-void configuration_rate(const Model& model, const S* q, const S* u, S* qdot) {
-  double r = model.base.wheel_radius, b = model.base.half_track;
+template <class S, class P>
+void configuration_rate(const ModelOf<P>& model, const S* q, const S* u, S* qdot) {
+  P r = model.base.wheel_radius, b = model.base.half_track;
   S v = u[V], om = u[OMEGA];
   qdot[X] = v * cos_(q[YAW]);
   qdot[Y] = v * sin_(q[YAW]);

@@ -21,8 +21,8 @@ enum class Method { Euler, SemiImplicitEuler, Rk4 };
 // One step with the right-hand side `f(x, dx)` given (the engine's counts its stages and watches
 // the holding forces); k[0 … 3] are the stages (with `k1_ready`, k[0] already holds f(s)), x a
 // stage's state; n entries of s.
-template <class S, class F>
-void step_with(Method method, const Model& model, F&& f, const S* s, double h, S* out,
+template <class S, class P, class F>
+void step_with(Method method, const ModelOf<P>& model, F&& f, const S* s, double h, S* out,
                S* const* k, S* x, int n, bool k1_ready = false) {
   const int nq = model.n_q();
   if (method == Method::Rk4) {
@@ -49,8 +49,8 @@ void step_with(Method method, const Model& model, F&& f, const S* s, double h, S
   for (int i = 0; i < nq; ++i) out[i] = s[i] + h * k[1][i];
 }
 
-template <class S>
-void step(Method method, const Model& model, const Effects<S>& fx, const S* s, double h, S* out,
+template <class S, class P>
+void step(Method method, const ModelOf<P>& model, const Effects<S>& fx, const S* s, double h, S* out,
           SystemWorkspace<S>& ws) {
   S* k[4] = {ws.k[0].data(), ws.k[1].data(), ws.k[2].data(), ws.k[3].data()};
   step_with(

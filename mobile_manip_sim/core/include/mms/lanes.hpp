@@ -16,6 +16,7 @@
 #include <atomic>
 #include <cmath>
 #include <exception>
+#include <memory>
 #include <mutex>
 #include <thread>
 #include <vector>
@@ -198,6 +199,201 @@ inline int run_lane(Lane& lane, LaneFlow& f, const LaneCall& call, LaneOut& out,
     int step_status = grid_step(*lane.run, lane.method, lane.s, lane.clock, k1_ready);
     stepped(lane, f, step_status, k1_ready);
     ++*scalar_steps;
+  }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Vector blocks: the plain whole grid steps of up to W lanes in one step on Lanes<W>.
+
+// A lane's grid step may share a vector block when nothing in its right-hand side is its own but
+// numbers the block holds per lane (its robot, state, efforts, locks): no wheel-speed loop.
+inline bool plain(const Lane& lane) { return lane.run->system.control[WHEEL_VELOCITY_MODE] == 0.0; }
+
+// Two lanes may share a block: one method, step, gravity and damping (the block's step takes them
+// once), one robot structure.
+inline bool same_step(const Lane& a, const Lane& b) {
+  const Run &ra = *a.run, &rb = *b.run;
+  if (a.method != b.method || a.clock[CLOCK_DT] != b.clock[CLOCK_DT] ||
+      ra.system.gravity != rb.system.gravity || ra.size != rb.size || ra.n() != rb.n())
+    return false;
+  if ((ra.system.damping == nullptr) != (rb.system.damping == nullptr)) return false;
+  if (ra.system.damping != nullptr)
+    for (int i = 0; i < ra.n_u(); ++i)
+      if (ra.system.damping[i] != rb.system.damping[i]) return false;
+  return true;
+}
+
+// Lane j of a block's robot set to a run's robot.
+template <int W>
+void set_lane(ModelOf<Lanes<W>>& to, int j, const Model& from) {
+  BaseParametersOf<Lanes<W>>& b = to.base;
+  b.mass.set(j, from.base.mass);
+  b.yaw_inertia.set(j, from.base.yaw_inertia);
+  b.com_offset.set(j, from.base.com_offset);
+  b.wheel_radius.set(j, from.base.wheel_radius);
+  b.half_track.set(j, from.base.half_track);
+  b.wheel_inertia.set(j, from.base.wheel_inertia);
+  for (int i = 0; i < 3; ++i) to.mount[i].set(j, from.mount[i]);
+  for (int k = 0; k < from.n(); ++k) {
+    to.L[k].set(j, from.L[k]);
+    to.mu[k].set(j, from.mu[k]);
+    for (int a = 0; a < 3; ++a)
+      for (int c = 0; c < 3; ++c) {
+        to.R0[k][a][c].set(j, from.R0[k][a][c]);
+        to.J[k][a][c].set(j, from.J[k][a][c]);
+      }
+  }
+  to.tip_mass.set(j, from.tip_mass);
+}
+
+// One vector block: its lanes' robots, the step's state, stages and efforts, and which run's
+// robot each lane holds now.
+template <int W>
+struct LaneBlock {
+  using B = Lanes<W>;
+  ModelOf<B> model;
+  SystemWorkspace<B> ws;
+  std::vector<B> s, out, x, Q;
+  std::vector<std::vector<B>> k;
+  const Run* owner[W] = {};
+  LaneBlock(const Model& m, int size)
+      : model(shaped(m)), ws(m), s(size), out(size), x(size), Q(m.n_u()),
+        k(4, std::vector<B>(size)) {}
+  static ModelOf<B> shaped(const Model& m) {
+    ModelOf<B> b;
+    b.R0.resize(m.n());
+    b.L.resize(m.n());
+    b.mu.resize(m.n());
+    b.J.resize(m.n());
+    return b;
+  }
+};
+
+// The stages a step of `method` writes (fixed_step.hpp's step_with).
+inline int stages_of(Method method) {
+  return method == Method::Rk4 ? 4 : method == Method::SemiImplicitEuler ? 2 : 1;
+}
+
+// The whole grid step of `count` lanes (2 ≤ count ≤ W, one `same_step`, all `plain`) computed
+// once in vector lanes (a short block repeats its first lane), each lane's run then left exactly
+// as its own `run_step` leaves it — its step's end and stages in its scratch, its evaluations
+// counted, its holding forces watched at every evaluation while a rod rests (not the first, when
+// f(s) was ready) — and its grid step finished by the scalar `grid_step_end`: a lane that meets
+// an event there leaves the block for its scalar run, which takes the step with its events.
+template <int W>
+void block_step(LaneBlock<W>& block, Lane* const* lanes, LaneFlow* const* flows, int count,
+                std::int64_t* const* vector_steps) {
+  using B = Lanes<W>;
+  const Lane& first = *lanes[0];
+  const Run& lead = *first.run;
+  const int size = lead.size, nu = lead.n_u();
+  for (int j = 0; j < W; ++j) {
+    const Lane& lane = *lanes[j < count ? j : 0];
+    const Run& run = *lane.run;
+    if (block.owner[j] != &run) {
+      set_lane(block.model, j, run.model);
+      block.owner[j] = &run;
+    }
+    for (int i = 0; i < size; ++i) block.s[i].set(j, lane.s[i]);
+    for (int i = 0; i < nu; ++i) {
+      block.Q[i].set(j, run.system.Q_cmd[i]);
+      block.ws.dynamics.moving[i].set(j, run.ws.dynamics.moving[i]);
+    }
+  }
+  for (int j = 0; j < count; ++j) clear_holding(*lanes[j]->run);
+  Effects<B> fx{lead.system.gravity, block.Q.data(), lead.system.damping};
+  int stage = 0;
+  auto f = [&](const B* at, B* rate) {
+    rates(block.model, fx, at, rate, block.ws);
+    for (int j = 0; j < count; ++j) {
+      Run& run = *lanes[j]->run;
+      if (stage == 0 && flows[j]->k1_ready) {  // its step takes f(s) from its first stage
+        for (int i = 0; i < size; ++i) rate[i].set(j, run.stage(0)[i]);
+        continue;
+      }
+      count_evaluation(run);
+      if (run.system.holding[HOLDING_ON] != 0.0)
+        watch_holding(run, least_margin(run, [&](int k) {
+                        return block.ws.dynamics.slide_force[k][j] - block.ws.Q[u_slide(k)][j];
+                      }));
+    }
+    ++stage;
+  };
+  B* k[4] = {block.k[0].data(), block.k[1].data(), block.k[2].data(), block.k[3].data()};
+  step_with(first.method, block.model, f, block.s.data(), first.clock[CLOCK_DT], block.out.data(),
+            k, block.x.data(), size);
+  const int stages = stages_of(first.method);
+  for (int j = 0; j < count; ++j) {
+    Lane& lane = *lanes[j];
+    Run& run = *lane.run;
+    for (int i = 0; i < size; ++i) run.step.out[i] = block.out[i][j];
+    for (int st = 0; st < stages; ++st)
+      for (int i = 0; i < size; ++i) run.stage(st)[i] = block.k[st][i][j];
+    bool k1_ready = false;
+    int status = grid_step_end(run, lane.method, lane.s, lane.clock, k1_ready);
+    stepped(lane, *flows[j], status, k1_ready);
+    ++*vector_steps[j];
+  }
+}
+
+// One thread's group of lanes through the call, in rounds: each lane brought to its next whole
+// grid step (`until_step`), then those ready together take it in vector blocks of up to W lanes
+// that share a step (at least two: one lane alone steps in double), the rest with the scalar
+// `grid_step`. flows[j] says where lane j is (its next sample); `outcome(j, code, status)` takes
+// each lane's result; paths[j] its counts of grid steps in blocks and alone.
+template <int W, class Outcome>
+void run_group(Lane* const* lanes, LaneFlow* flows, LaneOut* outs, std::int64_t* const* paths,
+               int g, const LaneCall& call, Outcome&& outcome) {
+  std::vector<char> active(g, 1), ready(g, 0), taken(g, 0);
+  std::vector<std::unique_ptr<LaneBlock<W>>> blocks;
+  Lane* members[W];
+  LaneFlow* member_flows[W];
+  std::int64_t* member_paths[W];
+  while (true) {
+    int waiting = 0;
+    for (int j = 0; j < g; ++j) {
+      ready[j] = 0;
+      if (!active[j]) continue;
+      int status = DONE;
+      int code = until_step(*lanes[j], flows[j], call, outs[j], status);
+      if (code == NEED_STEP) {
+        ready[j] = 1;
+        ++waiting;
+      } else {
+        active[j] = 0;
+        outcome(j, code, status);
+      }
+    }
+    if (waiting == 0) return;
+    std::fill(taken.begin(), taken.end(), 0);
+    size_t b = 0;
+    for (int j = 0; j < g; ++j) {
+      if (!ready[j] || taken[j] || !plain(*lanes[j])) continue;
+      int count = 0;
+      for (int i = j; i < g && count < W; ++i)
+        if (ready[i] && !taken[i] && plain(*lanes[i]) && same_step(*lanes[j], *lanes[i])) {
+          members[count] = lanes[i];
+          member_flows[count] = &flows[i];
+          member_paths[count] = paths[i];
+          taken[i] = 1;
+          ++count;
+        }
+      if (count < 2) {
+        taken[j] = 0;
+        continue;
+      }
+      if (b == blocks.size())
+        blocks.push_back(std::make_unique<LaneBlock<W>>(lanes[j]->run->model, lanes[j]->run->size));
+      block_step(*blocks[b++], members, member_flows, count, member_paths);
+    }
+    for (int j = 0; j < g; ++j)
+      if (ready[j] && !taken[j]) {
+        bool k1_ready = flows[j].k1_ready;
+        int status = grid_step(*lanes[j]->run, lanes[j]->method, lanes[j]->s, lanes[j]->clock,
+                               k1_ready);
+        stepped(*lanes[j], flows[j], status, k1_ready);
+        ++paths[j][1];
+      }
   }
 }
 

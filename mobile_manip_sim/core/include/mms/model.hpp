@@ -23,27 +23,34 @@ inline int q_slide(int k) { return 4 + 2 * k; }  // l_k
 inline int u_turn(int k) { return 2 * k; }       // q̇_k, and τ_k in Q
 inline int u_slide(int k) { return 2 * k + 1; }  // l̇_k, and F_k in Q
 
-struct BaseParameters {
-  double mass = 0;           // M_pw, kg: base + wheels
-  double yaw_inertia = 0;    // I_pw, kg·m²: about the vertical through G
-  double com_offset = 0;     // d, m: from A forward to G
-  double wheel_radius = 0;   // r, m
-  double half_track = 0;     // b, m: from A to each wheel centre
-  double wheel_inertia = 0;  // I_w, kg·m²: one wheel's spin inertia (0 when the effect is off)
+// The constants are of a type P: double for one robot, or a lane type (scalar.hpp) for a vector
+// block of runs whose robots differ in their numbers (a batch's lanes, lanes.hpp), each lane
+// holding its own run's constants.
+template <class P>
+struct BaseParametersOf {
+  P mass = 0.0;           // M_pw, kg: base + wheels
+  P yaw_inertia = 0.0;    // I_pw, kg·m²: about the vertical through G
+  P com_offset = 0.0;     // d, m: from A forward to G
+  P wheel_radius = 0.0;   // r, m
+  P half_track = 0.0;     // b, m: from A to each wheel centre
+  P wheel_inertia = 0.0;  // I_w, kg·m²: one wheel's spin inertia (0 when the effect is off)
 };
+using BaseParameters = BaseParametersOf<double>;
 
-struct Model {
-  BaseParameters base;
-  Vec3d mount{};            // m: O_1 in base_link
-  std::vector<Mat3d> R0;    // (n) R0_k: parent joint frame → joint frame k before Rz(q_k)
-  std::vector<double> L;    // (n) m: rod lengths
-  std::vector<double> mu;   // (n) kg/m: mass per length
-  std::vector<Mat3d> J;     // (n) kg·m: cross-section inertia per length, link frame
-  double tip_mass = 0;      // kg: point payload at the distal end of rod n
+template <class P>
+struct ModelOf {
+  BaseParametersOf<P> base;
+  Vec3<P> mount{};           // m: O_1 in base_link
+  std::vector<Mat3<P>> R0;   // (n) R0_k: parent joint frame → joint frame k before Rz(q_k)
+  std::vector<P> L;          // (n) m: rod lengths
+  std::vector<P> mu;         // (n) kg/m: mass per length
+  std::vector<Mat3<P>> J;    // (n) kg·m: cross-section inertia per length, link frame
+  P tip_mass = 0.0;          // kg: point payload at the distal end of rod n
   int n() const { return static_cast<int>(L.size()); }
   int n_q() const { return 2 * n() + 5; }
   int n_u() const { return 2 * n() + 2; }
 };
+using Model = ModelOf<double>;
 
 template <class S> using Spatial = std::array<S, 6>;
 template <class S> using Subspace = std::array<Spatial<S>, 2>;  // columns (turn, slide)

@@ -17,9 +17,9 @@
 namespace mms {
 
 // Positions in s beyond (q, u)
-inline int controller_index(const Model& m) { return m.n_q() + m.n_u(); }
-inline int work_index(const Model& m) { return m.n_q() + m.n_u() + 2; }
-inline int state_size(const Model& m) { return m.n_q() + m.n_u() + 3; }
+template <class P> inline int controller_index(const ModelOf<P>& m) { return m.n_q() + m.n_u(); }
+template <class P> inline int work_index(const ModelOf<P>& m) { return m.n_q() + m.n_u() + 2; }
+template <class P> inline int state_size(const ModelOf<P>& m) { return m.n_q() + m.n_u() + 3; }
 
 // The wheel-speed loop of a base under velocity commands: each wheel's PI loop on its speed
 // θ̇ = (v ± b ω)/r, τ = sat(kp (θ̇* − θ̇) + ki e) within ±limit, its integral e (in the state)
@@ -62,13 +62,14 @@ struct SystemWorkspace {
   std::vector<S> Q;               // (n_u) the applied generalized forces
   std::vector<std::vector<S>> k;  // (4 × state) the stages of a step
   std::vector<S> x;               // (state) a stage's state
-  explicit SystemWorkspace(const Model& m)
+  template <class P>
+  explicit SystemWorkspace(const ModelOf<P>& m)
       : dynamics(m.n()), Q(m.n_u()), k(4, std::vector<S>(state_size(m))), x(state_size(m)) {}
 };
 
 // ds/dt at s: q̇ from the constraints, u̇ = M⁻¹(Q − h) by articulated bodies, ė = 0, Ẇ = Q·u.
-template <class S>
-void rates(const Model& model, const Effects<S>& fx, const S* s, S* ds, SystemWorkspace<S>& ws) {
+template <class S, class P>
+void rates(const ModelOf<P>& model, const Effects<S>& fx, const S* s, S* ds, SystemWorkspace<S>& ws) {
   const int nq = model.n_q(), nu = model.n_u();
   const S* q = s;
   const S* u = s + nq;
@@ -80,7 +81,7 @@ void rates(const Model& model, const Effects<S>& fx, const S* s, S* ds, SystemWo
   ds[e + 1] = S(0.0);
   if (fx.wheels != nullptr) {
     const WheelLoop& w = *fx.wheels;
-    double r = model.base.wheel_radius, b = model.base.half_track;
+    P r = model.base.wheel_radius, b = model.base.half_track;
     S tau_R, tau_L;
     wheel_drive(w.kp, w.ki, w.target_R, (u[V] + b * u[OMEGA]) / r, s[e], w.limit_R, tau_R,
                 ds[e]);
@@ -89,7 +90,7 @@ void rates(const Model& model, const Effects<S>& fx, const S* s, S* ds, SystemWo
     ws.Q[V] = (tau_R + tau_L) / r;
     ws.Q[OMEGA] = b * (tau_R - tau_L) / r;
   } else if (fx.held_wheels != nullptr) {  // sampled: the last update's torques (ė = 0)
-    double r = model.base.wheel_radius, b = model.base.half_track;
+    P r = model.base.wheel_radius, b = model.base.half_track;
     double tau_R = fx.held_wheels[0], tau_L = fx.held_wheels[1];
     ws.Q[V] = S((tau_R + tau_L) / r);
     ws.Q[OMEGA] = S(b * (tau_R - tau_L) / r);
