@@ -52,7 +52,8 @@ template <class S, class P>
 void frames(const ModelOf<P>& model, const S* q, Workspace<S>& ws) {
   const int n = model.n();
   auto& R = ws.R;
-  S c = cos_(q[YAW]), s = sin_(q[YAW]);
+  S c, s;
+  sincos_(q[YAW], s, c);
   R[0] = {{{c, -s, S(0.0)}, {s, c, S(0.0)}, {S(0.0), S(0.0), S(1.0)}}};
   ws.x[0] = {c, s, S(0.0)};
   ws.z[0] = {S(0.0), S(0.0), S(1.0)};
@@ -60,7 +61,8 @@ void frames(const ModelOf<P>& model, const S* q, Workspace<S>& ws) {
   Vec3<S> mount = {S(model.mount[0]), S(model.mount[1]), S(model.mount[2])};
   ws.O[1] = add(ws.O[0], matvec(R[0], mount));
   for (int k = 1; k <= n; ++k) {
-    S cq = cos_(q[q_turn(k)]), sq = sin_(q[q_turn(k)]);
+    S cq, sq;
+    sincos_(q[q_turn(k)], sq, cq);
     const Mat3<P>& R0 = model.R0[k - 1];
     for (int i = 0; i < 3; ++i) {  // (R_{k−1} · R0_k) row i, then · Rz(q_k)
       const auto& row = R[k - 1][i];
@@ -312,8 +314,10 @@ template <class S, class P>
 void configuration_rate(const ModelOf<P>& model, const S* q, const S* u, S* qdot) {
   P r = model.base.wheel_radius, b = model.base.half_track;
   S v = u[V], om = u[OMEGA];
-  qdot[X] = v * cos_(q[YAW]);
-  qdot[Y] = v * sin_(q[YAW]);
+  S c, s;
+  sincos_(q[YAW], s, c);
+  qdot[X] = v * c;
+  qdot[Y] = v * s;
   qdot[YAW] = om;
   qdot[WHEEL_R] = (v + b * om) / r;
   qdot[WHEEL_L] = (v - b * om) / r;

@@ -254,11 +254,11 @@ struct LaneBlock {
   ModelOf<B> model;
   SystemWorkspace<B> ws;
   std::vector<B> s, out, x, Q;
-  std::vector<std::vector<B>> k;
+  std::vector<std::vector<B>> k;  // the step's stages, then f(end)
   const Run* owner[W] = {};
   LaneBlock(const Model& m, int size)
       : model(shaped(m)), ws(m), s(size), out(size), x(size), Q(m.n_u()),
-        k(4, std::vector<B>(size)) {}
+        k(5, std::vector<B>(size)) {}
   static ModelOf<B> shaped(const Model& m) {
     ModelOf<B> b;
     b.R0.resize(m.n());
@@ -303,6 +303,11 @@ void block_step(LaneBlock<W>& block, Lane* const* lanes, LaneFlow* const* flows,
   for (int j = 0; j < count; ++j) clear_holding(*lanes[j]->run);
   Effects<B> fx{lead.system.gravity, block.Q.data(), lead.system.damping};
   int stage = 0;
+  auto net_of = [&](int j) {  // lane j's net slide forces of the block's last evaluation
+    return [&block, j](int k) {
+      return block.ws.dynamics.slide_force[k][j] - block.ws.Q[u_slide(k)][j];
+    };
+  };
   auto f = [&](const B* at, B* rate) {
     rates(block.model, fx, at, rate, block.ws);
     for (int j = 0; j < count; ++j) {
@@ -311,17 +316,18 @@ void block_step(LaneBlock<W>& block, Lane* const* lanes, LaneFlow* const* flows,
         for (int i = 0; i < size; ++i) rate[i].set(j, run.stage(0)[i]);
         continue;
       }
-      count_evaluation(run);
-      if (run.system.holding[HOLDING_ON] != 0.0)
-        watch_holding(run, least_margin(run, [&](int k) {
-                        return block.ws.dynamics.slide_force[k][j] - block.ws.Q[u_slide(k)][j];
-                      }));
+      book_evaluation(run, net_of(j));
     }
     ++stage;
   };
   B* k[4] = {block.k[0].data(), block.k[1].data(), block.k[2].data(), block.k[3].data()};
   step_with(first.method, block.model, f, block.s.data(), first.clock[CLOCK_DT], block.out.data(),
             k, block.x.data(), size);
+  // f(end), which a lane with a resting rod needs for its holding forces there (and as its next
+  // step's first stage): computed in the block too, booked only by the lanes that ask for it
+  bool resting = false;
+  for (int j = 0; j < count; ++j) resting = resting || any_resting(*lanes[j]->run);
+  if (resting) rates(block.model, fx, block.out.data(), block.k[4].data(), block.ws);
   const int stages = stages_of(first.method);
   for (int j = 0; j < count; ++j) {
     Lane& lane = *lanes[j];
@@ -330,7 +336,10 @@ void block_step(LaneBlock<W>& block, Lane* const* lanes, LaneFlow* const* flows,
     for (int st = 0; st < stages; ++st)
       for (int i = 0; i < size; ++i) run.stage(st)[i] = block.k[st][i][j];
     bool k1_ready = false;
-    int status = grid_step_end(run, lane.method, lane.s, lane.clock, k1_ready);
+    int status = grid_step_end(run, lane.method, lane.s, lane.clock, k1_ready, [&] {
+      for (int i = 0; i < size; ++i) run.stage(0)[i] = block.k[4][i][j];
+      return holding_margin_of(run, net_of(j));
+    });
     stepped(lane, *flows[j], status, k1_ready);
     ++*vector_steps[j];
   }

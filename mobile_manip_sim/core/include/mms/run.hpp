@@ -165,12 +165,13 @@ inline double least_margin(const Run& run, Net&& net) {
   return margin;
 }
 
-// … right after a `derivative` (> 0 while every stop pushes)
-inline double holding_margin_now(const Run& run) {
-  return least_margin(run, [&](int k) {
-    return run.ws.dynamics.slide_force[k] - run.ws.Q[u_slide(k)];
-  });
+// The net slide forces of the run's own last evaluation (`derivative`), for least_margin.
+inline auto own_net(const Run& run) {
+  return [&run](int k) { return run.ws.dynamics.slide_force[k] - run.ws.Q[u_slide(k)]; };
 }
+
+// … right after a `derivative` (> 0 while every stop pushes)
+inline double holding_margin_now(const Run& run) { return least_margin(run, own_net(run)); }
 
 // While a rod rests, every evaluation samples the holding forces: the least margin so far.
 inline void watch_holding(Run& run, double margin) {
@@ -178,13 +179,17 @@ inline void watch_holding(Run& run, double margin) {
     run.system.holding[HOLDING_LEAST_MARGIN] = margin;
 }
 
-// The stages one evaluation of ds/dt runs, counted (counters[...]).
-inline void count_evaluation(Run& run) {
+// What the run books of one evaluation of ds/dt, whose net slide forces are net(k) (its own, or
+// its lane's of a vector block, lanes.hpp): the stages it ran, counted (counters[...]); while a
+// rod rests, the holding forces watched.
+template <class Net>
+inline void book_evaluation(Run& run, Net&& net) {
   auto& counters = run.system.counters;
   counters[RHS_EVALS] += 1;
   if (run.system.control[WHEEL_VELOCITY_MODE] != 0.0) counters[CONTROL_STAGE] += 1;
   if (run.system.damping != nullptr) counters[DAMPING_STAGE] += 1;
   if (run.system.free[run.n_u() - 1] < 0) counters[REDUCED_SOLVE] += 1;
+  if (run.system.holding[HOLDING_ON] != 0.0) watch_holding(run, least_margin(run, net));
 }
 
 inline void clear_holding(Run& run) {
@@ -200,7 +205,6 @@ inline WheelLoop wheel_loop(const double* control) {
 // each stage of every step — samples the holding forces, so that a pull inside a step is noticed
 // where a stage saw it.
 inline void derivative(Run& run, const double* s, double* ds) {
-  count_evaluation(run);
   const double* control = run.system.control;
   WheelLoop wheels;
   const WheelLoop* loop = nullptr;
@@ -215,15 +219,28 @@ inline void derivative(Run& run, const double* s, double* ds) {
   }
   Effects<double> fx{run.system.gravity, run.system.Q_cmd, run.system.damping, loop, held};
   rates(run.model, fx, s, ds, run.ws);
-  if (run.system.holding[HOLDING_ON] != 0.0) watch_holding(run, holding_margin_now(run));
+  book_evaluation(run, own_net(run));
 }
 
 // The force (N) the stop of each resting rod k must push with along the rod to hold it, into
-// out[u_slide(k)], right after a `derivative` with the rod locked.
-inline void slide_holding_forces(const Run& run, double* out) {
+// out[u_slide(k)], from an evaluation with the rod locked whose net slide forces are net(k)
+// (by default the run's own last `derivative`).
+template <class Net>
+inline void slide_holding_forces(const Run& run, double* out, Net&& net) {
   for (int k = 1; k <= run.n(); ++k)
-    if (run.stops.resting[k - 1] != 0)
-      out[u_slide(k)] = run.ws.dynamics.slide_force[k] - run.ws.Q[u_slide(k)];
+    if (run.stops.resting[k - 1] != 0) out[u_slide(k)] = net(k);
+}
+inline void slide_holding_forces(const Run& run, double* out) {
+  slide_holding_forces(run, out, own_net(run));
+}
+
+// `holding_margin` for an evaluation ds/dt at s already made (net(k) its net slide forces):
+// booked, the holding forces into the step's scratch, their least returned.
+template <class Net>
+inline double holding_margin_of(Run& run, Net&& net) {
+  book_evaluation(run, net);
+  slide_holding_forces(run, run.step.forces, net);
+  return least_margin(run, net);
 }
 
 // min over resting rods of the force its stop pushes with at s: > 0 while all are held.

@@ -192,11 +192,32 @@ template <int W> inline Lanes<W> sqrt_(Lanes<W> a) {
   for (int i = 0; i < W; ++i) r.v[i] = std::sqrt(a.v[i]);
   return r;
 }
+// sin and cos of one angle at once: libm's sincos, lane by lane, one range reduction for both
+// (its results are libm's sin and cos, bit for bit; GCC already turns a double's sin(x) and
+// cos(x) into it)
+inline void sincos_(double a, double& s, double& c) {
+  s = std::sin(a);
+  c = std::cos(a);
+}
+template <int W> inline void sincos_(Lanes<W> a, Lanes<W>& s, Lanes<W>& c) {
+  for (int i = 0; i < W; ++i) {
+    double si, ci;
+    ::sincos(a.v[i], &si, &ci);
+    s.v[i] = si;
+    c.v[i] = ci;
+  }
+}
 template <class T, class D> inline Dual<T, D> sin_(const Dual<T, D>& a) {
   return {sin_(a.val), cos_(a.val) * a.d};
 }
 template <class T, class D> inline Dual<T, D> cos_(const Dual<T, D>& a) {
   return {cos_(a.val), -sin_(a.val) * a.d};
+}
+template <class T, class D> inline void sincos_(const Dual<T, D>& a, Dual<T, D>& s, Dual<T, D>& c) {
+  T sv, cv;
+  sincos_(a.val, sv, cv);
+  s = {sv, cv * a.d};
+  c = {cv, -sv * a.d};
 }
 template <class T, class D> inline Dual<T, D> sqrt_(const Dual<T, D>& a) {
   T r = sqrt_(a.val);

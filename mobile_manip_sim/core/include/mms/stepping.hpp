@@ -85,9 +85,15 @@ inline void book(double* clock, const ImpactEnergies& e) {
   clock[CLOCK_HOLDS] += e.held;
 }
 
+// A stage (or the step's end, whose holding margin `margin_at_end()` gives, f(end) into the
+// first stage) saw a resting rod's stop pull.
+template <class Margin>
+inline bool pull_seen_with(Run& run, Margin&& margin_at_end) {
+  return any_resting(run) &&
+         (margin_at_end() < 0.0 || run.system.holding[HOLDING_LEAST_MARGIN] < 0.0);
+}
 inline bool pull_seen(Run& run, const double* end) {
-  return any_resting(run) && (holding_margin(run, end, run.stage(0)) < 0.0 ||
-                              run.system.holding[HOLDING_LEAST_MARGIN] < 0.0);
+  return pull_seen_with(run, [&] { return holding_margin(run, end, run.stage(0)); });
 }
 
 // One step of length h from time t in which end stops may be hit and resting rods leave them,
@@ -139,17 +145,21 @@ inline Status step_with_events(Run& run, Method method, double* s, double h, dou
 }
 
 // What a whole grid step does once its step s → run.step.out is taken (`run_step` here, or a
-// vector block of lanes, lanes.hpp): a non-finite end, a crossing or a pull turns it into the
-// step with its events; else the end is taken. k1_ready says on return whether the first stage
-// now holds f(s) for the next step (the release check computed it).
-inline Status grid_step_end(Run& run, Method method, double* s, double* clock, bool& k1_ready) {
+// vector block of lanes, lanes.hpp, which gives the holding margin at the end as
+// `margin_at_end`): a non-finite end, a crossing or a pull turns it into the step with its
+// events; else the end is taken. k1_ready says on return whether the first stage now holds
+// f(s) for the next step (the release check computed it).
+template <class Margin>
+inline Status grid_step_end(Run& run, Method method, double* s, double* clock, bool& k1_ready,
+                            Margin&& margin_at_end) {
   const double dt = clock[CLOCK_DT];
   const double t = clock[CLOCK_T0] + clock[CLOCK_K] * dt;
   double* out = run.step.out;
   k1_ready = false;
   if (!finite(out, run.size)) return NOT_FINITE;
   // the holding forces need f(out), the next step's first stage: computed once
-  if ((any_watched(run) && crossing_in_step(run, s, out, dt)) || pull_seen(run, out))
+  if ((any_watched(run) && crossing_in_step(run, s, out, dt)) ||
+      pull_seen_with(run, margin_at_end))
     return step_with_events(run, method, s, dt, t, clock);
   std::copy(out, out + run.size, s);
   k1_ready = any_resting(run);
@@ -161,7 +171,8 @@ inline Status grid_step_end(Run& run, Method method, double* s, double* clock, b
 inline Status grid_step(Run& run, Method method, double* s, double* clock, bool& k1_ready) {
   clear_holding(run);
   run_step(run, method, s, clock[CLOCK_DT], run.step.out, k1_ready);
-  return grid_step_end(run, method, s, clock, k1_ready);
+  return grid_step_end(run, method, s, clock, k1_ready,
+                       [&] { return holding_margin(run, run.step.out, run.stage(0)); });
 }
 
 // Advance s to exactly t_end with no update due before it. DONE, or BUDGET after max_steps
