@@ -64,7 +64,7 @@ Method method_of(const std::string& name) {
 class Dynamics {
  public:
   Dynamics(BaseParameters base, In mount, In R0, In L, In mu, In J, double tip_mass)
-      : ws_(0), block_(0), system_(Model()), dual_system_(Model()), block_system_(Model()) {
+      : ws_(0), system_(Model()) {
     size_t n = L.size();
     need(mount, 3, "mount");
     need(R0, 9 * n, "R0");
@@ -85,10 +85,7 @@ class Dynamics {
     }
     model_.tip_mass = tip_mass;
     ws_ = Workspace<double>(model_.n());
-    block_ = Workspace<Block>(model_.n());
     system_ = SystemWorkspace<double>(model_);
-    dual_system_ = SystemWorkspace<DualD>(model_);
-    block_system_ = SystemWorkspace<Block>(model_);
   }
 
   int n() const { return model_.n(); }
@@ -191,11 +188,11 @@ class Dynamics {
         for (int i = 0; i < nu; ++i) {
           ub[i].set(lane, u.data()[row * nu + i]);
           Qb[i].set(lane, Q.data()[row * nu + i]);
-          block_.moving[i].set(lane, moving.data()[row * nu + i]);
+          block().moving[i].set(lane, moving.data()[row * nu + i]);
         }
       }
-      frames(model_, qb.data(), block_);
-      mms::forward_dynamics(model_, qb.data(), ub.data(), Qb.data(), g, block_, udb.data());
+      frames(model_, qb.data(), block());
+      mms::forward_dynamics(model_, qb.data(), ub.data(), Qb.data(), g, block(), udb.data());
       for (int lane = 0; lane < W && start + lane < m; ++lane)
         for (int i = 0; i < nu; ++i) ud[(start + lane) * nu + i] = udb[i][lane];
     }
@@ -313,12 +310,12 @@ class Dynamics {
         for (int i = 0; i < ns; ++i) x[i].set(lane, s.data()[r * ns + i]);
         for (int k = 0; k < nu; ++k) {
           Qb[k].set(lane, Q_cmd.data()[r * nu + k]);
-          block_system_.dynamics.moving[k].set(lane, moving.data()[r * nu + k]);
+          block_system().dynamics.moving[k].set(lane, moving.data()[r * nu + k]);
         }
       }
       Effects<Block> fx{g, Qb.data(), c};
       for (int i = 0; i < steps; ++i) {
-        mms::step(m, model_, fx, x.data(), h, next.data(), block_system_);
+        mms::step(m, model_, fx, x.data(), h, next.data(), block_system());
         std::swap(x, next);
       }
       for (int lane = 0; lane < W && start + lane < runs; ++lane)
@@ -353,12 +350,12 @@ class Dynamics {
       for (int i = 0; i < nu; ++i) {
         ub[i].set(lane, u.data()[lane * nu + i]);
         Qb[i].set(lane, Q.data()[lane * nu + i]);
-        block_.moving[i].set(lane, moving.data()[lane * nu + i]);
+        block().moving[i].set(lane, moving.data()[lane * nu + i]);
       }
     }
     return per_call(calls, [&] {
-      frames(model_, qb.data(), block_);
-      mms::forward_dynamics(model_, qb.data(), ub.data(), Qb.data(), g, block_, udb.data());
+      frames(model_, qb.data(), block());
+      mms::forward_dynamics(model_, qb.data(), ub.data(), Qb.data(), g, block(), udb.data());
     }) / W;
   }
 
@@ -376,7 +373,7 @@ class Dynamics {
     const bool of_step = !method.empty(), adaptive = of_step && differentiated_step(method);
     Method m = of_step && !adaptive ? method_of(method) : Method::Euler;
     const int nu = n_u(), nx = n_q() + nu, ns = state_size(model_), total = nx + ntau;
-    for (int k = 0; k < nu; ++k) dual_system_.dynamics.moving[k] = moving[k];
+    for (int k = 0; k < nu; ++k) dual_system().dynamics.moving[k] = moving[k];
     std::vector<DualD> sd(ns), Qd(nu), out(ns);
     Effects<DualD> fx{g, Qd.data(), damping};
     for (int first = 0; first < total; first += kDirections) {
@@ -393,8 +390,8 @@ class Dynamics {
         Qd[i] = DualD(Q_cmd[i], d);
       }
       if (adaptive) adaptive_step_map(adaptive_of(method), fx, sd.data(), h, out.data());
-      else if (of_step) mms::step(m, model_, fx, sd.data(), h, out.data(), dual_system_);
-      else mms::rates(model_, fx, sd.data(), out.data(), dual_system_);
+      else if (of_step) mms::step(m, model_, fx, sd.data(), h, out.data(), dual_system());
+      else mms::rates(model_, fx, sd.data(), out.data(), dual_system());
       for (int r = 0; r < nx; ++r) {
         value[r] = out[r].val;
         for (int lane = 0; lane < kDirections && first + lane < total; ++lane) {
@@ -442,10 +439,24 @@ class Dynamics {
 
   Model model_;
   Workspace<double> ws_;
-  Workspace<Block> block_;
   SystemWorkspace<double> system_;
-  SystemWorkspace<DualD> dual_system_;
-  SystemWorkspace<Block> block_system_;
+  // the workspaces of vector blocks and dual numbers, made at their first use (a batch's lane,
+  // one Dynamics each, never uses them)
+  std::unique_ptr<Workspace<Block>> block_;
+  std::unique_ptr<SystemWorkspace<DualD>> dual_system_;
+  std::unique_ptr<SystemWorkspace<Block>> block_system_;
+  Workspace<Block>& block() {
+    if (!block_) block_ = std::make_unique<Workspace<Block>>(model_.n());
+    return *block_;
+  }
+  SystemWorkspace<DualD>& dual_system() {
+    if (!dual_system_) dual_system_ = std::make_unique<SystemWorkspace<DualD>>(model_);
+    return *dual_system_;
+  }
+  SystemWorkspace<Block>& block_system() {
+    if (!block_system_) block_system_ = std::make_unique<SystemWorkspace<Block>>(model_);
+    return *block_system_;
+  }
 
   // --- the adaptive methods rk45 and dop853 (runge_kutta.hpp, adaptive_solve.hpp) ------------
  public:
@@ -605,8 +616,8 @@ class Dynamics {
   void adaptive_step_map(Adaptive m, const Effects<DualD>& fx, const DualD* s, double h,
                          DualD* out) {
     if (!dual_step_) dual_step_ = std::make_unique<StepWork<DualD>>(state_size(model_));
-    mms::rates(model_, fx, s, dual_step_->f_start.data(), dual_system_);
-    SystemRhs<DualD> rhs{model_, fx, dual_system_};
+    mms::rates(model_, fx, s, dual_step_->f_start.data(), dual_system());
+    SystemRhs<DualD> rhs{model_, fx, dual_system()};
     stages(m, rhs, s, h, *dual_step_);
     std::copy(dual_step_->end.begin(), dual_step_->end.end(), out);
   }
