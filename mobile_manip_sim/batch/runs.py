@@ -1,5 +1,6 @@
 """`Batch`: N runs of one robot, stepped together — the lanes of the fixed-step methods in one
-compiled call spread over the cores (`lanes.py`), each lane bit for bit its own `simulate` run.
+compiled call spread over the cores (the C++ core's `LaneSet`), each lane bit for bit its own
+`simulate` run.
 
     from mobile_manip_sim.batch import Batch
     batch = Batch(scene, [{"robot.arm.links[0].mass_per_length": m} for m in masses])
@@ -11,12 +12,15 @@ Every lane is a `Simulation` of its own scene (the scene with the lane's overrid
 settings may all differ between lanes; only the number of links must be the same. Commands go to
 one lane (`set_efforts`, or any command of `lane(i)`) between calls.
 
-Lanes of rk4, semi-implicit Euler and Euler run in the compiled call, their plain grid steps four
-lanes at a time in vector registers (`blocks.py`; `vector=False`: each lane alone, the same bits).
-Lanes of the adaptive methods (rk45, dop853, radau, bdf) are not compiled lanes: each is stepped by
-its own `Simulation` from Python, sample by sample — the same numbers, without the batch's speed
-(`LaneStatus.compiled` says which). A lane that fails (a bad override, a non-finite command or
-state, chatter, its time limit) is failed alone, with its one-line reason; the others go on.
+Lanes of rk4, semi-implicit Euler and Euler run in the compiled call, their plain grid steps
+`core.build_info()["lane_width"]` lanes at a time in vector registers (core/include/mms/lanes.hpp;
+`vector=False`: each lane alone, the same bits; MOBILE_MANIP_SIM_CORE=numba: numba's lanes,
+`lanes.py` and `blocks.py`, the reference while both exist). Lanes of the adaptive methods (rk45,
+dop853, radau, bdf) and lanes whose arm a controller drives are not compiled lanes: each is
+stepped by its own `Simulation` from Python, sample by sample — the same numbers, without the
+batch's speed (`LaneStatus.compiled` says which). A lane that fails (a bad override, a
+non-finite command or state, chatter, its time limit) is failed alone, with its one-line reason;
+the others go on.
 """
 from __future__ import annotations
 
@@ -77,12 +81,12 @@ class Batch:
                  vector: bool = True):
         """`scene`: a `Scene` or a scene document; `overrides`: one {key path: value} per lane
         (default: one lane, the scene itself). `threads`: threads of the compiled calls (default:
-        numba's, one per core). `time_limit`: wall s per lane (its share of each call's wall time,
+        one per core). `time_limit`: wall s per lane (its share of each call's wall time,
         call wall × threads / lanes in the call); past it the lane is failed at its next sample.
         `check(scene)`: a further check of each lane's scene (a raise fails the lane with it).
         Lanes that differ only in numbers are copies of one template (`build.py`). `vector`:
-        lanes' plain steps four at a time in vector lanes (`blocks.py`); False: each lane alone
-        (the same bits either way)."""
+        lanes' plain steps together in vector lanes; False: each lane alone (the same bits
+        either way)."""
         document = scene.document if isinstance(scene, Scene) else scene
         overrides = [{}] if overrides is None else list(overrides)
         scenes, sims = build_lanes(document, overrides, check,
@@ -147,8 +151,8 @@ class Batch:
 
     @property
     def lane_steps(self) -> tuple[int, int]:
-        """Grid steps the compiled lanes took so far four at a time in vector lanes, and alone
-        (events, rests, controllers, a lane ready without company; `blocks.py`)."""
+        """Grid steps the compiled lanes took so far in vector blocks, and alone (events, the
+        wheel-speed loop, a lane ready without company)."""
         return int(self.paths[:, 0].sum()), int(self.paths[:, 1].sum())
 
     @property
@@ -219,7 +223,8 @@ class Batch:
 
     def _compiled(self) -> np.ndarray:
         """The lanes the compiled call runs: those of a fixed-step method whose controllers
-        are not sampled now (the compiled lanes take no controller updates, `sampling.py`)."""
+        are not sampled now (the compiled lanes take no controller updates, `sampling.py`); on
+        the C++ core, those the core's stepper runs (not an arm under a controller)."""
         return np.array([sim is not None and METHODS[sim.settings.method].fixed_step
                          and not sim.controllers_sampled
                          and (sim._stepper is not None or not self.cpp)

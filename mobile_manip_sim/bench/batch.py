@@ -229,7 +229,8 @@ def instruction_mix() -> dict:
     dynamics every lane runs (`articulated_forward_dynamics`, compiled afresh here: the cached
     copy keeps no assembly), on the paper robot's records."""
     from ..dynamics.jit import ENABLED
-    if not ENABLED:
+    from ..engine.core_stepping import CORE
+    if not ENABLED or CORE == "cpp":   # the lanes run on the C++ core, not on this kernel
         return {}
     import numba
 
@@ -306,6 +307,18 @@ def measure(progress, quick: bool = False) -> BatchResult:
     return result
 
 
+def _blocks_text(mix: dict, scalar: int, packed: int) -> str:
+    """What the plain grid steps run on: the C++ core's vector blocks, or numba's."""
+    if not mix:
+        from ..core import build_info
+        return (f"Plain grid steps run in vector blocks of {build_info()['lane_width']} lanes "
+                "(the C++ core's `lanes.hpp`: the engine's step instantiated on its lane "
+                "type, built with -ffp-contract=off).")
+    return ("Plain grid steps run in numba's blocks of four lanes, the dynamics in 4-wide vector "
+            "instructions (`batch/blocks.py`); the scalar forward dynamics every lane runs alone "
+            f"holds {scalar} scalar and {packed} packed double arithmetic instructions ({mix}).")
+
+
 def _piece() -> int:
     from ..sweep.runner import PIECE
     return PIECE
@@ -359,10 +372,7 @@ def section(result: BatchResult, number: int = 9) -> str:
              f"{rate / SCALAR_PEAK * 100:.0f} % of the scalar peak ({SCALAR_PEAK:g}) and "
              f"{rate / VECTOR_PEAK * 100:.0f} % of the vector peak ({VECTOR_PEAK:g}; target: "
              f"within 3×, i.e. ≥ {VECTOR_PEAK / 3:.1f}), the step arithmetic, events and "
-             "the lanes' steps taken alone included. Plain grid steps run in blocks of four "
-             "lanes, the dynamics in 4-wide vector instructions (`batch/blocks.py`); the scalar "
-             f"forward dynamics every lane runs alone holds {scalar} scalar and {packed} packed "
-             f"double arithmetic instructions ({mix}).", ""]
+             "the lanes' steps taken alone included. " + _blocks_text(mix, scalar, packed), ""]
     if two.wall > 5.0 * result.runs / RUNS:
         per_run = two.cpu / result.runs * 1e3
         compiled = per_run * result.compiled_share
