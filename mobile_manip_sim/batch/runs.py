@@ -151,8 +151,9 @@ class Batch:
 
     @property
     def lane_steps(self) -> tuple[int, int]:
-        """Grid steps the compiled lanes took so far in vector blocks, and alone (events, the
-        wheel-speed loop, a lane ready without company)."""
+        """Grid steps the compiled lanes began so far in vector blocks (a lane leaving its block
+        at an event counted there), and alone (the wheel-speed loop, a lane ready without
+        company)."""
         return int(self.paths[:, 0].sum()), int(self.paths[:, 1].sum())
 
     @property
