@@ -18,7 +18,10 @@ fixed-step core ends a step there, the adaptive solves restart there (`stepping.
 `adaptive_stepping.advance`).
 
 The count of updates applied so far is the clock's (`stepping.CLOCK_UPDATES`); the next one is
-due at CLOCK_UPDATES / rate, while a controller drives (`next_update`). A rate of 0 keeps the
+due at CLOCK_UPDATES / rate, while a controller drives (`next_update`). A call that ends at an
+update instant leaves that update to the next call, which applies it first: a command given
+between the calls, at the instant, is taken at that update (ros2_control reads its commands in
+the update), and the state a call ends with is the one the update reads. A rate of 0 keeps the
 continuous controllers: no update, no hold.
 """
 import math
