@@ -115,8 +115,10 @@ def resimulate(bag, tolerance: float) -> int:
                 raise UserError(message.topic, f"time goes back from {sim_stamp} to {stamp} ns")
             elif stamp > sim_stamp:
                 for start, t_end in run.segments(sim_stamp, stamp):
-                    apply_commands(sim, base_commands.at(start), arm_commands.at(start),
-                                   run.velocity)
+                    # an arm controller takes references, not the efforts a headless bag
+                    # of its scene recorded (zeros: `recording.headless`)
+                    joints = None if sim.arm_controller.active else arm_commands.at(start)
+                    apply_commands(sim, base_commands.at(start), joints, run.velocity)
                     for command in arm_events.get(start, ()):
                         apply_arm_command(sim, run.arm_controller.mode, command)
                     sim.advance_to(t_end)
