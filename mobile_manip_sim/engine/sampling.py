@@ -62,7 +62,7 @@ def update_controllers(system, s, rates):
         r, b = base.wheel_radius, base.half_track
         i_e = layout.controller(nq, nu)
         held[0], held[1], rates[i_e], rates[i_e + 1] = wheel_speed_loop(system.control, r, b, s,
-                                                                        nq, nu)
+                                                                        nq, nu, False)
         s[i_e] += period * rates[i_e]
         s[i_e + 1] += period * rates[i_e + 1]
         Q[V] = (held[0] + held[1]) / r

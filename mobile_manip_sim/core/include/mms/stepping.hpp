@@ -47,8 +47,10 @@ inline Status apply_update(Run& run, double* s, double* clock) {
     const double v = s[nq + V], om = s[nq + OMEGA];
     double* held = run.system.held;
     double rate_R, rate_L;
-    wheel_drive(w.kp, w.ki, w.target_R, (v + b * om) / r, s[e], w.limit_R, held[0], rate_R);
-    wheel_drive(w.kp, w.ki, w.target_L, (v - b * om) / r, s[e + 1], w.limit_L, held[1], rate_L);
+    wheel_drive(w.kp, w.ki, w.target_R, (v + b * om) / r, s[e], w.limit_R, false, held[0],
+                rate_R);
+    wheel_drive(w.kp, w.ki, w.target_L, (v - b * om) / r, s[e + 1], w.limit_L, false, held[1],
+                rate_L);
     s[e] += period * rate_R;
     s[e + 1] += period * rate_L;
     run.ws.Q[V] = (held[0] + held[1]) / r;
