@@ -385,8 +385,8 @@ def test_describe_writes_the_paper_robots_limits():
     assert result.returncode == 0, result.stderr
     root = ET.fromstring(result.stdout)
     declared = paper_document()["robot"]["limits"]
-    efforts = [declared["effort"]["wheels"]] * 2 + declared["effort"]["joints"]
-    velocities = [declared["velocity"]["wheels"]] * 2 + declared["velocity"]["joints"]
+    efforts = declared["effort"]["wheels"] + declared["effort"]["joints"]
+    velocities = declared["velocity"]["wheels"] + declared["velocity"]["joints"]
     names = load_scene(PAPER).robot.joint_names()
     written = [root.find(f"joint[@name='{name}']/limit") for name in names]
     assert [float(limit.get("effort")) for limit in written] == efforts

@@ -256,14 +256,16 @@ def test_effort_limits_saturate_the_scene_efforts_too():
 
 
 def test_the_paper_robots_limits_are_enforced_at_them_and_not_below():
-    """The paper scene enforces its robot's own efforts (``effects.effort_limits: true``): the
+    """``effects.effort_limits: true`` on the paper scene enforces its robot's own efforts: the
     numbers of ``robot.limits.effort`` in the file, read here from the YAML. A command beyond
     them is clamped at them; one just within passes untouched (a clamp that must not fire); the
     wheel loop's and the arm controller's outputs are bounded by the same numbers."""
     declared = PAPER["robot"]["limits"]["effort"]
-    assert PAPER["effects"]["effort_limits"] is True
-    limits = np.array([declared["wheels"]] * 2 + declared["joints"], dtype=float)
-    sim = Simulation(load_scene())
+    limits = np.array(declared["wheels"] + declared["joints"], dtype=float)
+    enforced = paper_doc()
+    enforced["effects"]["effort_limits"] = True
+    scene = parse_scene(enforced)
+    sim = Simulation(scene)
     assert np.array_equal(sim.effects.effort_limits, limits)
     sim.set_efforts(wheels=limits[:2] * [1.25, -3.0], joints=limits[2:] * [1.01, -2.0, 5.0, -1.5])
     assert list(sim.wheel_efforts) == [limits[0], -limits[1]]
@@ -274,7 +276,7 @@ def test_the_paper_robots_limits_are_enforced_at_them_and_not_below():
     sim.set_base_velocity(1.0, 0.0)   # a wheel error of 12.5 rad/s: kp e = 25 N·m asked
     sim.advance_to(1e-3)              # the loop's update at t = 0 has acted
     assert sim.wheel_torques()[0] == limits[0]
-    arm = Simulation(load_scene(), arm_controller=ArmController("position"))
+    arm = Simulation(scene, arm_controller=ArmController("position"))
     arm.set_arm_positions(arm.q[5:] + [1.0, 0.0, 0.0, 0.0])   # kp · 1 rad asked of joint 1
     arm.advance_to(1e-3)
     applied = arm.joint_efforts_applied()
@@ -284,6 +286,7 @@ def test_the_paper_robots_limits_are_enforced_at_them_and_not_below():
 def test_effort_limits_true_takes_the_robots_and_needs_them():
     doc = paper_doc()
     doc["robot"]["limits"].pop("effort")
+    doc["effects"]["effort_limits"] = True
     with pytest.raises(UserError, match=r"^effects\.effort_limits: true takes the robot's") \
             as error:
         parse_scene(doc)
@@ -300,7 +303,6 @@ def test_effort_limits_true_takes_the_robots_and_needs_them():
 def test_a_bad_robot_limit_is_a_one_line_error_naming_it(limits, key):
     doc = paper_doc()
     doc["robot"]["limits"] = limits
-    doc["effects"].pop("effort_limits")
     with pytest.raises(UserError, match=rf"^{key}: ") as error:
         parse_scene(doc)
     assert "\n" not in str(error.value)
