@@ -222,7 +222,7 @@ class Template:
             wheel_efforts=_or(arrays["efforts.wheels"], scene.wheel_efforts),
             joint_efforts=_or(arrays["efforts.joints"], scene.joint_efforts),
             effects=scene.effects, integrator=integrator, duration=scene.duration,
-            document=document, controller=scene.controller)
+            document=document, controller=scene.controller, limits=scene.limits)
         if integrator is not scene.integrator:
             check_work(lane.duration, integrator, "duration", "integrator.dt")
         return lane

@@ -293,8 +293,9 @@ def advance(method, system, stops, scr, solve, s, clock, t_end, max_steps):
     """Advance (t, s) to exactly t_end (s). Returns DONE, or BUDGET after max_steps steps,
     LOG_FULL when the impact log needs emptying, NOT_FINITE (scr.out holds the bad state) or
     STALLED (the step fell below 10 ulps of t; solve.status[H_NEXT] the step tried). Sampled
-    controllers are updated on the way at each of their instants up to t_end, t_end included
-    (`sampling.py`); the steps end there (`take_step`) and the solve restarts there."""
+    controllers are updated on the way at each of their instants before t_end (`sampling.py`);
+    the steps end there (`take_step`) and the solve restarts there. One due at t_end is the next
+    call's first act (`stepping.advance`)."""
     if system.rate <= 0.0:
         return advance_between_updates(method, system, stops, scr, solve, s, clock, t_end,
                                        max_steps)

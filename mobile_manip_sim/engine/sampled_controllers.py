@@ -1,7 +1,7 @@
 """The sampled controllers as `Simulation` drives them from Python (a mixin): the rate, whether
-one drives now, the instant of the next update, the update at a reset and between SciPy's steps
-(the compiled cores apply the others on the way, `sampling.py`), and where the updates resume when
-a controller starts driving.
+one drives now, the instant of the next update, its preview at a reset, the update between
+SciPy's steps (the compiled cores apply the others on the way, `sampling.py`), and where the
+updates resume when a controller starts driving.
 """
 from __future__ import annotations
 
@@ -25,6 +25,13 @@ def checked_control_rate(rate) -> float:
 
 
 class SampledControllers:
+    def _preview_update(self) -> None:
+        """At reset: the efforts the update at t = 0 holds, into system.held, so that what acts
+        at t = 0 (the pressed rods' hold, the efforts read) is theirs; the update itself, its
+        integrals' step included, is the first call's first act, after any command given at
+        t = 0 (`stepping.advance`), as every update at the end of a call is."""
+        self._update(self.system.data, self.stops, self._scratch, self.s.copy())
+
     def _update_controllers(self) -> None:
         """The sampled controllers' update due now (`sampling.update_at_instant`)."""
         self._clock[stepping.CLOCK_UPDATES] += 1.0
@@ -47,8 +54,8 @@ class SampledControllers:
 
     def _resume_updates(self) -> None:
         """A sampled controller starts driving now with none driving before: its updates resume
-        on the instants m T from the first after now (at a command, the controller's last update
-        has passed: the command is taken at the next)."""
+        on the instants m T from the first at or after now (a command given at an update instant
+        is taken at that update, the next call's first act, as with a controller that drives
+        already: `stepping.advance`)."""
         if self.sampled and not self.controllers_sampled:
-            self._clock[stepping.CLOCK_UPDATES] = math.floor(self.t * self.control_rate
-                                                             + 1e-9) + 1
+            self._clock[stepping.CLOCK_UPDATES] = math.ceil(self.t * self.control_rate - 1e-9)

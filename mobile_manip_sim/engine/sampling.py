@@ -18,7 +18,10 @@ fixed-step core ends a step there, the adaptive solves restart there (`stepping.
 `adaptive_stepping.advance`).
 
 The count of updates applied so far is the clock's (`stepping.CLOCK_UPDATES`); the next one is
-due at CLOCK_UPDATES / rate, while a controller drives (`next_update`). A rate of 0 keeps the
+due at CLOCK_UPDATES / rate, while a controller drives (`next_update`). A call that ends at an
+update instant leaves that update to the next call, which applies it first: a command given
+between the calls, at the instant, is taken at that update (ros2_control reads its commands in
+the update), and the state a call ends with is the one the update reads. A rate of 0 keeps the
 continuous controllers: no update, no hold.
 """
 import math
@@ -59,7 +62,7 @@ def update_controllers(system, s, rates):
         r, b = base.wheel_radius, base.half_track
         i_e = layout.controller(nq, nu)
         held[0], held[1], rates[i_e], rates[i_e + 1] = wheel_speed_loop(system.control, r, b, s,
-                                                                        nq, nu)
+                                                                        nq, nu, False)
         s[i_e] += period * rates[i_e]
         s[i_e + 1] += period * rates[i_e + 1]
         Q[V] = (held[0] + held[1]) / r

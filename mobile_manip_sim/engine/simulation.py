@@ -170,8 +170,8 @@ class Simulation(ArmCommands, BaseCommands, ScipySteps, CoreCalls, SampledContro
         if self.arm_controller.active:
             self._start_arm()
         self.system.held[:] = 0.0
-        if self.controllers_sampled:   # the controllers' first update, at t = 0
-            self._update_controllers()
+        if self.controllers_sampled:   # what the first update, at t = 0, will hold
+            self._preview_update()
         self._hold_pressed_rods()
         self.energy0 = self.total_energy()
 
@@ -347,10 +347,10 @@ class Simulation(ArmCommands, BaseCommands, ScipySteps, CoreCalls, SampledContro
                 and self._inside_step(self._core_args[0], self._solve, self.s, self._clock, t_end)):
             return   # most targets of an adaptive run: inside the step in hand, interpolated
         if self._core is None:
-            while True:   # each update of sampled controllers due up to t_end on the way
-                t_update = self.next_update
+            while True:   # each update of sampled controllers due before t_end on the way
+                t_update = self.next_update   # (one due at t_end: the next call's first act)
                 self._advance_scipy(min(t_end, t_update))
-                if t_update > t_end:
+                if t_update >= t_end:
                     return
                 self._update_controllers()
         while True:

@@ -200,8 +200,10 @@ def grid_step_end(method, system, stops, scr, s, clock, dt, t):
 def advance(method, system, stops, scr, s, clock, t_end, max_steps):
     """Advance s to exactly t_end (s). Returns DONE, or BUDGET after max_steps steps, LOG_FULL
     when the impact log needs emptying, NOT_FINITE (s then holds the last finite state).
-    Sampled controllers are updated on the way at each of their instants up to t_end, t_end
-    included (`sampling.py`): a step ends there, as at a target off the grid."""
+    Sampled controllers are updated on the way at each of their instants before t_end
+    (`sampling.py`): a step ends there, as at a target off the grid. An update due at t_end
+    itself is left to the next call, which applies it first, after the commands set between
+    the calls: a command given at an update instant is taken at that update."""
     if system.rate <= 0.0:
         return advance_between_updates(method, system, stops, scr, s, clock, t_end, max_steps)
     steps = clock[CLOCK_STEPS]
@@ -218,9 +220,10 @@ def advance(method, system, stops, scr, s, clock, t_end, max_steps):
 @jit_inline
 def stretch_end(system, clock, t_end):
     """Where the next stretch of `advance` ends: (t_end, or the next update of sampled
-    controllers when it comes first, and whether that update is due there)."""
+    controllers when it comes first, and whether that update is due there). An update at t_end
+    is not due in this call: the next call's first stretch, empty, ends at it."""
     t_update = next_update(system, clock[CLOCK_UPDATES])
-    return min(t_end, t_update), t_update <= t_end
+    return min(t_end, t_update), t_update < t_end
 
 
 @jit_inline

@@ -154,21 +154,31 @@ if ENABLED:
 
 
 @jit_inline
-def wheel_drive(kp, ki, target, speed, integral, limit):
-    """One wheel's PI speed loop: (τ, ė). τ = sat(kp (θ̇* − θ̇) + ki e) within ±limit; the
-    integral e stops while τ is saturated in the direction of the error (conditional
-    integration, control_toolbox's CONDITIONAL_INTEGRATION; the arm's PID does the same)."""
+def wheel_drive(kp, ki, target, speed, integral, limit, tracking):
+    """One wheel's PI speed loop: (τ, ė). τ = sat(kp (θ̇* − θ̇) + ki e) within ±limit. Its
+    anti-windup:
+    - `tracking` (the continuous loop): back-calculation, control_toolbox's BACK_CALCULATION
+      with its default tracking time constant T_t = kp/ki for a PI: ki ė = ki (θ̇* − θ̇) +
+      (τ − raw)/T_t, i.e. ė = (θ̇* − θ̇) + (τ − raw)/kp. The rate is continuous in the state (τ
+      has a kink at the limit, no jump), so an adaptive method meets no switch it cannot step
+      across; unsaturated, τ − raw = 0 and ė is the error exactly. (kp = 0: conditional.)
+    - otherwise (the sampled loop's update): conditional integration, control_toolbox's
+      CONDITIONAL_INTEGRATION: e stops while τ is saturated in the direction of the error (the
+      arm's PID does the same)."""
     error = target - speed
     raw = kp * error + ki * integral
     tau = min(max(raw, -limit), limit)
+    if tracking and kp > 0.0:
+        return tau, error + (tau - raw) / kp
     rate = 0.0 if (raw > limit and error > 0.0) or (raw < -limit and error < 0.0) else error
     return tau, rate
 
 
 @jit
-def wheel_speed_loop(control, r, b, s, nq, nu):
-    """(τ_R, τ_L, ė_R, ė_L): the wheel-speed loop of each wheel (`wheel_drive`), with
-    θ̇_R/L = (v ± b ω)/r, e_R/L held in the state and each wheel's own torque limit.
+def wheel_speed_loop(control, r, b, s, nq, nu, tracking):
+    """(τ_R, τ_L, ė_R, ė_L): the wheel-speed loop of each wheel (`wheel_drive`; `tracking`:
+    the continuous loop's anti-windup), with θ̇_R/L = (v ± b ω)/r, e_R/L held in the state and
+    each wheel's own torque limit.
 
     Compiled on its own and handed the few numbers it reads, not inlined into the right-hand
     side: there its code made every right-hand side slower, those of runs in effort mode too."""
@@ -176,9 +186,9 @@ def wheel_speed_loop(control, r, b, s, nq, nu):
     i_e = layout.controller(nq, nu)
     kp, ki = control[WHEEL_KP], control[WHEEL_KI]
     tau_R, rate_R = wheel_drive(kp, ki, control[WHEEL_TARGET_R], (v + b * om) / r, s[i_e],
-                                control[WHEEL_LIMIT_R])
+                                control[WHEEL_LIMIT_R], tracking)
     tau_L, rate_L = wheel_drive(kp, ki, control[WHEEL_TARGET_L], (v - b * om) / r, s[i_e + 1],
-                                control[WHEEL_LIMIT_L])
+                                control[WHEEL_LIMIT_L], tracking)
     return tau_R, tau_L, rate_R, rate_L
 
 
@@ -188,7 +198,7 @@ def wheel_speed_torques(system, s):
     nq, nu = layout.sizes(system)
     base = system.model.base
     tau_R, tau_L, _, _ = wheel_speed_loop(system.control, base.wheel_radius, base.half_track,
-                                          s, nq, nu)
+                                          s, nq, nu, True)
     return tau_R, tau_L
 
 
@@ -211,7 +221,8 @@ def applied_forces(system, s, ds):
         if system.rate > 0.0:   # sampled: the torques of the last update, held (ė = 0)
             tau_R, tau_L = system.held[0], system.held[1]
         else:
-            tau_R, tau_L, ds[i_e], ds[i_e + 1] = wheel_speed_loop(control, r, b, s, nq, nu)
+            tau_R, tau_L, ds[i_e], ds[i_e + 1] = wheel_speed_loop(control, r, b, s, nq, nu,
+                                                                  True)
         Q[V] = (tau_R + tau_L) / r
         Q[OMEGA] = b * (tau_R - tau_L) / r
     arm_stage(system, s, ds)

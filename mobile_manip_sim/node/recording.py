@@ -36,6 +36,7 @@ class NodeRecording:
         from ..recording.recorder import RunRecorder
         p = self._params
         metadata = {"source": "node", "publish_rate": repr(float(p.publish_rate)),
+                    "controller_rate": repr(float(self.sim.control_rate)),
                     "base_command": p.base_command}
         if p.velocity_mode:
             metadata.update(wheel_speed_kp=repr(float(p.wheel_speed_gains[0])),

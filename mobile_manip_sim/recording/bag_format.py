@@ -6,7 +6,8 @@ Beside the recorded topics (``topics.recorded_topics``) a bag of ours holds:
 - attachment ``scene.yaml`` (SCENE_ATTACHMENT): the full scene, defaults applied;
 - MCAP metadata ``mobile_manip_sim`` (METADATA_NAME): a map of strings — the package version,
   the integrator settings, the scene name, the source (``simulate`` or ``node``, SOURCES), the
-  source's rate, a `simulate` run's duration, the base command mode and, in velocity mode, the
+  source's rate, a `simulate` run's duration, the controllers' update rate (``controller_rate``,
+  Hz; 0: continuous), the base command mode and, in velocity mode, the
   wheel-speed gains, a node's IMU noise settings (`imu.ImuNoise.as_metadata`); floats as
   ``repr`` (exact). `run_metadata` writes it,
   `checked_run_metadata` checks it on the way back in;
@@ -55,7 +56,8 @@ IMPACTS_ATTACHMENT = "impacts.json"
 SOURCES = ("node", "simulate")
 SOURCE_RATE = {"simulate": "sample_rate", "node": "publish_rate"}   # source → its rate's key
 RUN_METADATA_KEYS = ("version", "integrator_method", "dt", "rtol", "atol", "scene_name", "source",
-                     "sample_rate", "publish_rate", "duration", "base_command", "wheel_speed_kp",
+                     "sample_rate", "publish_rate", "duration", "controller_rate",
+                     "base_command", "wheel_speed_kp",
                      "wheel_speed_ki", *METADATA_KEYS.values(), METADATA_SEED)
 # An arm controller's settings (a run not in effort mode): its mode, feedforward and gains per
 # arm joint (space-separated reprs, exact), and its feed-forward's model error when it has one.
@@ -66,6 +68,7 @@ RUN_METADATA_KEYS += ARM_METADATA_KEYS
 RUN_METADATA_NUMBERS = {"dt": limits.DT, "rtol": limits.RTOL, "atol": limits.ATOL,
                         "sample_rate": limits.SAMPLE_RATE, "publish_rate": limits.SAMPLE_RATE,
                         "duration": limits.RECORDED_DURATION,
+                        "controller_rate": limits.CONTROL_RATE,
                         "wheel_speed_kp": limits.WHEEL_SPEED_GAIN,
                         "wheel_speed_ki": limits.WHEEL_SPEED_GAIN}
 IMPACT_FIELDS = ("time", "link", "stop", "ld_before", "ld_after", "energy_lost", "resting")
@@ -105,10 +108,15 @@ def checked_energy_ledger(value, path: str = LEDGER_NAME) -> dict:
 # --- the run metadata ------------------------------------------------------------------------
 
 def run_metadata(scene, settings, extra: dict) -> dict:
-    """The ``mobile_manip_sim`` metadata map: everything besides the scene that a re-run needs."""
+    """The ``mobile_manip_sim`` metadata map: everything besides the scene that a re-run needs.
+    ``controller_rate``: the scene's ``controller.rate`` unless `extra` names the rate the run
+    used (a node's ``controller_rate`` parameter)."""
+    from mobile_manip_sim.scene.controller import control_rate
+
     metadata = {"version": __version__, "integrator_method": settings.method,
                 "dt": repr(float(settings.dt)), "rtol": repr(float(settings.rtol)),
-                "atol": repr(float(settings.atol)), "scene_name": scene.name}
+                "atol": repr(float(settings.atol)), "scene_name": scene.name,
+                "controller_rate": repr(float(control_rate(scene.controller)))}
     metadata.update({key: str(value) for key, value in extra.items()})
     if metadata.get("source") not in SOURCES:
         raise UserError("source", f"{metadata.get('source')!r} is not one of {SOURCES}")
@@ -343,6 +351,8 @@ class RecordedRun:
         self.velocity = self.base_command == "velocity"
         self.gains = ((metadata["wheel_speed_kp"], metadata["wheel_speed_ki"]) if self.velocity
                       else None)
+        # None: a bag that names none (recorded before the controllers were sampled)
+        self.control_rate = metadata.get("controller_rate")
         self.names = self.scene.robot.joint_names()
         self.arm_controller = metadata["arm_controller"]
         check_gain_counts(self.arm_controller, arm_width(len(self.names)), METADATA_NAME)

@@ -69,7 +69,8 @@ def start_run(run: RecordedRun):
     # A node's arm controller is its parameters' (in its metadata); a headless run's is
     # its scene's `controller:` section.
     sim = Simulation(run.scene, run.settings,
-                     arm_controller=run.arm_controller if run.source == "node" else None)
+                     arm_controller=run.arm_controller if run.source == "node" else None,
+                     control_rate=run.control_rate)
     if run.gains is not None:
         sim.set_wheel_speed_gains(*run.gains)
     if run.source == "node":
@@ -87,6 +88,10 @@ def resimulate(bag, tolerance: float) -> int:
               f"by {__version__}: bit-for-bit agreement is only expected from the same build")
 
     sim = start_run(run)
+    if run.control_rate is None and (run.velocity or sim.arm_controller.active):
+        print(f"note: the bag names no controller_rate (recorded before the controllers were "
+              f"sampled, when they ran continuous): re-simulated at the scene's controller.rate, "
+              f"{sim.control_rate:g} Hz; the states may differ")
     differences = Differences(tolerance)
     compared = {JOINT_STATES_TOPIC: 0, ODOM_TOPIC: 0}
     if IMU_TOPIC in bag.topics():
@@ -110,8 +115,10 @@ def resimulate(bag, tolerance: float) -> int:
                 raise UserError(message.topic, f"time goes back from {sim_stamp} to {stamp} ns")
             elif stamp > sim_stamp:
                 for start, t_end in run.segments(sim_stamp, stamp):
-                    apply_commands(sim, base_commands.at(start), arm_commands.at(start),
-                                   run.velocity)
+                    # an arm controller takes references, not the efforts a headless bag
+                    # of its scene recorded (zeros: `recording.headless`)
+                    joints = None if sim.arm_controller.active else arm_commands.at(start)
+                    apply_commands(sim, base_commands.at(start), joints, run.velocity)
                     for command in arm_events.get(start, ()):
                         apply_arm_command(sim, run.arm_controller.mode, command)
                     sim.advance_to(t_end)

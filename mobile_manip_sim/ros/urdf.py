@@ -14,9 +14,11 @@ frame prefix — is `frames.FrameTree`'s; this module adds the bodies, drawings 
   ``payload`` effect it carries the payload as a point mass; otherwise it is a massless frame.
 - The arm's revolute joints are ``continuous``: the model has no angle stops and
   robot_state_publisher needs no limits for them. The prismatic joints' lower and upper limits are
-  the strokes. Every moving joint has a ``<limit>``: its effort is the scene's effort limit when
-  it sets one, else `limits.EFFORT` (the largest effort the simulator accepts); its velocity is
-  `limits.SPEED` (the model has no velocity limit: the largest speed it accepts).
+  the strokes. Every moving joint has a ``<limit>`` (`joint_limits`): its effort is the limit the
+  simulator enforces (``effects.effort_limits``), else the robot's own (``robot.limits.effort``),
+  else `limits.EFFORT` (the largest effort the simulator accepts); its velocity is the robot's
+  (``robot.limits.velocity``: what a planner or joint_trajectory_controller plans within; the
+  model enforces none), else `limits.SPEED` (the largest speed the simulator accepts).
 - Masses: the scene gives the base's mass M_pw and yaw inertia I_pw with the wheels included.
   Each wheel is a uniform disc of the scene's spin inertia I_w, so its mass is m_w = 2 I_w / r²
   (halved until the base's own share below stays physical); the base link carries the rest,
@@ -106,13 +108,30 @@ def _joint(robot: ET.Element, name: str, kind: str, parent: str, child: str, xyz
     return joint
 
 
-def _limit(joint: ET.Element, effort, lower=None, upper=None) -> None:
+def _limit(joint: ET.Element, effort: float, velocity: float, lower=None, upper=None) -> None:
     limit = ET.SubElement(joint, "limit")
     if lower is not None:
         limit.set("lower", _num(lower))
         limit.set("upper", _num(upper))
-    limit.set("effort", _num(bounds.EFFORT if effort is None else effort))
-    limit.set("velocity", _num(bounds.SPEED))
+    limit.set("effort", _num(effort))
+    limit.set("velocity", _num(velocity))
+
+
+def joint_limits(scene: Scene) -> tuple[np.ndarray, np.ndarray]:
+    """(effort, velocity) (n_u each, joints indexed as u: τ_R, τ_L, τ_1, F_1, …) of the URDF's
+    ``<limit>``s (module doc): the enforced effort limit, else the robot's, else `limits.EFFORT`;
+    the robot's velocity limit, else `limits.SPEED`."""
+    n_u = scene.robot.n_u
+    effort, velocity = np.full(n_u, bounds.EFFORT), np.full(n_u, bounds.SPEED)
+    declared = scene.limits
+    for values, groups in ((effort, declared["effort"]), (velocity, declared["velocity"])):
+        for group, where in (("wheels", slice(0, 2)), ("joints", slice(2, None))):
+            if groups is not None and groups[group] is not None:
+                values[where] = groups[group]
+    enforced = effect_settings(scene).effort_limits
+    if enforced is not None:
+        effort = np.where(np.isinf(enforced), effort, enforced)
+    return effort, velocity
 
 
 def _damping(joint: ET.Element, damping) -> None:
@@ -169,10 +188,7 @@ def robot_description(scene: Scene, root: str = FOOTPRINT, prefix: str = "",
     tree = FrameTree(model, root, prefix)
     base = model.base
     d, r, b = base.com_offset, base.wheel_radius, base.half_track
-    # the scene's bounds (None where it sets none) and damping, as the simulator applies them
-    limits = effects.effort_limits
-    efforts = [None if limits is None or math.isinf(limits[j]) else limits[j]
-               for j in range(model.n_u)]   # one per joint: the joints are indexed as u
+    efforts, velocities = joint_limits(scene)   # one per joint: the joints are indexed as u
     damping = np.zeros(model.n_u) if effects.rate_damping is None else effects.rate_damping
 
     robot = ET.Element("robot", name=scene.name)
@@ -220,10 +236,10 @@ def robot_description(scene: Scene, root: str = FOOTPRINT, prefix: str = "",
                          tree.frame(joint.child), xyz=joint.xyz, rpy=joint.rpy, axis=joint.axis)
         if joint.kind == "prismatic":
             k = rod(joint.index) - 1
-            _limit(element, efforts[joint.index], lower=model.stroke[k][0],
-                   upper=model.stroke[k][1])
+            _limit(element, efforts[joint.index], velocities[joint.index],
+                   lower=model.stroke[k][0], upper=model.stroke[k][1])
         elif joint.index is not None:
-            _limit(element, efforts[joint.index])
+            _limit(element, efforts[joint.index], velocities[joint.index])
         if joint.index is not None:
             _damping(element, damping[joint.index])
     if ros2_control is not None:

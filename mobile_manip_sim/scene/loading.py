@@ -66,6 +66,7 @@ class Effects:
     joint_damping: tuple | None = None      # per arm joint, N·m·s/rad or N·s/m
     wheel_damping: float | None = None      # N·m·s/rad on each wheel
     effort_limits: dict | None = None       # {"wheels": (2,), "joints": (2n,)} absolute bounds
+                                            # (`true` in the file: the robot's, `robot.limits`)
     locked_joints: tuple = ()               # arm joint names held fixed
     fixed_base: bool = False
     payload: float | None = None            # kg at the tip of the last rod
@@ -111,6 +112,9 @@ class Scene:
     duration: float
     document: dict = field(repr=False, compare=False)  # the YAML with all defaults applied
     controller: ControllerSection | None = None          # how the arm is driven (None: efforts)
+    # the robot's own limits, `robot.limits` (a motor's ratings; None where it declares none):
+    # {"effort": {"wheels": (2,) | None, "joints": (2n,) | None} | None, "velocity": likewise}
+    limits: dict = field(default_factory=lambda: {"effort": None, "velocity": None})
 
     def to_yaml(self) -> str:
         return yaml.safe_dump(self.document, sort_keys=False)
@@ -180,7 +184,7 @@ def _link(doc, path) -> dict:
 
 def _robot(doc) -> RobotModel:
     doc = _mapping(doc, "robot")
-    _keys(doc, "robot", required=("base",), optional=("arm",))
+    _keys(doc, "robot", required=("base",), optional=("arm", "limits"))
     arm = _mapping(doc.get("arm", {}), "robot.arm")
     _keys(arm, "robot.arm", optional=("mount", "links"))
     links = schema.sequence(arm.get("links", []), "robot.arm.links", max_length=MAX_LINKS)
@@ -191,7 +195,29 @@ def _robot(doc) -> RobotModel:
         [_link(link, f"robot.arm.links[{i}]") for i, link in enumerate(links)])
 
 
-def _effects(doc, robot: RobotModel) -> Effects:
+def _limit_groups(value, path: str, n_arm: int, hi: float) -> dict:
+    """{"wheels": (2,), "joints": (n_arm,)} of a mapping of bounds (each a list or one number for
+    the group; a group left out: None)."""
+    value = _mapping(value, path)
+    _keys(value, path, optional=("wheels", "joints"))
+    return {group: (_vector_or_scalar(value[group], size, f"{path}.{group}", positive=True,
+                                      hi=hi)
+                    if group in value else None)
+            for group, size in (("wheels", 2), ("joints", n_arm))}
+
+
+def _robot_limits(doc, robot: RobotModel) -> dict:
+    """`robot.limits`: the robot's effort (N·m, N) and velocity (rad/s, m/s) limits per joint
+    group, a motor's ratings (docs/scene.md, "Limits a robot has")."""
+    doc = _mapping(doc.get("limits", {}), "robot.limits")
+    _keys(doc, "robot.limits", optional=("effort", "velocity"))
+    n_arm = arm_size(robot.n_links)
+    return {kind: (_limit_groups(doc[kind], f"robot.limits.{kind}", n_arm, hi)
+                   if kind in doc else None)
+            for kind, hi in (("effort", EFFORT), ("velocity", SPEED))}
+
+
+def _effects(doc, robot: RobotModel, limits: dict) -> Effects:
     doc = _mapping(doc, "effects")
     _keys(doc, "effects", optional=EFFECT_NAMES)
     n_arm = arm_size(robot.n_links)
@@ -230,13 +256,15 @@ def _effects(doc, robot: RobotModel) -> Effects:
         effects["wheel_damping"] = _number(doc["wheel_damping"], "effects.wheel_damping",
                                            lo=DAMPING[0], hi=DAMPING[1])
     if "effort_limits" in doc:
-        value = _mapping(doc["effort_limits"], "effects.effort_limits")
-        _keys(value, "effects.effort_limits", optional=("wheels", "joints"))
-        effects["effort_limits"] = {
-            group: (_vector_or_scalar(value[group], size, f"effects.effort_limits.{group}",
-                                       positive=True, hi=EFFORT)
-                    if group in value else None)
-            for group, size in (("wheels", 2), ("joints", n_arm))}
+        value = doc["effort_limits"]
+        if value is True:   # the robot's own: one owner of the numbers
+            if limits["effort"] is None:
+                raise UserError("effects.effort_limits", "true takes the robot's effort limits, "
+                                                         "but robot.limits.effort declares none")
+            effects["effort_limits"] = limits["effort"]
+        elif value is not False:
+            effects["effort_limits"] = _limit_groups(value, "effects.effort_limits", n_arm,
+                                                     EFFORT)
     if "locked_joints" in doc:
         names = doc["locked_joints"]
         if not isinstance(names, list):
@@ -339,7 +367,8 @@ def parse_scene(doc, name="scene") -> Scene:
     if n == 0 and efforts.get("joints"):
         raise UserError("robot.arm",
                         "missing: efforts.joints gives arm efforts but the robot has no arm")
-    effects = _effects(doc.get("effects", {}), robot)
+    limits = _robot_limits(_mapping(doc["robot"], "robot"), robot)
+    effects = _effects(doc.get("effects", {}), robot, limits)
     controller = parse_controller(doc.get("controller"), robot, effects.stroke_limits is not None)
     integrator = _integrator(doc.get("integrator", {}))
     scene_name = schema.string(doc.get("name", name), "name")
@@ -353,7 +382,7 @@ def parse_scene(doc, name="scene") -> Scene:
                               lo=-EFFORT, hi=EFFORT),
         effects=effects, integrator=integrator,
         duration=_number(doc.get("duration", 1.0), "duration", positive=True, hi=DURATION[1]),
-        document={}, controller=controller)
+        document={}, controller=controller, limits=limits)
     if controller is not None and controller.arm_controller.active \
             and np.any(scene.joint_efforts):
         raise UserError("efforts.joints", f"the arm is driven by controller.arm_controller: "

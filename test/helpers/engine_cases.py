@@ -40,6 +40,7 @@ def one_link_doc(*, joint_rpy=HORIZONTAL_AXIS, stroke=(0.0, 1.0), joints=(0.3, 0
     link["joint_rpy"] = list(joint_rpy)
     link["stroke"] = list(stroke)
     doc["robot"]["arm"]["links"] = [link]
+    doc["robot"].pop("limits")   # the paper robot's motors: for its two links
     doc["initial"] = {"joints": list(joints), "velocity": list(velocity)}
     doc["efforts"] = {"wheels": list(wheel_efforts), "joints": list(joint_efforts)}
     doc["effects"] = dict(effects or {})
@@ -49,6 +50,7 @@ def one_link_doc(*, joint_rpy=HORIZONTAL_AXIS, stroke=(0.0, 1.0), joints=(0.3, 0
 def base_only_doc(*, velocity=(0.0, 0.0), wheel_efforts=(0.0, 0.0), effects=None) -> dict:
     doc = paper_doc()
     doc["robot"]["arm"] = {"links": []}
+    doc["robot"].pop("limits")   # the paper robot's motors: for its two links
     doc["initial"] = {"velocity": list(velocity)}
     doc["efforts"] = {"wheels": list(wheel_efforts)}
     doc["effects"] = dict(effects or {})

@@ -284,10 +284,9 @@ def test_a_headless_scene_with_a_trajectory_gives_the_samples_of_the_node_driven
     when it applied (t_a); a headless Simulation of the same scene with the trajectory in its
     `controller:` section (applied at t = 0) gives, at s, the state the node published at
     t_a + s. Before t_a the node holds the initial pose, which the gravity feed-forward holds
-    exactly up to rounding: hence a tolerance of 1e-9 rather than bit equality. Continuous
-    controllers (rate 0) on both sides: sampled, the node takes a command that arrives at an
-    update instant at the next update, the headless scene its command at t = 0 at the first
-    (one update apart; issue 39's open point)."""
+    exactly up to rounding: hence a tolerance of 1e-9 rather than bit equality. Both at the
+    default control rate: the node applies the command it received at an update instant before
+    that update, as the headless scene takes its command at t = 0 at the first."""
     from rosbags.rosbag2 import Reader
     from rosbags.typesys import Stores, get_typestore
     from trajectory_msgs.msg import JointTrajectory, JointTrajectoryPoint
@@ -305,8 +304,7 @@ def test_a_headless_scene_with_a_trajectory_gives_the_samples_of_the_node_driven
     points = [(1, [0.5, 0.4, -0.1, 0.6]), (2, [0.6, 0.45, 0.2, 0.55])]
     node_scene, headless_scene = tmp_path / "node.yaml", tmp_path / "headless.yaml"
     node_scene.write_text(text)
-    headless_scene.write_text(text + "controller:\n  rate: 0\n  arm: joint_trajectory\n"
-                              "  trajectory:\n"
+    headless_scene.write_text(text + "controller:\n  arm: joint_trajectory\n  trajectory:\n"
                               "    points:\n" + "".join(
                                   f"      - {{time_from_start: {t}.0, positions: {p}}}\n"
                                   for t, p in points))
@@ -315,7 +313,6 @@ def test_a_headless_scene_with_a_trajectory_gives_the_samples_of_the_node_driven
                                             "/joint_trajectory_controller/joint_trajectory", 10)
     node = start(tmp_path, child_env(DOMAIN_ID), "-p", f"scene:={node_scene}",
                  "-p", "arm_controller:=joint_trajectory", "-p", f"record:={bag}",
-                 "-p", "controller_rate:=0.0",
                  "-r", "__node:=headless_twin", probe=probe)
     try:
         wait_for(lambda: publisher.get_subscription_count() > 0, "the trajectory subscription")

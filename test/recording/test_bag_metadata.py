@@ -30,11 +30,8 @@ RATE, DURATION = 20.0, 0.2
 ROOT = "rosbag2_bagfile_information"
 
 
-@pytest.fixture(scope="module")
-def good_bag(tmp_path_factory) -> Path:
-    """A short rk4 run of the paper scene recorded as `simulate --record` records it."""
-    path = tmp_path_factory.mktemp("good") / "bag"
-    scene = load_scene()
+def recorded_run(path: Path, scene) -> Path:
+    """A short rk4 run of `scene` recorded into `path` as `simulate --record` records it."""
     settings = make_integrator(scene.integrator, "rk4", 0.001)
     recorder = HeadlessRecorder(path, scene, settings, RATE, DURATION)
     try:
@@ -42,6 +39,12 @@ def good_bag(tmp_path_factory) -> Path:
     finally:
         recorder.close()
     return path
+
+
+@pytest.fixture(scope="module")
+def good_bag(tmp_path_factory) -> Path:
+    """A short rk4 run of the paper scene."""
+    return recorded_run(tmp_path_factory.mktemp("good") / "bag", load_scene())
 
 
 def refusal(argv, capsys) -> str:
@@ -328,6 +331,11 @@ RUN_METADATA = [  # (case id, changes to the map (None removes), key, problem)
     ("sample rate negative", {"sample_rate": "-20"}, f"{RUN}.sample_rate", "must be in"),
     ("value too long", {"scene_name": "x" * 201}, f"{RUN}.scene_name", "longer than 200"),
     ("node source without its rate", {"source": "node"}, f"{RUN}.publish_rate", "missing"),
+    ("controller rate negative", {"controller_rate": "-1.0"}, f"{RUN}.controller_rate",
+     "must be in"),
+    ("controller rate 2e6", {"controller_rate": "2e6"}, f"{RUN}.controller_rate", "must be in"),
+    ("controller rate text", {"controller_rate": "fast"}, f"{RUN}.controller_rate",
+     "expected a number"),
     # an arm controller's settings (node runs not in effort mode)
     ("arm controller unknown", {"arm_controller": "torque"}, f"{RUN}.arm_controller",
      "unknown mode 'torque'"),
@@ -351,6 +359,49 @@ def test_damaged_run_metadata_is_one_line_naming_the_key(good_bag, tmp_path, cap
     rewrite_bag(good_bag, tmp_path / "bag", metadata={RUN: damaged})
     line = refusal((replay, str(tmp_path / "bag"), "--resimulate"), capsys)
     assert f"error: {key}: " in line and problem in line, line
+
+
+@pytest.fixture(scope="module")
+def controlled_bag(tmp_path_factory) -> Path:
+    """A headless run of the paper scene whose arm is held by its position controller at
+    100 Hz (not the default rate) while the wheels drive the base: the efforts change at
+    every update."""
+    from mobile_manip_sim.scene.loading import parse_scene
+    doc = copy.deepcopy(load_scene().document)
+    doc["controller"] = {"arm_controller": "position", "rate": 100}
+    doc["efforts"] = {"wheels": [0.1, 0.2]}
+    return recorded_run(tmp_path_factory.mktemp("controlled") / "bag",
+                        parse_scene(doc, "controlled"))
+
+
+def test_the_bag_names_its_controller_rate_and_the_re_run_takes_it(controlled_bag, tmp_path,
+                                                                  capsys):
+    """The metadata names the rate the run used; the re-run runs its controllers at the bag's
+    rate (another rate in the metadata: the states differ, status 1); a bag naming none is
+    re-run at the scene's rate with a note saying so."""
+    recorded = open_bag(controlled_bag).metadata()[RUN]
+    assert recorded["controller_rate"] == "100.0"
+    assert replay.main([str(controlled_bag), "--resimulate"]) == 0
+    assert "IDENTICAL" in capsys.readouterr().out
+    rewrite_bag(controlled_bag, tmp_path / "other", metadata={
+        RUN: {**recorded, "controller_rate": "1000.0"}})
+    assert replay.main([str(tmp_path / "other"), "--resimulate"]) == 1
+    capsys.readouterr()
+    rewrite_bag(controlled_bag, tmp_path / "none", metadata={
+        RUN: {key: value for key, value in recorded.items() if key != "controller_rate"}})
+    assert replay.main([str(tmp_path / "none"), "--resimulate"]) == 0
+    out = capsys.readouterr().out
+    assert "note: the bag names no controller_rate" in out and "100 Hz" in out
+    assert "IDENTICAL" in out
+
+
+def test_a_bag_without_a_controller_needs_no_controller_rate(good_bag, tmp_path, capsys):
+    recorded = open_bag(good_bag).metadata()[RUN]
+    rewrite_bag(good_bag, tmp_path / "none", metadata={
+        RUN: {key: value for key, value in recorded.items() if key != "controller_rate"}})
+    assert replay.main([str(tmp_path / "none"), "--resimulate"]) == 0
+    out = capsys.readouterr().out
+    assert "IDENTICAL" in out and "controller_rate" not in out
 
 
 def test_run_metadata_missing_entirely_is_one_line(good_bag, tmp_path, capsys):

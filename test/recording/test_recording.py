@@ -339,6 +339,7 @@ def test_a_node_bag_reads_back_with_mcap_and_is_complete(node_run):
                    "rtol": repr(load_scene(None).integrator.rtol),
                    "atol": repr(load_scene(None).integrator.atol),
                    "scene_name": "paper_two_link", "source": "node", "publish_rate": "100.0",
+                   "controller_rate": "1000.0",   # the node's default: the scene's
                    "base_command": "effort", **ImuNoise().as_metadata()}   # a perfect IMU
     assert "rosbag2" in metadata
     for channel in summary.channels.values():

@@ -25,6 +25,7 @@ def document():
 def base_only(velocity=(0.0, 0.0)):
     doc = document()
     doc["robot"]["arm"] = {"mount": [0.0, 0.0, 0.2], "links": []}
+    doc["robot"].pop("limits")   # the paper robot's motors: for its two links
     doc["initial"] = {"velocity": list(velocity)}
     doc["efforts"] = {}
     doc["effects"] = {"gravity": G, "wheel_inertia": True}

@@ -273,21 +273,42 @@ def test_urdf_masses_and_inertias_are_the_scenes(name):
     assert links["base_link"][2][0, 0] != base.yaw_inertia   # no copy of yaw into roll, pitch
 
 
+def document_limits(doc: dict, n_u: int) -> tuple[np.ndarray, np.ndarray]:
+    """(effort, velocity) per joint (τ_R, τ_L, τ_1, F_1, …) as a scene document states them:
+    the numbers of effects.effort_limits, else of robot.limits.effort (or where the effect is
+    `true`), else the simulator's largest; robot.limits.velocity, else the largest speed."""
+    from mobile_manip_sim.scene import limits
+    declared = doc["robot"].get("limits", {})
+    effect = doc.get("effects", {}).get("effort_limits")
+    columns = []
+    for largest, owners in (
+            (limits.EFFORT, [effect if isinstance(effect, dict) else {},
+                             declared.get("effort", {})]),
+            (limits.SPEED, [declared.get("velocity", {})])):
+        values = np.full(n_u, largest)
+        for owner in reversed(owners):   # the first owner that gives a group wins
+            for group, where in (("wheels", slice(0, 2)), ("joints", slice(2, None))):
+                if owner.get(group) is not None:
+                    values[where] = owner[group]
+        columns.append(values)
+    return columns[0], columns[1]
+
+
 @pytest.mark.parametrize("name", ["paper", "random_1", "random_5"])
 def test_urdf_limits_and_collision_shapes(name):
-    """Prismatic limits are the strokes, efforts the scene's limits (else the largest the
-    simulator accepts); a box collides for the base, cylinders for wheels and rods."""
-    from mobile_manip_sim.scene import limits
+    """Prismatic limits are the strokes; efforts and velocities those the scene's file states
+    (the enforced effort limits, else the robot's own, else the largest the simulator accepts);
+    a box collides for the base, cylinders for wheels and rods."""
     scene = SCENES[name]
     robot = scene.robot
     root = ET.fromstring(robot_description(scene))
-    effort = effect_settings(scene).effort_limits
-    assert (effort is None) == (name == "paper")
+    effort, velocity = document_limits(scene.document, robot.n_u)
+    if name == "paper":   # a motor's, from the file: none of them the simulator's bounds
+        assert np.all(effort < 1e3) and np.all(velocity < 1e3)
     for j, joint_name in enumerate(robot.joint_names()):
         limit = root.find(f"joint[@name='{joint_name}']/limit")
-        expected = limits.EFFORT if effort is None or np.isinf(effort[j]) else effort[j]
-        assert float(limit.get("effort")) == expected, joint_name
-        assert float(limit.get("velocity")) == limits.SPEED
+        assert float(limit.get("effort")) == effort[j], joint_name
+        assert float(limit.get("velocity")) == velocity[j], joint_name
     for k in range(robot.n_links):
         limit = root.find(f"joint[@name='arm_prismatic_{k + 1}']/limit")
         assert (float(limit.get("lower")), float(limit.get("upper"))) == tuple(robot.stroke[k])
@@ -356,6 +377,20 @@ def test_describe_without_scene_prints_the_default_scene():
     result = run_describe()
     assert result.returncode == 0, result.stderr
     assert result.stdout == robot_description(load_scene())
+
+
+def test_describe_writes_the_paper_robots_limits():
+    """describe's URDF carries the limits the paper scene's file declares for its motors."""
+    result = run_describe("--scene", str(PAPER))
+    assert result.returncode == 0, result.stderr
+    root = ET.fromstring(result.stdout)
+    declared = paper_document()["robot"]["limits"]
+    efforts = declared["effort"]["wheels"] + declared["effort"]["joints"]
+    velocities = declared["velocity"]["wheels"] + declared["velocity"]["joints"]
+    names = load_scene(PAPER).robot.joint_names()
+    written = [root.find(f"joint[@name='{name}']/limit") for name in names]
+    assert [float(limit.get("effort")) for limit in written] == efforts
+    assert [float(limit.get("velocity")) for limit in written] == velocities
 
 
 @pytest.mark.parametrize("kind, problem",

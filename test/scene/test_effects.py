@@ -14,6 +14,7 @@ import pytest
 from engine_cases import CONFIG, base_only_doc, one_link_doc, paper_doc, sampled, simulation
 from mobile_manip_sim.engine.simulation import Simulation
 from mobile_manip_sim.engine.system import CROSSING_CHECKS, DAMPING_STAGE, REDUCED_SOLVE, RHS_EVALS
+from mobile_manip_sim.scene.arm_controller import ArmController
 from mobile_manip_sim.scene.coordinates import (
     ARM_Q,
     ARM_U,
@@ -29,6 +30,7 @@ from mobile_manip_sim.scene.coordinates import (
     u_turn,
 )
 from mobile_manip_sim.scene.effects import SETTING_OF_EFFECT, EffectSettings, settings
+from mobile_manip_sim.scene.errors import UserError
 from mobile_manip_sim.scene.loading import EFFECT_NAMES, load_scene, make_integrator, parse_scene
 from pinocchio_reference import build_projected_model
 from robots import random_state
@@ -251,6 +253,59 @@ def test_effort_limits_saturate_the_scene_efforts_too():
     sim = simulation(paper_doc(effects={"effort_limits": LIMITS}), "rk4")
     assert list(sim.wheel_efforts) == [0.1, 0.15]               # the paper's 0.2 N·m capped
     assert list(sim.joint_efforts) == [4.0, 6.0, 0.0, 0.5]
+
+
+def test_the_paper_robots_limits_are_enforced_at_them_and_not_below():
+    """``effects.effort_limits: true`` on the paper scene enforces its robot's own efforts: the
+    numbers of ``robot.limits.effort`` in the file, read here from the YAML. A command beyond
+    them is clamped at them; one just within passes untouched (a clamp that must not fire); the
+    wheel loop's and the arm controller's outputs are bounded by the same numbers."""
+    declared = PAPER["robot"]["limits"]["effort"]
+    limits = np.array(declared["wheels"] + declared["joints"], dtype=float)
+    enforced = paper_doc()
+    enforced["effects"]["effort_limits"] = True
+    scene = parse_scene(enforced)
+    sim = Simulation(scene)
+    assert np.array_equal(sim.effects.effort_limits, limits)
+    sim.set_efforts(wheels=limits[:2] * [1.25, -3.0], joints=limits[2:] * [1.01, -2.0, 5.0, -1.5])
+    assert list(sim.wheel_efforts) == [limits[0], -limits[1]]
+    assert list(sim.joint_efforts) == list(limits[2:] * [1, -1, 1, -1])
+    within = limits * (1.0 - 1e-12) * [1, -1, -1, 1, -1, 1]
+    sim.set_efforts(wheels=within[:2], joints=within[2:])
+    assert np.array_equal(np.r_[sim.wheel_efforts, sim.joint_efforts], within)
+    sim.set_base_velocity(1.0, 0.0)   # a wheel error of 12.5 rad/s: kp e = 25 N·m asked
+    sim.advance_to(1e-3)              # the loop's update at t = 0 has acted
+    assert sim.wheel_torques()[0] == limits[0]
+    arm = Simulation(scene, arm_controller=ArmController("position"))
+    arm.set_arm_positions(arm.q[5:] + [1.0, 0.0, 0.0, 0.0])   # kp · 1 rad asked of joint 1
+    arm.advance_to(1e-3)
+    applied = arm.joint_efforts_applied()
+    assert applied[0] == limits[2] and np.all(np.abs(applied) <= limits[2:])
+
+
+def test_effort_limits_true_takes_the_robots_and_needs_them():
+    doc = paper_doc()
+    doc["robot"]["limits"].pop("effort")
+    doc["effects"]["effort_limits"] = True
+    with pytest.raises(UserError, match=r"^effects\.effort_limits: true takes the robot's") \
+            as error:
+        parse_scene(doc)
+    assert "\n" not in str(error.value)
+    doc["effects"]["effort_limits"] = False
+    assert settings(parse_scene(doc)).effort_limits is None
+
+
+@pytest.mark.parametrize("limits, key", [
+    ({"velocity": {"joints": [3.0, -0.5, 3.0, 0.5]}}, r"robot\.limits\.velocity\.joints\[1\]"),
+    ({"effort": {"wheels": [1.0, 2.0, 3.0]}}, r"robot\.limits\.effort\.wheels"),
+    ({"speed": {"wheels": 1.0}}, r"robot\.limits\.speed"),
+    ({"effort": {"arm": 1.0}}, r"robot\.limits\.effort\.arm")])
+def test_a_bad_robot_limit_is_a_one_line_error_naming_it(limits, key):
+    doc = paper_doc()
+    doc["robot"]["limits"] = limits
+    with pytest.raises(UserError, match=rf"^{key}: ") as error:
+        parse_scene(doc)
+    assert "\n" not in str(error.value)
 
 
 # --- locked joints and the fixed base ------------------------------------------------------

@@ -47,8 +47,10 @@ inline Status apply_update(Run& run, double* s, double* clock) {
     const double v = s[nq + V], om = s[nq + OMEGA];
     double* held = run.system.held;
     double rate_R, rate_L;
-    wheel_drive(w.kp, w.ki, w.target_R, (v + b * om) / r, s[e], w.limit_R, held[0], rate_R);
-    wheel_drive(w.kp, w.ki, w.target_L, (v - b * om) / r, s[e + 1], w.limit_L, held[1], rate_L);
+    wheel_drive(w.kp, w.ki, w.target_R, (v + b * om) / r, s[e], w.limit_R, false, held[0],
+                rate_R);
+    wheel_drive(w.kp, w.ki, w.target_L, (v - b * om) / r, s[e + 1], w.limit_L, false, held[1],
+                rate_L);
     s[e] += period * rate_R;
     s[e + 1] += period * rate_L;
     run.ws.Q[V] = (held[0] + held[1]) / r;
@@ -59,8 +61,10 @@ inline Status apply_update(Run& run, double* s, double* clock) {
 }
 
 // `advance` (either engine's, `between` the updates) with the sampled controllers updated on the
-// way at each of their instants up to t_end, t_end included; `after_update` is what the engine
-// does once an update is applied (the adaptive solves restart).
+// way at each of their instants before t_end; `after_update` is what the engine does once an
+// update is applied (the adaptive solves restart). An update due at t_end is left to the next
+// call, whose first stretch is empty and ends at it: it is applied after the commands set
+// between the calls (a command given at an update instant is taken at that update).
 template <class Between, class AfterUpdate>
 inline Status advance_with_updates(Run& run, double* s, double* clock, double t_end,
                                    long max_steps, Between&& between, AfterUpdate&& after_update) {
@@ -68,7 +72,7 @@ inline Status advance_with_updates(Run& run, double* s, double* clock, double t_
   const double steps = clock[CLOCK_STEPS];
   while (true) {
     double t_update = next_update(run, clock[CLOCK_UPDATES]);
-    bool due = t_update <= t_end;
+    bool due = t_update < t_end;
     Status status = between(t_update < t_end ? t_update : t_end,
                             max_steps - long(clock[CLOCK_STEPS] - steps));
     if (status == DONE && due) {

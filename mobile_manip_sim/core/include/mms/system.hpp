@@ -42,14 +42,21 @@ struct Effects {
                                         // held since its last update (`wheels` then nullptr)
 };
 
-// One wheel's PI loop (WheelLoop): its torque and its integral's rate.
+// One wheel's PI loop (WheelLoop): its torque and its integral's rate. Anti-windup
+// (engine/system.py's wheel_drive): `tracking` (the continuous loop) back-calculation with
+// control_toolbox's default T_t = kp/ki, ė = error + (τ − raw)/kp, continuous in the state;
+// otherwise (a sampled update) conditional integration.
 template <class S>
 inline void wheel_drive(double kp, double ki, double target, const S& speed, const S& integral,
-                        double limit, S& tau, S& rate) {
+                        double limit, bool tracking, S& tau, S& rate) {
   S error = target - speed;
   S raw = kp * error + ki * integral;
   S low = select(value(raw) < -limit, S(-limit), raw);   // max(raw, −limit)
   tau = select(limit < value(low), S(limit), low);       // min(…, limit)
+  if (tracking && kp > 0.0) {
+    rate = error + (tau - raw) / kp;
+    return;
+  }
   auto held = ((value(raw) > limit) & (value(error) > 0.0)) |
               ((value(raw) < -limit) & (value(error) < 0.0));
   rate = select(held, S(0.0), error);
@@ -83,10 +90,10 @@ void rates(const ModelOf<P>& model, const Effects<S>& fx, const S* s, S* ds, Sys
     const WheelLoop& w = *fx.wheels;
     P r = model.base.wheel_radius, b = model.base.half_track;
     S tau_R, tau_L;
-    wheel_drive(w.kp, w.ki, w.target_R, (u[V] + b * u[OMEGA]) / r, s[e], w.limit_R, tau_R,
-                ds[e]);
-    wheel_drive(w.kp, w.ki, w.target_L, (u[V] - b * u[OMEGA]) / r, s[e + 1], w.limit_L, tau_L,
-                ds[e + 1]);
+    wheel_drive(w.kp, w.ki, w.target_R, (u[V] + b * u[OMEGA]) / r, s[e], w.limit_R, true,
+                tau_R, ds[e]);
+    wheel_drive(w.kp, w.ki, w.target_L, (u[V] - b * u[OMEGA]) / r, s[e + 1], w.limit_L, true,
+                tau_L, ds[e + 1]);
     ws.Q[V] = (tau_R + tau_L) / r;
     ws.Q[OMEGA] = b * (tau_R - tau_L) / r;
   } else if (fx.held_wheels != nullptr) {  // sampled: the last update's torques (ė = 0)
