@@ -17,7 +17,7 @@
 // payload carry a model error.
 //
 // Sampled (`held` set): the efforts of the last update are held (ż = 0) and the update applies
-// the law outside the right-hand side (stepping.hpp's `apply_update`).
+// the law outside the right-hand side (stepping.hpp's `update_controllers`).
 //
 // State beyond (q, u, e, W): z_1 … z_{n_arm}, then τ; n_arm = n_u − 2.
 #pragma once

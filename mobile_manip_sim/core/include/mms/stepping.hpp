@@ -58,10 +58,8 @@ inline Status update_controllers(Run& run, double* s) {
   }
   if (run.arm_on()) {  // the law itself (not its held efforts), its rates into `trial`
     double* rates = run.step.trial;
-    ArmControl law = run.arm;
-    law.held = nullptr;
     frames(run.model, s, run.ws.dynamics);
-    arm_efforts(run.model, law, run.system.gravity, run.system.damping, s, rates,
+    arm_efforts(run.model, run.arm, run.system.gravity, run.system.damping, s, rates,
                 run.ws.Q.data(), run.ws.dynamics, run.ws.arm);
     const int i_z = arm_integrals_index(run.model);
     for (int j = 0; j < nu - 2; ++j) {
