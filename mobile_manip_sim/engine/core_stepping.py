@@ -32,12 +32,12 @@ def compiled_stepper(dynamics, method: str, system, stops, scratch, solve=None) 
     data = system.data
     law = stops.law
     stepper = Stepper(dynamics.core, method, float(data.gravity), data.damping, data.free,
-                   data.Q_cmd, data.control, data.counters, data.holding, stops.watched,
-                   stops.resting, stops.stroke, stops.permanent, int(law.kind),
-                   float(law.restitution), float(law.rest_speed), stops.log, stops.log_q,
-                   stops.log_u, stops.log_free, stops.count, stops.run, stops.failed,
-                   scratch.out, scratch.trial, scratch.stages, scratch.forces, scratch.samples,
-                   scratch.crossed, float(rtol), float(atol), watch, float(data.rate), data.held)
+                      data.Q_cmd, data.control, data.counters, data.holding, stops.watched,
+                      stops.resting, stops.stroke, stops.permanent, int(law.kind),
+                      float(law.restitution), float(law.rest_speed), stops.log, stops.log_q,
+                      stops.log_u, stops.log_free, stops.count, stops.run, stops.failed,
+                      scratch.out, scratch.trial, scratch.stages, scratch.forces, scratch.samples,
+                      scratch.crossed, float(rtol), float(atol), watch, float(data.rate), data.held)
     if system.arm_on:
         drive_arm(stepper, data)
     return stepper
