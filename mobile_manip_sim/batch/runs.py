@@ -225,10 +225,12 @@ class Batch:
     def _compiled(self) -> np.ndarray:
         """The lanes the compiled call runs: those of a fixed-step method whose controllers
         are not sampled now (the compiled lanes take no controller updates, `sampling.py`); on
-        the C++ core, those the core's stepper runs (not an arm under a controller)."""
+        the C++ core, those the core's stepper runs whose arm no controller drives (the vector
+        blocks have no arm controller)."""
         return np.array([sim is not None and METHODS[sim.settings.method].fixed_step
                          and not sim.controllers_sampled
-                         and (sim._stepper is not None or not self.cpp)
+                         and (not self.cpp or (sim._stepper is not None
+                                               and not sim.arm_controller.active))
                          for sim in self.sims], dtype=bool)
 
     def _run(self, times: np.ndarray, rows, progress) -> None:

@@ -17,7 +17,7 @@ from ..scene.coordinates import ARM_U, arm_u, arm_width
 from ..scene.errors import UserError
 from ..scene.limits import DURATION, REVOLUTE_TARGET, SPEED, TRAJECTORY_POINTS
 from . import arm_reference, layout
-from .arm_control import ARM_SEGMENTS, LAST_TAU
+from .arm_control import LAST_TAU
 from .arm_reference import Q_REF, QD_REF, QDD_REF
 
 
@@ -66,12 +66,8 @@ class ArmCommands:
     def arm_reference(self, t_ahead: float = 0.0):
         """(q_ref, q̇_ref, q̈_ref) of the reference t_ahead s from now (n_arm each)."""
         self._arm_mode_is(None, "arm.reference")
-        n_arm = arm_width(self.nu)
-        out = np.zeros((3, n_arm))
-        data = self.system.data
         tau = self.s[layout.reference_clock(self.nq, self.nu)] + float(t_ahead)
-        arm_reference.reference(data.ref_starts, data.ref_coeffs, int(data.arm[ARM_SEGMENTS]), tau,
-                                out, 0)
+        out = self._reference_at(tau)
         return out[Q_REF].copy(), out[QD_REF].copy(), out[QDD_REF].copy()
 
     def joint_efforts_applied(self) -> np.ndarray:
@@ -114,6 +110,7 @@ class ArmCommands:
         self.system.set_reference(starts, coeffs)
         if self.system.data is not data:   # the record grew: the compiled calls take the new one
             self._rebind_system()
+            self._reference_arrays_changed()
         self.s[layout.reference_clock(self.nq, self.nu)] = 0.0
         self._command_changed()
 

@@ -1,14 +1,19 @@
 """The engine's calls between steps — which rods rest (the locks), whether a stop pulls, a
 release, a restart of an adaptive solve, the step in hand — made by whichever core runs the
 simulation's method: the compiled C++ stepper (`core_stepping.py`), or the numba kernels and
-records where it does not run yet (an arm controller; SciPy's radau and bdf). A mixin of
+records where it does not run (``MOBILE_MANIP_SIM_CORE=numba``; SciPy's radau and bdf), and the
+arm controller's reference and the sampled controllers' update between steps. A mixin of
 `Simulation`, as `base_commands.py` and `arm_commands.py` are; the numba branches leave with
 numba.
 """
 from __future__ import annotations
 
+import numpy as np
+
+from ..scene.coordinates import arm_width
 from ..scene.methods import METHODS
-from . import adaptive_stepping, core_stepping, layout
+from . import adaptive_stepping, arm_reference, core_stepping, layout
+from .arm_control import ARM_SEGMENTS
 from .events import holding_margin
 from .stops import release, relock
 
@@ -16,13 +21,36 @@ from .stops import release, relock
 class CoreCalls:
     def _compiled_stepper(self):
         """The compiled C++ stepper of this simulation's own records (`core_stepping.py`), or None
-        where the numba kernels or SciPy run it (radau, bdf; an arm controller). Made at every
-        reset: a batch lane, a copy of its template's records, gets its own."""
+        where the numba kernels or SciPy run it (``MOBILE_MANIP_SIM_CORE=numba``; radau, bdf).
+        Made at every reset: a batch lane, a copy of its template's records, gets its own."""
         method = METHODS[self.settings.method]
-        if (core_stepping.CORE != "cpp" or self._core is None or self.arm_controller.active):
+        if core_stepping.CORE != "cpp" or self._core is None:
             return None
         return core_stepping.compiled_stepper(self.dynamics, method.name, self.system, self.stops,
                                               self._scratch, self._solve)
+
+    def _reference_arrays_changed(self) -> None:
+        """The system record's reference arrays were replaced (they grew): the stepper reads the
+        new ones."""
+        if self._stepper is not None:
+            core_stepping.drive_arm(self._stepper, self.system.data)
+
+    def _sampled_update(self) -> bool:
+        """The sampled controllers' update at s now (`sampling.update_at_instant`; the clock's
+        count is the caller's): True when a release it made failed its contact solve."""
+        if self._stepper is not None:
+            return self._stepper.update(self.s)
+        return self._update(self.system.data, self.stops, self._scratch, self.s)
+
+    def _reference_at(self, tau: float) -> np.ndarray:
+        """(3, n_arm) q_ref, q̇_ref, q̈_ref of the arm's reference at its clock τ."""
+        if self._stepper is not None:
+            return self._stepper.arm_reference(tau)
+        data = self.system.data
+        out = np.zeros((3, arm_width(self.nu)))
+        arm_reference.reference(data.ref_starts, data.ref_coeffs, int(data.arm[ARM_SEGMENTS]), tau,
+                                out, 0)
+        return out
 
     def load_kernels(self) -> None:
         """Load now (compile, if the warm-up did not) every compiled kernel that this
@@ -41,7 +69,8 @@ class CoreCalls:
         twin.dynamics.energy(twin.q, twin.u)
         twin.set_base_velocity(0.0, 0.0)
         twin.wheel_torques()
-        twin._update(twin.system.data, twin.stops, twin._scratch, twin.s)   # a sampled update
+        if twin.sampled:
+            twin._sampled_update()
         twin._holding_margin()
         twin._release()
         if twin.arm_controller.active:

@@ -4,13 +4,14 @@ simulation's own arrays — its system record (`system.SystemData`), its stops a
 (`stops.StopsData`) and its step scratch (`stepping.StepScratch`) — so that everything a run is
 stays where Python reads it between calls (but for an adaptive run's step in hand).
 
-It runs euler, semi-implicit Euler, rk4, rk45 and dop853 in effort mode and under wheel-speed
-commands (the loop continuous or sampled, `sampling.py`), events, impacts, rests, releases, the
-Zeno guard and the crawl limits included, and
-equals the numba kernels of `stepping.py` and `adaptive_stepping.py` bit for bit
-(test/core/test_core_stepping.py). A run whose arm is driven by a controller, and SciPy's radau
-and bdf, still take their old paths; ``MOBILE_MANIP_SIM_CORE=numba`` takes the numba kernels for
-every run (the reference while both exist).
+It runs euler, semi-implicit Euler, rk4, rk45 and dop853 in effort mode, under wheel-speed
+commands and with the arm driven by its controller (every mode and feed-forward, model error
+included; core/include/mms/arm_control.hpp), the controllers continuous or sampled
+(`sampling.py`), events, impacts, rests, releases, the Zeno guard and the crawl limits included,
+and equals the numba kernels of `stepping.py`, `adaptive_stepping.py`, `arm_control.py` and
+`sampling.py` bit for bit (test/core/test_core_stepping.py, test/core/test_core_arm.py). SciPy's
+radau and bdf still take their old paths; ``MOBILE_MANIP_SIM_CORE=numba`` takes the numba kernels
+for every run (the reference while both exist).
 """
 from __future__ import annotations
 
@@ -30,10 +31,20 @@ def compiled_stepper(dynamics, method: str, system, stops, scratch, solve=None) 
     watch = solve.watch if solve is not None else np.zeros(3)
     data = system.data
     law = stops.law
-    return Stepper(dynamics.core, method, float(data.gravity), data.damping, data.free,
-                   data.Q_cmd, data.control, data.counters, data.holding, stops.watched,
-                   stops.resting, stops.stroke, stops.permanent, int(law.kind),
-                   float(law.restitution), float(law.rest_speed), stops.log, stops.log_q,
-                   stops.log_u, stops.log_free, stops.count, stops.run, stops.failed,
-                   scratch.out, scratch.trial, scratch.stages, scratch.forces, scratch.samples,
-                   scratch.crossed, float(rtol), float(atol), watch, float(data.rate), data.held)
+    stepper = Stepper(dynamics.core, method, float(data.gravity), data.damping, data.free,
+                      data.Q_cmd, data.control, data.counters, data.holding, stops.watched,
+                      stops.resting, stops.stroke, stops.permanent, int(law.kind),
+                      float(law.restitution), float(law.rest_speed), stops.log, stops.log_q,
+                      stops.log_u, stops.log_free, stops.count, stops.run, stops.failed,
+                      scratch.out, scratch.trial, scratch.stages, scratch.forces, scratch.samples,
+                      scratch.crossed, float(rtol), float(atol), watch, float(data.rate), data.held)
+    if system.arm_on:
+        drive_arm(stepper, data)
+    return stepper
+
+
+def drive_arm(stepper: Stepper, data) -> None:
+    """The arm controller's arrays of the system record `data` (`system.SystemData`) into the
+    stepper: at its making, and again when the record's reference arrays were replaced."""
+    stepper.drive_arm(data.arm, data.arm_gains, data.arm_limits, data.ref_starts, data.ref_coeffs,
+                      data.arm_ref, data.ff_masses)

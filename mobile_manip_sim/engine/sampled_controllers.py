@@ -35,7 +35,7 @@ class SampledControllers:
     def _update_controllers(self) -> None:
         """The sampled controllers' update due now (`sampling.update_at_instant`)."""
         self._clock[stepping.CLOCK_UPDATES] += 1.0
-        failed = self._update(self.system.data, self.stops, self._scratch, self.s)
+        failed = self._sampled_update()
         self._restart()
         if failed:
             self._contact_failed()

@@ -22,9 +22,7 @@ from mobile_manip_sim.engine.simulation import Simulation
 from mobile_manip_sim.scene.loading import load_scene, parse_scene
 
 CONFIG = Path(__file__).resolve().parents[2] / "mobile_manip_sim" / "config"
-# (a scene whose arm a controller drives still runs on the numba kernels: not compared here)
-SCENES = sorted(p for p in CONFIG.glob("*.yaml")
-                if p.name != "simulator.params.yaml" and load_scene(p).controller is None)
+SCENES = sorted(p for p in CONFIG.glob("*.yaml") if p.name != "simulator.params.yaml")
 PAPER = paper_doc()
 METHODS = ["euler", "semi_implicit_euler", "rk4", "rk45", "dop853"]
 # each method's settings: the fixed steps at 1 kHz, the adaptive ones at tolerances of use
@@ -32,13 +30,15 @@ SETTINGS = {"euler": dict(dt=1e-3), "semi_implicit_euler": dict(dt=1e-3), "rk4":
             "rk45": dict(rtol=1e-7, atol=1e-10), "dop853": dict(rtol=1e-9, atol=1e-12)}
 
 
-def outcome(scene, method: str, core: str, monkeypatch, commands=(), t_end=1.0, rate=None):
+def outcome(scene, method: str, core: str, monkeypatch, commands=(), t_end=1.0, rate=None,
+            arm_controller=None):
     """A run of `scene` by `core` ("numba" or "cpp"), sampled at 100 Hz; `commands` are
     (t, function of the simulation) applied when the run reaches t. A small step budget makes
-    each compiled call return often, as a node's do."""
+    each compiled call return often, as a node's do. With an arm controller, also what its last
+    evaluation left (the reference, feed-forward and efforts) and the efforts held."""
     monkeypatch.setattr(core_stepping, "CORE", core)
     sim = Simulation(scene, replace(scene.integrator, method=method, **SETTINGS[method]),
-                     control_rate=rate)
+                     arm_controller, rate)
     assert (sim._stepper is not None) == (core == "cpp")
     sim._step_budget = 97
     times = np.arange(1, int(round(t_end / 0.01)) + 1) * 0.01
@@ -55,7 +55,8 @@ def outcome(scene, method: str, core: str, monkeypatch, commands=(), t_end=1.0, 
         start = at
     return dict(rows=rows, clock=sim._clock.copy(), counters=sim.system.counters.copy(),
                 impacts=sim.impacts, details=sim.impact_details, resting=sim.resting.copy(),
-                watched=sim.watched.copy(), s=sim.s.copy())
+                watched=sim.watched.copy(), s=sim.s.copy(), arm_ref=sim.system.arm_ref.copy(),
+                held=sim.system.held.copy())
 
 
 def assert_identical(a, b):
@@ -63,7 +64,7 @@ def assert_identical(a, b):
     for x, y in zip(a["rows"], b["rows"], strict=True):
         assert type(x) is type(y)
         assert x == y if isinstance(x, str) else np.array_equal(x, y, equal_nan=True)
-    for key in ("clock", "counters", "resting", "watched", "s"):
+    for key in ("clock", "counters", "resting", "watched", "s", "arm_ref", "held"):
         assert np.array_equal(a[key], b[key], equal_nan=True), key
     assert a["impacts"] == b["impacts"]
     for x, y in zip(a["details"], b["details"], strict=True):

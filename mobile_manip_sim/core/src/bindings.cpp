@@ -712,6 +712,7 @@ class Stepper {
     need(Q_cmd, nu, "Q_cmd");
     need(control, 7, "control");
     if (counters.size() < 5) throw std::invalid_argument("counters: expected 5 or more");
+    counters_ = counters.size();
     need(holding, 2, "holding");
     need(watched, n, "watched");
     need(resting, n, "resting");
@@ -745,9 +746,10 @@ class Stepper {
     } else {
       method_ = method_of(method);
     }
-    if (size != size_t(state_size(m)))
-      throw std::invalid_argument("the fixed-step core runs effort and wheel-speed modes (a "
-                                  "state of " + std::to_string(state_size(m)) + " entries)");
+    if (size != size_t(state_size(m)) && size != size_t(arm_state_size(m)))
+      throw std::invalid_argument("out: expected a state of " + std::to_string(state_size(m)) +
+                                  " entries, or " + std::to_string(arm_state_size(m)) +
+                                  " with an arm controller");
     arrays_ = nb::make_tuple(damping, free, Q_cmd, control, counters, holding, watched, resting,
                              stroke, permanent, log, log_q, log_u, log_free, count, runs, failed,
                              out, trial, stages, forces, samples, crossed, watch, held);
@@ -806,7 +808,7 @@ class Stepper {
   }
 
   double total_energy(In s) {
-    need(s, run_.size, "s");
+    check_state(s);
     return mms::total_energy(run_, s.data());
   }
 
@@ -836,14 +838,14 @@ class Stepper {
 
   // Free the resting rods their stops would have to pull at s (in place); how many left.
   int release(F64 s, bool at_root) {
-    need(s, run_.size, "s");
+    check_state(s);
     sync_locks(run_);
     return mms::release(run_, s.data(), at_root);
   }
 
   // The least force a resting rod's stop pushes with at s (N; +inf when none rests).
   double holding_margin(In s) {
-    need(s, run_.size, "s");
+    check_state(s);
     sync_locks(run_);
     return mms::holding_margin(run_, s.data(), run_.stage(3));
   }
@@ -857,7 +859,7 @@ class Stepper {
 
   // ds/dt at s with the locks in force (counted as the run's own evaluations are).
   Out derivative(In s) {
-    need(s, run_.size, "s");
+    check_state(s);
     sync_locks(run_);
     double* ds;
     Out out = new_array({size_t(run_.size)}, &ds);
@@ -865,10 +867,85 @@ class Stepper {
     return out;
   }
 
+  // --- the arm controller (arm_control.hpp) -------------------------------------------------
+  // Drive the arm by its controller, on the system record's arrays (engine/system.py's
+  // SystemData: arm, arm_gains, arm_limits, ref_starts, ref_coeffs, arm_ref, ff_masses); again
+  // whenever the record's reference arrays are replaced (they grew).
+  void drive_arm(F64 settings, In gains, In limits, In starts, In coeffs, F64 last,
+                 In ff_masses) {
+    const Model& m = run_.model;
+    const size_t n = m.n(), n_arm = m.n_u() - 2;
+    if (run_.size != arm_state_size(m))
+      throw std::invalid_argument("drive_arm: the state has no arm controller's entries");
+    need(settings, 4, "arm");
+    need(gains, 3 * n_arm, "arm_gains");
+    need(limits, n_arm, "arm_limits");
+    const size_t capacity = starts.size();
+    need(coeffs, capacity * n_arm * REF_WIDTH, "ref_coeffs");
+    if (capacity == 0 || settings.data()[ARM_SEGMENTS] > double(capacity))
+      throw std::invalid_argument("ref_starts: fewer segments than arm[ARM_SEGMENTS]");
+    need(last, ARM_ROWS * n_arm, "arm_ref");
+    if (ff_masses.size() != 0) need(ff_masses, 4 + 10 * n, "ff_masses");
+    if (counters_ < 6)
+      throw std::invalid_argument("counters: expected 6 or more with an arm controller");
+    ff_model_ = m;
+    if (ff_masses.size()) {  // a model error: its masses, inertias, payload; the plant's geometry
+      const double* f = ff_masses.data();
+      ff_model_.base.mass = f[0];
+      ff_model_.base.yaw_inertia = f[1];
+      ff_model_.base.wheel_inertia = f[2];
+      ff_model_.tip_mass = f[3];
+      for (size_t k = 0; k < n; ++k) {
+        ff_model_.mu[k] = f[4 + k];
+        for (int i = 0; i < 3; ++i)
+          for (int j = 0; j < 3; ++j) ff_model_.J[k][i][j] = f[4 + n + 9 * k + 3 * i + j];
+      }
+    }
+    arm_arrays_ = nb::make_tuple(settings, gains, limits, starts, coeffs, last, ff_masses);
+    run_.arm = ArmControl{.settings = settings.data(),
+                          .gains = gains.data(),
+                          .limits = limits.data(),
+                          .starts = starts.data(),
+                          .coeffs = coeffs.data(),
+                          .last = last.data(),
+                          .model = &ff_model_,
+                          .held = run_.system.rate > 0.0 ? run_.system.held : nullptr};
+  }
+
+  // The sampled controllers' update at s now (in place; the clock's count is the caller's):
+  // true when the release it made failed its contact solve.
+  bool update(F64 s) {
+    check_state(s);
+    if (!(run_.system.rate > 0.0)) throw std::invalid_argument("update: the controllers are "
+                                                               "continuous (rate 0)");
+    sync_locks(run_);
+    return mms::update_controllers(run_, s.data()) != DONE;
+  }
+
+  // (q_ref, q̇_ref, q̈_ref) (3 × n_arm) of the arm's reference at clock τ.
+  Out arm_reference(double tau) {
+    if (!run_.arm.settings) throw std::invalid_argument("arm_reference: no arm controller");
+    const int n_arm = run_.n_u() - 2;
+    double* ref;
+    Out out = new_array({3, size_t(n_arm)}, &ref);
+    mms::reference(run_.arm.starts, run_.arm.coeffs, int(run_.arm.settings[ARM_SEGMENTS]), n_arm,
+                   tau, ref, 0);
+    return out;
+  }
+  // --- end of the arm controller ------------------------------------------------------------
+
  private:
   void check(const F64& s, const F64& clock) {
-    need(s, run_.size, "s");
+    check_state(s);
     need(clock, CLOCK_ENTRIES, "clock");
+  }
+
+  // s has the run's entries, and the arm controller's are driven when s has them.
+  template <class Array>
+  void check_state(const Array& s) {
+    need(s, run_.size, "s");
+    if (run_.size != state_size(run_.model) && !run_.arm.settings)
+      throw std::invalid_argument("s: an arm controller's state, and drive_arm not called");
   }
 
   nb::object owner_;   // the Dynamics whose model the run uses
@@ -876,6 +953,9 @@ class Stepper {
   Method method_ = Method::Rk4;
   Run run_;
   std::unique_ptr<AdaptiveRun> adaptive_;  // rk45, dop853: the solve; null for a fixed step
+  size_t counters_ = 0;    // entries of the counters array
+  Model ff_model_;         // the arm's feed-forward model (drive_arm)
+  nb::object arm_arrays_;  // the arm controller's arrays, kept alive
 };
 
 
@@ -1111,7 +1191,12 @@ NB_MODULE(_core, m) {
       .def("relock", &mms::Stepper::relock)
       .def("release", &mms::Stepper::release, "s"_a, "at_root"_a)
       .def("holding_margin", &mms::Stepper::holding_margin, "s"_a)
-      .def("derivative", &mms::Stepper::derivative, "s"_a);
+      .def("derivative", &mms::Stepper::derivative, "s"_a)
+      // the arm controller
+      .def("drive_arm", &mms::Stepper::drive_arm, "arm"_a, "arm_gains"_a, "arm_limits"_a,
+           "ref_starts"_a, "ref_coeffs"_a, "arm_ref"_a, "ff_masses"_a)
+      .def("update", &mms::Stepper::update, "s"_a)
+      .def("arm_reference", &mms::Stepper::arm_reference, "tau"_a);
   nb::class_<mms::LaneSet>(m, "LaneSet")
       .def(nb::init<nb::list, nb::list, nb::list>(), "steppers"_a, "states"_a, "clocks"_a)
       .def("advance", &mms::LaneSet::advance, "lanes"_a, "records"_a, "times"_a, "last"_a,

@@ -18,7 +18,8 @@
 namespace mms {
 
 // counters[...]: the stages actually run (engine/system.py)
-enum Counter { RHS_EVALS, DAMPING_STAGE, REDUCED_SOLVE, CROSSING_CHECKS, CONTROL_STAGE };
+enum Counter { RHS_EVALS, DAMPING_STAGE, REDUCED_SOLVE, CROSSING_CHECKS, CONTROL_STAGE,
+               ARM_CONTROL_STAGE };
 // holding[...]: the resting rods' holding forces watched at every evaluation (`watch_holding`)
 enum Holding { HOLDING_ON, HOLDING_LEAST_MARGIN };
 // control[...]: the wheel-speed PI loop
@@ -44,7 +45,7 @@ struct SystemArrays {
   std::int64_t* free = nullptr;  // (n_u) the free pseudo-velocities, padded with −1
   const double* Q_cmd = nullptr; // (n_u) commanded generalized forces
   const double* control = nullptr;  // (7) the wheel-speed loop (Control)
-  std::int64_t* counters = nullptr;  // (5 or more) Counter
+  std::int64_t* counters = nullptr;  // (5, or 6 with an arm controller) Counter
   double* holding = nullptr;     // (2) Holding
   double rate = 0;               // Hz: the controllers' update rate; 0: continuous
   double* held = nullptr;        // (n_u) the efforts sampled controllers hold between updates
@@ -101,6 +102,7 @@ struct ImpactScratch {
 struct Run {
   const Model& model;
   SystemArrays system;
+  ArmControl arm;  // the arm controller's arrays (settings null: the arm takes Q_cmd)
   StopsArrays stops;
   StepArrays step;
   SystemWorkspace<double> ws;
@@ -116,6 +118,7 @@ struct Run {
   int n_u() const { return model.n_u(); }
   double* stage(int i) const { return step.stages + i * size; }
   bool velocity_mode() const { return system.control[WHEEL_VELOCITY_MODE] != 0.0; }
+  bool arm_on() const { return arm.settings != nullptr && arm.settings[ARM_ON] != 0.0; }
 };
 
 inline bool any_resting(const Run& run) {
@@ -187,6 +190,7 @@ inline void book_evaluation(Run& run, Net&& net) {
   auto& counters = run.system.counters;
   counters[RHS_EVALS] += 1;
   if (run.system.control[WHEEL_VELOCITY_MODE] != 0.0) counters[CONTROL_STAGE] += 1;
+  if (run.arm_on()) counters[ARM_CONTROL_STAGE] += 1;
   if (run.system.damping != nullptr) counters[DAMPING_STAGE] += 1;
   if (run.system.free[run.n_u() - 1] < 0) counters[REDUCED_SOLVE] += 1;
   if (run.system.holding[HOLDING_ON] != 0.0) watch_holding(run, least_margin(run, net));
@@ -217,7 +221,8 @@ inline void derivative(Run& run, const double* s, double* ds) {
       loop = &wheels;
     }
   }
-  Effects<double> fx{run.system.gravity, run.system.Q_cmd, run.system.damping, loop, held};
+  const ArmControl* arm = run.arm_on() ? &run.arm : nullptr;
+  Effects<double> fx{run.system.gravity, run.system.Q_cmd, run.system.damping, loop, held, arm};
   rates(run.model, fx, s, ds, run.ws);
   book_evaluation(run, own_net(run));
 }

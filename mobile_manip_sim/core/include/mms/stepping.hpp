@@ -19,33 +19,35 @@ inline bool finite(const double* s, int n) {
   return true;
 }
 
-// --- sampled controllers (engine/sampling.py): the wheel-speed loop updated at the control rate,
-// its torques held between updates. An update is a discrete map at t_m = m / rate, outside the
-// right-hand side: τ_m = sat(law(s(t_m))) held until t_{m+1}, each integral advanced by one
-// forward-Euler step of its rate (control_toolbox's compute_command with conditional
-// integration), then, as at a command change, a resting rod the new efforts pull is released.
-// The steps end at every update (a step boundary, as a command change is).
+// --- sampled controllers (engine/sampling.py): the wheel-speed loop and the arm controller
+// updated at the control rate, their outputs held between updates. An update is a discrete map at
+// t_m = m / rate, outside the right-hand side: τ_m = sat(law(s(t_m))) held until t_{m+1}, each
+// integral advanced by one forward-Euler step of its rate (control_toolbox's compute_command
+// with conditional integration), then, as at a command change, a resting rod the new efforts
+// pull is released. The steps end at every update (a step boundary, as a command change is).
 
 // The instant (s) of the next update after `updates` of them; +inf when continuous, or when no
-// controller drives (the wheels under torque commands): such a run is not cut at updates.
+// controller drives (the arm in effort mode, the wheels under torque commands): such a run is not
+// cut at updates.
 inline double next_update(const Run& run, double updates) {
-  if (run.system.rate > 0.0 && run.velocity_mode()) return updates / run.system.rate;
+  if (run.system.rate > 0.0 && (run.arm_on() || run.velocity_mode()))
+    return updates / run.system.rate;
   return std::numeric_limits<double>::infinity();
 }
 
-// The update at the current instant: the wheel loop's torques into system.held, its integrals in
-// s advanced by one period of their rates; a resting rod pulled off its stop released. CONTACT_
-// FAILED when that release's contact solve failed, else DONE.
-inline Status apply_update(Run& run, double* s, double* clock) {
-  clock[CLOCK_UPDATES] += 1.0;
+// The update at the current instant (the clock not counted): the controllers' outputs into
+// system.held (the arm's evaluation into arm.last too), their integrals in s advanced by one
+// period of their rates; a resting rod pulled off its stop released. CONTACT_FAILED when that
+// release's contact solve failed, else DONE.
+inline Status update_controllers(Run& run, double* s) {
   const double period = 1.0 / run.system.rate;
   const int nq = run.n_q(), nu = run.n_u(), e = nq + nu;
+  double* held = run.system.held;
   for (int k = 0; k < nu; ++k) run.ws.Q[k] = run.system.Q_cmd[k];
   if (run.velocity_mode()) {
     const WheelLoop w = wheel_loop(run.system.control);
     const double r = run.model.base.wheel_radius, b = run.model.base.half_track;
     const double v = s[nq + V], om = s[nq + OMEGA];
-    double* held = run.system.held;
     double rate_R, rate_L;
     wheel_drive(w.kp, w.ki, w.target_R, (v + b * om) / r, s[e], w.limit_R, false, held[0],
                 rate_R);
@@ -56,8 +58,25 @@ inline Status apply_update(Run& run, double* s, double* clock) {
     run.ws.Q[V] = (held[0] + held[1]) / r;
     run.ws.Q[OMEGA] = b * (held[0] - held[1]) / r;
   }
+  if (run.arm_on()) {  // the law itself (not its held efforts), its rates into `trial`
+    double* rates = run.step.trial;
+    frames(run.model, s, run.ws.dynamics);
+    arm_efforts(run.model, run.arm, run.system.gravity, run.system.damping, s, rates,
+                run.ws.Q.data(), run.ws.dynamics, run.ws.arm);
+    const int i_z = arm_integrals_index(run.model);
+    for (int j = 0; j < nu - 2; ++j) {
+      held[2 + j] = run.ws.Q[2 + j];
+      s[i_z + j] += period * rates[i_z + j];
+    }
+  }
   if (any_resting(run) && holding_margin(run, s, run.stage(3)) < 0.0) release(run, s, false);
   return run.stops.failed[0] != 0 ? CONTACT_FAILED : DONE;
+}
+
+// The update due now, counted on the clock.
+inline Status apply_update(Run& run, double* s, double* clock) {
+  clock[CLOCK_UPDATES] += 1.0;
+  return update_controllers(run, s);
 }
 
 // `advance` (either engine's, `between` the updates) with the sampled controllers updated on the

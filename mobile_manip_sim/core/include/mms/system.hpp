@@ -10,8 +10,10 @@
 // adds no stage). Locked pseudo-velocities (moving = 0) get u̇ = 0.
 #pragma once
 
+#include <type_traits>
 #include <vector>
 
+#include "arm_control.hpp"
 #include "articulated.hpp"
 
 namespace mms {
@@ -40,6 +42,9 @@ struct Effects {
   const WheelLoop* wheels = nullptr;  // the wheel-speed loop, or nullptr: wheel efforts
   const double* held_wheels = nullptr;  // (τ_R, τ_L) N·m: a sampled wheel-speed loop's torques,
                                         // held since its last update (`wheels` then nullptr)
+  const ArmControl* arm = nullptr;      // the arm controller (arm_control.hpp), or nullptr: the
+                                        // arm takes Q_cmd (for runs in double only: one reference
+                                        // segment per evaluation, not one per lane)
 };
 
 // One wheel's PI loop (WheelLoop): its torque and its integral's rate. Anti-windup
@@ -69,12 +74,15 @@ struct SystemWorkspace {
   std::vector<S> Q;               // (n_u) the applied generalized forces
   std::vector<std::vector<S>> k;  // (4 × state) the stages of a step
   std::vector<S> x;               // (state) a stage's state
+  ArmWorkspace<S> arm;            // the arm controller's passes
   template <class P>
   explicit SystemWorkspace(const ModelOf<P>& m)
-      : dynamics(m.n()), Q(m.n_u()), k(4, std::vector<S>(state_size(m))), x(state_size(m)) {}
+      : dynamics(m.n()), Q(m.n_u()), k(4, std::vector<S>(state_size(m))), x(state_size(m)),
+        arm(m.n_u()) {}
 };
 
-// ds/dt at s: q̇ from the constraints, u̇ = M⁻¹(Q − h) by articulated bodies, ė = 0, Ẇ = Q·u.
+// ds/dt at s: q̇ from the constraints, u̇ = M⁻¹(Q − h) by articulated bodies, ė (the wheel
+// loop's), Ẇ = Q·u, and ż, τ̇ when an arm controller drives (arm_control.hpp).
 template <class S, class P>
 void rates(const ModelOf<P>& model, const Effects<S>& fx, const S* s, S* ds, SystemWorkspace<S>& ws) {
   const int nq = model.n_q(), nu = model.n_u();
@@ -101,6 +109,16 @@ void rates(const ModelOf<P>& model, const Effects<S>& fx, const S* s, S* ds, Sys
     double tau_R = fx.held_wheels[0], tau_L = fx.held_wheels[1];
     ws.Q[V] = S((tau_R + tau_L) / r);
     ws.Q[OMEGA] = S(b * (tau_R - tau_L) / r);
+  }
+  if constexpr (std::is_same_v<RealOf<S>, double> && std::is_same_v<P, double>) {
+    if (fx.arm != nullptr) {  // the arm's efforts, ż and τ̇ (after the base's forces: computed
+                              // torque reads them)
+      if (fx.arm->held != nullptr)
+        held_arm_efforts(model, *fx.arm, ds, ws.Q.data());
+      else
+        arm_efforts(model, *fx.arm, fx.gravity, fx.damping, s, ds, ws.Q.data(), ws.dynamics,
+                    ws.arm);
+    }
   }
   S power = S(0.0);
   for (int k = 0; k < nu; ++k) power += ws.Q[k] * u[k];
