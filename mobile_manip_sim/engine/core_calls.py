@@ -1,7 +1,7 @@
 """The engine's calls between steps — which rods rest (the locks), whether a stop pulls, a
 release, a restart of an adaptive solve, the step in hand — made by whichever core runs the
 simulation's method: the compiled C++ stepper (`core_stepping.py`), or the numba kernels and
-records where it does not run yet (an arm controller; SciPy's radau and bdf). A mixin of
+records where it does not run yet (an arm controller). A mixin of
 `Simulation`, as `base_commands.py` and `arm_commands.py` are; the numba branches leave with
 numba.
 """
@@ -15,11 +15,12 @@ from .stops import release, relock
 
 class CoreCalls:
     def _compiled_stepper(self):
-        """The compiled C++ stepper of this simulation's own records (`core_stepping.py`), or None
-        where the numba kernels or SciPy run it (radau, bdf; an arm controller). Made at every
-        reset: a batch lane, a copy of its template's records, gets its own."""
+        """The compiled C++ stepper of this simulation's own records (`core_stepping.py`; for
+        radau and bdf, SciPy's steps are handed into it: `scipy_steps.py`), or None where the
+        numba kernels run (an arm controller). Made at every reset: a batch lane, a copy of its
+        template's records, gets its own."""
         method = METHODS[self.settings.method]
-        if (core_stepping.CORE != "cpp" or self._core is None or self.arm_controller.active):
+        if core_stepping.CORE != "cpp" or self.arm_controller.active:
             return None
         return core_stepping.compiled_stepper(self.dynamics, method.name, self.system, self.stops,
                                               self._scratch, self._solve)
