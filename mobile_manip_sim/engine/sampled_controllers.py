@@ -9,7 +9,7 @@ import math
 
 from ..scene.errors import UserError
 from ..scene.limits import CONTROL_RATE
-from . import stepping
+from . import status, stepping
 
 
 def checked_control_rate(rate) -> float:
@@ -26,9 +26,13 @@ def checked_control_rate(rate) -> float:
 
 class SampledControllers:
     def _update_controllers(self) -> None:
-        """The sampled controllers' update due now (`sampling.update_at_instant`)."""
-        self._clock[stepping.CLOCK_UPDATES] += 1.0
-        failed = self._update(self.system.data, self.stops, self._scratch, self.s)
+        """The sampled controllers' update due now: the compiled stepper's where it runs (the
+        wheel loop), else `sampling.update_at_instant`."""
+        if self._stepper is not None:
+            failed = self._stepper.update(self.s, self._clock) == status.CONTACT_FAILED
+        else:
+            self._clock[stepping.CLOCK_UPDATES] += 1.0
+            failed = self._update(self.system.data, self.stops, self._scratch, self.s)
         self._restart()
         if failed:
             self._contact_failed()

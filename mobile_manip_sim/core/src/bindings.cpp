@@ -897,6 +897,14 @@ class Stepper {
   // No step in hand: the next one starts a new solve.
   void drop_step() { outside_run("drop_step").solve.h = 0.0; }
 
+  // The update of sampled controllers due now (between SciPy's steps; the other methods' are
+  // made inside `advance`): DONE, or CONTACT_FAILED when a release's contact solve failed.
+  int update(F64 s, F64 clock) {
+    check(s, clock);
+    sync_locks(run_);
+    return mms::apply_update(run_, s.data(), clock.data());
+  }
+
   // After an accepted step h (s) from t_before (s): true when the solver crawls (step_watch).
   bool watch_step(double t_before, double h) {
     return mms::watch_step(outside_run("watch_step").watch, t_before, h);
@@ -1044,5 +1052,6 @@ NB_MODULE(_core, m) {
       .def("locate_event", &mms::Stepper::locate_event)
       .def("reach", &mms::Stepper::reach, "s"_a, "clock"_a, "t_end"_a)
       .def("drop_step", &mms::Stepper::drop_step)
+      .def("update", &mms::Stepper::update, "s"_a, "clock"_a)
       .def("watch_step", &mms::Stepper::watch_step, "t_before"_a, "h"_a);
 }
