@@ -1,8 +1,8 @@
 """The engine's calls between steps — which rods rest (the locks), whether a stop pulls, a
 release, a restart of an adaptive solve, the step in hand — made by whichever core runs the
 simulation's method: the compiled C++ stepper (`core_stepping.py`), or the numba kernels and
-records where it does not run (``MOBILE_MANIP_SIM_CORE=numba``; SciPy's radau and bdf), and the
-arm controller's reference and the sampled controllers' update between steps. A mixin of
+records where it does not run (``MOBILE_MANIP_SIM_CORE=numba``), and the arm controller's
+reference and the sampled controllers' update between steps. A mixin of
 `Simulation`, as `base_commands.py` and `arm_commands.py` are; the numba branches leave with
 numba.
 """
@@ -20,11 +20,12 @@ from .stops import release, relock
 
 class CoreCalls:
     def _compiled_stepper(self):
-        """The compiled C++ stepper of this simulation's own records (`core_stepping.py`), or None
-        where the numba kernels or SciPy run it (``MOBILE_MANIP_SIM_CORE=numba``; radau, bdf).
-        Made at every reset: a batch lane, a copy of its template's records, gets its own."""
+        """The compiled C++ stepper of this simulation's own records (`core_stepping.py`; for
+        radau and bdf, SciPy's steps are handed into it: `scipy_steps.py`), or None where the
+        numba kernels run (``MOBILE_MANIP_SIM_CORE=numba``). Made at every reset: a batch lane, a
+        copy of its template's records, gets its own."""
         method = METHODS[self.settings.method]
-        if core_stepping.CORE != "cpp" or self._core is None:
+        if core_stepping.CORE != "cpp":
             return None
         return core_stepping.compiled_stepper(self.dynamics, method.name, self.system, self.stops,
                                               self._scratch, self._solve)
@@ -35,12 +36,12 @@ class CoreCalls:
         if self._stepper is not None:
             core_stepping.drive_arm(self._stepper, self.system.data)
 
-    def _sampled_update(self) -> bool:
-        """The sampled controllers' update at s now (`sampling.update_at_instant`; the clock's
-        count is the caller's): True when a release it made failed its contact solve."""
+    def _sampled_update(self, s) -> bool:
+        """The sampled controllers' update at ``s`` (in place; `sampling.update_at_instant`; the
+        clock's count is the caller's): True when a release it made failed its contact solve."""
         if self._stepper is not None:
-            return self._stepper.update(self.s)
-        return self._update(self.system.data, self.stops, self._scratch, self.s)
+            return self._stepper.update(s)
+        return self._update(self.system.data, self.stops, self._scratch, s)
 
     def _reference_at(self, tau: float) -> np.ndarray:
         """(3, n_arm) q_ref, q̇_ref, q̈_ref of the arm's reference at its clock τ."""
@@ -70,7 +71,7 @@ class CoreCalls:
         twin.set_base_velocity(0.0, 0.0)
         twin.wheel_torques()
         if twin.sampled:
-            twin._sampled_update()
+            twin._sampled_update(twin.s)
         twin._holding_margin()
         twin._release()
         if twin.arm_controller.active:

@@ -1,17 +1,19 @@
 """The engine compiled ahead of time: the C++ core's `Stepper` (core/include/mms/
-stepping.hpp for the fixed-step methods, adaptive_stepping.hpp for rk45 and dop853) on a
-simulation's own arrays — its system record (`system.SystemData`), its stops and their impact log
-(`stops.StopsData`) and its step scratch (`stepping.StepScratch`) — so that everything a run is
-stays where Python reads it between calls (but for an adaptive run's step in hand).
+stepping.hpp for the fixed-step methods, adaptive_stepping.hpp for rk45, dop853 and the steps
+SciPy's radau and bdf hand in) on a simulation's own arrays — its system record
+(`system.SystemData`), its stops and their impact log (`stops.StopsData`) and its step scratch
+(`stepping.StepScratch`) — so that everything a run is stays where Python reads it between calls
+(but for an adaptive run's step in hand).
 
 It runs euler, semi-implicit Euler, rk4, rk45 and dop853 in effort mode, under wheel-speed
 commands and with the arm driven by its controller (every mode and feed-forward, model error
 included; core/include/mms/arm_control.hpp), the controllers continuous or sampled
-(`sampling.py`), events, impacts, rests, releases, the Zeno guard and the crawl limits included,
-and equals the numba kernels of `stepping.py`, `adaptive_stepping.py`, `arm_control.py` and
-`sampling.py` bit for bit (test/core/test_core_stepping.py, test/core/test_core_arm.py). SciPy's
-radau and bdf still take their old paths; ``MOBILE_MANIP_SIM_CORE=numba`` takes the numba kernels
-for every run (the reference while both exist).
+(`sampling.py`), events, impacts, rests, releases, the Zeno guard and the crawl limits included;
+for SciPy's radau and bdf it takes each step SciPy makes into its step in hand and does all the
+rest (`scipy_steps.py`). It equals the numba kernels of `stepping.py`, `adaptive_stepping.py`,
+`arm_control.py` and `sampling.py` bit for bit (test/core/test_core_stepping.py,
+test/core/test_core_arm.py); ``MOBILE_MANIP_SIM_CORE=numba`` takes the numba kernels for every
+run (the reference while both exist).
 """
 from __future__ import annotations
 

@@ -30,12 +30,12 @@ class SampledControllers:
         at t = 0 (the pressed rods' hold, the efforts read) is theirs; the update itself, its
         integrals' step included, is the first call's first act, after any command given at
         t = 0 (`stepping.advance`), as every update at the end of a call is."""
-        self._update(self.system.data, self.stops, self._scratch, self.s.copy())
+        self._sampled_update(self.s.copy())
 
     def _update_controllers(self) -> None:
         """The sampled controllers' update due now (`sampling.update_at_instant`)."""
         self._clock[stepping.CLOCK_UPDATES] += 1.0
-        failed = self._sampled_update()
+        failed = self._sampled_update(self.s)
         self._restart()
         if failed:
             self._contact_failed()

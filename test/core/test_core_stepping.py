@@ -3,7 +3,8 @@ checks, event location on the step or its dense output, impacts, rests, releases
 and the energy ledger) against the numba kernels it replaces (engine/stepping.py,
 engine/adaptive_stepping.py), bit for bit while both exist: on every scene the package ships
 and on random robots whose rods hit, rest, are pulled off their stops and are held by the Zeno
-guard, each with its commands changed mid-run, for each fixed-step method and rk45 and dop853.
+guard, each with its commands changed mid-run, for each fixed-step method, rk45 and dop853, and
+SciPy's radau and bdf (their steps handed into the compiled stepper's step in hand).
 Compared: every sampled state and its energy, the clock (steps, the ledger of the law's losses
 and the holds), the stage counters, every impact with its details, and which rods rest and are
 watched.
@@ -24,10 +25,11 @@ from mobile_manip_sim.scene.loading import load_scene, parse_scene
 CONFIG = Path(__file__).resolve().parents[2] / "mobile_manip_sim" / "config"
 SCENES = sorted(p for p in CONFIG.glob("*.yaml") if p.name != "simulator.params.yaml")
 PAPER = paper_doc()
-METHODS = ["euler", "semi_implicit_euler", "rk4", "rk45", "dop853"]
+METHODS = ["euler", "semi_implicit_euler", "rk4", "rk45", "dop853", "radau", "bdf"]
 # each method's settings: the fixed steps at 1 kHz, the adaptive ones at tolerances of use
 SETTINGS = {"euler": dict(dt=1e-3), "semi_implicit_euler": dict(dt=1e-3), "rk4": dict(dt=1e-3),
-            "rk45": dict(rtol=1e-7, atol=1e-10), "dop853": dict(rtol=1e-9, atol=1e-12)}
+            "rk45": dict(rtol=1e-7, atol=1e-10), "dop853": dict(rtol=1e-9, atol=1e-12),
+            "radau": dict(rtol=1e-6, atol=1e-9), "bdf": dict(rtol=1e-6, atol=1e-9)}
 
 
 def outcome(scene, method: str, core: str, monkeypatch, commands=(), t_end=1.0, rate=None,
@@ -150,14 +152,16 @@ def test_the_wheel_speed_loop_continuous_or_sampled_runs_bit_for_bit(rate, metho
     assert_identical(outcome(scene, method, "cpp", monkeypatch, commands, rate=rate), reference)
 
 
-def test_the_random_cases_reach_every_kind_of_event(monkeypatch):
+@pytest.mark.parametrize("method", ["rk4", "radau", "bdf"])
+def test_the_random_cases_reach_every_kind_of_event(method, monkeypatch):
     """The random cases are worth their time: impacts, rests, and rods that leave their stops
-    again all occur among them."""
+    again all occur among them (SciPy's steps included: a step handed in while a rod rests has
+    its end derivative evaluated, and a release located on its power series)."""
     impacts = rests = leaves = 0
     for seed in range(12):
         scene, rng = random_scene(seed)
         n = scene.robot.n_links
-        run = outcome(scene, "rk4", "cpp", monkeypatch, ((0.3, flip_efforts(rng, n)),))
+        run = outcome(scene, method, "cpp", monkeypatch, ((0.3, flip_efforts(rng, n)),))
         impacts += len(run["impacts"])
         rests += sum(i.resting for i in run["impacts"])
         rested = set()
@@ -166,3 +170,17 @@ def test_the_random_cases_reach_every_kind_of_event(monkeypatch):
             if i.resting:
                 rested.add(i.link)
     assert impacts > 50 and rests > 3 and leaves > 0, (impacts, rests, leaves)
+
+
+def test_scipy_steps_are_handed_in_to_a_radau_or_bdf_stepper_only():
+    """A step handed in to another method's stepper, a radau stepper asked to advance itself, or
+    a power series of the wrong shape: one line naming the call or the argument."""
+    scene = load_scene(SCENES[0])
+    rk4 = Simulation(scene, replace(scene.integrator, method="rk4", dt=1e-3))
+    with pytest.raises(ValueError, match="^hand_in_step: only for radau and bdf"):
+        rk4._stepper.hand_in_step(1e-3, rk4.s, np.zeros((3, rk4.s.size)))
+    radau = Simulation(scene, replace(scene.integrator, method="radau"))
+    with pytest.raises(ValueError, match="^advance: radau and bdf are stepped from Python"):
+        radau._stepper.advance(radau.s, radau._clock, 1.0, 10)
+    with pytest.raises(ValueError, match=r"^series: expected \(rows ≤ 7, "):
+        radau._stepper.hand_in_step(1e-3, radau.s, np.zeros((8, radau.s.size)))

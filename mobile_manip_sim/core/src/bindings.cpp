@@ -737,12 +737,13 @@ class Stepper {
     need(watch, 3, "watch");
     need(held, nu, "held");
     if (!(rate >= 0.0)) throw std::invalid_argument("rate: expected a rate ≥ 0 (Hz)");
-    if (method == "rk45" || method == "dop853") {
+    const bool outside = method == "radau" || method == "bdf";  // SciPy's, steps handed in
+    if (method == "rk45" || method == "dop853" || outside) {
       if (!(rtol > 0.0 && atol > 0.0))
         throw std::invalid_argument("rtol, atol: expected positive tolerances");
       adaptive_ = std::make_unique<AdaptiveRun>(
-          method == "rk45" ? Adaptive::Rk45 : Adaptive::Dop853, int(size), rtol, atol,
-          watch.data());
+          method == "dop853" ? Adaptive::Dop853 : Adaptive::Rk45, int(size), rtol, atol,
+          watch.data(), outside);
     } else {
       method_ = method_of(method);
     }
@@ -787,6 +788,7 @@ class Stepper {
 
   int advance(F64 s, F64 clock, double t_end, long max_steps) {
     check(s, clock);
+    not_outside("advance");
     nb::gil_scoped_release free_the_interpreter;
     if (adaptive_) return mms::advance(run_, *adaptive_, s.data(), clock.data(), t_end, max_steps);
     return mms::advance(run_, method_, s.data(), clock.data(), t_end, max_steps);
@@ -798,6 +800,7 @@ class Stepper {
     const long n_times = long(times.size());
     need(rows, size_t(n_times) * (run_.size + 1), "rows");
     if (first < 0 || first > n_times) throw std::invalid_argument("first: out of range");
+    not_outside("advance_samples");
     nb::gil_scoped_release free_the_interpreter;
     Sampled done =
         adaptive_ ? mms::advance_samples(run_, *adaptive_, s.data(), clock.data(), times.data(),
@@ -934,6 +937,59 @@ class Stepper {
   }
   // --- end of the arm controller ------------------------------------------------------------
 
+  // --- radau and bdf: SciPy's solver steps from Python (engine/scipy_steps.py), each step handed
+  // in as the adaptive run's step in hand; events, targets, impacts, releases and the Zeno guard
+  // are the core's (adaptive_stepping.hpp). SciPy's right-hand side is `derivative` above.
+
+  // The solver's next step starts at (t0, y0).
+  void begin_step(double t0, In y0) {
+    need(y0, run_.size, "y0");
+    mms::begin_handed_step(run_, outside_run("begin_step"), t0, y0.data());
+  }
+
+  // Its step of length h (s): its end state y1 and its interpolant as a power series, rows of
+  // (rows ≤ 7, state) coefficients c_j of y(θ) = y₀ + Σ_j c_j θ^(j+1) (engine/dense.py).
+  void hand_in_step(double h, In y1, In series) {
+    AdaptiveRun& a = outside_run("hand_in_step");
+    need(y1, run_.size, "y1");
+    const size_t rows = series.ndim() == 2 ? series.shape(0) : 0;
+    if (series.ndim() != 2 || series.shape(1) != size_t(run_.size) || rows > size_t(kMaxDense))
+      throw std::invalid_argument("series: expected (rows ≤ " + std::to_string(kMaxDense) +
+                                  ", " + std::to_string(run_.size) + ") coefficients");
+    mms::hand_in_step(run_, a, h, y1.data(), series.data(), int(rows));
+  }
+
+  // f(y₁) of the step in hand, counted and watched (the release check reads it).
+  void step_end_derivative() {
+    AdaptiveRun& a = outside_run("step_end_derivative");
+    sync_locks(run_);
+    mms::step_end_derivative(run_, a);
+  }
+
+  // The first event in the step in hand (an impact, or a resting rod's stop pulling).
+  void locate_event() {
+    AdaptiveRun& a = outside_run("locate_event");
+    sync_locks(run_);
+    mms::locate_event(run_, a);
+  }
+
+  // Move (t, s) to t_end inside the step in hand, or to its event (then applied) when t_end lies
+  // past it: true at t_end, false when the solver must take a step.
+  bool reach(F64 s, F64 clock, double t_end) {
+    check(s, clock);
+    AdaptiveRun& a = outside_run("reach");
+    sync_locks(run_);
+    return mms::reach(run_, a, s.data(), clock.data(), t_end);
+  }
+
+  // No step in hand: the next one starts a new solve.
+  void drop_step() { outside_run("drop_step").solve.h = 0.0; }
+
+  // After an accepted step h (s) from t_before (s): true when the solver crawls (step_watch).
+  bool watch_step(double t_before, double h) {
+    return mms::watch_step(outside_run("watch_step").watch, t_before, h);
+  }
+
  private:
   void check(const F64& s, const F64& clock) {
     check_state(s);
@@ -946,6 +1002,18 @@ class Stepper {
     need(s, run_.size, "s");
     if (run_.size != state_size(run_.model) && !run_.arm.settings)
       throw std::invalid_argument("s: an arm controller's state, and drive_arm not called");
+  }
+
+  AdaptiveRun& outside_run(const char* call) {
+    if (!adaptive_ || !adaptive_->outside)
+      throw std::invalid_argument(std::string(call) + ": only for radau and bdf (SciPy's steps)");
+    return *adaptive_;
+  }
+
+  void not_outside(const char* call) const {
+    if (adaptive_ && adaptive_->outside)
+      throw std::invalid_argument(std::string(call) + ": radau and bdf are stepped from Python "
+                                  "(hand_in_step, reach)");
   }
 
   nb::object owner_;   // the Dynamics whose model the run uses
@@ -1196,7 +1264,15 @@ NB_MODULE(_core, m) {
       .def("drive_arm", &mms::Stepper::drive_arm, "arm"_a, "arm_gains"_a, "arm_limits"_a,
            "ref_starts"_a, "ref_coeffs"_a, "arm_ref"_a, "ff_masses"_a)
       .def("update", &mms::Stepper::update, "s"_a)
-      .def("arm_reference", &mms::Stepper::arm_reference, "tau"_a);
+      .def("arm_reference", &mms::Stepper::arm_reference, "tau"_a)
+      // radau and bdf: SciPy's steps handed in
+      .def("begin_step", &mms::Stepper::begin_step, "t0"_a, "y0"_a)
+      .def("hand_in_step", &mms::Stepper::hand_in_step, "h"_a, "y1"_a, "series"_a)
+      .def("step_end_derivative", &mms::Stepper::step_end_derivative)
+      .def("locate_event", &mms::Stepper::locate_event)
+      .def("reach", &mms::Stepper::reach, "s"_a, "clock"_a, "t_end"_a)
+      .def("drop_step", &mms::Stepper::drop_step)
+      .def("watch_step", &mms::Stepper::watch_step, "t_before"_a, "h"_a);
   nb::class_<mms::LaneSet>(m, "LaneSet")
       .def(nb::init<nb::list, nb::list, nb::list>(), "steppers"_a, "states"_a, "clocks"_a)
       .def("advance", &mms::LaneSet::advance, "lanes"_a, "records"_a, "times"_a, "last"_a,

@@ -134,10 +134,11 @@ void interpolate(const Solve<S>& solve, int n, double h_into, S* out) {
 
 // Move (t, s) to t_end when it lies in the step in hand — up to its event, when `event_h` points
 // at one's instant into the step — and its interpolant is built (or t_end is the step's end):
-// true; otherwise false, nothing changed.
-template <class S>
-bool inside_step(Solve<S>& solve, int n, double& t, S* s, double t_end,
-                 const double* event_h = nullptr) {
+// true; otherwise false, nothing changed. `path(h', out)` reads the interpolant: the solve's own
+// dense output, or the power series an outside solver handed in (adaptive_stepping.hpp).
+template <class S, class Path>
+bool inside_step(Solve<S>& solve, int n, double& t, S* s, double t_end, const double* event_h,
+                 const Path& path) {
   if (t_end <= t) return true;
   if (solve.h <= 0.0 || t_end > solve.t0 + (event_h ? *event_h : solve.h)) return false;
   if (t_end == solve.t0 + solve.h && !event_h) {
@@ -145,10 +146,17 @@ bool inside_step(Solve<S>& solve, int n, double& t, S* s, double t_end,
   } else if (solve.dense == DenseKind::None) {
     return false;
   } else {
-    interpolate(solve, n, t_end - solve.t0, s);
+    path(t_end - solve.t0, s);
   }
   t = t_end;
   return true;
+}
+
+template <class S>
+bool inside_step(Solve<S>& solve, int n, double& t, S* s, double t_end,
+                 const double* event_h = nullptr) {
+  return inside_step(solve, n, t, s, t_end, event_h,
+                     [&](double h_into, S* out) { interpolate(solve, n, h_into, out); });
 }
 
 // Move (t, s) to t_end inside the step in hand: true; false when a new step is needed.

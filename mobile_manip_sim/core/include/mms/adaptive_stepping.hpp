@@ -16,6 +16,7 @@
 // than BUDGET_SPAN, end the call with CRAWLING.
 #pragma once
 
+#include <algorithm>
 #include <cmath>
 #include <vector>
 
@@ -62,17 +63,40 @@ struct DensePath {
 
 enum StepEvent { NO_EVENT, IMPACT, LEAVE };
 
-// The solve of an adaptive run and the first event of its step in hand.
+// The solve of an adaptive run and the first event of its step in hand. An outside solver's run
+// (SciPy's radau and bdf, stepped from Python) hands its steps in (`hand_in_step`): its solve
+// only holds the step in hand, whose interpolant is a power series in solve.work.dense.
 struct AdaptiveRun {
   Solve<double> solve;
+  bool outside;  // the steps are handed in (`hand_in_step`), never taken here
   StepEvent event = NO_EVENT;
   double event_h = 0;  // s into the step
   int event_k = 0, event_side = 0;  // an impact's rod (1-based) and stop (−1 lower, +1 upper)
   std::vector<double> event_state;  // the state at the event (l_k exactly at the stop)
   double* watch;  // (3) the crawl limits' count (WatchEntry), Python's
-  AdaptiveRun(Adaptive method, int n, double rtol, double atol, double* watch_)
-      : solve(method, n, rtol, atol), event_state(n), watch(watch_) {}
+  AdaptiveRun(Adaptive method, int n, double rtol, double atol, double* watch_,
+              bool outside_ = false)
+      : solve(method, n, rtol, atol), outside(outside_), event_state(n), watch(watch_) {}
 };
+
+// `body(path)` on the step in hand's path (events.hpp): its dense output, or the power series
+// an outside solver handed in.
+template <class Body>
+inline void on_path(const Run& run, const AdaptiveRun& a, Body&& body) {
+  if (a.outside) {
+    PowerSeries path{a.solve.work.dense, a.solve.start.data(), a.solve.h, run.size};
+    body(path);
+  } else {
+    DensePath path{a.solve, run.size};
+    body(path);
+  }
+}
+
+// The step in hand's dense output, built on first use (an outside solver's came with its step).
+inline void interpolant(Run& run, AdaptiveRun& a, bool for_events) {
+  RunRhs f{run};
+  if (!a.outside) interpolant(a.solve, f, for_events);
+}
 
 // A discontinuity at the current (t, s): the next step starts a new solve there.
 inline void restart(AdaptiveRun& a) {
@@ -87,33 +111,34 @@ inline void locate_event(Run& run, AdaptiveRun& a) {
   Solve<double>& solve = a.solve;
   const double* start = solve.start.data();
   const double h = solve.h;
-  RunRhs f{run};
   // every evaluation of the step sampled the holding forces: read before the interpolant's
   // stages evaluate anything else
   const bool pulled = any_resting(run) && run.system.holding[HOLDING_LEAST_MARGIN] < 0.0;
   if (any_watched(run) && crossing_in_step(run, start, solve.work.end.data(), h)) {
-    interpolant(solve, f, true);
-    DensePath path{solve, run.size};
-    Crossing hit = first_crossing(run, path, start, h);
-    if (hit.k != 0) {
-      interpolate(solve, run.size, hit.h, a.event_state.data());
-      a.event_state[q_slide(hit.k)] =
-          run.stops.stroke[2 * (hit.k - 1) + (hit.side < 0 ? 0 : 1)];
-      a.event = IMPACT;
-      a.event_h = hit.h;
-      a.event_k = hit.k;
-      a.event_side = hit.side;
-    }
+    interpolant(run, a, true);
+    on_path(run, a, [&](auto& path) {
+      Crossing hit = first_crossing(run, path, start, h);
+      if (hit.k != 0) {
+        path(hit.h, a.event_state.data());
+        a.event_state[q_slide(hit.k)] =
+            run.stops.stroke[2 * (hit.k - 1) + (hit.side < 0 ? 0 : 1)];
+        a.event = IMPACT;
+        a.event_h = hit.h;
+        a.event_k = hit.k;
+        a.event_side = hit.side;
+      }
+    });
   }
   if (pulled) {
-    interpolant(solve, f, true);
-    DensePath path{solve, run.size};
-    double h_leave = first_release(run, path, start, h);
-    if (h_leave >= 0.0 && (a.event == NO_EVENT || h_leave < a.event_h)) {
-      interpolate(solve, run.size, h_leave, a.event_state.data());
-      a.event = LEAVE;
-      a.event_h = h_leave;
-    }
+    interpolant(run, a, true);
+    on_path(run, a, [&](auto& path) {
+      double h_leave = first_release(run, path, start, h);
+      if (h_leave >= 0.0 && (a.event == NO_EVENT || h_leave < a.event_h)) {
+        path(h_leave, a.event_state.data());
+        a.event = LEAVE;
+        a.event_h = h_leave;
+      }
+    });
   }
 }
 
@@ -151,8 +176,12 @@ inline void apply_event(Run& run, AdaptiveRun& a, double* s, double* clock) {
 }
 
 inline bool inside_step(Run& run, AdaptiveRun& a, double* s, double* clock, double t_end) {
-  return inside_step(a.solve, run.size, clock[CLOCK_T0], s, t_end,
-                     a.event != NO_EVENT ? &a.event_h : nullptr);
+  bool inside = false;
+  on_path(run, a, [&](const auto& path) {
+    inside = inside_step(a.solve, run.size, clock[CLOCK_T0], s, t_end,
+                         a.event != NO_EVENT ? &a.event_h : nullptr, path);
+  });
+  return inside;
 }
 
 // Move (t, s) to t_end inside the step in hand, or to its event when t_end lies past it (which is
@@ -169,9 +198,38 @@ inline bool reach(Run& run, AdaptiveRun& a, double* s, double* clock, double t_e
   } else if (t_end > solve.t0 + solve.h) {
     return false;
   }
-  RunRhs f{run};
-  interpolant(a.solve, f, false);  // t_end is inside: build what `inside_step` reads
+  interpolant(run, a, false);  // t_end is inside: build what `inside_step` reads
   return inside_step(run, a, s, clock, t_end);
+}
+
+// --- an outside solver's steps (SciPy's radau and bdf, engine/scipy_steps.py): each one handed in
+// as the step in hand; `locate_event`, `reach` and `apply_event` do the rest, as for rk45 and
+// dop853 (engine/adaptive_stepping.py's `begin_step`, `hand_in_step` are the reference).
+
+// The outside solver's next step starts at (t0, y0).
+inline void begin_handed_step(Run& run, AdaptiveRun& a, double t0, const double* y0) {
+  a.solve.t0 = t0;
+  std::copy(y0, y0 + run.size, a.solve.start.begin());
+}
+
+// Its step of length h (s) as the step in hand: its end state y1 and its interpolant's power
+// series (rows ≤ kMaxDense rows of run.size coefficients, `PowerSeries`), no event located yet.
+inline void hand_in_step(Run& run, AdaptiveRun& a, double h, const double* y1,
+                         const double* series, int rows) {
+  Solve<double>& solve = a.solve;
+  std::copy(y1, y1 + run.size, solve.work.end.begin());
+  for (int j = 0; j < kMaxDense; ++j)
+    for (int i = 0; i < run.size; ++i)
+      solve.work.dense[j][i] = j < rows ? series[j * run.size + i] : 0.0;
+  solve.h = h;
+  solve.dense = DenseKind::Full;
+  a.event = NO_EVENT;
+}
+
+// f(y₁) of the step in hand, counted and watched: the release check reads the holding forces
+// at the step's end as at its other evaluations.
+inline void step_end_derivative(Run& run, AdaptiveRun& a) {
+  derivative(run, a.solve.work.end.data(), a.solve.work.f_end.data());
 }
 
 // Advance (t, s) to exactly t_end with no update due before it. DONE, or BUDGET after max_steps

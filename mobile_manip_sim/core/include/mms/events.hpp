@@ -15,6 +15,7 @@
 #pragma once
 
 #include <cmath>
+#include <vector>
 
 #include "fixed_step.hpp"
 #include "stops.hpp"
@@ -25,7 +26,8 @@ constexpr int N_SAMPLES = 16;
 enum EventKind { CROSSING, RELEASE };
 
 // A step's path: `path(h', out)` writes the state h' into the step (h' > 0) into out — the
-// integrator's own step from its start (`OwnStep`), or an adaptive step's dense output.
+// integrator's own step from its start (`OwnStep`), an adaptive step's dense output
+// (adaptive_stepping.hpp's `DensePath`), or the power series of a step handed in (`PowerSeries`).
 
 // One step of `method` from s of length h into out, the run's right-hand side counted and
 // watched (`derivative`); with k1_ready the first stage already holds f(s).
@@ -101,6 +103,24 @@ struct OwnStep {
   Method method;
   const double* s0;
   void operator()(double h, double* out) const { run_step(run, method, s0, h, out); }
+};
+
+// An outside solver's step (SciPy's radau and bdf, stepped from Python one step at a time): its
+// interpolant handed in as a power series in θ = h'/h, y(θ) = y₀ + Σ_j c_j θ^(j+1)
+// (engine/dense.py's POWER), summed by Horner's rule over every row (the unused ones are zero).
+struct PowerSeries {
+  const std::vector<std::vector<double>>& c;  // (rows × n) c_j
+  const double* s0;                           // y₀, the state at the step's start
+  double h;                                   // the step's length (s)
+  int n;
+  void operator()(double h_into, double* out) const {
+    const double theta = h_into / h;
+    for (int i = 0; i < n; ++i) {
+      double y = 0.0;
+      for (int j = int(c.size()) - 1; j >= 0; --j) y = (y + c[j][i]) * theta;
+      out[i] = s0[i] + y;
+    }
+  }
 };
 
 struct EventTarget {
