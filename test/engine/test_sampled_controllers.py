@@ -369,3 +369,26 @@ def test_the_arm_controller_record_is_the_same_at_any_rate():
     doc["controller"] = {"rate": 250}
     sim = Simulation(parse_scene(doc), arm_controller=ArmController("position"))
     assert sim.control_rate == 250.0 and sim.system.data.rate == 250.0
+
+
+def test_the_sampled_reference_is_jtcs_sample_at_each_update_instant():
+    """joint_trajectory at 100 Hz: the reference the held efforts come from is the trajectory
+    sampled at the update instant t_m, as JTC samples it at each of the controller manager's
+    updates — not at a step's stages, not one update late. Between two position-only points JTC
+    interpolates linearly, so q_ref(t_m) = P0 + (t_m − 0.2)/0.4 (P1 − P0) and q̇_ref = (P1 −
+    P0)/0.4, checked at every update inside that segment with rk4 steps of 3 ms around them."""
+    doc = paper_doc()
+    doc["controller"] = {"arm_controller": "joint_trajectory", "rate": 100}
+    doc["efforts"] = {"wheels": [0.1, 0.2]}
+    doc["integrator"] = {"method": "rk4", "dt": 3e-3}
+    sim = Simulation(parse_scene(doc))
+    q0 = sim.q[5:].copy()
+    P = np.array([q0 + [0.2, 0.05, -0.2, 0.05], q0 + [0.4, 0.1, -0.4, 0.1]])
+    sim.set_arm_trajectory([0.2, 0.6], P)
+    for m in range(21, 60):   # the updates strictly inside (0.2 s, 0.6 s)
+        t_m = m / 100
+        sim.advance_to(t_m + 0.004)
+        held = sim.system.arm_ref
+        assert np.allclose(held[0], P[0] + (t_m - 0.2) / 0.4 * (P[1] - P[0]), rtol=0,
+                           atol=1e-12), (t_m, held[0])
+        assert np.allclose(held[1], (P[1] - P[0]) / 0.4, rtol=0, atol=1e-12), (t_m, held[1])
