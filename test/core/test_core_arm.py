@@ -17,7 +17,7 @@ from engine_cases import paper_doc
 from mobile_manip_sim.scene.arm_controller import ArmController, ModelError
 from mobile_manip_sim.scene.errors import UserError
 from mobile_manip_sim.scene.loading import parse_scene
-from test_core_stepping import METHODS, assert_identical, outcome
+from test_core_stepping import METHODS, assert_identical, event_counts, outcome
 
 RATES = [0.0, 100.0, 1000.0]
 ERROR = ModelError(mass=0.2, inertia=-0.1, payload=0.3)
@@ -62,13 +62,10 @@ def evaluations(sim) -> dict:
     return dict(reference=np.array(sim.arm_reference(0.05)), efforts=sim.joint_efforts_applied())
 
 
-def compare(scene, method, rate, arm, commands, monkeypatch, t_end):
-    runs = {}
-    for core in ("numba", "cpp"):
-        run = outcome(scene, method, core, monkeypatch, commands, t_end, rate, arm)
-        runs[core] = run
-    assert_identical(runs["cpp"], runs["numba"])
-    return runs["cpp"]
+def both_cores(scene, method, rate, arm, commands, monkeypatch, t_end):
+    """The run on the C++ core and on the numba kernels (the reference): (cpp, numba)."""
+    return tuple(outcome(scene, method, core, monkeypatch, commands, t_end, rate, arm)
+                 for core in ("cpp", "numba"))
 
 
 @pytest.mark.parametrize("rate", RATES)
@@ -82,7 +79,8 @@ def test_the_paper_arm_under_its_controller_runs_bit_for_bit(arm, method, rate, 
     n_arm = scene.robot.n_u - 2
     commands = ((0.0, command(arm[0], n_arm, rng)), (0.2, command(arm[0], n_arm, rng)),
                 (0.3, lambda sim: sim.set_base_velocity(0.5, 0.4)))
-    run = compare(scene, method, rate, controller(*arm), commands, monkeypatch, 0.5)
+    run, reference = both_cores(scene, method, rate, controller(*arm), commands, monkeypatch, 0.5)
+    assert_identical(run, reference)
     assert run["counters"][5] > 0   # ARM_CONTROL_STAGE: the controller ran
 
 
@@ -133,7 +131,8 @@ def test_random_robots_driven_into_their_stops_run_bit_for_bit(seed, method, rat
     commands = ((0.0, push_rods(seed, -1)), (0.3, push_rods(seed, +1)),
                 (0.45, lambda sim: sim.set_base_velocity(0.3, -0.5)),
                 (0.6, push_rods(seed, -1)))
-    compare(scene, method, rate, arm, commands, monkeypatch, 0.8)
+    run, reference = both_cores(scene, method, rate, arm, commands, monkeypatch, 0.8)
+    assert_identical(run, reference)
 
 
 def test_the_random_controlled_cases_hit_rest_and_leave(monkeypatch):
@@ -146,13 +145,7 @@ def test_the_random_controlled_cases_hit_rest_and_leave(monkeypatch):
         commands = ((0.0, push_rods(seed, -1)), (0.3, push_rods(seed, +1)),
                     (0.6, push_rods(seed, -1)))
         run = outcome(scene, "rk4", "cpp", monkeypatch, commands, 0.8, 100.0, arm)
-        impacts += len(run["impacts"])
-        rests += sum(i.resting for i in run["impacts"])
-        rested = set()
-        for i in run["impacts"]:
-            leaves += i.link in rested and not i.resting
-            if i.resting:
-                rested.add(i.link)
+        impacts, rests, leaves = np.add((impacts, rests, leaves), event_counts(run["impacts"]))
     assert impacts > 10 and rests > 2 and leaves > 0, (impacts, rests, leaves)
 
 

@@ -162,14 +162,21 @@ def test_the_random_cases_reach_every_kind_of_event(method, monkeypatch):
         scene, rng = random_scene(seed)
         n = scene.robot.n_links
         run = outcome(scene, method, "cpp", monkeypatch, ((0.3, flip_efforts(rng, n)),))
-        impacts += len(run["impacts"])
-        rests += sum(i.resting for i in run["impacts"])
-        rested = set()
-        for i in run["impacts"]:
-            leaves += i.link in rested and not i.resting
-            if i.resting:
-                rested.add(i.link)
+        impacts, rests, leaves = np.add((impacts, rests, leaves), event_counts(run["impacts"]))
     assert impacts > 50 and rests > 3 and leaves > 0, (impacts, rests, leaves)
+
+
+def event_counts(impacts) -> tuple[int, int, int]:
+    """A run's impacts, those that left a rod resting, and the impacts of rods that had rested
+    before (they left their stop in between)."""
+    rests = leaves = 0
+    rested = set()
+    for i in impacts:
+        leaves += i.link in rested and not i.resting
+        if i.resting:
+            rests += 1
+            rested.add(i.link)
+    return len(impacts), rests, leaves
 
 
 def test_scipy_steps_are_handed_in_to_a_radau_or_bdf_stepper_only():
