@@ -111,7 +111,7 @@ setup(
     cmdclass={"build_ext": CMakeBuild},
     python_requires=">=3.10",
     install_requires=[
-        "setuptools", "numpy", "scipy", "pyyaml", "mcap", "zstandard", "numba", "matplotlib",
+        "setuptools", "numpy", "scipy", "pyyaml", "mcap", "zstandard", "matplotlib",
         "dask[distributed]", "pyarrow", "foxglove-sdk",
         # the browser view: a three.js page served with its client, scripts and assets
         "viser",
@@ -145,7 +145,6 @@ setup(
             "simulator = mobile_manip_sim.node:main",
             "replay = mobile_manip_sim.replay.cli:main",
             "sweep = mobile_manip_sim.sweep.cli:main",
-            "warmup = mobile_manip_sim.programs.warmup:main",
         ],
     },
 )

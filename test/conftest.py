@@ -1,6 +1,6 @@
 """What the test modules share: the import path (test/helpers/, the helper modules in one place
-for all folders, then the test folders), and the engine kernels warmed once per session
-(ros_harness.py holds the ROS harness itself; waiting.py the one `wait_for`).
+for all folders, then the test folders), and session fixtures (ros_harness.py holds the ROS
+harness itself; waiting.py the one `wait_for`).
 
 Where a file goes: a test of a module of ``mobile_manip_sim/<folder>/`` in ``test/<folder>/``;
 facts about the repository as a whole in ``test/package/`` (packaging, colcon, the layer and
@@ -26,13 +26,6 @@ def pytest_xdist_auto_num_workers(config):
     domain per module (ros_harness.py), so workers' nodes never hear each other."""
     cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
     return max(1, min(cores or 1, 4))
-
-
-@pytest.fixture(scope="session")
-def warm_kernels():
-    """The kernels of a node at rk4, dt = 1 ms, compiled or loaded before any node starts."""
-    import ros_harness
-    ros_harness.warm_kernels(("rk4", 0.001))
 
 
 @pytest.fixture(scope="session")

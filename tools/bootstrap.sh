@@ -30,10 +30,6 @@ bash tools/build_interfaces.sh .venv tf2_msgs control_msgs || {
   if ((status > 128)); then exit "$status"; fi   # stopped (Ctrl-C), not failed
   interfaces=failed
 }
-# Compile every numba kernel now, so that no run — the node above all — compiles at run time;
-# the warm-up says how long it takes and names each kernel as it starts.
-echo "bootstrap: compiling the numba kernels"
-.venv/bin/python -m mobile_manip_sim.programs.warmup
 if [ "$interfaces" = built ]; then
   echo "bootstrap: done"
 else

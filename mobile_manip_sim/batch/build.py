@@ -152,8 +152,8 @@ class Template:
         self.sizes = {"mass": robot.n_links, "efforts.wheels": 2,
                       "efforts.joints": scene.joint_efforts.size,
                       "initial.velocity": robot.n_u, "dt": 1}
-        # the lanes' μ go into the model record that every kernel reads; the feed-forward must
-        # compute with that one (no model error: no masses of its own)
+        # the lanes' μ go into the lane's robot, from which its compiled core is made; the
+        # feed-forward must compute with that one (no model error: no masses of its own)
         self.own_masses = sim.system.data.ff_masses.size == 0
 
     @classmethod
@@ -228,9 +228,9 @@ class Template:
         return lane
 
     def lane(self, scene: Scene, fast: dict) -> Simulation:
-        """The lane's `Simulation`: the template's records copied, the lane's μ written into its
-        model record and a compiled core of its own (`Dynamics.for_lane`), then `reset` (state,
-        efforts, clock, energy reference of its own)."""
+        """The lane's `Simulation`: the template's records copied, the lane's robot (its μ) and a
+        compiled core of its own (`Dynamics.for_lane`), then `reset` (state, efforts, clock,
+        energy reference and stepper of its own)."""
         sim = self.plan.copy()
         sim.scene, sim.settings, sim.model = scene, scene.integrator, scene.robot
         sim.dynamics.for_lane(scene.robot)
@@ -300,11 +300,11 @@ OWNERS = (Simulation, System, Dynamics)
 
 class _Plan:
     """How to copy a `Simulation`'s records: walked once over the template into a list of
-    steps, the copy then makes every array afresh (same layout, same writeability: numba types
-    both), rebuilds every record (namedtuple), plain tuple of records and object of `OWNERS`
-    around them, keeps which arrays are one and the same (the system's ``resting`` is the
-    stops'), and shares everything else (the scene's objects, the compiled kernels and their
-    entry points, which the copies' records, of the same types, use as they are)."""
+    steps, the copy then makes every array afresh (same layout, same writeability), rebuilds
+    every record (namedtuple), plain tuple of records and object of `OWNERS` around them, keeps
+    which arrays are one and the same (the system's ``resting`` is the stops'), and shares
+    everything else (the scene's objects). Each copy's `reset` then makes its own compiled
+    stepper on its own arrays."""
 
     def __init__(self, template, copies: int = 1):
         self.nodes: list = []      # per slot: a shared value, or None for one made per copy

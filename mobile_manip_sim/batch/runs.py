@@ -14,8 +14,7 @@ one lane (`set_efforts`, or any command of `lane(i)`) between calls.
 
 Lanes of rk4, semi-implicit Euler and Euler run in the compiled call, their plain grid steps
 `core.build_info()["lane_width"]` lanes at a time in vector registers (core/include/mms/lanes.hpp;
-`vector=False`: each lane alone, the same bits; MOBILE_MANIP_SIM_CORE=numba: numba's lanes,
-`lanes.py` and `blocks.py`, the reference while both exist). Lanes of the adaptive methods (rk45,
+`vector=False`: each lane alone, the same bits). Lanes of the adaptive methods (rk45,
 dop853, radau, bdf) and lanes whose arm a controller drives are not compiled lanes: each is
 stepped by its own `Simulation` from Python, sample by sample — the same numbers, without the
 batch's speed (`LaneStatus.compiled` says which). A lane that fails (a bad override, a
@@ -32,22 +31,15 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..core import LaneSet
-from ..engine.core_stepping import CORE
 from ..engine.simulation import Simulation
-from ..engine.stepping import BUDGET
-from ..engine.system import system_data
+from ..engine.status import BUDGET
 from ..scene.errors import UserError
 from ..scene.loading import Scene
 from ..scene.methods import METHODS
-from . import lanes as compiled
+from . import lane_logs
 from .build import build_lanes
 
 BLOCK_SECONDS = 0.25   # wall s aimed at per compiled call: progress, limits and Ctrl-C between
-# Threads that finish their lanes first wait for the call's end asleep, not spinning: OpenMP's
-# default spin would bill a core for every wait (the user's own setting wins; read when numba
-# starts its thread pool, at the first compiled call).
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
-CHUNK_LANES = 1   # lanes handed to a thread at a time: the lanes' costs differ (impacts, methods)
 
 
 class TimeLimit(Exception):
@@ -112,11 +104,8 @@ class Batch:
     def _start(self, scenes: list, sims: list, threads: int | None,
                time_limit: float | None, vector: bool = True) -> None:
         self.size = len(scenes)
-        # the C++ core's lanes (`core.LaneSet`), or numba's (`lanes.py`, `blocks.py`: the
-        # reference while both exist, MOBILE_MANIP_SIM_CORE=numba)
-        self.cpp = CORE == "cpp"
-        self.vector = bool(vector) and (self.cpp or compiled.ENABLED)
-        # grid steps of each lane taken in vector lanes and alone (`blocks.lane_paths`)
+        self.vector = bool(vector)
+        # grid steps of each lane taken in vector blocks and alone (`core.LaneSet`)
         self.paths = np.zeros((self.size, 2), dtype=np.int64)
         self.threads = threads
         self.time_limit = time_limit
@@ -217,20 +206,17 @@ class Batch:
         if logs is None:
             return
         for i in np.flatnonzero(logs.count):
-            self.sims[i]._collect_impacts(compiled.lane_log(logs, i))
+            self.sims[i]._collect_impacts(lane_logs.lane_log(logs, i))
 
     def _state_size(self) -> int:
         return next((sim.s.size for sim in self.sims if sim is not None), 0)
 
     def _compiled(self) -> np.ndarray:
         """The lanes the compiled call runs: those of a fixed-step method whose controllers
-        are not sampled now (the compiled lanes take no controller updates, `sampling.py`); on
-        the C++ core, those the core's stepper runs whose arm no controller drives (the vector
-        blocks have no arm controller)."""
+        are not sampled now (the compiled lanes take no controller updates) and whose arm no
+        controller drives (the vector blocks have no arm controller)."""
         return np.array([sim is not None and METHODS[sim.settings.method].fixed_step
-                         and not sim.controllers_sampled
-                         and (not self.cpp or (sim._stepper is not None
-                                               and not sim.arm_controller.active))
+                         and not sim.controllers_sampled and not sim.arm_controller.active
                          for sim in self.sims], dtype=bool)
 
     def _run(self, times: np.ndarray, rows, progress) -> None:
@@ -266,15 +252,14 @@ class Batch:
                             f"t = {self.sims[i].t:.6g} s")
 
     def prepare(self) -> None:
-        """Build the compiled call's per-lane records now rather than at the first call (a sweep
-        builds them in its own thread while the last batch steps: their typed lists take some
-        40 µs of Python per lane)."""
+        """Build the compiled call's lane set now rather than at the first call (a sweep builds
+        it in its own thread while the last batch steps)."""
         if (self.ok & self.compiled).any():
             self._lists()
 
     def _lists(self):
-        """The compiled call's per-lane records (those of the compiled lanes), rebuilt when a
-        lane's records were replaced (a command that grew them, a reset)."""
+        """The compiled call's lane set (the compiled lanes' steppers), rebuilt when a lane's
+        records were replaced (a command that grew them, a reset)."""
         chosen = np.flatnonzero(self.compiled)
         sims = [self.sims[i] for i in chosen]
         key = [(sim.system.data, sim.s, sim.stops, sim._scratch, sim._clock, sim._stepper)
@@ -284,35 +269,24 @@ class Batch:
                 for old, new in zip(self._records[0], key, strict=True)):
             lane_of = np.full(self.size, -1, dtype=np.int64)
             lane_of[chosen] = np.arange(len(sims))
-            if self.cpp:
-                self._records = (key, lane_of, LaneSet([sim._stepper for sim in sims],
-                                                       [sim.s for sim in sims],
-                                                       [sim._clock for sim in sims]), None)
-                return self._records[1], self._records[2]
-            lists = (np.array([sim._core_args[0] for sim in sims], dtype=np.int64),
-                     compiled.lane_list([system_data(sim.system.data) for sim in sims]),
-                     compiled.lane_list([sim.stops for sim in sims]),
-                     compiled.lane_list([sim._scratch for sim in sims]),
-                     compiled.lane_list([sim.s for sim in sims]),
-                     compiled.lane_list([sim._clock for sim in sims]))
-            keys = _blocks().block_keys(sims) if self.vector else None
-            self._records = (key, lane_of, lists, keys)
+            self._records = (key, lane_of, LaneSet([sim._stepper for sim in sims],
+                                                   [sim.s for sim in sims],
+                                                   [sim._clock for sim in sims]))
         return self._records[1], self._records[2]
 
     def _compiled_lanes(self, lanes: np.ndarray, times: np.ndarray, rows, progress) -> None:
-        lane_of, lists = self._lists()
+        lane_of, lane_set = self._lists()
         first_sim = self.sims[lanes[0]]
         budget = first_sim._step_budget
-        threads = (min(self.threads or 1 << 30, len(os.sched_getaffinity(0))) if self.cpp
-                   else _set_threads(self.threads or 1 << 30))
+        threads = min(self.threads or 1 << 30, len(os.sched_getaffinity(0)))
         code = np.zeros(self.size, dtype=np.int64)
         failure = np.zeros(self.size, dtype=np.int64)
         next_sample = np.zeros(self.size, dtype=np.int64)
         if self._logs is None:
-            self._logs = compiled.impact_logs(self.size, first_sim.nq, first_sim.nu)
+            self._logs = lane_logs.impact_logs(self.size, first_sim.nq, first_sim.nu)
         logs = self._logs
         write = rows is not None
-        out = rows if write else compiled.empty_rows(self.size, self._state_size())
+        out = rows if write else lane_logs.empty_rows(self.size, self._state_size())
         out_t = self.sample_t if write else np.zeros((self.size, 1))
         block, first = self.block, 0
         while first < times.size:
@@ -322,21 +296,9 @@ class Batch:
             block_start = started = time.perf_counter()
             while pending.size:
                 cpu, own = time.process_time(), time.thread_time()
-                if self.cpp:
-                    lists.advance(pending, lane_of[pending], times, last, out, out_t, write,
-                                  budget, code, next_sample, failure, *logs, self.paths,
-                                  self.vector, threads)
-                elif self.vector:
-                    blocks = _blocks()
-                    slots, records = blocks.group_slots(pending, lane_of[pending],
-                                                        self._records[3])
-                    blocks.advance_blocks(*lists, slots, records, times, last, out, out_t, write,
-                                          budget, code, next_sample, failure, logs, self.paths,
-                                          True)
-                else:
-                    compiled.advance_fixed(*lists, pending, lane_of[pending], times, last, out,
-                                           out_t, write, budget, code, next_sample, failure,
-                                           logs)
+                lane_set.advance(pending, lane_of[pending], times, last, out, out_t, write,
+                                 budget, code, next_sample, failure, *logs, self.paths,
+                                 self.vector, threads)
                 self.compiled_cpu += time.process_time() - cpu
                 self._caller_in_calls += time.thread_time() - own
                 now = time.perf_counter()
@@ -354,15 +316,15 @@ class Batch:
         the stops' log, as Python does after every call of a run; the others' stay in their logs
         until `collect`), failed lanes told why, time limits checked; returns the lanes that
         still have samples to reach in this block."""
-        busy = pending[code[pending] != compiled.LANE_DONE]
+        busy = pending[code[pending] != lane_logs.LANE_DONE]
         for i in busy:
             sim = self.sims[i]
             if logs.count[i]:
-                sim._collect_impacts(compiled.lane_log(logs, i))
-            if code[i] == compiled.LANE_DONE:
+                sim._collect_impacts(lane_logs.lane_log(logs, i))
+            if code[i] == lane_logs.LANE_DONE:
                 continue
             try:
-                if code[i] == compiled.LANE_FAILED:
+                if code[i] == lane_logs.LANE_FAILED:
                     sim._after_compiled(int(failure[i]))   # raises the run's own error
                     raise RuntimeError(f"the stepping ended with status {int(failure[i])}")
                 sim._after_compiled(BUDGET)                 # paused: its log read, as after a call
@@ -375,7 +337,7 @@ class Batch:
                         self._check_time_limit(i)
                     except TimeLimit as error:
                         self.fail(i, error)
-        again = pending[(code[pending] == compiled.LANE_PAUSED) & (next_sample[pending] < last)]
+        again = pending[(code[pending] == lane_logs.LANE_PAUSED) & (next_sample[pending] < last)]
         return again[[self.errors[i] is None for i in again]].astype(np.int64)
 
 
@@ -400,21 +362,6 @@ def overlapped(items: list, build, step):
             if following is not None:
                 stepping, built = helper.submit(step, following), following
             yield item, done, stepped
-
-
-def _blocks():
-    """The blocks of four lanes (`blocks.py`; imported only with numba: its vector types)."""
-    from . import blocks
-    return blocks
-
-
-def _set_threads(count: int) -> int:
-    """Threads of the next compiled calls from this thread, and the lanes dealt at a time."""
-    count = compiled.set_threads(count)
-    if compiled.ENABLED:
-        import numba
-        numba.set_parallel_chunksize(CHUNK_LANES)
-    return count
 
 
 def _row(values, row: int, lanes: int):

@@ -7,7 +7,8 @@ effort mode holds the efforts that balance gravity at the initial pose (no contr
 position mode holds that pose; velocity mode turns joint 1 at 0.1 rad/s; joint_trajectory mode
 follows a 1 Hz sinusoid about the pose (amplitudes 0.2 rad, 0.05 m, 0.3 rad, 0.05 m) sent as
 quintic points every 10 ms. Default gains (`arm_control.default_controller`). Tracking error:
-q − q_ref at the samples, the reference read back from the engine's own (`arm_reference.reference`).
+q − q_ref at the samples, the reference read back from the engine's own
+(`Simulation.arm_reference`).
 CPU time of this thread, best of the repeats.
 """
 from __future__ import annotations
@@ -18,11 +19,9 @@ import time
 import numpy as np
 
 from ..dynamics import Dynamics
-from ..engine import arm_reference, layout
-from ..engine.arm_control import ARM_SEGMENTS
 from ..engine.simulation import Simulation
 from ..scene.arm_controller import ArmController
-from ..scene.coordinates import arm_width
+from ..scene.coordinates import ARM_Q
 from ..scene.loading import load_scene, parse_scene
 from .tables import seconds, table, verdict
 
@@ -60,7 +59,7 @@ def prepared(base, mode: str, feedforward: str) -> Simulation:
     document["efforts"]["joints"] = [0.0] * 4
     sim = Simulation(parse_scene(document, base.name),
                      arm_controller=ArmController(mode, feedforward=feedforward))
-    q0 = sim.q[layout.arm_q(0):].copy()
+    q0 = sim.q[ARM_Q].copy()
     if mode == "velocity":
         sim.set_arm_velocities([0.1, 0.0, 0.0, 0.0])
     elif mode == "joint_trajectory":
@@ -71,14 +70,13 @@ def prepared(base, mode: str, feedforward: str) -> Simulation:
     return sim
 
 
-def tracking(sim: Simulation, times, rows) -> tuple[float, float]:
-    """RMS and max of q − q_ref over the samples and joints (rad or m)."""
-    data, out = sim.system.data, np.zeros((3, arm_width(sim.nu)))
+def tracking(sim: Simulation, times) -> tuple[float, float]:
+    """RMS and max of q − q_ref over the samples and joints (rad or m): `sim` advanced from its
+    start to each sample time, its reference read there."""
     errors = []
-    for t, row in zip(times, rows, strict=True):
-        arm_reference.reference(data.ref_starts, data.ref_coeffs, int(data.arm[ARM_SEGMENTS]), t,
-                                out, 0)
-        errors.append(row[layout.arm_q(0):layout.arm_q(0) + arm_width(sim.nu)] - out[0])
+    for t in times:
+        sim.advance_to(t)
+        errors.append(sim.q[ARM_Q] - sim.arm_reference()[0])
     errors = np.array(errors)
     return float(np.sqrt(np.mean(errors ** 2))), float(np.abs(errors).max())
 
@@ -88,7 +86,7 @@ def measure(progress, quick: bool = False) -> list:
     base = scene()
     times = np.arange(1, int(DURATION * SAMPLE_RATE) + 1) / SAMPLE_RATE
     repeats = 2 if quick else 25
-    prepared(base, "joint_trajectory", "computed_torque").sample(times[:2])   # compile, once
+    prepared(base, "joint_trajectory", "computed_torque").sample(times[:2])   # warm the caches
     best = np.full(len(MODES), np.inf)
     for _ in range(repeats):   # round robin: a slow spell of the machine hits every mode alike
         for i, (mode, feedforward, _) in enumerate(MODES):
@@ -99,8 +97,8 @@ def measure(progress, quick: bool = False) -> list:
     rows = []
     for i, (mode, feedforward, what) in enumerate(MODES):
         sim = prepared(base, mode, feedforward)
-        samples = sim.sample(times)
-        rms, worst = (np.nan, np.nan) if mode == "effort" else tracking(sim, times, samples)
+        rms, worst = (np.nan, np.nan) if mode == "effort" else tracking(sim, times)
+        sim.advance_to(times[-1])
         per_step = best[i] / sim.steps
         rows.append((mode, feedforward, what, per_step, sim.rhs_evaluations / sim.steps, rms,
                      worst))

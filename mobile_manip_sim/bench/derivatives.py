@@ -7,8 +7,8 @@ same process.
   compiled core: CPU time of the kernel alone (a loop in C++, `Dynamics.time_jacobians`) and of
   the call from Python. One forward-dynamics evaluation, scalar and per lane of a vector block.
   The paper run without its stops (no events), dop853 at rtol 1e-10, sampled at 100 Hz: the
-  compiled core's adaptive loop (`Dynamics.adaptive_run`) against the numba engine's, the same
-  states bit for bit (test_core_adaptive).
+  compiled core's adaptive loop alone (`Dynamics.adaptive_run`) and the whole engine
+  (`Simulation.sample`: its events watched, its samples handed back to Python).
 - **The peer**: `mujoco.mjd_transitionFD` on the paper robot's 7-dof equivalent model
   (`mujoco_peer.py`) at the same state, with its Euler integrator at 1 ms (it refuses RK4):
   A and B (14 + 6 columns) by forward and by centred differences, ε = 1e-6. These are not exact:
@@ -30,6 +30,7 @@ from ..scene.loading import IntegratorSettings, load_scene, parse_scene
 from . import mujoco_peer
 from .loops import per_python_call
 from .tables import table, verdict
+from .versus import rates_inputs
 
 TARGETS = {"continuous": 3e-6, "rk4": 10e-6, "fd": 250e-9, "versus_centred": 4.0}
 
@@ -44,7 +45,7 @@ class DerivativesResult:
     fd_lane: float
     lane_width: int
     dop853_core: float = float("nan")     # s per 1.5 s paper run without stops
-    dop853_engine: float = float("nan")
+    dop853_simulation: float = float("nan")
     mujoco_forward: float = float("nan")
     mujoco_centred: float = float("nan")
 
@@ -59,10 +60,8 @@ def measure(progress, quick: bool = False) -> DerivativesResult:
     sim.advance_to(0.5)
     core, nu = sim.dynamics.core, sim.nu
     q, u = sim.q.copy(), sim.u.copy()
-    s = np.concatenate([q, u, np.zeros(3)])
-    Q, B, damping, moving = sim.system.Q_cmd.copy(), effort_map(sim.model), sim.system.damping, \
-        np.ones(nu)
-    g = sim.dynamics.gravity
+    _, (Q, damping, moving, g), state = rates_inputs(scene)
+    s, B = state(q, u), effort_map(sim.model)
     calls = 200 if quick else 2000
     width = build_info()["lane_width"]
     result = DerivativesResult(
@@ -81,9 +80,10 @@ def measure(progress, quick: bool = False) -> DerivativesResult:
              f"(from Python {result.continuous_python * 1e6:.2f}), rk4 A, B "
              f"{result.rk4_kernel * 1e6:.2f} us (from Python {result.rk4_python * 1e6:.2f}); "
              f"FD {result.fd_scalar * 1e9:.0f} ns, {result.fd_lane * 1e9:.0f} ns per lane")
-    result.dop853_core, result.dop853_engine = _adaptive_run(scene)
+    result.dop853_core, result.dop853_simulation = _adaptive_run(scene)
     progress(f"the paper run without stops, dop853: compiled loop "
-             f"{result.dop853_core * 1e3:.2f} ms, numba engine {result.dop853_engine * 1e3:.2f} ms")
+             f"{result.dop853_core * 1e3:.2f} ms, Simulation.sample "
+             f"{result.dop853_simulation * 1e3:.2f} ms")
     if mujoco_peer.available():
         import mujoco
         peer = mujoco_peer.MujocoPeer(scene.robot, g, 0.0, True, "Euler", 1e-3)
@@ -107,24 +107,21 @@ def measure(progress, quick: bool = False) -> DerivativesResult:
 
 def _adaptive_run(scene) -> tuple[float, float]:
     """CPU seconds of the paper run without its stops (dop853, rtol 1e-10, 100 Hz samples): the
-    compiled core's loop, the numba engine's."""
+    compiled core's adaptive loop alone, and `Simulation.sample`."""
     document = copy.deepcopy(scene.document)
     del document["effects"]["stroke_limits"]
     smooth = parse_scene(document)
     sim = Simulation(smooth, integrator=IntegratorSettings(method="dop853", rtol=1e-10,
                                                            atol=1e-12))
     times = np.linspace(0.0, smooth.duration, 151)[1:]
-    system, s0 = sim.system, sim.s.copy()
-    moving = np.zeros(sim.nu)
-    moving[[k for k in system.free if k >= 0]] = 1.0
-    args = (s0, times, 1e-10, 1e-12, system.Q_cmd.copy(), system.damping, moving,
-            sim.dynamics.gravity)
+    core, (Q, damping, moving, g), state = rates_inputs(smooth)
+    args = (state(np.array(smooth.initial_q), np.array(smooth.initial_u)), times, 1e-10, 1e-12,
+            Q, damping, moving, g)
 
-    def engine():
+    def simulation():
         sim.reset()
         sim.sample(times)
-    return (per_python_call(sim.dynamics.core.adaptive_run, "dop853", *args),
-            per_python_call(engine))
+    return per_python_call(core.adaptive_run, "dop853", *args), per_python_call(simulation)
 
 
 def section(result: DerivativesResult, number: int) -> str:
@@ -151,8 +148,8 @@ def section(result: DerivativesResult, number: int) -> str:
          f"{result.fd_lane * 1e9:.0f} ns (×{result.fd_scalar / result.fd_lane:.2f} the scalar)",
          ""),
         ("the 1.5 s paper run without stops, dop853 at rtol 1e-10, 100 Hz samples: the "
-         "compiled loop", f"{result.dop853_core * 1e3:.2f} ms (the numba engine "
-         f"{result.dop853_engine * 1e3:.2f} ms, the same states)", "")]
+         "compiled loop", f"{result.dop853_core * 1e3:.2f} ms (`Simulation.sample`, its events "
+         f"watched: {result.dop853_simulation * 1e3:.2f} ms)", "")]
     lines = [f"## {number}. Exact Jacobians, and the compiled core's dynamics", "",
              "The paper robot at t = 0.5 s of its run with rk4 at 1 kHz: the Jacobians by dual "
              "numbers through the compiled C++ core (8 derivative directions a pass, "

@@ -1,13 +1,7 @@
 """The engine targets that the other sections do not measure: what dop853's cost does as the
-tolerance loosens, the paper scene with its stops at error ≤ 1e-6, and a warm `simulate`.
-(The MuJoCo targets are in §7; the node's memory in bench/NODE.md.)"""
+tolerance loosens, and the paper scene with its stops at error ≤ 1e-6. (The MuJoCo targets are in
+§7; the start times, a warm `simulate` among them, in §12; the node's memory in bench/NODE.md.)"""
 from __future__ import annotations
-
-import subprocess
-import sys
-import tempfile
-import time
-from pathlib import Path
 
 from ..scene.loading import load_scene, make_integrator
 from .runs import simulate
@@ -25,14 +19,7 @@ def measure(progress, paper_wp) -> dict:
     stops = [p for p in (paper_wp.points if paper_wp else [])
              if p.method == "dop853" and p.run.ok and p.error <= 1e-6]
     best = min(stops, key=lambda p: p.run.cpu, default=None)
-    with tempfile.TemporaryDirectory() as tmp:
-        command = [str(Path(sys.executable).with_name("simulate")), "--out", f"{tmp}/run.csv"]
-        subprocess.run(command, capture_output=True, check=True, timeout=600)   # warm the caches
-        start = time.perf_counter()
-        subprocess.run(command, capture_output=True, check=True, timeout=600)
-        warm = time.perf_counter() - start
-    progress(f"warm simulate of the default scene: {warm:.2f} s wall")
-    return {"rhs": rhs, "stops_best": best, "warm_simulate": warm}
+    return {"rhs": rhs, "stops_best": best}
 
 
 def rows(measured, verdict, seconds) -> list:
@@ -60,9 +47,4 @@ def rows(measured, verdict, seconds) -> list:
                             f"missed by {cpu / 2e-3:.2f}×: {best.run.rhs_evaluations} right-hand "
                             "sides at the sweep's loosest rtol within 1e-6 (the sweep steps rtol "
                             "by 100×), and one call from Python per 100 Hz sample")))
-    warm = measured["warm_simulate"]
-    out.append(("warm `simulate` of the default scene ≤ 1 s wall", f"{warm:.2f} s",
-                verdict(warm <= 1.0, f"{1.0 / warm:.1f}× inside" if warm <= 1.0 else
-                        f"missed by {warm / 1.0:.1f}×: importing numpy/numba and loading the "
-                        "cached kernels")))
     return out

@@ -8,6 +8,7 @@ and how the hard cases behave; write ``REPORT.md`` and PNG plots.
     bench --out /tmp/b --only batch            # many runs in one call (the batch) alone
     bench --out /tmp/l --only lanes_fd         # one dynamics evaluation in vector lanes alone
     bench --out bench/ --only derivatives      # exact Jacobians: updates its section in place
+    bench --out /tmp/s --only start            # start times: imports, simulate, the node's /odom
 """
 from __future__ import annotations
 
@@ -54,7 +55,7 @@ def _main(argv) -> int:
     parser.add_argument("--quick", action="store_true",
                         help="a smoke run: short sweeps, one repeat")
     parser.add_argument("--only", choices=("mujoco", "controllers", "batch", "lanes_fd",
-                                           "derivatives"),
+                                           "derivatives", "start"),
                         help="run one section alone (REPORT.md holds only it; derivatives: "
                              "its section of an existing REPORT.md is replaced)")
     args = parser.parse_args(argv)
@@ -96,6 +97,10 @@ def _main(argv) -> int:
         progress = Progress(1)
         _lanes_fd_section(results, progress, args.quick)
         return _write(report, results, out, progress)
+    if args.only == "start":
+        progress = Progress(1)
+        _start_section(results, progress, args.quick)
+        return _write(report, results, out, progress)
     if args.only == "derivatives":
         progress = Progress(1)
         _derivatives_section(results, progress, args.quick)
@@ -104,10 +109,7 @@ def _main(argv) -> int:
         progress.ticker.close()
         print(path)
         return 0
-    progress = Progress(13)
-
-    progress.section("warming up the compiled kernels")
-    versus.realtime(lambda _line: None, quick=True)
+    progress = Progress(12)
 
     progress.section("work–precision: paper scene, hard scene, 20-link random arm")
     results["wp"] = []
@@ -152,7 +154,14 @@ def _main(argv) -> int:
     _batch_section(results, progress, args.quick)
     _lanes_fd_section(results, progress, args.quick)
     _derivatives_section(results, progress, args.quick)
+    _start_section(results, progress, args.quick)
     return _write(report, results, out, progress)
+
+
+def _start_section(results, progress, quick: bool) -> None:
+    from . import start
+    progress.section("start times: the engine's import, a warm simulate, the node's first /odom")
+    results["start"] = start.measure(progress, quick=quick)
 
 
 def _derivatives_section(results, progress, quick: bool) -> None:
@@ -169,7 +178,7 @@ def _lanes_fd_section(results, progress, quick: bool) -> None:
 
 def _batch_section(results, progress, quick: bool) -> None:
     from . import batch
-    progress.section("many runs in one call: the batch against MuJoCo rollout and Dask")
+    progress.section("many runs in one call: the batch, the sweep command, MuJoCo rollout")
     results["batch"] = batch.measure(progress, quick=quick)
 
 

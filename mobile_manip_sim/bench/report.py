@@ -23,7 +23,7 @@ def _machine() -> str:
     except OSError:
         pass
     versions = []
-    for name in ("numpy", "scipy", "numba", "pinocchio", "mujoco", "matplotlib"):
+    for name in ("numpy", "scipy", "pinocchio", "mujoco", "matplotlib"):
         try:
             module = __import__(name)
             versions.append(f"{name} {module.__version__}")
@@ -167,6 +167,8 @@ def write(results, out: Path) -> Path:
         return _write_parts(parts + [_batch_section(results)], out)
     if results.get("only") == "lanes_fd":
         return _write_parts(parts + [_lanes_fd_section(results)], out)
+    if results.get("only") == "start":
+        return _write_parts(parts + [_start_section(results)], out)
     targets, _ = _targets(results)
     parts += ["## Speed targets", "", targets, "",
               "Ratios are between runs of this same bench invocation. Where a target is missed, "
@@ -209,7 +211,8 @@ def write(results, out: Path) -> Path:
     scaling = results.get("scaling")
     if scaling:
         parts += ["## 3. Scaling with the number of links", "", "![scaling](scaling.png)", "",
-                  "One evaluation, in a compiled loop, on random robots (random joint "
+                  "One evaluation, in the compiled core's own loop (in C++), on random robots "
+                  "(random joint "
                   "orientations, lengths, masses, inertias). Fitted growth order = slope of log t "
                   "against log n over n = 4 … 32.", ""]
         rows = [(name, *[seconds(t) for t in values], f"{growth_order(values):.2f}")
@@ -219,6 +222,7 @@ def write(results, out: Path) -> Path:
     per, whole = results.get("per_evaluation"), results.get("whole_run")
     parts += ["## 4. Against the peer: projected Pinocchio", ""]
     if per:
+        peer_call = per["times"]["Pinocchio: crba + rnea + projection + solve, from Python"]
         parts += ["The robot built as an ordinary multibody in Pinocchio (planar base joint, "
                   "wheel spin joints, revolute + prismatic per link) and projected on the "
                   "pseudo-velocities: M = Sᵀ M_full S (`crba`), h = Sᵀ h_full(q, S u) (`rnea`), "
@@ -226,12 +230,13 @@ def write(results, out: Path) -> Path:
                   f"It agrees with our M and h to {sci(per['agreement'])} (relative) on random "
                   "states.", "",
                   "### 4.1 One forward-dynamics evaluation of the paper robot", "",
-                  table(("how", "time per evaluation"),
-                        [(k, seconds(v)) for k, v in per["times"].items()]),
+                  table(("how", "time per evaluation", "÷ Pinocchio's from Python"),
+                        [(k, seconds(v), f"{v / peer_call:.3f}")
+                         for k, v in per["times"].items()]),
                   "",
-                  "From Python, our cost is mostly the call itself (numba unboxes the model and "
-                  "workspace tuples on every call); inside a compiled loop, as the integrators use "
-                  "it, it is the recursion alone. Pinocchio's own C++ is fast too (the crba + rnea "
+                  "From Python, our cost is mostly the call itself (the arrays in and out of the "
+                  "compiled core); in the core's own loop (in C++, as its integrators call it) it "
+                  "is the recursion alone. Pinocchio's own C++ is fast too (the crba + rnea "
                   "line); its cost from Python is the two calls, the projection and the solve.",
                   ""]
     if whole:
@@ -259,10 +264,10 @@ def write(results, out: Path) -> Path:
                         [(m, seconds(r.cpu), seconds(r.wall), r.rhs_evaluations, f"{f:.0f}×")
                          for m, r, f in realtime]),
                   "", "Sampled at 100 Hz as `simulate` does, and in one `advance_to(1.5)` call; "
-                  "both include the two end-stop impacts (located in Python, step by step) and, "
-                  "once a rod rests, a release check (one more right-hand side and one "
-                  "inverse-dynamics pass) after every step. The last row of each method drops the "
-                  "end stops: what is left is the stepping loop and the right-hand side alone.",
+                  "both include the two end-stop impacts (located and resolved by the compiled "
+                  "core) and, once a rod rests, a release check after every step. The last row "
+                  "of each method drops the end stops: what is left is the stepping loop and the "
+                  "right-hand side alone.",
                   ""]
         runs = {label: run for label, run, _ in realtime}
         if all(k in runs for k in ("rk4", "rk4, one advance_to call",
@@ -274,8 +279,8 @@ def write(results, out: Path) -> Path:
                    if per else "—")
             parts += [f"Where RK4's {seconds(sampled)} go: stepping with the right-hand side "
                       f"{seconds(smooth)} ({seconds(per_step)} per step, four right-hand sides "
-                      f"of {rhs} each in a compiled loop); end stops (impacts located in Python, "
-                      f"release checks) {seconds(stops - smooth)}; the 150 sampling calls "
+                      f"of {rhs} each in the core's own loop); end stops (impacts, release "
+                      f"checks) {seconds(stops - smooth)}; the 150 sampling calls "
                       f"{seconds(sampled - stops)}. A 200× real-time factor needs 7.5 ms in all.",
                       ""]
 
@@ -307,6 +312,8 @@ def write(results, out: Path) -> Path:
         parts.append(_lanes_fd_section(results))
     if results.get("derivatives"):
         parts.append(derivatives_section(results))
+    if results.get("start"):
+        parts.append(_start_section(results))
     return _write_parts(parts, out)
 
 
@@ -333,6 +340,11 @@ def _mujoco_section(results) -> str:
 
 
 DERIVATIVES_NUMBER = 11
+
+
+def _start_section(results) -> str:
+    from .start import section
+    return section(results["start"], number=12)
 
 
 def derivatives_section(results) -> str:

@@ -4,8 +4,9 @@ robots), the recursive algorithms against non-recursive baselines, with fitted g
 - inverse dynamics: the Gibbs–Appell recursion (O(n)) against Q = M u̇ + h with M assembled
   column by column (n_u recursive passes, O(n²));
 - forward dynamics: the articulated-body recursion (O(n)) against h + M column by column +
-  Cholesky (O(n³) eventually), and against h + composite-rigid-body M + Cholesky (what the
-  engine's Cholesky path does).
+  Cholesky (O(n³) eventually), and against h + composite-rigid-body M + Cholesky.
+
+Each evaluation is timed in the compiled core's own loop (`core.Dynamics.time_dynamics`).
 """
 from __future__ import annotations
 
@@ -17,12 +18,14 @@ from . import loops
 from .scenes import random_robot_document
 
 LINKS = (1, 2, 4, 8, 16, 32)
-SERIES = ("ID recursive", "ID by columns", "FD articulated", "FD composite + Cholesky",
-          "FD by columns + Cholesky")
+SERIES = {"ID recursive": "inverse", "ID by columns": "inverse_by_columns",
+          "FD articulated": "forward", "FD composite + Cholesky": "forward_composite_cholesky",
+          "FD by columns + Cholesky": "forward_by_columns_cholesky"}   # name → the core's
 
 
 def measure(progress, quick: bool = False) -> dict:
-    """{series: [seconds per evaluation for each n in LINKS]}"""
+    """{series: [seconds per evaluation for each n in LINKS]}: the compiled core's loops
+    (`core.Dynamics.time_dynamics`)."""
     times = {name: [] for name in SERIES}
     target = 0.01 if quick else 0.1
     for n in LINKS:
@@ -32,24 +35,13 @@ def measure(progress, quick: bool = False) -> dict:
         nu = scene.robot.n_u
         q = np.array(scene.initial_q)
         u, ud, Q = rng.normal(size=nu), rng.normal(size=nu), rng.normal(size=nu)
-        model, ws, g = dyn.model_record, dyn.ws, dyn.gravity
-        out = np.zeros(nu)
-        M, L = np.zeros((nu, nu)), np.zeros((nu, nu))
-        z, e, col, h, rhs = (np.zeros(nu) for _ in range(5))
-        free = np.arange(nu)
-        times["ID recursive"].append(loops.per_call(
-            loops.inverse_dynamics_recursive, model, q, u, ud, g, ws, out, target=target))
-        times["ID by columns"].append(loops.per_call(
-            loops.inverse_dynamics_by_columns, model, q, u, ud, g, ws, out, M, z, e, col,
-            target=target))
-        times["FD articulated"].append(loops.per_call(
-            loops.forward_dynamics_articulated, model, q, u, Q, g, free, ws, out, target=target))
-        times["FD composite + Cholesky"].append(loops.per_call(
-            loops.forward_dynamics_cholesky, model, q, u, Q, g, free, ws, out, h, rhs, M, L, z, e,
-            col, False, target=target))
-        times["FD by columns + Cholesky"].append(loops.per_call(
-            loops.forward_dynamics_cholesky, model, q, u, Q, g, free, ws, out, h, rhs, M, L, z, e,
-            col, True, target=target))
+        core, g = dyn.core, dyn.gravity
+        for name, what in SERIES.items():
+            x = ud if what.startswith("inverse") else Q
+
+            def timer(calls, what=what, x=x, core=core, q=q, u=u, g=g):
+                return core.time_dynamics(what, q, u, x, g, calls)
+            times[name].append(loops.per_call(timer, target=target))
         progress(f"scaling n = {n}: "
                  + ", ".join(f"{name} {times[name][-1] * 1e6:.2f} µs" for name in SERIES))
     return times
@@ -77,7 +69,7 @@ def plot(times: dict, path) -> None:
     ref = times["FD articulated"][2] * 1e6
     ax.loglog(n, ref * n / n[2], color="0.6", lw=0.8, ls=":", label="O(n)")
     ax.set_xlabel("links n")
-    ax.set_ylabel("µs per evaluation (compiled loop)")
+    ax.set_ylabel("µs per evaluation (the core's loop in C++)")
     ax.set_title("Inverse and forward dynamics against the number of links")
     ax.grid(True, which="major", alpha=0.3)
     ax.legend(fontsize=8)

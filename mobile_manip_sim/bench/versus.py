@@ -14,8 +14,8 @@ import numpy as np
 from scipy.integrate import solve_ivp
 
 from ..dynamics import Dynamics
-from ..engine.simulation import Simulation
 from ..runtime.timeline import sample_times
+from ..scene.effects import settings as effect_settings
 from ..scene.loading import load_scene, make_integrator
 from . import loops, peers
 from .runs import simulate
@@ -24,6 +24,24 @@ from .scenes import without_stroke_limits
 PEER_RTOLS = (1e-5, 1e-6, 1e-7, 1e-8, 1e-9, 1e-10)
 ACCURACY = 1e-6
 SEED_SECONDS = 34.32   # the seed paper: MATLAB ode45, Core 2 Duo E7500, 1.5 s of the same robot
+
+
+def rates_inputs(scene):
+    """The compiled core's right-hand side of the scene's robot, as the engine calls it at the
+    scene's efforts, damping and locks: (core, the arguments of `rates` after the state, a
+    function (q, u) → the state with zero integrals)."""
+    effects = effect_settings(scene)
+    dyn = Dynamics(scene.robot, **effects.dynamics_options())
+    core, nu = dyn.core, scene.robot.n_u
+    Q = np.concatenate([dyn.wheel_forces(*scene.wheel_efforts), scene.joint_efforts])
+    damping = effects.generalized_damping(scene.robot.base)
+    moving = np.ones(nu)
+    moving[list(effects.locked)] = 0.0
+    args = (Q, np.empty(0) if damping is None else damping, moving, float(dyn.gravity))
+
+    def state(q, u):
+        return np.concatenate([q, u, np.zeros(core.state_size - len(q) - len(u))])
+    return core, args, state
 
 
 def per_evaluation(progress, quick: bool = False) -> dict:
@@ -36,12 +54,9 @@ def per_evaluation(progress, quick: bool = False) -> dict:
     rng = np.random.default_rng(6)
     q = np.array(scene.initial_q)
     u = rng.normal(size=scene.robot.n_u)
-    sim = Simulation(scene)
-    Q = sim.system.Q_cmd.copy()
+    core, (Q, damping, moving, g), state = rates_inputs(scene)
+    s = state(q, u)
     target = 0.02 if quick else 0.1
-    nu = scene.robot.n_u
-    s = sim.system.state(q, u)
-    ds = np.empty_like(s)
     out = {
         "Pinocchio: crba + rnea + projection + solve, from Python":
             loops.per_python_call(peer.forward_dynamics, q, u, Q, target=target),
@@ -50,12 +65,16 @@ def per_evaluation(progress, quick: bool = False) -> dict:
         "ours: Dynamics.forward_dynamics (frames + articulated), from Python":
             loops.per_python_call(dyn.forward_dynamics, q, u, Q, target=target),
         "ours: frames + articulated forward dynamics, compiled loop":
-            loops.per_call(loops.forward_dynamics_articulated, dyn.model_record, q, u, Q,
-                           dyn.gravity, np.arange(nu), dyn.ws, np.zeros(nu), target=target),
-        "ours: engine right-hand side (System.derivative), from Python":
-            loops.per_python_call(sim.system.derivative, s, target=target),
+            loops.per_call(lambda calls: dyn.core.time_forward_dynamics(
+                q, u, Q, dyn.gravity, moving, calls), target=target),
+        "ours: engine right-hand side (the core's rates), from Python":
+            loops.per_python_call(core.rates, s, Q, damping, moving, g, target=target),
         "ours: engine right-hand side, compiled loop":
-            loops.per_call(loops.engine_derivative, sim.system.data, s, ds, target=target),
+            loops.per_call(lambda calls: core.time_rates(s, Q, damping, moving, g, calls),
+                           target=target),
+        "ours: one rk4 step of 1 ms (four right-hand sides), compiled loop":
+            loops.per_call(lambda calls: core.time_step("rk4", s, 1e-3, Q, damping, moving, g,
+                                                        calls), target=target),
     }
     agree = peers.agreement(dyn, peer, rng)
     progress("per evaluation: " + ", ".join(f"{v * 1e6:.2f} µs" for v in out.values()))
@@ -80,8 +99,7 @@ def whole_run(progress, quick: bool = False) -> dict:
     reference = simulate(scene, make_integrator(scene.integrator, "dop853", rtol=1e-13, atol=1e-14))
     ref = reference.samples
     times = np.array(list(sample_times(duration, 100.0)))
-    sim = Simulation(scene)
-    Q = sim.system.Q_cmd.copy()
+    core, (Q, damping, moving, g), state = rates_inputs(scene)
     peer = peers.ProjectedPinocchio(scene.robot, scene.effects.gravity,
                                     wheel_inertia=scene.effects.wheel_inertia)
     nq = scene.robot.n_q
@@ -94,11 +112,10 @@ def whole_run(progress, quick: bool = False) -> dict:
 
     rows = {"Pinocchio + SciPy DOP853": [], "ours + SciPy DOP853": [], "ours, Simulation": []}
     f_peer = peer.rhs(Q)
-    derivative = sim.system.derivative
-    s0 = sim.system.state(scene.initial_q, scene.initial_u)
+    s0 = state(np.array(scene.initial_q, dtype=float), np.array(scene.initial_u, dtype=float))
 
     def f_ours(_t, y):
-        return derivative(y)
+        return core.rates(y, Q, damping, moving, g)
 
     rtols = PEER_RTOLS[::2] if quick else PEER_RTOLS
     for rtol in rtols:

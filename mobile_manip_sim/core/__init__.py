@@ -13,7 +13,8 @@ simulation's own arrays (`engine/core_stepping.py` builds it); `LaneSet` advance
 of a batch's fixed-step lanes together, over threads, their plain steps in vector blocks
 (`batch/runs.py`). The sources are in
 ``include/mms/`` (the kernels) and ``src/bindings.cpp``; `build_info` says how
-this copy was compiled (flags, vector width).
+this copy was compiled (flags, vector width); `vocabulary` names the indices, sizes and
+constants of the arrays the engine hands the core (their one owner is the C++ source).
 """
 from __future__ import annotations
 
@@ -26,8 +27,13 @@ try:
         LaneSet,
         Stepper,
         WheelLoop,
+        arm_reference,
         build_info,
         multiply_add,
+        solve_contacts,
+        time_multiply_add,
+        vocabulary,
+        zeno_guard,
     )
 except ImportError as error:  # the extension was never built (or built for another Python)
     raise ImportError(
@@ -35,8 +41,10 @@ except ImportError as error:  # the extension was never built (or built for anot
         "`colcon build`), which needs a C++20 compiler (g++ ≥ 10), CMake ≥ 3.18 and nanobind "
         f"({error})") from error
 
-__all__ = ["BaseParameters", "Dynamics", "LaneSet", "Stepper", "WheelLoop", "build_info",
-           "compiled_dynamics", "multiply_add"]
+__all__ = ["BaseParameters", "Dynamics", "LaneSet", "Stepper", "WheelLoop", "arm_reference",
+           "build_info",
+           "compiled_dynamics", "multiply_add", "solve_contacts", "time_multiply_add", "vocabulary",
+           "zeno_guard"]
 
 
 def compiled_dynamics(robot, tip_mass: float = 0.0, wheel_inertia: bool = True) -> Dynamics:

@@ -1,8 +1,7 @@
 """The dynamics core: no ROS, no I/O. Model + state → forces, accelerations, energy, kinematics.
 
-`Dynamics` answers from the compiled core (`mobile_manip_sim.core`, C++ generic in its scalar);
-its numba records (`model_record`, `ws`) still serve the engine's kernels until they are ported
-too; both compute the same numbers bit for bit (test/core).
+`Dynamics` answers from the compiled core (`mobile_manip_sim.core`, C++ generic in its scalar):
+this module only checks and converts arrays and names the calls.
 
     from mobile_manip_sim.dynamics import Dynamics
     dyn = Dynamics(model, gravity=10.0)
@@ -22,8 +21,6 @@ import numpy as np
 from ..core import compiled_dynamics
 from ..scene.coordinates import WHEEL_L, WHEEL_R, YAW, X, Y
 from ..scene.model import RobotModel
-from . import kernels
-from .records import make_model, make_workspace
 
 
 class Dynamics:
@@ -37,15 +34,10 @@ class Dynamics:
                  wheel_inertia: bool = True):
         self.model = model
         self.gravity = float(gravity)
-        self.model_record = make_model(model, tip_mass, wheel_inertia)   # the numba kernels'
         self.tip_mass, self.wheel_inertia = float(tip_mass), bool(wheel_inertia)
         self._core = None
-        n, nu = model.n_links, model.n_u
-        self.ws = make_workspace(n)
-        self._zeros = np.zeros(nu)
-        self._cholesky = np.zeros((nu, nu))
-        self._all = np.arange(nu)
-        self._moving = np.ones(nu)
+        self._zeros = np.zeros(model.n_u)
+        self._moving = np.ones(model.n_u)
 
     @property
     def core(self):
@@ -57,10 +49,7 @@ class Dynamics:
 
     def for_lane(self, robot: RobotModel) -> None:
         """Make a copy of a template's dynamics a batch lane's own: the lane's robot (the same
-        but for the masses per length, written into the numba record) and a compiled core of its
-        own, built when first used."""
-        if robot is not self.model:
-            self.model_record.mu[:] = robot.mass_per_length
+        but for the masses per length) and a compiled core of its own, built when first used."""
         self.model = robot
         self._core = None
 
@@ -85,12 +74,11 @@ class Dynamics:
                                           moving)
 
     def forward_dynamics_by_cholesky(self, q, u, Q) -> np.ndarray:
-        """The same u̇ from the mass matrix and the bias: M(q)⁻¹ (Q − h(q, u)), by Cholesky."""
-        M = self.mass_matrix(q)
+        """The same u̇ from the mass matrix and the bias: M(q)⁻¹ (Q − h(q, u)), by Cholesky
+        (NumPy's factor, two triangular solves): an independent path to the recursion's."""
+        L = np.linalg.cholesky(self.mass_matrix(q))
         rhs = np.asarray(Q, dtype=float) - self.bias(q, u)
-        ud = np.empty(self.model.n_u)
-        kernels.cholesky_solve(M, rhs, self._all, len(self._all), self._cholesky, ud)
-        return ud
+        return np.linalg.solve(L.T, np.linalg.solve(L, rhs))
 
     def energy(self, q, u) -> tuple[float, float]:
         """(T, V) in J: kinetic energy from the velocities, potential g Σ μ ∫ z dη."""

@@ -108,8 +108,7 @@ class ArmCommands:
     def _set_reference(self, starts, coeffs) -> None:
         data = self.system.data
         self.system.set_reference(starts, coeffs)
-        if self.system.data is not data:   # the record grew: the compiled calls take the new one
-            self._rebind_system()
+        if self.system.data is not data:   # the record grew: the stepper takes the new arrays
             self._reference_arrays_changed()
         self.s[layout.reference_clock(self.nq, self.nu)] = 0.0
         self._command_changed()

@@ -24,7 +24,8 @@ whole turns towards the first point (`wrapped_start`, jtc's ``wraparound_joint``
 errors are the shortest angle (`shortest_angle`, angles::shortest_angular_distance): a
 trajectory from 3.0 rad to −3.0 rad turns +0.28 rad, not −6.
 
-`reference` evaluates it (compiled, called at every right-hand side); the builders are numpy.
+The compiled core evaluates it (core/include/mms/arm_control.hpp, at every right-hand side, or
+at each update when sampled; `Simulation.arm_reference` reads it); the builders here are numpy.
 """
 from __future__ import annotations
 
@@ -32,46 +33,20 @@ import math
 
 import numpy as np
 
-from ..dynamics.jit import jit_inline
+from ..core import vocabulary
 
-DEGREE = 5
-N_COEFFS = DEGREE + 1
+# the layout the core evaluates (core/include/mms/arm_control.hpp `reference`)
+N_COEFFS = vocabulary["REF_COEFFS"]
+DEGREE = N_COEFFS - 1
 # coeffs[i, j, ...] after the polynomial's: constants added to q̇_ref and q̈_ref (a held point)
-HELD_QD, HELD_QDD = N_COEFFS, N_COEFFS + 1
-WIDTH = N_COEFFS + 2
+HELD_QD, HELD_QDD = vocabulary["HELD_QD"], vocabulary["HELD_QDD"]
+WIDTH = vocabulary["REF_WIDTH"]
 TURN = 2.0 * math.pi
 # jtc's wraparound_joint: a start exactly half a turn from the first point (within this, rad)
 # keeps the direction of the plain difference
 HALF_TURN_TOLERANCE = 1e-9
-# rows of the evaluated reference (`reference`)
+# rows of the evaluated reference (`Simulation.arm_reference`)
 Q_REF, QD_REF, QDD_REF = 0, 1, 2
-
-
-@jit_inline
-def reference(starts, coeffs, count, tau, out, hint):
-    """q_ref, q̇_ref, q̈_ref at clock τ into out[Q_REF], out[QD_REF], out[QDD_REF] (n_arm each):
-    the last of the first `count` segments that has started, found by walking from segment
-    `hint` (the one of the previous evaluation: the stages of a step are close), Horner's rule.
-    Returns that segment's index (the next hint); the result does not depend on the hint."""
-    lo = hint if 0 <= hint < count else 0
-    while lo + 1 < count and starts[lo + 1] <= tau:
-        lo += 1
-    while lo > 0 and starts[lo] > tau:
-        lo -= 1
-    t = tau - starts[lo]
-    for j in range(coeffs.shape[1]):
-        c = coeffs[lo, j]
-        p = c[5]
-        v = 5.0 * c[5]
-        a = 20.0 * c[5]
-        for k in range(4, -1, -1):
-            p = p * t + c[k]
-            if k >= 1:
-                v = v * t + k * c[k]
-            if k >= 2:
-                a = a * t + k * (k - 1) * c[k]
-        out[Q_REF, j], out[QD_REF, j], out[QDD_REF, j] = p, v + c[HELD_QD], a + c[HELD_QDD]
-    return lo
 
 
 def is_continuous(j):
@@ -88,12 +63,6 @@ def shortest_angle(start, end):
         return d
     r = np.fmod(d + math.pi, 2.0 * math.pi)   # angles::normalize_angle (C fmod)
     return r + math.pi if r <= 0.0 else r - math.pi
-
-
-# Their compiled twins, inlined into the controller's law; Python calls the plain functions, so
-# nothing is compiled outside the kernels the warm-up compiles.
-is_continuous_jit = jit_inline(is_continuous)
-shortest_angle_jit = jit_inline(shortest_angle)
 
 
 def position_errors(desired, actual) -> np.ndarray:

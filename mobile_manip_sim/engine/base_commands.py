@@ -1,5 +1,5 @@
 """The base's velocity interface of `Simulation`: cmd_vel through the wheel-speed PI loop inside
-the simulated system (`system.wheel_speed_torques`), its gains, the torques acting; and the
+the simulated system (`System.wheel_speed_torques`), its gains, the torques acting; and the
 checks every effort or velocity command goes through (`command`, `finite_forces`).
 """
 from __future__ import annotations
@@ -18,7 +18,6 @@ from .system import (
     WHEEL_TARGET_L,
     WHEEL_TARGET_R,
     WHEEL_VELOCITY_MODE,
-    wheel_speed_torques,
 )
 
 
@@ -30,9 +29,9 @@ class BaseCommands:
         """Drive the base at forward speed v (m/s) and yaw rate ω (rad/s) from now on: the wheel
         torques come from the wheel-speed PI loop (`set_wheel_speed_gains`) inside the simulated
         system, recomputed at every evaluation of the right-hand side and clipped to each wheel's
-        own effort limit, its integral held while that wheel is saturated
-        (`system.wheel_drive`). `set_efforts(wheels=...)` returns the wheels to torque
-        commands."""
+        own effort limit, its integral back-calculated while that wheel is saturated
+        (core/include/mms/system.hpp `wheel_drive`). `set_efforts(wheels=...)` returns the wheels
+        to torque commands."""
         target = command([v, omega], 2, "cmd_vel")
         r, b = self.model.base.wheel_radius, self.model.base.half_track
         control = self.system.control
@@ -81,7 +80,7 @@ class BaseCommands:
             return np.array(self.wheel_efforts, dtype=float)
         if self.system.data.rate > 0.0:
             return self.system.held[:2].copy()
-        return np.array(wheel_speed_torques(self.system.data, self.s))
+        return np.array(self.system.wheel_speed_torques(self.s))
 
     @property
     def velocity_mode(self) -> bool:

@@ -1,4 +1,4 @@
-"""How dop853's stage-only continuous extension (`runge_kutta.dense_from_stages`) is derived:
+"""How dop853's stage-only continuous extension (the core's `dense_from_stages`) is derived:
 the order conditions of a continuous Runge–Kutta extension (Hairer–Nørsett–Wanner I, §II.2 rooted
 trees, §II.6 dense output), solved for the weights of the 13 stages a step already has.
 

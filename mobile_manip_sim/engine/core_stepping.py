@@ -8,22 +8,15 @@ SciPy's radau and bdf hand in) on a simulation's own arrays — its system recor
 It runs euler, semi-implicit Euler, rk4, rk45 and dop853 in effort mode, under wheel-speed
 commands and with the arm driven by its controller (every mode and feed-forward, model error
 included; core/include/mms/arm_control.hpp), the controllers continuous or sampled
-(`sampling.py`), events, impacts, rests, releases, the Zeno guard and the crawl limits included;
+(stepping.hpp), events, impacts, rests, releases, the Zeno guard and the crawl limits included;
 for SciPy's radau and bdf it takes each step SciPy makes into its step in hand and does all the
-rest (`scipy_steps.py`). It equals the numba kernels of `stepping.py`, `adaptive_stepping.py`,
-`arm_control.py` and `sampling.py` bit for bit (test/core/test_core_stepping.py,
-test/core/test_core_arm.py); ``MOBILE_MANIP_SIM_CORE=numba`` takes the numba kernels for every
-run (the reference while both exist).
+rest (`scipy_steps.py`).
 """
 from __future__ import annotations
-
-import os
 
 import numpy as np
 
 from ..core import Stepper
-
-CORE = os.environ.get("MOBILE_MANIP_SIM_CORE", "cpp")
 
 
 def compiled_stepper(dynamics, method: str, system, stops, scratch, solve=None) -> Stepper:

@@ -1,6 +1,7 @@
-"""The end stops' impact log: one row per rod hit (columns LOG_*), written by the compiled impact
-(`stops.impact`) into `stops.StopsData.log`, and read from Python after each compiled call
-(`collect`) into the `Impact` records that runs and bags report, with their `ImpactDetail`."""
+"""The end stops' impact log: one row per rod hit (columns LOG_*, the core's: core/include/mms/
+run.hpp `LogColumn`), written by the compiled impact into `stops.StopsData.log`, and read from
+Python after each compiled call (`collect`) into the `Impact` records that runs and bags report,
+with their `ImpactDetail`."""
 from __future__ import annotations
 
 from collections import namedtuple
@@ -8,10 +9,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..core import vocabulary
+
 # log[i, ...] columns
 (LOG_TIME, LOG_LINK, LOG_SIDE, LOG_LD_BEFORE, LOG_LD_AFTER, LOG_LOST, LOG_RESTING,
- LOG_HELD, LOG_HOLD_LOST, LOG_HOLD_BOUND) = range(10)
-LOG_COLUMNS = 10
+ LOG_HELD, LOG_HOLD_LOST, LOG_HOLD_BOUND, LOG_COLUMNS) = (vocabulary[name] for name in (
+    "LOG_TIME", "LOG_LINK", "LOG_SIDE", "LOG_LD_BEFORE", "LOG_LD_AFTER", "LOG_LOST",
+    "LOG_RESTING", "LOG_HELD", "LOG_HOLD_LOST", "LOG_HOLD_BOUND", "LOG_COLUMNS"))
 
 ImpactDetail = namedtuple("ImpactDetail", "q u_before u_after free held")
 

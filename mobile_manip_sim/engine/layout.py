@@ -6,42 +6,31 @@ controller's error integrals, ``W`` the work of efforts and dissipation. Rods ar
 (k = 1 … n) as in docs/model.md.
 
 Where each coordinate sits in q and in u is `coordinates.py`'s (the one owner); its index
-functions, compiled (`dynamics/indices.py`), are re-exported here for the compiled cores, so an
-index of q is its index in s and an index j of u is ``n_q + j`` in s. This module owns the rest.
+functions are re-exported here, so an index of q is its index in s and an index j of u is
+``n_q + j`` in s. This module owns the rest (the C++ core's `layout` in core/include/mms/
+system.hpp reads s in the same layout).
 """
-from ..dynamics import indices
-from ..dynamics.indices import q_slide as q_slide
-from ..dynamics.indices import q_turn as q_turn
-from ..dynamics.indices import u_slide as u_slide
-from ..dynamics.indices import u_turn as u_turn
-from ..dynamics.jit import jit_inline
+from ..scene import coordinates
+from ..scene.coordinates import q_slide as q_slide
+from ..scene.coordinates import q_turn as q_turn
+from ..scene.coordinates import u_slide as u_slide
+from ..scene.coordinates import u_turn as u_turn
 
 
-@jit_inline
-def sizes(system):
-    """(n_q, n_u) of a system record."""
-    nu = system.Q_cmd.shape[0]
-    return nu + 3, nu
-
-
-@jit_inline
 def state_size(nu):
     return 2 * nu + 6
 
 
-@jit_inline
 def ld(nq, k):
     """Index of l̇_k in s."""
     return nq + u_slide(k)
 
 
-@jit_inline
 def controller(nq, nu):
     """Index of e_R in s (e_L follows)."""
     return nq + nu
 
 
-@jit_inline
 def work(nq, nu):
     """Index of W in s."""
     return nq + nu + 2
@@ -51,31 +40,21 @@ def work(nq, nu):
 # driven by a controller (not in effort mode): z_1 … z_{n_arm}, the PID's error integrals
 # (rad·s or m·s, n_arm = n_u − 2), then τ, the reference clock (s since the last arm command).
 
-@jit_inline
 def arm_integrals(nq, nu):
     """Index of z_1 in s (z_2 … z_{n_arm} follow)."""
     return nq + nu + 3
 
 
-@jit_inline
 def reference_clock(nq, nu):
     """Index of τ, the arm reference's clock, in s (the last entry)."""
-    return arm_integrals(nq, nu) + indices.arm_width(nu)
+    return arm_integrals(nq, nu) + coordinates.arm_width(nu)
 
 
-@jit_inline
 def arm_state_size(nu):
     """Entries the arm controller adds to s: n_arm integrals and the clock."""
-    return indices.arm_width(nu) + 1
+    return coordinates.arm_width(nu) + 1
 
 
-@jit_inline
 def arm_q(j):
     """Index in s (and q) of arm joint j = 0 … n_arm − 1 (q_1, l_1, q_2, …)."""
     return q_turn(1) + j
-
-
-@jit_inline
-def arm_u(nq, j):
-    """Index in s of arm joint j's rate (q̇_1, l̇_1, …); in u it is `arm_u(j)`."""
-    return nq + indices.arm_u(j)

@@ -1,7 +1,7 @@
 """The sampled controllers as `Simulation` drives them from Python (a mixin): the rate, whether
 one drives now, the instant of the next update, its preview at a reset, the update between
-SciPy's steps (the compiled cores apply the others on the way, `sampling.py`), and where the
-updates resume when a controller starts driving.
+SciPy's steps (the compiled stepper applies the others on the way, core/include/mms/
+stepping.hpp), and where the updates resume when a controller starts driving.
 """
 from __future__ import annotations
 
@@ -33,7 +33,8 @@ class SampledControllers:
         self._sampled_update(self.s.copy())
 
     def _update_controllers(self) -> None:
-        """The sampled controllers' update due now (`sampling.update_at_instant`)."""
+        """The sampled controllers' update due now (core/include/mms/stepping.hpp
+        `update_controllers`)."""
         self._clock[stepping.CLOCK_UPDATES] += 1.0
         failed = self._sampled_update(self.s)
         self._restart()
@@ -47,7 +48,7 @@ class SampledControllers:
 
     @property
     def next_update(self) -> float:
-        """The instant (s) of the sampled controllers' next update (`sampling.next_update`);
+        """The instant (s) of the sampled controllers' next update (stepping.hpp `next_update`);
         inf when continuous or when none drives."""
         return (self._clock[stepping.CLOCK_UPDATES] / self.system.data.rate
                 if self.controllers_sampled else math.inf)

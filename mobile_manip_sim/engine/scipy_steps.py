@@ -1,9 +1,8 @@
 """radau and bdf: SciPy's solver stepped from Python, one step at a time, into the adaptive
 core's step in hand — everything else is the core's (`reach`, `locate_event`: samples, events,
-the Zeno guard, restarts), on the solver's interpolant as a power series (`dense.from_scipy`).
+the Zeno guard, restarts), on the solver's interpolant as a power series (`power_series`).
 The core is the compiled C++ stepper (`core_stepping.py`; SciPy's right-hand side is its counted,
-watched `derivative`), or the numba kernels on `adaptive_stepping.Solve` (`NumbaSteps`, the
-reference while both exist). A mixin of `Simulation`, whose state it steps."""
+watched `derivative`). A mixin of `Simulation`, whose state it steps."""
 from __future__ import annotations
 
 import math
@@ -11,7 +10,7 @@ import math
 import numpy as np
 
 from ..scene.methods import METHODS
-from . import adaptive_stepping, dense, step_watch, stepping
+from . import step_watch, stepping
 from .system import HOLDING_LEAST_MARGIN
 
 SCIPY_MIN_RTOL = 100 * np.finfo(float).eps   # SciPy's own floor; passed as is, it warns on stderr
@@ -23,58 +22,37 @@ def scipy_solver(method: str):
     return getattr(integrate, METHODS[method].stepper.split(":")[1])
 
 
-class NumbaSteps:
-    """The calls of the compiled stepper that SciPy's steps use (`core.Stepper`), made by the
-    numba kernels on a simulation's `adaptive_stepping.Solve`; leaves with numba."""
+def power_series(dense_output) -> np.ndarray:
+    """A SciPy Radau or BDF solver's last step (`solver.dense_output()`) as the power series the
+    core evaluates: rows c_j of y(θ) = y₀ + Σ_j c_j θ^(j+1), θ = (t − t₀)/h in the step.
 
-    def __init__(self, sim):
-        self.sim, self.solve = sim, sim._solve
-
-    def step_in_hand(self) -> tuple[float, float]:
-        return adaptive_stepping.step_in_hand(self.solve)
-
-    def next_step(self) -> float:
-        return adaptive_stepping.next_step(self.solve)
-
-    def drop_step(self) -> None:
-        adaptive_stepping.drop_step(self.solve)
-
-    def begin_step(self, t0: float, y0) -> None:
-        adaptive_stepping.begin_step(self.solve, t0, y0)
-
-    def hand_in_step(self, h: float, y1, series) -> None:
-        adaptive_stepping.hand_in_step(self.solve, h, y1, series)
-
-    def step_end_derivative(self) -> None:
-        solve = self.solve
-        adaptive_stepping.set_step_end_derivative(
-            solve, self.sim.system.derivative(adaptive_stepping.step_end(solve)))
-
-    def locate_event(self) -> None:
-        self.sim._locate_event(*self.sim._core_args)
-
-    def reach(self, s, clock, t_end: float) -> bool:
-        return self.sim._reach(*self.sim._core_args, s, clock, t_end)
-
-    def watch_step(self, t_before: float, h: float) -> bool:
-        return self.sim._watch_step(self.solve.watch, t_before, h)
-
-    def derivative(self, s):
-        return self.sim.system.derivative(s)
+    Radau: y = y₀ + Q·(x, x², x³) with x = θ already (`RadauDenseOutput`). BDF: the Newton form
+    y = D₀ + Σ_k D_k Π_{i<k} (t − (t₁ − i h_B)) / ((i + 1) h_B) (`BdfDenseOutput`, h_B its own
+    step), expanded in θ with t = t₀ + θ h; its constant term is y₀ up to round-off and is
+    dropped, so that the series starts exactly at the step's start state.
+    """
+    from numpy.polynomial import polynomial  # here: bdf's alone (0.1 s of every start)
+    h = dense_output.t - dense_output.t_old
+    if hasattr(dense_output, "Q"):
+        return np.ascontiguousarray(dense_output.Q.T)
+    order, D = dense_output.order, dense_output.D
+    series = np.zeros((order + 1, D.shape[1]))
+    factor = np.array([1.0])   # Π so far, as a polynomial in θ (lowest power first)
+    for k in range(1, order + 1):
+        shift = dense_output.t_shift[k - 1] - dense_output.t_old   # t₁ − (k−1) h_B − t₀
+        factor = polynomial.polymul(factor, np.array([-shift, h]) / dense_output.denom[k - 1])
+        series[:factor.size] += np.outer(factor, D[k])
+    return np.ascontiguousarray(series[1:])
 
 
 class ScipySteps:
     """A SciPy solver kept across samples until a discontinuity (a new solve at (t, s))."""
 
-    def _scipy_core(self):
-        """The core around SciPy's steps: the compiled stepper, or the numba kernels."""
-        return self._stepper if self._stepper is not None else NumbaSteps(self)
-
     def _advance_scipy(self, t_end: float) -> None:
         """Step SciPy's solver from Python; everything else is the core's (`reach`,
         `locate_event`: samples, events, the Zeno guard, restarts), on the solver's interpolant
-        as a power series (`dense.from_scipy`)."""
-        core = self._scipy_core()
+        as a power series (`power_series`)."""
+        core = self._stepper
         while not core.reach(self.s, self._clock, t_end):
             self._collect_impacts()
             if self.stops.failed[0]:
@@ -98,7 +76,7 @@ class ScipySteps:
         self._clock[stepping.CLOCK_STEPS] += 1
         if not np.all(np.isfinite(solver.y)):
             self._fail(solver.y)
-        series = dense.from_scipy(solver.dense_output()).coeffs
+        series = power_series(solver.dense_output())
         core.hand_in_step(solver.t - t_before, solver.y, series)
         if self.resting.any():   # the release check needs f(y₁) evaluated (and watched)
             core.step_end_derivative()

@@ -21,7 +21,6 @@ import warnings
 import numpy as np
 
 from ..dynamics import Dynamics
-from ..dynamics.jit import Bound
 from ..scene.arm_controller import ArmController
 from ..scene.controller import control_rate as control_rate_of
 from ..scene.controller import outside_stroke
@@ -32,8 +31,8 @@ from ..scene.errors import StepLimitError as StepLimitError
 from ..scene.errors import UserError
 from ..scene.limits import ANGLE, SPEED
 from ..scene.loading import IntegratorSettings, Scene
-from ..scene.methods import COMPILED_STEPPERS, IDS, METHODS
-from . import adaptive_stepping, dense, layout, linearization, sampling, step_watch, stepping
+from ..scene.methods import METHODS
+from . import adaptive_stepping, layout, linearization, step_watch, stepping
 from . import status as status_codes
 from .arm_commands import ArmCommands
 from .arm_control import arm_settings, feedforward_masses, for_robot, scene_arm_controller
@@ -42,11 +41,8 @@ from .core_calls import CoreCalls
 from .impact_log import Impact, ImpactDetail, collect
 from .sampled_controllers import SampledControllers, checked_control_rate
 from .scipy_steps import ScipySteps
-from .stops import make_impact_scratch, make_stops
+from .stops import make_stops
 from .system import RHS_EVALS, WHEEL_VELOCITY_MODE, System
-
-# The compiled core of each `Method.stepper` (SciPy's solvers have none: stepped from Python).
-CORES = dict(zip(COMPILED_STEPPERS, (stepping, adaptive_stepping), strict=True))
 
 # semi-implicit Euler is symplectic between impacts only (bench/REPORT.md, "elastic drift")
 ELASTIC_SEMI_IMPLICIT = ("semi_implicit_euler with end stops that rebound (restitution > 0): its "
@@ -68,8 +64,8 @@ class Simulation(ArmCommands, BaseCommands, ScipySteps, CoreCalls, SampledContro
                  arm_controller: ArmController | None = None, control_rate: float | None = None):
         """`arm_controller`: how the arm is driven; None takes the scene's ``controller:``
         section (and its command at t = 0), or effort mode when the scene has none.
-        `control_rate`: the controllers' update rate (Hz; 0: continuous, `sampling.py`); None
-        takes the scene's ``controller.rate``."""
+        `control_rate`: the controllers' update rate (Hz; 0: continuous; core/include/mms/
+        stepping.hpp); None takes the scene's ``controller.rate``."""
         self.scene = scene
         self.settings = integrator or scene.integrator
         model = scene.robot
@@ -83,10 +79,9 @@ class Simulation(ArmCommands, BaseCommands, ScipySteps, CoreCalls, SampledContro
                if self.arm_controller.active else None)
         self.control_rate = checked_control_rate(
             control_rate_of(scene.controller) if control_rate is None else control_rate)
+        ff_masses = feedforward_masses(self.dynamics, self.arm_controller.model_error)
         self.system = System(self.dynamics, effects.generalized_damping(model.base), effects.locked,
-                             arm, feedforward_masses(self.dynamics.model_record,
-                                                     self.arm_controller.model_error),
-                             self.control_rate)
+                             arm, ff_masses, self.control_rate)
         self.sampled = self.control_rate > 0.0
         self.nq, self.nu = model.n_q, model.n_u
         self.stop_law = effects.stop_law
@@ -98,48 +93,28 @@ class Simulation(ArmCommands, BaseCommands, ScipySteps, CoreCalls, SampledContro
         self.watched, self.resting = self.stops.watched, self.stops.resting
         self.stroke = self.stops.stroke
         size = self.system.state(model.n_q * [0.0], self.nu * [0.0]).size
-        self._scratch = stepping.make_scratch(size, model.n_links,
-                                              make_impact_scratch(self.nu, model.n_links))
+        self._scratch = stepping.make_scratch(size, model.n_links)
         self._clock = np.zeros(stepping.CLOCK_SIZE)
         self._clock[stepping.CLOCK_DT] = self.settings.dt
-        # The compiled core that runs the method (stepping.py, adaptive_stepping.py; None: SciPy's
-        # radau/bdf, stepped from Python) and its leading arguments. Steps per compiled call:
-        # about 20 ms of work, so signals, pause and reset act promptly (an adaptive step costs
-        # about four fixed ones).
+        # Whether the compiled stepper takes the method's steps itself (SciPy's radau and bdf: no,
+        # stepped from Python and handed in, `scipy_steps.py`). Steps per compiled call: about
+        # 20 ms of work, so signals, pause and reset act promptly (an adaptive step costs about
+        # four fixed ones).
         budget = max(1, int(40_000 / (model.n_links + 2)))
         method = METHODS[self.settings.method]
-        self._core = CORES.get(method.stepper)
+        self._compiled_steps = method.compiled
         self._solve = None
         self._stepper = None   # made by `reset` (`_compiled_stepper`)
         if method.fixed_step:
             self._step_budget = budget
         else:
-            self._solve = adaptive_stepping.make_solve(size, self.settings.rtol, self.settings.atol)
+            self._solve = adaptive_stepping.make_solve(self.settings.rtol, self.settings.atol)
             self._step_budget = max(1, budget // 4)
-        self._rebind_system()
-        # the compiled calls of every sample, bound to this simulation's argument types
-        self._advance = Bound(self._core.advance) if self._core else None
-        self._advance_samples = Bound(self._core.advance_samples) if self._core else None
-        self._total_energy = Bound(stepping.total_energy)
-        self._inside_step = Bound(adaptive_stepping.inside_step)
-        self._reach = Bound(adaptive_stepping.reach)
-        self._locate_event = Bound(adaptive_stepping.locate_event)
-        self._watch_step = Bound(step_watch.watch_step)
-        self._update = Bound(sampling.update_at_instant)
         self.set_wheel_speed_gains(*DEFAULT_WHEEL_SPEED_GAINS)
         # says, on one line, that a hold removed more than the Zeno guard's bound (the node
         # replaces it by its logger's warning)
         self.hold_warning = hold_warning
         self.reset()
-
-    def _rebind_system(self) -> None:
-        """The compiled cores' leading arguments, with the system record in force."""
-        method = METHODS[self.settings.method]
-        if method.fixed_step:
-            self._core_args = (IDS[method.name], self.system.data, self.stops, self._scratch)
-        else:   # the first argument is also the kind of the step's interpolant (`dense`)
-            kind = IDS[method.name] if self._core else dense.POWER
-            self._core_args = (kind, self.system.data, self.stops, self._scratch, self._solve)
 
     # --- state ---------------------------------------------------------------------------
     def reset(self) -> None:
@@ -266,9 +241,7 @@ class Simulation(ArmCommands, BaseCommands, ScipySteps, CoreCalls, SampledContro
         return float(self.s[layout.work(self.nq, self.nu)])
 
     def total_energy(self) -> float:
-        if self._stepper is not None:
-            return self._stepper.total_energy(self.s)
-        return float(self._total_energy(self.system.data, self.s))
+        return self._stepper.total_energy(self.s)
 
     def energy_error(self) -> float:
         """(T + V)(t) − (T + V)(0) − W(t) + the impact law's losses: zero for exact physics (J).
@@ -283,8 +256,7 @@ class Simulation(ArmCommands, BaseCommands, ScipySteps, CoreCalls, SampledContro
         efforts held and the rods at rest locked (the IMU's source). Not counted among the
         evaluations, and it leaves the run untouched (its scratch is rewritten by every step)."""
         counters = self.system.counters.copy()
-        ds = (self._stepper.derivative(self.s) if self._stepper is not None
-              else self.system.derivative(self.s))
+        ds = self._stepper.derivative(self.s)
         self.system.counters[:] = counters
         return ds[self.nq:self.nq + self.nu]
 
@@ -342,11 +314,8 @@ class Simulation(ArmCommands, BaseCommands, ScipySteps, CoreCalls, SampledContro
         """Integrate from the current time to exactly t_end (s)."""
         if t_end < self.t:
             raise UserError("t_end", f"{t_end} is before the current time {self.t}")
-        t_end = float(t_end)   # the bound calls take the types of their first call
-        if (self._stepper is None and self._solve is not None and t_end < self.next_update
-                and self._inside_step(self._core_args[0], self._solve, self.s, self._clock, t_end)):
-            return   # most targets of an adaptive run: inside the step in hand, interpolated
-        if self._core is None:
+        t_end = float(t_end)
+        if not self._compiled_steps:
             while True:   # each update of sampled controllers due before t_end on the way
                 t_update = self.next_update   # (one due at t_end: the next call's first act)
                 self._advance_scipy(min(t_end, t_update))
@@ -354,11 +323,7 @@ class Simulation(ArmCommands, BaseCommands, ScipySteps, CoreCalls, SampledContro
                     return
                 self._update_controllers()
         while True:
-            if self._stepper is not None:
-                status = self._stepper.advance(self.s, self._clock, t_end, self._step_budget)
-            else:
-                status = self._advance(*self._core_args, self.s, self._clock, t_end,
-                                       self._step_budget)
+            status = self._stepper.advance(self.s, self._clock, t_end, self._step_budget)
             self._after_compiled(status)
             if status == status_codes.DONE:
                 return
@@ -370,19 +335,15 @@ class Simulation(ArmCommands, BaseCommands, ScipySteps, CoreCalls, SampledContro
         rows = np.empty((times.size, self.s.size + 1))
         if times.size and times[0] < self.t:
             raise UserError("t_end", f"{times[0]} is before the current time {self.t}")
-        if self._core is None:
+        if not self._compiled_steps:
             for i, t in enumerate(times):
                 self.advance_to(t)
                 rows[i, :-1], rows[i, -1] = self.s, self.total_energy()
             return rows
         i = 0
         while i < times.size:
-            if self._stepper is not None:
-                status, i = self._stepper.advance_samples(self.s, self._clock, times, rows, i,
-                                                          self._step_budget)
-            else:
-                status, i = self._advance_samples(*self._core_args, self.s, self._clock, times,
-                                                  rows, i, self._step_budget)
+            status, i = self._stepper.advance_samples(self.s, self._clock, times, rows, i,
+                                                      self._step_budget)
             self._after_compiled(status)
         return rows
 
@@ -394,8 +355,7 @@ class Simulation(ArmCommands, BaseCommands, ScipySteps, CoreCalls, SampledContro
             t_before, h = self._step_in_hand()
             self._cannot_follow(t_before, step_watch.describe(self._solve.watch, t_before, h))
         if status == status_codes.STALLED:   # as SciPy's "step below the spacing of t"
-            h = (self._stepper.next_step() if self._stepper is not None
-                 else adaptive_stepping.next_step(self._solve))
+            h = self._stepper.next_step()
             self._cannot_follow(self.t, "a stage overflowed (its error estimate is NaN)"
                                 if math.isnan(h) else
                                 f"the step fell below 10 spacings of t (h = {h:.3g} s)")

@@ -1,14 +1,15 @@
-"""Why a compiled core's call returned: one vocabulary for the fixed-step core (`stepping.py`)
-and the adaptive one (`adaptive_stepping.py`), read by `Simulation` after every call.
+"""Why a call of the compiled stepper returned, read by `Simulation` after every call. The
+values are the core's (core/include/mms/run.hpp `Status`, `core.vocabulary`)."""
+from ..core import vocabulary
 
-Plain integers, so the compiled code returns them as is.
-"""
-
-DONE = 0         # reached the requested time (or the sample asked for)
-BUDGET = 1       # the call's step budget is spent: call again
-LOG_FULL = 2     # the impact log is full: collect it and call again
-NOT_FINITE = 3   # the state became NaN or infinite (a SimulationError)
-CHATTER = 4      # impacts without end within one step: the log's room ran out (last resort)
-STALLED = 5      # adaptive: the step fell below 10 spacings of t, or a stage overflowed
-CRAWLING = 6     # adaptive: the steps crawl (`step_watch`: which limit, and where)
-CONTACT_FAILED = 7   # an impact's or a release's contact solve found no answer
+DONE = vocabulary["DONE"]                # reached the requested time (or the sample asked for)
+BUDGET = vocabulary["BUDGET"]            # the call's step budget is spent: call again
+LOG_FULL = vocabulary["LOG_FULL"]        # the impact log is full: collect it and call again
+NOT_FINITE = vocabulary["NOT_FINITE"]    # the state became NaN or infinite (a SimulationError)
+CHATTER = vocabulary["CHATTER"]          # impacts without end within one step: the log's room ran
+                                         # out (last resort)
+STALLED = vocabulary["STALLED"]          # adaptive: the step fell below 10 spacings of t, or a
+                                         # stage overflowed
+CRAWLING = vocabulary["CRAWLING"]        # adaptive: the steps crawl (`step_watch`: which limit)
+CONTACT_FAILED = vocabulary["CONTACT_FAILED"]   # an impact's or a release's contact solve found
+                                                # no answer

@@ -12,10 +12,11 @@ that into an error (docs/errors.md, "Bad input"):
   average step of 2 µs (the hardest bundled scene, radau at rtol 1e-14, takes under 2000 steps
   per 10 ms).
 
-The compiled rk45/dop853 core (`adaptive_stepping.take_step`) and the SciPy-stepped radau/bdf
-(`Simulation._take_scipy_step`) count with the same `watch` on the same record, so every adaptive
-method crawls into the same one-line error (a 1e30 command after a reset had dop853 taking steps
-of 1e-19 s for ever).
+The compiled core counts (core/include/mms/adaptive_stepping.hpp `watch_step`, whose limits these
+are), for rk45 and dop853 and for the steps SciPy's radau and bdf hand in alike, on the run's own
+`watch`, so every adaptive method crawls into the same one-line error (a 1e30 command after a
+reset had dop853 taking steps of 1e-19 s for ever); this module makes the record and says which
+limit was crossed.
 """
 from __future__ import annotations
 
@@ -23,15 +24,16 @@ import math
 
 import numpy as np
 
-from ..dynamics.jit import jit
+from ..core import vocabulary
 
-STEP_FLOOR = 1e-12      # of max(1 s, t)
-FLOOR_STEPS = 50
-BUDGET_STEPS = 5_000
-BUDGET_SPAN = 0.01      # s of simulated time per BUDGET_STEPS steps
+STEP_FLOOR = vocabulary["STEP_FLOOR"]       # of max(1 s, t)
+FLOOR_STEPS = vocabulary["FLOOR_STEPS"]
+BUDGET_STEPS = vocabulary["BUDGET_STEPS"]
+BUDGET_SPAN = vocabulary["BUDGET_SPAN"]     # s of simulated time per BUDGET_STEPS steps
 
 # watch[...] entries: steps in a row below the floor; start (s) and steps of the budget's window
-WATCH_SHORT, WATCH_MARK, WATCH_STEPS = range(3)
+WATCH_SHORT, WATCH_MARK, WATCH_STEPS = (vocabulary[name] for name in (
+    "WATCH_SHORT", "WATCH_MARK", "WATCH_STEPS"))
 
 
 def make_watch() -> np.ndarray:
@@ -45,25 +47,8 @@ def clear(watch: np.ndarray) -> None:
     watch[:] = (0.0, math.nan, 0.0)
 
 
-@jit
-def watch_step(watch, t_before, h):
-    """After an accepted step h (s) from t_before (s): True when the solver is crawling."""
-    if math.isnan(watch[WATCH_MARK]):
-        watch[WATCH_MARK] = t_before
-    watch[WATCH_STEPS] += 1.0
-    short = h < STEP_FLOOR * max(1.0, abs(t_before))
-    watch[WATCH_SHORT] = watch[WATCH_SHORT] + 1.0 if short else 0.0
-    if watch[WATCH_SHORT] >= FLOOR_STEPS:
-        return True
-    if watch[WATCH_STEPS] >= BUDGET_STEPS:
-        if t_before + h - watch[WATCH_MARK] < BUDGET_SPAN:
-            return True
-        watch[WATCH_MARK], watch[WATCH_STEPS] = t_before + h, 0.0
-    return False
-
-
 def describe(watch: np.ndarray, t_before: float, h: float) -> str:
-    """Which limit `watch_step` found crossed at the step h (s) from t_before (s), in words."""
+    """Which limit the core's watch found crossed at the step h (s) from t_before (s), in words."""
     if watch[WATCH_SHORT] >= FLOOR_STEPS:
         floor = STEP_FLOOR * max(1.0, abs(t_before))
         return (f"its step stayed below the floor of {floor:.0e} s for {FLOOR_STEPS} steps "

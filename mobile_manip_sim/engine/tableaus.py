@@ -1,7 +1,8 @@
-"""The Butcher tableaus of the compiled Dormand–Prince pairs (`runge_kutta.py` steps with them):
+"""The Butcher tableaus of the compiled Dormand–Prince pairs (core/include/mms/runge_kutta.hpp
+steps with them; tools/generate_tableaus.py writes them into core/include/mms/tableaus.hpp):
 rk45, Dormand–Prince 5(4) with Shampine's 4th-order dense output, and dop853, Dormand–Prince
 8(5,3) with its 7th-order interpolant and the stage-only 6th-order continuous extension
-(derived in `continuous_extension.py`). Plain data: nothing here is compiled."""
+(derived in `continuous_extension.py`). Plain data, their one owner."""
 from __future__ import annotations
 
 from collections import namedtuple
@@ -208,6 +209,4 @@ def _dop853() -> Tableau:
 
 RK45_TABLEAU = _rk45()
 DOP853_TABLEAU = _dop853()
-# For Python callers: compiled functions hand no arrays of their own back to Python (they run
-# without reference counting, `dynamics/jit.py`), so `tableau` is for compiled code only.
 TABLEAUS = {RK45: RK45_TABLEAU, DOP853: DOP853_TABLEAU}

@@ -137,8 +137,7 @@ class SteppingLoop:
 
     def begin(self) -> bool:
         """The first state (in lockstep once a peer listens and one commands), then the first
-        segment, which loads the compiled kernels, before pacing starts. False when stopped
-        before it began."""
+        segment, before pacing starts. False when stopped before it began."""
         if self.lockstep is not None:
             with self.cv:   # graph changes do not notify: poll, woken early by stop()
                 while self.state is not State.STOPPING and not self.lockstep.ready():

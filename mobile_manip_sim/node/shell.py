@@ -7,7 +7,6 @@ import re
 import sys
 import threading
 import time
-import warnings
 
 import rclpy
 import rclpy.logging
@@ -30,9 +29,8 @@ from ..ros.topics import (
     state_qos,
 )
 from ..runtime import cli
-from ..runtime.compiles import CompileNotice, CompileWatch
 from ..runtime.headless import hold_ledger
-from ..runtime.memory import CompilerPages, release_compiler_pages, return_large_buffers
+from ..runtime.memory import return_large_buffers
 from ..runtime.pacing import Pacer
 from ..runtime.timeline import Grid, apply_commands, start_node_time_line
 from ..scene.coordinates import ARM_Q, ARM_U, arm_size
@@ -45,7 +43,6 @@ from .lockstep import ClockFollower, Lockstep
 from .loop import Abandoned, SteppingLoop
 from .parameters import NODE_NAME
 from .recording import BAG_FLUSH_INTERVAL, NodeRecording
-from .stop_while_loading import exit_on_stop
 from .throttle import Throttle
 from .view import NodeView
 
@@ -55,9 +52,6 @@ STOP_TIMEOUT = 2.0         # s of wall time shutdown waits for the stepping thre
 EXECUTOR_THREADS = 6       # two goals' execute callbacks, the trajectory topic, the services,
 #                            the timers: none waits for another
 WATCH_PERIOD = 1.0         # s: the watchdog and the check for a namesake node run this often
-KERNEL_NOTE = 10.0         # s between two lines of progress while the start-up compiles
-COMPILING = ("compiling the engine's kernels before the first step (this install was not "
-             "warmed up: minutes, once; `ros2 run mobile_manip_sim warmup` compiles them ahead)")
 STATE_TYPES = {JOINT_STATES_TOPIC: JointState, ODOM_TOPIC: Odometry, CLOCK_TOPIC: Clock}
 
 
@@ -74,7 +68,6 @@ class SimulatorNode(Node):
         self.arm_controller = for_robot(p.arm_controller, self.scene.robot)
         self.joint_names = self.scene.robot.joint_names()
         self.grid = Grid(p.publish_rate)   # publication k at t_k, segment k → k + 1
-        self._compiler_pages = CompilerPages()   # given back after a segment loaded a kernel
         self._recording: NodeRecording | None = None
         log = self.get_logger()
         throttle = Throttle(log.warning)
@@ -132,17 +125,7 @@ class SimulatorNode(Node):
         self.add_on_set_parameters_callback(declare.validate)
         self.add_post_set_parameters_callback(self._apply_parameters)
         self._thread = threading.Thread(target=self.loop.run, name="stepping", daemon=True)
-        # The engine, and every kernel its run may call loaded (or compiled, said with
-        # progress: the warm-up was not run for this install) before the start-up line; none
-        # compiles afterwards (said if one does).
-        with exit_on_stop(log.warning), CompileNotice(log.warning, COMPILING, KERNEL_NOTE):
-            self.sim = self._new_engine()
-            with warnings.catch_warnings():   # the scene's advice was given once, by self.sim
-                warnings.simplefilter("ignore", RuntimeWarning)
-                self.sim.load_kernels()
-        self._compiles = CompileWatch(lambda name: log.warning(
-            f"compiled {name} while running (the first run of an install compiles; "
-            f"python3 -m mobile_manip_sim.programs.warmup does it once)")).start()
+        self.sim = self._new_engine()
         if p.record:   # last: nothing after this may fail and leave an unfinished bag
             self._recording = NodeRecording(p.record, self.sim, self._settings, p, log.info,
                                             log.error)
@@ -253,7 +236,6 @@ class SimulatorNode(Node):
                 self._recording.arm_command(start_ns, arm())
         sim.advance_to(self.grid.time(k + 1))
         self._owned(generation)
-        self._compiler_pages.release_if_used()
         return self._messages(k + 1, sim)
 
     def _owned(self, generation: int) -> None:
@@ -347,7 +329,6 @@ class SimulatorNode(Node):
         """After `stop`, before the node is destroyed (SIGINT, SIGTERM, normal exit): the bag
         first (its summary and metadata.yaml), then the live view, whose stop waits on no
         client (live_view.CLOSE_WAIT)."""
-        self._compiles.stop()
         if self.sim.holds:   # the energy the engine removed beyond the impact law, said once
             rclpy.logging.get_logger(NODE_NAME).info(f"end stops: {hold_ledger(self.sim)} "
                                                      f"beyond the impact law")
@@ -383,7 +364,6 @@ def _main(argv) -> int:
     if arguments.wants_help(argv):
         print(arguments.help_text())
         return 0
-    release_compiler_pages()   # those numba's import touched; loading the kernels needs few
     return_large_buffers()     # trajectories of megabytes come and go for as long as it runs
     _init(argv)
     node = None

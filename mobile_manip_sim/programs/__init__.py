@@ -1,2 +1,2 @@
-"""Small programs: `simulate` (the headless run), `describe` (a scene's URDF) and the kernel
-warm-up. The larger ones have folders of their own (node, replay, plot, sweep, bench)."""
+"""Small programs: `simulate` (the headless run) and `describe` (a scene's URDF). The larger
+ones have folders of their own (node, replay, plot, sweep, bench)."""

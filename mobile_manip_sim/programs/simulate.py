@@ -122,7 +122,7 @@ def _main(argv) -> int:
         view = PacedView(args.view, scene, rate, duration, args.view_host or DEFAULT_HOST)
         print(f"live view: {view.url} (Foxglove: open connection, Foxglove WebSocket)",
               flush=True)
-    # The engine (numba) loads after the view has started: a browser loads the page meanwhile.
+    # The engine loads after the view has started: a browser loads the page meanwhile.
     from ..runtime.headless import csv_columns, csv_row, run, summary_line
     with CsvOutput(out) as output:
         recorder = None

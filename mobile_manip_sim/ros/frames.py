@@ -17,7 +17,8 @@ joints):
 A joint's transform parent → child is its origin (xyz, R0 = Rz(yaw)·Ry(pitch)·Rx(roll), the URDF
 convention `model.rpy_matrix` uses) followed by its motion: a turn about the axis by the value, or
 a slide along it. Composed from the root, joint frame k is R_k = R_{k−1}·R0_k·Rz(q_k) at
-O_{k+1} = O_k + l_k x_k: the dynamics' position pass (`dynamics.kernels.frames`), lifted by r.
+O_{k+1} = O_k + l_k x_k: the dynamics' position pass (core/include/mms/dynamics.hpp `frames`),
+lifted by r.
 
 ``prefix`` (the node's ``frame_prefix``, e.g. ``robot1/``) is prepended to every frame name here
 and nowhere else: two robots then make one tree without a shared frame. Joint names stay bare

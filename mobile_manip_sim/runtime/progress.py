@@ -14,11 +14,10 @@ Two forms:
   and by a ticker thread every second even while the work sits in one long compiled call (then
   `follow()` says how far it is). A phase (`total` None: work whose size is unknown, such as a
   cluster starting) says what is under way and for how long.
-- whole lines (``lines=True``): a line whenever nothing was written for TICK s — on a terminal
-  only, or with ``always=True`` anywhere (the warm-up, whose log is a bootstrap's). `note` writes
-  the work's own lines through it, which also resets the silence.
+- whole lines (``lines=True``): a line whenever nothing was written for TICK s, on a terminal
+  only. `note` writes the work's own lines through it, which also resets the silence.
 
-Used by `simulate`, `replay --resimulate`, `sweep`, `bench` and the warm-up.
+Used by `simulate`, `replay --resimulate`, `sweep` and `bench`.
 """
 from __future__ import annotations
 
@@ -47,12 +46,12 @@ def duration_text(seconds: float) -> str:
 class Progress:
     def __init__(self, what: str, total: float | None, unit: str, *, done: float = 0.0,
                  rate_unit: str | None = None, per: float = 1.0, lines: bool = False,
-                 always: bool = False, stream=None):
+                 stream=None):
         self.what, self.total, self.unit = what, total, unit
         self.rate_unit, self.per = rate_unit or f"{unit}/s", per   # rate: done per `per` s
         self.stream = stream or sys.stderr
         self.lines = lines
-        self.active = always or _is_terminal(self.stream)
+        self.active = _is_terminal(self.stream)
         self.done = self.first = done
         self.extra = ""
         self._follow: Callable[[], float] | None = None

@@ -7,9 +7,9 @@ per-pseudo-velocity array (accelerations, the locked-DoF mask) are indexed as u.
 (`RobotModel.joint_names`: θ_R, θ_L, then q_k, l_k per rod) are q from index `JOINTS` on, and the
 arm's share of them lines up with u from index 2 on.
 
-Plain Python, imported by every layer (the scene's `RobotModel` takes its sizes from here): the
-kernels call the index functions compiled (`dynamics/indices.py` compiles them to inline), NumPy
-code uses the slices. engine/layout.py adds the rest of the state vector ``s = (q, u, e, W)``.
+Plain Python, imported by every layer (the scene's `RobotModel` takes its sizes from here); NumPy
+code uses the slices. engine/layout.py adds the rest of the state vector ``s = (q, u, e, W)``. The
+compiled core indexes q and u the same way (core/include/mms/model.hpp).
 """
 
 # q: the base pose, the wheel angles

@@ -1,6 +1,6 @@
 """The one registry of integration methods: name → kind, order, who steps it, bench sweep.
 
-Scene validation, the engine, the node's parameter description, the warm-up, the bench and the
+Scene validation, the engine, the node's parameter description, the bench and the
 tests all read this table; nothing else lists the methods. (It sits below the engine so that
 the scene layer may use it: it imports nothing of the package.)
 """

@@ -1,7 +1,7 @@
 """The immutable robot model: what docs/model.md calls the parameters, in SI units.
 
 A `RobotModel` is built once from a scene (see `scene.py`) and shared by every simulation of
-that scene; per-simulation scratch space lives in `dynamics.records.Workspace`.
+that scene; per-simulation scratch space lives in the compiled core (`Dynamics.core`).
 """
 from __future__ import annotations
 

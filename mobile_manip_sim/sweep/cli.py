@@ -84,7 +84,7 @@ def _main(argv) -> int:
 def _sweep(args, spec: Spec, runs: list, todo: list, store) -> int:
     """Run ``todo`` on the cluster; 130 on Ctrl-C, 143 on SIGTERM (every finished run kept, one
     line), else 0. A stop is answered in every phase, the cluster's start and its workers'
-    warm-up included, and after a chunk's rows are written when it was dropped inside a
+    getting ready included, and after a chunk's rows are written when it was dropped inside a
     finalizer. A write that fails is a `UserError` saying what is kept."""
     client = cluster = progress = None
     stopped = False
@@ -191,12 +191,11 @@ def _connect(args):
                 cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
                                        dashboard_address=None, silence_logs=logging.CRITICAL)
             client = Client(cluster)
-    from .runner import IgnoreInterrupts, WarmKernels
+    from .runner import IgnoreInterrupts
     try:
-        with Progress("sweep", None, "the workers get ready (loading or compiling the kernels)"):
-            if cluster is not None:
+        if cluster is not None:
+            with Progress("sweep", None, "the workers get ready"):
                 _register(client, IgnoreInterrupts())
-            _register(client, WarmKernels())   # minutes when the workers compile: Ctrl-C ends it
     except BaseException:
         _close(client, cluster, fast=True)
         raise
@@ -210,8 +209,9 @@ def _register(client, plugin) -> None:
     """Register a worker plugin on every worker, present and future. The scheduler keeps it
     before it asks the workers, so a worker that joins later gets it; a worker lost while it is
     asked (killed, its machine gone) fails the request, which is asked again of the workers
-    left. After PLUGIN_TRIES failures the sweep goes on without it: a plugin only prepares (each
-    task warms its worker up itself). A lost scheduler is one line (`LostScheduler`)."""
+    left. After PLUGIN_TRIES failures the sweep goes on without it (a worker without it dies of
+    a Ctrl-C with a traceback, and its runs go to the others). A lost scheduler is one line
+    (`LostScheduler`)."""
     for _ in range(PLUGIN_TRIES):
         try:
             client.register_plugin(plugin)
@@ -249,8 +249,6 @@ def _run_local(threads: int, spec: Spec, runs: list, chunks: list, store, progre
     """Without Dask: each chunk one batch on `threads` threads in this process, its rows
     written as soon as it ends (a part each, as a Dask task's)."""
     from . import runner
-    with Progress("sweep", None, "loading or compiling the kernels"):
-        runner.warm_up(spec.document)
     failures = 0
     for ids in chunks:
         rows = runner.run_block(spec.document, [(i, runs[i]) for i in ids], spec.duration,

@@ -21,7 +21,6 @@ import numpy as np
 from distributed import WorkerPlugin
 
 from ..batch import Batch, TimeLimit, error_line, overlapped
-from ..batch.lanes import configuration_rates
 from ..dynamics import constraint_residuals
 from ..runtime import headless
 from ..runtime.memory import collector_paused
@@ -29,7 +28,6 @@ from ..runtime.timeline import sample_times
 from ..scene.coordinates import arm_width
 from ..scene.errors import UserError
 from ..scene.loading import check_work
-from ..scene.methods import METHODS
 from ..scene.overrides import scene_with
 from .spec import DEFAULT_SAMPLE_RATE
 
@@ -194,9 +192,8 @@ def residual_per_sample(sim, samples: np.ndarray) -> float:
 def residual_of_samples(sim, samples: np.ndarray) -> float:
     """The same figure for all samples at once (`run_block`): q̇ of every sample in one compiled
     call, the residuals as arrays (the same operations, element by element)."""
-    nq, nu = sim.nq, sim.nu
-    rates = np.empty((samples.shape[0], nq))
-    configuration_rates(sim.dynamics.model_record, np.ascontiguousarray(samples), nq, nu, rates)
+    rates = sim.dynamics.core.configuration_rates(np.ascontiguousarray(samples, dtype=float))
+    nq = sim.nq
     pair = constraint_residuals(sim.model, samples[:, :nq].T, rates.T)
     return max(0.0, *(float(np.max(np.abs(r), initial=0.0)) for r in pair))
 
@@ -233,7 +230,6 @@ def run_chunk(document: dict, runs: list, duration: float, sample_rate: float | 
               time_limit: float | None, csv_dir: str | None, threads: int = 1) -> list[dict]:
     """The Dask task: the rows of ``runs`` [(run id, overrides)] as one batch (`run_block`, one
     thread: a worker is one core), each tagged with its worker."""
-    warm_up(document)
     worker = _worker_address()
     rows = run_block(document, runs, duration, sample_rate, time_limit, csv_dir, threads)
     return [{**row, "worker": worker} for row in rows]
@@ -242,7 +238,6 @@ def run_chunk(document: dict, runs: list, duration: float, sample_rate: float | 
 def run_chunk_one_by_one(document: dict, runs: list, duration: float, sample_rate: float | None,
                          time_limit: float | None, csv_dir: str | None) -> list[dict]:
     """`run_chunk` without the batch: `run_one` after `run_one`."""
-    warm_up(document)
     worker = _worker_address()
     rows = []
     for run_id, overrides in runs:
@@ -252,44 +247,12 @@ def run_chunk_one_by_one(document: dict, runs: list, duration: float, sample_rat
     return rows
 
 
-_warm = False
-
-
-def warm_up(document: dict | None = None) -> None:
-    """Load (or compile) the kernels once per process, outside any run's clock."""
-    global _warm
-    if _warm:
-        return
-    from ..scene.loading import load_scene
-    base = load_scene(None).document if document is None else document
-    one_per_core = {m.stepper: name for name, m in METHODS.items() if m.compiled}   # rk4, dop853
-    for method in one_per_core.values():
-        try:
-            run_one(base, {"integrator.method": method}, 0.02)
-        except Exception:  # warming is best effort; the real runs report their own errors
-            pass
-    run_block(base, [(0, {"integrator.method": "rk4"})], 0.02, threads=1)   # the batch's lanes
-    _warm = True
-
-
 def _worker_address() -> str:
     try:
         from distributed import get_worker
         return get_worker().address
     except (ImportError, ValueError):
         return "local"
-
-
-class WarmKernels(WorkerPlugin):
-    """A Dask worker plugin: each worker loads the kernels when it starts, before any task."""
-
-    name = "mobile_manip_sim-warm-kernels"
-
-    def setup(self, worker):
-        warm_up()
-
-    def teardown(self, worker):
-        pass
 
 
 class IgnoreInterrupts(WorkerPlugin):

@@ -9,10 +9,9 @@ import math
 import numpy as np
 import pytest
 
-from mobile_manip_sim.batch import Batch
-from mobile_manip_sim.batch import lanes as lanes_module
+from mobile_manip_sim.batch import Batch, lane_logs
 from mobile_manip_sim.batch import runs as runs_module
-from mobile_manip_sim.batch.lanes import LOG_ROWS
+from mobile_manip_sim.batch.lane_logs import LOG_ROWS
 from mobile_manip_sim.runtime import headless
 from mobile_manip_sim.runtime.timeline import sample_times
 from mobile_manip_sim.scene.errors import UserError
@@ -79,7 +78,7 @@ def assert_lane_is_its_run(batch, rows, i, document, overrides):
 def test_every_lane_is_bit_for_bit_its_own_simulate_run(seed, n_links, log_rows, monkeypatch):
     # log_rows 1: a lane's own impact log holds one call's impacts at most, so lanes with more
     # pause, Python reads their logs, and they go on in the next call
-    monkeypatch.setattr(lanes_module, "LOG_ROWS", log_rows)
+    monkeypatch.setattr(lane_logs, "LOG_ROWS", log_rows)
     document, lanes = random_lanes(seed, 12, n_links)
     batch = Batch(document, lanes, threads=2)
     times = np.array(list(sample_times(DURATION, RATE)))
@@ -164,23 +163,15 @@ def test_a_lane_whose_own_impact_log_fills_pauses_and_goes_on_with_the_same_bits
     document, lanes = random_lanes(11, 12, 2)
     times = np.array(list(sample_times(DURATION, RATE)))
     calls = []
-    advance = lanes_module.advance_fixed
-    monkeypatch.setattr(lanes_module, "advance_fixed",
-                        lambda *args: calls.append(args[6].size) or advance(*args))
-    if runs_module.CORE == "cpp":   # the C++ core's lanes (`core.LaneSet`)
-        class CountedLanes(runs_module.LaneSet):
-            def advance(self, *args):
-                calls.append(args[0].size)
-                return super().advance(*args)
-        monkeypatch.setattr(runs_module, "LaneSet", CountedLanes)
-    elif lanes_module.ENABLED:   # numba's lanes' plain steps four at a time (`blocks.py`)
-        from mobile_manip_sim.batch import blocks
-        in_blocks = blocks.advance_blocks
-        monkeypatch.setattr(blocks, "advance_blocks",
-                            lambda *args: calls.append(args[6].size) or in_blocks(*args))
+
+    class CountedLanes(runs_module.LaneSet):   # the C++ core's lanes (`core.LaneSet`)
+        def advance(self, *args):
+            calls.append(args[0].size)
+            return super().advance(*args)
+    monkeypatch.setattr(runs_module, "LaneSet", CountedLanes)
     results = {}
     for rows in (LOG_ROWS, 1):
-        monkeypatch.setattr(lanes_module, "LOG_ROWS", rows)
+        monkeypatch.setattr(lane_logs, "LOG_ROWS", rows)
         calls.clear()
         batch = Batch(copy.deepcopy(document), lanes, threads=2)
         results[rows] = (batch.sample(times), len(calls),
@@ -253,12 +244,12 @@ def test_lanes_in_blocks_keep_to_their_step_budget():
     """A step budget of 3 grid steps per `advance` call (a sample needs 4 to 20 here). A lane
     that reaches it starts a new call, which computes f(s) afresh where a resting rod's step
     would have carried it over: its right-hand-side count shows where it restarted. Lanes in
-    vector blocks, which take several steps in one go (`blocks.block_steps`), must restart
+    vector blocks, which take several steps in one go (core/include/mms/lanes.hpp), must restart
     exactly where the lanes stepped one by one do."""
     document, lanes = random_lanes(11, 12, 2)
     vector_rows, vector_counts, paths = lanes_under_a_budget(document, lanes, 3, True)
     alone_rows, alone_counts, _ = lanes_under_a_budget(document, lanes, 3, False)
-    assert not lanes_module.ENABLED or paths[0] > 0   # steps taken in vector blocks
+    assert paths[0] > 0   # steps taken in vector blocks
     assert same_bits(vector_rows, alone_rows)
     assert vector_counts == alone_counts
     _, unbounded, _ = lanes_under_a_budget(document, lanes, None, False)

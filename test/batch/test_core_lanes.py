@@ -1,9 +1,8 @@
-"""The batch's lanes on the C++ core (`core.LaneSet`, core/include/mms/lanes.hpp) against the numba
-lanes they replace (`batch/lanes.py`, `batch/blocks.py`, the reference while both exist) and
-against each lane's own run alone: bit for bit, for every fixed-step method, with impacts, rests,
-Zeno holds and releases in some lanes and not in others, the plain grid steps in vector blocks.
-Compared: every sample (s, T + V) and the lane's own clock there, the clock, the stage counters,
-every impact with its details, which rods rest."""
+"""The batch's lanes on the C++ core (`core.LaneSet`, core/include/mms/lanes.hpp) against each
+lane's own run alone, with and without the vector blocks: bit for bit, for every fixed-step method,
+with impacts, rests, Zeno holds and releases in some lanes and not in others, the plain grid steps
+in vector blocks. Compared: every sample (s, T + V) and the lane's own clock there, the clock, the
+stage counters, every impact with its details, which rods rest."""
 from __future__ import annotations
 
 import copy
@@ -13,18 +12,13 @@ import pytest
 
 from engine_cases import one_link_doc
 from mobile_manip_sim.batch import Batch
-from mobile_manip_sim.batch import runs as runs_module
-from mobile_manip_sim.engine import core_stepping
 from mobile_manip_sim.engine.simulation import Simulation
+from mobile_manip_sim.engine.stepping import CLOCK_HOLDS
 from mobile_manip_sim.runtime.timeline import sample_times
 from mobile_manip_sim.scene.overrides import scene_with
 from test_batch import DURATION, RATE, random_lanes, same_bits
 
-pytestmark = pytest.mark.skipif(core_stepping.CORE != "cpp",
-                                reason="MOBILE_MANIP_SIM_CORE=numba: single runs on numba")
-
 FIXED = ("rk4", "semi_implicit_euler", "euler")
-CLOCK_HOLDS = 6   # stepping.py's clock: impacts held by the Zeno guard
 
 
 def outcome(sim, rows, t) -> dict:
@@ -45,12 +39,10 @@ def assert_identical(a: dict, b: dict, lane: int) -> None:
             assert np.array_equal(getattr(x, field), getattr(y, field)), (lane, field)
 
 
-def batch_outcomes(document, lanes, parts, core: str, monkeypatch, vector=True) -> list[dict]:
-    """Each lane's outcome of a batch run by `core`'s lanes through `parts`: (sample times, then
-    a command to the batch or None)."""
-    monkeypatch.setattr(runs_module, "CORE", core)
+def batch_outcomes(document, lanes, parts, vector=True) -> list[dict]:
+    """Each lane's outcome of a batch run through `parts`: (sample times, then a command to the
+    batch or None); the grid steps (in vector blocks, alone)."""
     batch = Batch(copy.deepcopy(document), lanes, threads=2, vector=vector)
-    assert batch.cpp == (core == "cpp")
     rows, t = [], []
     for times, command in parts:
         rows.append(batch.sample(times))
@@ -89,31 +81,28 @@ class Lone:
             self.sim.set_efforts(wheels, joints)
 
 
-def assert_three_agree(document, lanes, parts, monkeypatch) -> list[dict]:
-    """C++ lanes = numba lanes = each lane alone, bit for bit; the C++ lanes took plain steps in
-    vector blocks and steps alone. Returns the outcomes."""
-    cpp, (vector, scalar) = batch_outcomes(document, lanes, parts, "cpp", monkeypatch)
-    numba, _ = batch_outcomes(document, lanes, parts, "numba", monkeypatch)
-    cpp_alone, _ = batch_outcomes(document, lanes, parts, "cpp", monkeypatch, vector=False)
+def assert_three_agree(document, lanes, parts) -> list[dict]:
+    """Lanes in vector blocks = lanes stepped one by one = each lane alone, bit for bit; the lanes
+    took plain steps in vector blocks and steps alone. Returns the outcomes."""
+    blocks, (vector, scalar) = batch_outcomes(document, lanes, parts)
+    one_by_one, _ = batch_outcomes(document, lanes, parts, vector=False)
     assert vector > 0 and scalar > 0, (vector, scalar)
     for i, overrides in enumerate(lanes):
         own = alone(document, overrides, parts, i)
-        assert_identical(cpp[i], own, i)
-        assert_identical(numba[i], own, i)
-        assert_identical(cpp_alone[i], own, i)
-    return cpp
+        assert_identical(blocks[i], own, i)
+        assert_identical(one_by_one[i], own, i)
+    return blocks
 
 
 @pytest.mark.parametrize("method", FIXED)
 @pytest.mark.parametrize("seed, n_links", [(40, 2), (42, 3)])
-def test_random_robots_cpp_lanes_equal_numba_lanes_and_their_runs(method, seed, n_links,
-                                                                  monkeypatch):
+def test_random_robots_lanes_in_blocks_equal_their_runs(method, seed, n_links):
     document, lanes = random_lanes(seed, 11, n_links)   # 11: one full block of 8 and a short one
     for overrides in lanes:
         overrides["integrator.method"] = method
         overrides["integrator.dt"] = 0.002   # one step: the lanes share vector blocks
     times = np.array(list(sample_times(DURATION, RATE)))
-    cpp = assert_three_agree(document, lanes, [(times, None)], monkeypatch)
+    cpp = assert_three_agree(document, lanes, [(times, None)])
     impacts = [len(lane["impacts"]) for lane in cpp]
     resting = [any(impact.resting for impact in lane["impacts"]) for lane in cpp]
     assert 0 in impacts and max(impacts) > 0, impacts
@@ -121,8 +110,7 @@ def test_random_robots_cpp_lanes_equal_numba_lanes_and_their_runs(method, seed, 
 
 
 @pytest.mark.parametrize("method", FIXED)
-def test_held_and_released_rods_in_some_lanes_equal_numba_lanes_and_their_runs(method,
-                                                                             monkeypatch):
+def test_held_and_released_rods_in_some_lanes_equal_their_runs(method):
     """One rod straight up falling onto its lower stop (rest_speed 0): its bounces accumulate
     and the Zeno guard holds it at rest; then a push along the rod releases it. Lanes differ in
     restitution, gravity (none: the rod floats, never reaching its stop) and push."""
@@ -140,7 +128,7 @@ def test_held_and_released_rods_in_some_lanes_equal_numba_lanes_and_their_runs(m
     def push(batch):
         batch.set_efforts(joints=[0.0, 15.0], lanes=pushed)
 
-    cpp = assert_three_agree(document, lanes, [(first, push), (then, None)], monkeypatch)
+    cpp = assert_three_agree(document, lanes, [(first, push), (then, None)])
     rested = [any(impact.resting for impact in lane["impacts"]) for lane in cpp]
     assert not rested[2] and not rested[4]   # without gravity: never at the stop
     if method == "euler":   # explicit Euler gains energy at every flight: it chatters on, and

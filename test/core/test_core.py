@@ -1,8 +1,9 @@
-"""The compiled core (mobile_manip_sim/core: C++ templates generic in their scalar) against the
-numba kernels it replaces, bit for bit while both exist, and against itself across its scalars:
-every lane of a vector block is its own double run bit for bit, a dual number's value is the double
-run bit for bit and its derivatives agree with central differences of the double run. And the
-build itself: IEEE arithmetic, no fast-math, no contraction of a*b + c into one rounding.
+"""The compiled core (mobile_manip_sim/core: C++ templates generic in their scalar) against
+itself across its scalars — every lane of a vector block is its own double run bit for bit, a dual
+number's value is the double run bit for bit and its derivatives agree with central differences of
+the double run — and the wheel-speed loop against its documented law. And the build itself: IEEE
+arithmetic, no fast-math, no contraction of a*b + c into one rounding. (Its physics against
+independent formulations: test/dynamics, Pinocchio's among them.)
 """
 from fractions import Fraction
 
@@ -12,9 +13,6 @@ import pytest
 import robots
 from differences import best_agreement
 from mobile_manip_sim.core import build_info, compiled_dynamics, multiply_add
-from mobile_manip_sim.dynamics import articulated, kernels
-from mobile_manip_sim.dynamics.records import make_model, make_workspace
-from mobile_manip_sim.scene.coordinates import SLIDES_U, rod
 from mobile_manip_sim.scene.loading import load_scene
 
 LINK_COUNTS = [0, 1, 2, 3, 5, 8]
@@ -23,7 +21,7 @@ LINK_COUNTS = [0, 1, 2, 3, 5, 8]
 def case(seed, n):
     """A random robot of n links with a payload (or none), a random state with extensions up to
     10 % past the stops, accelerations, forces, gravity and a random set of locked
-    pseudo-velocities: its numba records and its compiled core."""
+    pseudo-velocities, and its compiled core."""
     rng = np.random.default_rng(seed)
     robot = robots.random_robot(rng, n)
     tip = 0.0 if seed % 3 == 0 else float(rng.uniform(0.1, 3.0))
@@ -32,72 +30,11 @@ def case(seed, n):
     moving = (rng.uniform(size=nu) > 0.3).astype(float)
     return dict(rng=rng, robot=robot, tip=tip, q=q, u=u, ud=rng.normal(size=nu),
                 Q=rng.normal(size=nu), g=float(rng.uniform(0.0, 12.0)), moving=moving,
-                record=make_model(robot, tip), ws=make_workspace(n),
                 core=compiled_dynamics(robot, tip))
-
-
-def free_list(moving):
-    """The numba kernels' form of a locked set: the free indices, padded with −1."""
-    free = [k for k in range(moving.size) if moving[k]]
-    return np.array(free + [-1] * (moving.size - len(free)), dtype=np.int64)
 
 
 def identical(a, b):
     return np.array_equal(np.asarray(a), np.asarray(b)) and np.asarray(a).shape == np.shape(b)
-
-
-@pytest.mark.parametrize("n", LINK_COUNTS)
-@pytest.mark.parametrize("seed", range(4))
-def test_every_kernel_equals_the_numba_kernel_bit_for_bit(seed, n):
-    c = case(seed * 10 + n, n)
-    record, ws, core, q, u = c["record"], c["ws"], c["core"], c["q"], c["u"]
-    nu = c["robot"].n_u
-    kernels.frames(record, q, ws)
-    Q = np.empty(nu)
-    kernels.gibbs_appell(record, q, u, c["ud"], c["g"], ws, Q)
-    assert identical(core.inverse_dynamics(q, u, c["ud"], c["g"]), Q)
-    M = np.empty((nu, nu))
-    kernels.mass_matrix(record, q, ws, np.zeros(nu), np.zeros(nu), np.zeros(nu), M)
-    assert identical(core.mass_matrix(q), M)
-    T = kernels.kinetic_energy(record, q, u, ws)
-    V = kernels.potential_energy(record, q, c["g"], ws)
-    assert core.energy(q, u, c["g"]) == (T, V)
-    assert identical(core.joint_origins(q), ws.O) and identical(core.link_rotations(q), ws.R)
-    qdot = np.empty(c["robot"].n_q)
-    kernels.configuration_rate(record, q, u, qdot)
-    assert identical(core.configuration_rate(q, u), qdot)
-    # the forward dynamics with a locked set, and what each locked slide transmits
-    ud = np.empty(nu)
-    articulated.forward_dynamics(record, q, u, c["Q"], c["g"], free_list(c["moving"]), ws, ud)
-    assert identical(core.forward_dynamics(q, u, c["Q"], c["g"], c["moving"]), ud)
-    for j in range(nu)[SLIDES_U]:
-        if not c["moving"][j]:
-            assert core.slide_forces()[rod(j)] == ws.slide_force[rod(j)]
-
-
-def test_the_paper_runs_states_give_the_numba_kernels_accelerations_bit_for_bit():
-    """Every state of the recorded paper runs (the suite's reference CSVs) and the paper's
-    efforts: the same u̇ from both engines."""
-    import csv
-    from pathlib import Path
-    scene = load_scene()
-    robot = scene.robot
-    record, ws = make_model(robot), make_workspace(robot.n_links)
-    core = compiled_dynamics(robot)
-    nq, nu = robot.n_q, robot.n_u
-    Q = np.random.default_rng(5).normal(size=nu)
-    data = Path(__file__).resolve().parents[1] / "engine" / "data"
-    rows = 0
-    for name in ("recorded_paper_rk4.csv", "recorded_paper_dop853.csv"):
-        with open(data / name) as handle:
-            for row in csv.DictReader(handle):
-                values = np.array([float(v) for v in list(row.values())[1:1 + nq + nu]])
-                q, u = values[:nq], values[nq:]
-                ud = np.empty(nu)
-                articulated.forward_dynamics(record, q, u, Q, 10.0, np.arange(nu), ws, ud)
-                assert identical(core.forward_dynamics(q, u, Q, 10.0, np.ones(nu)), ud)
-                rows += 1
-    assert rows > 100
 
 
 @pytest.mark.parametrize("n", [0, 2, 5])
@@ -127,35 +64,6 @@ def system_case(seed, n):
     c["damping"] = c["rng"].uniform(0.0, 0.5, nu) if seed % 2 else np.zeros(0)
     c["s"] = np.concatenate([c["q"], c["u"], c["rng"].normal(size=3)])
     return c
-
-
-def numba_system(c):
-    """The engine's effort-mode system record for `case` c, as `engine.system.System` builds it."""
-    from mobile_manip_sim.engine.system import System
-
-    class Dyn:   # what System reads of a `dynamics.Dynamics`
-        model, model_record, ws, gravity = c["robot"], c["record"], c["ws"], c["g"]
-    locked = [k for k in range(c["robot"].n_u) if not c["moving"][k]]
-    system = System(Dyn, c["damping"] if c["damping"].size else None, locked)
-    system.Q_cmd[:] = c["Q"]
-    return system
-
-
-@pytest.mark.parametrize("n", [0, 1, 2, 5])
-@pytest.mark.parametrize("seed", [1, 2])
-def test_the_right_hand_side_and_every_step_equal_the_engines_bit_for_bit(seed, n):
-    """The effort-mode right-hand side (efforts, damping, locks, the work integral) and one step
-    of euler, semi-implicit Euler and rk4: the core's against the engine's numba kernels."""
-    from mobile_manip_sim.engine import fixed_step
-    from mobile_manip_sim.scene.methods import IDS
-    c = system_case(seed * 10 + n, n)
-    system, core, s = numba_system(c), c["core"], c["s"]
-    args = (c["Q"], c["damping"], c["moving"], c["g"])
-    assert identical(core.rates(s, *args), system.derivative(s))
-    for method in ("euler", "semi_implicit_euler", "rk4"):
-        out, stages = np.empty_like(s), np.empty((4, s.size))
-        fixed_step.step(IDS[method], system.data, s, 0.01, out, stages)
-        assert identical(core.step(method, s, 0.01, *args), out), method
 
 
 @pytest.mark.parametrize("method", ["", "euler", "semi_implicit_euler", "rk4"])
@@ -238,46 +146,43 @@ def test_runs_stepped_in_lanes_equal_their_runs_stepped_alone_bit_for_bit(method
 
 
 @pytest.mark.parametrize("n", [0, 2])
-def test_the_wheel_speed_loop_equals_the_engines_bit_for_bit(n):
-    """A base under velocity commands: each wheel's saturated PI loop (continuous: its integral
-    back-calculated while saturated), in the right-hand side and in a step of each method, against
-    the engine's, on states where the loops run free and saturate either way."""
+def test_the_wheel_speed_loop_follows_its_documented_law(n):
+    """A base under velocity commands: each wheel's PI loop on its speed θ̇ = (v ± b ω)/r,
+    τ = sat(kp (θ̇* − θ̇) + ki e) within ±limit, its integral back-calculated while saturated
+    (ė = error + (τ − raw)/kp, control_toolbox's BACK_CALCULATION), the torques entering as
+    Q_v = (τ_R + τ_L)/r, Q_ω = b (τ_R − τ_L)/r (docs/model.md): the core's right-hand side and the
+    law written here, on states where the loops run free and saturate either way."""
     from mobile_manip_sim.core import WheelLoop
-    from mobile_manip_sim.engine import fixed_step
-    from mobile_manip_sim.engine.system import (
-        WHEEL_KI,
-        WHEEL_KP,
-        WHEEL_LIMIT_L,
-        WHEEL_LIMIT_R,
-        WHEEL_TARGET_L,
-        WHEEL_TARGET_R,
-        WHEEL_VELOCITY_MODE,
-    )
-    from mobile_manip_sim.scene.methods import IDS
     c = system_case(400 + n, n)
-    system, core, rng = numba_system(c), c["core"], c["rng"]
+    core, rng, robot = c["core"], c["rng"], c["robot"]
+    nq, nu = robot.n_q, robot.n_u
+    r, b = robot.base.wheel_radius, robot.base.half_track
     loop = WheelLoop()
     saturated = 0
     for trial in range(40):
         loop.kp, loop.ki = rng.uniform(0.5, 5.0), rng.uniform(0.0, 30.0)
         loop.limit_R, loop.limit_L = rng.uniform(0.05, 2.0, 2) if trial % 4 else (np.inf,) * 2
         loop.target_R, loop.target_L = rng.normal(0.0, 10.0, 2)
-        control = system.control
-        control[WHEEL_VELOCITY_MODE] = 1.0
-        control[WHEEL_KP], control[WHEEL_KI] = loop.kp, loop.ki
-        control[WHEEL_LIMIT_R], control[WHEEL_LIMIT_L] = loop.limit_R, loop.limit_L
-        control[WHEEL_TARGET_R], control[WHEEL_TARGET_L] = loop.target_R, loop.target_L
         s = c["s"].copy()
-        s[c["robot"].n_q:] = np.concatenate([rng.normal(size=c["robot"].n_u),
-                                              rng.normal(0.0, 0.2, 2), [0.0]])
-        args = (c["Q"], c["damping"], c["moving"], c["g"])
-        ds = system.derivative(s)
-        assert identical(core.rates(s, *args, loop), ds), trial
-        for method in ("euler", "semi_implicit_euler", "rk4"):
-            out, stages = np.empty_like(s), np.empty((4, s.size))
-            fixed_step.step(IDS[method], system.data, s, 0.01, out, stages)
-            assert identical(core.step(method, s, 0.01, *args, loop), out), (trial, method)
-        control[WHEEL_LIMIT_R] = control[WHEEL_LIMIT_L] = np.inf   # the loop unsaturated
-        e = c["robot"].n_q + c["robot"].n_u
-        saturated += int(system.derivative(s)[e] != ds[e])
-    assert saturated > 0   # some integrals' rates were moved (the back-calculation acted)
+        s[nq:] = np.concatenate([rng.normal(size=nu), rng.normal(0.0, 0.2, 2), [0.0]])
+        u, e = s[nq:nq + nu], s[nq + nu:nq + nu + 2]
+        ds = core.rates(s, c["Q"], c["damping"], c["moving"], c["g"], loop)
+        tau, rates = [], []
+        for target, speed, integral, limit in ((loop.target_R, (u[0] + b * u[1]) / r, e[0],
+                                                loop.limit_R),
+                                               (loop.target_L, (u[0] - b * u[1]) / r, e[1],
+                                                loop.limit_L)):
+            error = target - speed
+            raw = loop.kp * error + loop.ki * integral
+            torque = min(max(raw, -limit), limit)
+            tau.append(torque)
+            rates.append(error + (torque - raw) / loop.kp)
+            saturated += torque != raw
+        assert ds[nq + nu:nq + nu + 2] == pytest.approx(rates, rel=1e-12, abs=1e-12), trial
+        Q = c["Q"].copy()
+        Q[0], Q[1] = (tau[0] + tau[1]) / r, b * (tau[0] - tau[1]) / r
+        if c["damping"].size:
+            Q -= c["damping"] * u
+        ud = core.forward_dynamics(s[:nq], u, Q, c["g"], c["moving"])
+        assert ds[nq:nq + nu] == pytest.approx(ud, rel=1e-12, abs=1e-12), trial
+    assert saturated > 0   # some torques were clipped (the back-calculation acted)

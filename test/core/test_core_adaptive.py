@@ -1,12 +1,10 @@
 """The compiled core's adaptive methods, rk45 and dop853 (core/include/mms/runge_kutta.hpp and
-adaptive_solve.hpp), against the numba engine's kernels they replace (engine/runge_kutta.py,
-engine/adaptive_stepping.py), bit for bit while both exist: the initial step, every accepted
-step, its next size, its right-hand sides and rejections, and its dense output at several θ
-over runs of many steps; whole sampled runs of the compiled loop (no events; with effort
-changes, where the solve restarts) against the engine's. And facts of their own: the dense output
-starts at the step's start and ends at its end, and converges at its order against a tight
-reference solution of SciPy's; the dual-number instance of a step agrees with central differences
-of the double one; a run that cannot go on, or bad input, says why in one line.
+adaptive_solve.hpp; SciPy's are their reference in test_runge_kutta.py): whole sampled runs of the
+compiled loop (no events; with effort changes, where the solve restarts) equal the engine's
+stepper's bit for bit (the two drive the same steps); the dense output starts at the step's
+start and ends at its end, and converges at its order against a tight reference solution of
+SciPy's; the dual-number instance of a step agrees with central differences of the double one; a
+run that cannot go on, or bad input, says why in one line.
 """
 import copy
 import importlib.util
@@ -18,13 +16,11 @@ from scipy import integrate
 
 import robots
 from differences import best_agreement
-from mobile_manip_sim.engine import runge_kutta as rk
 from mobile_manip_sim.engine.simulation import Simulation
 from mobile_manip_sim.engine.stepping import CLOCK_STEPS
 from mobile_manip_sim.engine.system import RHS_EVALS
 from mobile_manip_sim.scene.loading import load_scene, make_integrator, parse_scene
-from mobile_manip_sim.scene.methods import IDS
-from test_core import identical, numba_system, system_case
+from test_core import identical, system_case
 from test_runge_kutta import paper_system
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -40,36 +36,10 @@ def moving_of(system):
 
 
 def paper_case():
-    """The paper scene in effort mode (its rods free: no rod rests at the start): the engine's
-    system, its compiled core, the initial state and the core's effort arguments."""
-    system, s0, _, scene = paper_system()
-    core = Simulation(scene).dynamics.core
-    return system, core, s0, (system.Q_cmd.copy(), system.damping, moving_of(system),
-                              float(system.data.gravity))
-
-
-def random_case(seed, n):
-    c = system_case(seed, n)
-    return numba_system(c), c["core"], c["s"], (c["Q"], c["damping"], c["moving"], c["g"])
-
-
-CASES = {"paper": paper_case, **{f"random-{n}-links": (lambda n=n: random_case(500 + n, n))
-                                 for n in (0, 1, 2, 5)}}
-
-
-def engine_dense(m, system, s, h, work, rtol, atol, full):
-    """The engine's dense output of the step in `work` at THETAS (as adaptive_stepping's
-    `interpolant` builds it): (rows, from the stages alone)."""
-    K = work[rk.WORK_K:rk.WORK_K + rk.MAX_STAGES]
-    coeffs = work[rk.WORK_COEFFS:rk.WORK_COEFFS + rk.MAX_DENSE]
-    y1, f0, f1 = work[rk.WORK_Y1], work[rk.WORK_F0], work[rk.WORK_F1]
-    from_stages = not full and rk.dense_from_stages(m, s, y1, h, K, coeffs, rtol, atol)
-    if not from_stages:
-        rk.dense_prepare(m, system.data, s, y1, f0, f1, h, K, coeffs)
-    rows = np.empty((THETAS.size, s.size))
-    for i, theta in enumerate(THETAS):
-        rk.dense_eval(m, coeffs, s, h, theta, rows[i])
-    return rows, from_stages
+    """The paper scene in effort mode (its rods free: no rod rests at the start): its compiled
+    core, the initial state and the core's effort arguments."""
+    core, s0, args, _, _ = paper_system()
+    return core, s0, args
 
 
 def test_the_tableau_header_is_what_its_generator_writes_from_the_engines_tableaus():
@@ -80,53 +50,6 @@ def test_the_tableau_header_is_what_its_generator_writes_from_the_engines_tablea
     generator = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(generator)
     assert generator.HEADER.read_text() == generator.header_text()
-
-
-@pytest.mark.parametrize("case", CASES)
-@pytest.mark.parametrize("method", METHODS)
-def test_every_step_of_a_run_equals_the_engines_bit_for_bit(method, case):
-    """80 accepted steps from the initial step on: each step's end state, length, next length,
-    right-hand sides and rejections, and its dense output at several θ (the full interpolant and
-    the one a sample reads: dop853's from its stages where accurate enough) equal the numba
-    kernels'. Every 6th step first tries 8 times the proposed length (it is rejected), and one
-    step is cut short by t_bound."""
-    system, core, s, args = CASES[case]()
-    m, rtol, atol = IDS[method], 1e-7, 1e-9
-    work = rk.work_array(s.size)
-    f0 = system.derivative(s)
-    h_next = rk.initial_step(m, system.data, s, f0, np.inf, rtol, atol, np.inf,
-                             np.zeros(s.size), np.zeros(s.size))
-    assert core.initial_step(method, s, np.inf, rtol, atol, np.inf, *args) == h_next
-    span = 0.5   # a finite span and a step limit bound the initial step too
-    assert (core.initial_step(method, s, span, rtol, atol, 1e-4, *args)
-            == rk.initial_step(m, system.data, s, f0, span, rtol, atol, 1e-4,
-                               np.zeros(s.size), np.zeros(s.size)))
-    t, rejections, from_stages = 0.0, 0, set()
-    for step in range(80):
-        h_try = 8.0 * h_next if step % 6 == 5 else h_next
-        t_bound = t + 0.4 * h_next if step == 40 else np.inf
-        work[rk.WORK_F0] = system.derivative(s)
-        before = system.counters[RHS_EVALS]
-        h, h_next = rk.accepted_step(m, system.data, s, t, h_try, t_bound, rtol, atol, work)
-        evaluations = system.counters[RHS_EVALS] - before
-        y, h_c, h_next_c, evaluations_c, rejected = core.adaptive_step(
-            method, s, t, h_try, t_bound, rtol, atol, *args)
-        assert (h_c, h_next_c, evaluations_c) == (h, h_next, evaluations), step
-        assert step != 40 or h < h_try   # cut short by t_bound
-        assert identical(y, work[rk.WORK_Y1]), step
-        # a try costs 6 right-hand sides (rk45) or 11 (dop853, f(y₁) only once accepted)
-        tries = evaluations // 6 if method == "rk45" else (evaluations - 1) // 11
-        assert rejected == tries - 1
-        rejections += rejected
-        for full in (True, False):
-            rows, stages_only = core.dense_output(THETAS, full)
-            engine_rows, engine_stages_only = engine_dense(m, system, s, h, work, rtol, atol, full)
-            assert identical(rows, engine_rows) and stages_only == engine_stages_only, step
-            from_stages.add(stages_only)
-        s, t = y, t + h
-    assert rejections >= 10 and np.isfinite(s).all()
-    if method == "dop853":
-        assert True in from_stages   # both dense outputs were compared
 
 
 def one_step_dense(core, method, s, h, args, theta, full):
@@ -145,7 +68,7 @@ def test_dense_output_joins_the_steps_ends_and_has_its_order(method, full, order
     """At θ = 0 the dense output is the step's start exactly, at θ = 1 its end to round-off; its
     error at θ = ½ against SciPy's DOP853 at rtol 1e-13 on the core's own right-hand side falls
     as h^(p+1), p the interpolant's order (4 rk45, 7 dop853, 6 dop853 from its stages alone)."""
-    _, core, s0, args = paper_case()   # the core's right-hand side has no stops: smooth
+    core, s0, args = paper_case()   # the core's right-hand side has no stops: smooth
     hs = (0.16, 0.08, 0.04, 0.02) if method == "dop853" else (0.04, 0.02, 0.01, 0.005)
     reference = integrate.solve_ivp(lambda t, y: core.rates(y, *args), (0.0, hs[0]), s0,
                                     method="DOP853", rtol=1e-13, atol=1e-15,
@@ -164,7 +87,7 @@ def test_dense_output_joins_the_steps_ends_and_has_its_order(method, full, order
 
 
 def engine_sampled_run(scene, method, rtol, times):
-    """The numba engine's sampled run of an effort-mode scene without stops (rows of s), and the
+    """The engine's sampled run of an effort-mode scene without stops (rows of s), and the
     core's arguments for the same run."""
     sim = Simulation(scene, make_integrator(scene.integrator, method, rtol=rtol, atol=rtol * 1e-2))
     s0, system = sim.s.copy(), sim.system
@@ -186,10 +109,10 @@ SCENES = {"paper": smooth_paper_scene,
 
 @pytest.mark.parametrize("scene", SCENES)
 @pytest.mark.parametrize("method", METHODS)
-def test_a_sampled_run_of_the_compiled_loop_equals_the_engines_bit_for_bit(method, scene):
+def test_a_sampled_run_of_the_compiled_loop_equals_the_steppers_bit_for_bit(method, scene):
     """1.5 s sampled at 100 Hz (the samples read from the step in hand's dense output, the step
     never cut at a sample): the same states, steps and right-hand sides as the engine's
-    adaptive core."""
+    stepper."""
     times = np.linspace(0.0, 1.5, 151)[1:]
     sim, s0, args, engine_rows = engine_sampled_run(SCENES[scene](), method, 1e-8, times)
     rows, steps, evaluations, rejections = sim.dynamics.core.adaptive_run(
@@ -201,7 +124,7 @@ def test_a_sampled_run_of_the_compiled_loop_equals_the_engines_bit_for_bit(metho
 
 
 @pytest.mark.parametrize("method", METHODS)
-def test_a_run_restarted_at_effort_changes_equals_the_engines_bit_for_bit(method):
+def test_a_run_restarted_at_effort_changes_equals_the_steppers_bit_for_bit(method):
     """New efforts at 0.3 s and twice within one step near 0.75 s: each change ends the solve
     there and the next starts with the last step's length (`restart`); the samples, steps and
     right-hand sides are the engine's (its `set_efforts` restarts its solve the same way)."""
@@ -257,7 +180,7 @@ def test_dual_jacobians_of_a_step_agree_with_central_differences_of_the_double_s
 
 
 def test_bad_input_is_refused_in_one_line_naming_it():
-    _, core, s, args = paper_case()
+    core, s, args = paper_case()
     with pytest.raises(ValueError, match=r"^method: expected rk45 or dop853, got rk4$"):
         core.adaptive_step("rk4", s, 0.0, 0.01, np.inf, 1e-6, 1e-9, *args)
     with pytest.raises(ValueError, match=r"^rtol: expected a positive number, got -1"):
@@ -294,7 +217,7 @@ def test_a_run_that_cannot_go_on_says_why_in_one_line():
     """Efforts of 1e100 (accelerations the steps cannot follow): the step shrinks below 10
     spacings of t and the run stops saying so; a stalled step leaves no step in hand; a run
     stops after its step budget."""
-    _, core, s, (Q, damping, moving, g) = paper_case()
+    core, s, (Q, damping, moving, g) = paper_case()
     huge = np.full_like(Q, 1e100)
     with pytest.raises(RuntimeError, match=r"^t = \S+ s: the step fell below 10 spacings of t "
                                            r"\(h = \S+ s\)$"):
@@ -309,3 +232,17 @@ def test_a_run_that_cannot_go_on_says_why_in_one_line():
     with pytest.raises(RuntimeError, match=r"^t = \S+ s: the run used its 5 steps$"):
         core.adaptive_run("rk45", s, np.array([1.5]), 1e-6, 1e-9, Q, damping, moving, g,
                           max_steps=5)
+
+
+def test_scipy_steps_are_handed_in_to_a_radau_or_bdf_stepper_only():
+    """A step handed in to another method's stepper, a radau stepper asked to advance itself, or
+    a power series of the wrong shape: one line naming the call or the argument."""
+    scene = load_scene()
+    rk4 = Simulation(scene, make_integrator(scene.integrator, "rk4", 1e-3))
+    with pytest.raises(ValueError, match="^hand_in_step: only for radau and bdf"):
+        rk4._stepper.hand_in_step(1e-3, rk4.s, np.zeros((3, rk4.s.size)))
+    radau = Simulation(scene, make_integrator(scene.integrator, "radau"))
+    with pytest.raises(ValueError, match="^advance: radau and bdf are stepped from Python"):
+        radau._stepper.advance(radau.s, radau._clock, 1.0, 10)
+    with pytest.raises(ValueError, match=r"^series: expected \(rows ≤ 7, "):
+        radau._stepper.hand_in_step(1e-3, radau.s, np.zeros((8, radau.s.size)))

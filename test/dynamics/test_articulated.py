@@ -4,19 +4,13 @@ against the slower formulations they replace, on random robots of 0–32 links.
 Tolerances of solves scale with κ(M)·ε, as Drake's forward-dynamics tests do: an answer cannot
 be more accurate than the conditioning of M allows, whichever algorithm computes it.
 """
-import json
-import os
-import subprocess
-import sys
-
 import numpy as np
 import pytest
 
 import robots
-from mobile_manip_sim.dynamics import Dynamics, articulated, kernels
+from mobile_manip_sim.dynamics import Dynamics
 from mobile_manip_sim.scene.coordinates import SLIDES_U, rod
 
-HELPERS = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "helpers")
 LINK_COUNTS = [0, 1, 2, 3, 4, 5, 8, 12, 16, 20, 24, 32]
 EPS = np.finfo(float).eps
 
@@ -33,12 +27,11 @@ def random_robot(seed, n):
 
 
 def by_columns(dyn, q):
+    """M column by column: column j is the inverse dynamics at rest without gravity of the unit
+    acceleration u̇ = e_j."""
     nu = dyn.model.n_u
-    M = np.empty((nu, nu))
-    kernels.frames(dyn.model_record, q, dyn.ws)
-    kernels.mass_matrix_by_columns(dyn.model_record, q, dyn.ws, np.zeros(nu), np.zeros(nu),
-                                   np.zeros(nu), M)
-    return M
+    return np.column_stack([dyn.inverse_dynamics(q, np.zeros(nu), np.eye(nu)[j], gravity=0.0)
+                            for j in range(nu)])
 
 
 @pytest.mark.parametrize("n", LINK_COUNTS)
@@ -88,10 +81,10 @@ def test_locked_pseudo_velocities_get_zero_acceleration_and_the_reduced_solve(n)
         ud_ref = np.zeros(nu)
         if free:
             ud_ref[free] = np.linalg.solve(M[np.ix_(free, free)], (Q - h)[free])
-        padded = np.full(nu, -1, dtype=np.int64)
-        padded[:len(free)] = free
-        ud = np.full(nu, np.nan)
-        articulated.forward_dynamics(dyn.model_record, q, u, Q, dyn.gravity, padded, dyn.ws, ud)
+        moving = np.zeros(nu)
+        moving[free] = 1.0
+        ud = dyn.forward_dynamics(q, u, Q, moving)
+        slide_force = dyn.core.slide_forces()
         assert np.all(ud[locked] == 0.0)
         kappa = np.linalg.cond(M[np.ix_(free, free)]) if free else 1.0
         tol = 10.0 * kappa * EPS * max(1.0, np.abs(ud_ref).max())
@@ -102,7 +95,7 @@ def test_locked_pseudo_velocities_get_zero_acceleration_and_the_reduced_solve(n)
         transmitted = M @ ud_ref + h
         for j in slides:
             scale = 1.0 + np.abs(M[j]).max() * np.abs(ud_ref).max() + abs(h[j])
-            assert (abs(dyn.ws.slide_force[rod(j)] - transmitted[j])
+            assert (abs(slide_force[rod(j)] - transmitted[j])
                     <= 1e3 * kappa * EPS * scale)
 
 
@@ -116,38 +109,3 @@ def test_cholesky_and_articulated_paths_agree_on_the_paper_robot():
         np.testing.assert_allclose(dyn.forward_dynamics(q, u, Q),
                                    dyn.forward_dynamics_by_cholesky(q, u, Q),
                                    rtol=1e-11, atol=1e-12)
-
-
-def test_pure_python_and_compiled_kernels_agree():
-    """The same source run as plain Python (MOBILE_MANIP_SIM_NO_JIT=1) and compiled gives the same
-    numbers: mass matrix, bias, energies, the forward dynamics and the articulated pass with a
-    locked DOF, on random robots of 0, 1, 2 and 7 links."""
-    script = (
-        "import json, sys, numpy as np\n"
-        f"sys.path[:0] = {[os.path.dirname(__file__), HELPERS]!r}\n"
-        "from test_articulated import random_robot\n"
-        "from mobile_manip_sim.dynamics import articulated, jit, vec3\n"
-        "out = {'compiled': jit.ENABLED, 'kind': type(vec3.add).__name__, 'values': []}\n"
-        "for n in (0, 1, 2, 7):\n"
-        "    rng, model, dyn, q, u, _ = random_robot(77 + n, n)\n"
-        "    Q = rng.normal(size=model.n_u)\n"
-        "    free = np.arange(model.n_u); free[1] = -1 if model.n_u > 2 else 1\n"
-        "    ud = np.empty(model.n_u)\n"
-        "    articulated.forward_dynamics(dyn.model_record, q, u, Q, dyn.gravity, free, dyn.ws,\n"
-        "                                 ud)\n"
-        "    out['values'] += [dyn.mass_matrix(q).tolist(), dyn.bias(q, u).tolist(),\n"
-        "                      list(dyn.energy(q, u)), dyn.forward_dynamics(q, u, Q).tolist(),\n"
-        "                      ud.tolist()]\n"
-        "print(json.dumps(out))\n")
-    results = []
-    for no_jit in ("1", "0"):
-        env = dict(os.environ, MOBILE_MANIP_SIM_NO_JIT=no_jit)
-        completed = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True,
-                                   text=True, check=True)
-        results.append(json.loads(completed.stdout))
-    python, compiled = results
-    assert python["compiled"] is False and python["kind"] == "function"          # really Python …
-    assert compiled["compiled"] is True and compiled["kind"] == "CPUDispatcher"  # … really numba
-    for python_value, compiled_value in zip(python["values"], compiled["values"], strict=True):
-        np.testing.assert_allclose(np.array(python_value), np.array(compiled_value),
-                                   rtol=1e-12, atol=1e-12)

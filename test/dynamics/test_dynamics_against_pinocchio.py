@@ -46,8 +46,8 @@ def test_mass_matrix_equals_projected_pinocchio_crba(seed, n):
 def test_bias_equals_projected_pinocchio_rnea(seed, gravity):
     _, model, dyn, ref, q, u, _ = random_case(seed)
     if not gravity:
-        ref = build_projected_model(model, 0.0, tip_mass=dyn.model_record.tip_mass,
-                                    wheel_inertia=dyn.model_record.base.wheel_inertia > 0.0)
+        ref = build_projected_model(model, 0.0, tip_mass=dyn.tip_mass,
+                                    wheel_inertia=dyn.wheel_inertia)
     h, h_ref = dyn.bias(q, u, gravity=None if gravity else 0.0), ref.bias(q, u)
     assert np.max(np.abs(h - h_ref)) <= TOL * max(np.max(np.abs(h_ref)), 1.0), (h - h_ref)
 

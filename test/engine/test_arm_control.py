@@ -9,27 +9,18 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+import robots
 from executables import executable
-from mobile_manip_sim.dynamics import Dynamics, jit, kernels
+from mobile_manip_sim.dynamics import Dynamics
 from mobile_manip_sim.engine import layout
-from mobile_manip_sim.engine.arm_control import default_controller, for_robot, gravity_efforts
+from mobile_manip_sim.engine.arm_control import default_controller, for_robot
 from mobile_manip_sim.engine.simulation import Simulation
-from mobile_manip_sim.engine.system import (
-    ARM_CONTROL_STAGE,
-    RHS_EVALS,
-    EffortSystemData,
-    SystemData,
-    applied_forces,
-    derivative,
-    system_data,
-)
+from mobile_manip_sim.engine.system import ARM_CONTROL_STAGE, RHS_EVALS
 from mobile_manip_sim.scene.arm_controller import ArmController, ModelError
 from mobile_manip_sim.scene.errors import UserError
 from mobile_manip_sim.scene.loading import load_scene, make_integrator, parse_scene
 from mobile_manip_sim.scene.methods import NAMES as METHOD_NAMES
-from mobile_manip_sim.scene.model import RobotModel
 from pinocchio_reference import build_projected_model
-from pure_python import without_jit
 
 DATA = Path(__file__).resolve().parent / "data"
 SETTLING_TIME = 0.5   # s: docs/controllers.md (0.43 s measured with rk4 at 1 kHz)
@@ -90,34 +81,6 @@ def test_effort_mode_has_no_controller_states_and_runs_no_controller_stage():
     assert held.s.size == layout.state_size(held.nu) + held.nu - 1   # z (n_arm) and τ
     held.advance_to(0.1)
     assert held.system.counters[ARM_CONTROL_STAGE] == held.system.counters[RHS_EVALS] > 0
-
-
-def test_effort_mode_is_compiled_without_the_controller_stage():
-    """An effort-mode system's record is an `EffortSystemData`, whose compiled right-hand side
-    has no call of the controller at all (its mere presence cost every evaluation ~10 %); the
-    same arrays as a `SystemData` take the stage's branch, never entered, with the same bits."""
-    sim = Simulation(paper_scene())
-    data = sim.system.data
-    assert type(data) is EffortSystemData
-    assert type(paper().system.data) is SystemData
-    s = sim.s + np.random.default_rng(3).normal(scale=0.2, size=sim.s.size)
-    effort, controlled = np.empty_like(s), np.empty_like(s)
-    derivative(data, s, effort)
-    derivative(system_data(data), s, controlled)
-    assert np.array_equal(effort, controlled) and np.all(np.isfinite(effort))
-    if not jit.ENABLED:
-        return
-    # a fresh compile: numba inspects no code it read from its cache
-    import numba
-
-    def forces(system, s, ds):
-        return applied_forces(system, s, ds)
-    fresh = numba.njit(_nrt=False, error_model="numpy")(forces)
-    for record in (data, system_data(data)):
-        fresh(record, s, effort)
-    calls = {signature[0].instance_class: "arm_efforts" in fresh.inspect_llvm(signature)
-             for signature in fresh.signatures}
-    assert calls == {EffortSystemData: False, SystemData: True}
 
 
 # --- what it does ------------------------------------------------------------------------------
@@ -214,26 +177,22 @@ def test_the_gravity_feedforward_is_pinocchios_gravity_vector():
         assert np.allclose(sim.joint_efforts_applied(), expected, rtol=1e-10, atol=1e-10)
 
 
-def test_the_reduced_gravity_pass_is_the_inverse_dynamics_at_rest_on_random_robots():
-    """`gravity_efforts` (ω = α = 0) against `kernels.gibbs_appell` at u = u̇ = 0, on robots
-    with random joint orientations, rods, cross-sections and a payload."""
+def test_the_gravity_feedforward_is_the_inverse_dynamics_at_rest_on_random_robots():
+    """The controller's reduced gravity pass (ω = α = 0: every point accelerates by g ẑ) against
+    the inverse dynamics at u = u̇ = 0, on robots with random joint orientations, rods,
+    cross-sections and a payload, at random states and velocities (G depends on q alone)."""
     rng = np.random.default_rng(5)
-    base = load_scene().robot.base
     for n in (1, 3, 6):
-        links = [{"length": rng.uniform(0.3, 1.5), "mass_per_length": rng.uniform(0.5, 2.0),
-                  "inertia_per_length": np.diag(rng.uniform(1e-4, 1e-2, 3)),
-                  "joint_rpy": rng.uniform(-np.pi, np.pi, 3), "stroke": [0.0, 0.3]}
-                 for _ in range(n)]
-        robot = RobotModel.build(base, rng.normal(0.0, 0.2, 3), links)
-        dynamics = Dynamics(robot, gravity=9.81, tip_mass=0.7)
+        doc = robots.random_robot_document(rng, n, gravity=9.81)
+        doc["effects"]["payload"] = 0.7
+        doc["controller"] = {"rate": 0}
+        sim = Simulation(parse_scene(doc), arm_controller=ArmController(
+            "position", feedforward="gravity", **ZERO_GAINS))
         for _ in range(3):
-            q = rng.normal(0.0, 1.0, robot.n_q)
-            q[6::2] = rng.uniform(0.3, 1.5, n)
-            expected = dynamics.inverse_dynamics(q, np.zeros(robot.n_u), np.zeros(robot.n_u))[2:]
-            out = np.zeros(2 * n)
-            kernels.frames(dynamics.model_record, q, dynamics.ws)
-            gravity_efforts(dynamics.model_record, q, 9.81, dynamics.ws, out)
-            assert np.allclose(out, expected, rtol=1e-12, atol=1e-12)
+            q, u = robots.random_state(rng, sim.model)
+            sim.s[:sim.nq], sim.s[sim.nq:sim.nq + sim.nu] = q, u
+            expected = sim.dynamics.inverse_dynamics(q, np.zeros(sim.nu), np.zeros(sim.nu))[2:]
+            assert np.allclose(sim.joint_efforts_applied(), expected, rtol=1e-12, atol=1e-12)
 
 
 def test_computed_torque_makes_the_arm_follow_the_reference_acceleration_exactly():
@@ -309,27 +268,6 @@ def test_saturated_efforts_stay_at_the_limit_and_the_integral_stops():
             pinned += 1
             assert sim.system.derivative(sim.s)[i_z] == 0.0
     assert pinned > 5
-
-
-def short_runs() -> dict:
-    """Final states of 50 ms of each feedforward on a trajectory (for the pure-Python check)."""
-    from mobile_manip_sim.dynamics.jit import ENABLED
-    states = {"compiled": ENABLED}
-    for feedforward in ("none", "gravity", "computed_torque"):
-        sim = paper("joint_trajectory", feedforward=feedforward)
-        sim.set_efforts(wheels=[0.1, -0.05])
-        sim.set_arm_trajectory([0.02, 0.04], [arm(sim) + STEP, arm(sim)], [np.ones(4)] * 2)
-        sim.advance_to(0.05)
-        states[feedforward] = sim.s.tolist()
-    return states
-
-
-def test_the_pure_python_path_gives_the_compiled_numbers():
-    python = without_jit("test_arm_control", "short_runs")
-    compiled = short_runs()
-    assert python.pop("compiled") is False and compiled.pop("compiled") is True
-    for feedforward, state in compiled.items():
-        np.testing.assert_allclose(python[feedforward], state, rtol=1e-12, atol=1e-13)
 
 
 # --- commands ------------------------------------------------------------------------------------

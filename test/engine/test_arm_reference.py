@@ -5,6 +5,7 @@ of the arm at the command and holds the last point afterwards."""
 import numpy as np
 import pytest
 
+from mobile_manip_sim import core
 from mobile_manip_sim.engine import arm_reference
 from mobile_manip_sim.engine.arm_reference import Q_REF, QD_REF, QDD_REF
 
@@ -18,13 +19,11 @@ Q0, QD0 = RNG.normal(0.0, 0.5, N_ARM), RNG.normal(0.0, 1.0, N_ARM)
 
 
 def evaluate(starts, coeffs, tau):
-    out = np.zeros((3, coeffs.shape[1]))
-    for hint in (0, starts.size - 1, starts.size // 2):   # the result does not depend on it
-        arm_reference.reference(starts, coeffs, starts.size, float(tau), out, hint)
-        if hint == 0:
-            first = out.copy()
-        assert np.array_equal(out, first)
-    return out
+    """The core's evaluation (the one the controller runs), from any search hint alike."""
+    first = core.arm_reference(starts, coeffs, float(tau), 0)
+    for hint in (starts.size - 1, starts.size // 2):   # the result does not depend on it
+        assert np.array_equal(core.arm_reference(starts, coeffs, float(tau), hint), first)
+    return first
 
 
 def knots(times):
@@ -125,9 +124,6 @@ def test_the_shortest_angle_is_the_difference_moved_by_whole_turns_into_minus_pi
                                                          abs=1e-9)
     for start, end in rng.uniform(-1.5, 1.5, (200, 2)):
         assert arm_reference.shortest_angle(start, end) == end - start
-    for start, end in rng.uniform(-20.0, 20.0, (200, 2)):   # the controller's compiled twin
-        assert arm_reference.shortest_angle_jit(start, end) == \
-            arm_reference.shortest_angle(start, end)
     assert arm_reference.shortest_angle(0.0, -np.pi) == np.pi
     assert arm_reference.shortest_angle(0.0, np.pi) == np.pi
     assert arm_reference.shortest_angle(3.0, -3.0) == pytest.approx(TURN - 6.0, abs=1e-15)

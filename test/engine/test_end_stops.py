@@ -14,8 +14,8 @@ import pytest
 from scipy import integrate
 
 from engine_cases import one_link_doc, paper_doc, sampled, simulation
-from mobile_manip_sim.engine import adaptive_stepping, events, layout
-from mobile_manip_sim.engine import runge_kutta as rk
+from mobile_manip_sim.core import zeno_guard
+from mobile_manip_sim.engine import events, layout
 from mobile_manip_sim.engine.simulation import Simulation
 from mobile_manip_sim.scene.loading import load_scene, make_integrator
 
@@ -285,7 +285,7 @@ def test_every_method_holds_a_chattering_rod_at_the_same_impact(method, settings
                  and 2.0 * v0 / g * e ** n * e / (1.0 - e) <= events.ZENO_TAIL)
     assert len(sim.impacts) == first + 1
     run = np.zeros((1, 2, events.RUN_FIELDS))
-    replay = [events.zeno_guard(run, 1, -1, i.time, abs(i.ld_before), 1.0) >= 0.0
+    replay = [zeno_guard(run, 1, -1, i.time, abs(i.ld_before), 1.0) >= 0.0
               for i in sim.impacts]
     assert replay.index(True) == held[0]
     assert sim.holds == 1 and sim.impacts[-1].held
@@ -341,19 +341,14 @@ def fast_rod_doc(side, restitution, fixed_step, overshoot):
 def engine_step_ends(doc, method, settings, t_end):
     """l_1 at the end of every step of the engine's compiled solve over [0, t_end], stops off.
     Targets do not cut its steps, so advancing through many small targets visits each step in
-    hand (engine/adaptive_stepping.py) without changing them."""
+    hand (the compiled stepper's) without changing them."""
     doc = copy.deepcopy(doc)
     del doc["effects"]["stroke_limits"]
     sim = simulation(doc, method, **settings)
     ends = {}
     for t in np.linspace(0.0, t_end, 2001)[1:]:
         sim.advance_to(t)
-        if sim._stepper is not None:   # the compiled engine's step in hand
-            ends[sim._stepper.step_in_hand()[0]] = sim._stepper.step_end()[layout.q_slide(1)]
-        else:
-            solve = sim._solve
-            ends[solve.status[adaptive_stepping.STEP_T0]] = solve.work[rk.WORK_Y1][
-                layout.q_slide(1)]
+        ends[sim._stepper.step_in_hand()[0]] = sim._stepper.step_end()[layout.q_slide(1)]
     assert len(ends) > 1
     return list(ends.values())
 

@@ -311,19 +311,22 @@ def test_simulate_exits_2_with_one_line_when_bdf_cannot_follow(tmp_path):
 
 
 def test_the_step_watch_tells_a_crawl_from_a_restart():
+    """The core's count (the one every adaptive method's steps go through), on steps handed to a
+    radau stepper's watch."""
     from mobile_manip_sim.engine.step_watch import (
         BUDGET_SPAN,
         BUDGET_STEPS,
         FLOOR_STEPS,
+        clear,
         describe,
-        make_watch,
-        watch_step,
     )
+    sim = simulation(paper_doc(), "radau")
+    watch = sim._solve.watch
 
     def first_problem(steps, t=0.0):
-        watch = make_watch()
+        clear(watch)
         for i, h in enumerate(steps):
-            if watch_step(watch, t, h):
+            if sim._stepper.watch_step(t, h):
                 return i + 1, describe(watch, t, h)
             t += h
         return None

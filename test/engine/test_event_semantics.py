@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from engine_cases import one_link_doc, paper_doc, simulation
+from mobile_manip_sim.core import zeno_guard
 from mobile_manip_sim.engine import events, layout
 
 L_2 = layout.q_slide(2)   # l_2 in q
@@ -186,7 +187,7 @@ def guard_calls(times, speeds=None, k=1, side=-1, n_links=2):
     """Whether the guard sees an accumulation at each impact (rod k at its stop ``side``)."""
     run = np.zeros((n_links, 2, events.RUN_FIELDS))
     speeds = np.ones(len(times)) if speeds is None else speeds
-    return [events.zeno_guard(run, k, side, t, v, 1.0) >= 0.0
+    return [zeno_guard(run, k, side, t, v, 1.0) >= 0.0
             for t, v in zip(times, speeds, strict=True)]
 
 
@@ -212,8 +213,8 @@ def test_the_zeno_guard_keeps_one_record_per_rod_and_stop():
     v = 2.0 * 0.5 ** np.arange(30)
     held = []
     for i, ti in enumerate(t):   # rod 1's accumulating run, rod 2 hitting its upper stop
-        held.append(events.zeno_guard(run, 1, -1, ti, v[i], 1.0) >= 0.0)   # regularly between
-        assert events.zeno_guard(run, 2, 1, 1.0 + 0.05 * i, 1.0, 1.0) < 0.0
+        held.append(zeno_guard(run, 1, -1, ti, v[i], 1.0) >= 0.0)   # regularly between
+        assert zeno_guard(run, 2, 1, 1.0 + 0.05 * i, 1.0, 1.0) < 0.0
     assert held == guard_calls(t, v)
 
 

@@ -1,19 +1,18 @@
 """`Simulation.linearize` and `Simulation.step_jacobians` — exact Jacobians by dual numbers through
-the compiled core — against central differences of the engine's own compiled right-hand side and
-step (numba, an independent implementation), on random robots with payloads, damping, locked
-joints and rods held at a stop, for every fixed-step method and a sweep of step sizes."""
+the compiled core — against central differences of the engine's own right-hand side and of the
+core's double step (the map the dual instance differentiates), on random robots with payloads,
+damping, locked joints and rods held at a stop, for every fixed-step method and a sweep of step
+sizes."""
 import numpy as np
 import pytest
 
 import robots
 from differences import best_agreement
-from mobile_manip_sim.engine import fixed_step
-from mobile_manip_sim.engine.linearization import effort_map
+from mobile_manip_sim.engine.linearization import effort_map, moving_mask
 from mobile_manip_sim.engine.simulation import Simulation
 from mobile_manip_sim.scene.coordinates import SLIDES_U
 from mobile_manip_sim.scene.errors import UserError
 from mobile_manip_sim.scene.loading import IntegratorSettings, load_scene, parse_scene
-from mobile_manip_sim.scene.methods import IDS
 
 FIXED = ("euler", "semi_implicit_euler", "rk4")
 
@@ -69,11 +68,12 @@ class EngineMaps:
         return rate
 
     def step(self, x, tau, method, h):
-        Q_cmd = self.sim.system.Q_cmd.copy()
-        s = self._state(x, tau)
-        out, stages = np.empty_like(s), np.empty((4, s.size))
-        fixed_step.step(IDS[method], self.sim.system.data, s, h, out, stages)
-        self.sim.system.Q_cmd[:] = Q_cmd
+        """One step of the core's double instance (the map the dual one differentiates)."""
+        sim = self.sim
+        s = self.s.copy()
+        s[:self.nq + self.nu] = x
+        out = sim.dynamics.core.step(method, s, h, self.B @ tau, sim.system.damping,
+                                     moving_mask(sim), sim.dynamics.gravity)
         return out[:self.nq + self.nu]
 
 

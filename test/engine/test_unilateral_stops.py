@@ -1,4 +1,4 @@
-"""Several stops at once (docs/model.md; engine/stops.py `contact_impulses`, `solve_contacts`): each
+"""Several stops at once (docs/model.md; core/include/mms/stops.hpp `solve_contacts`): each
 stop only pushes, restitution on the stop being hit, 0 on resting ones, a resting rod that its
 stop would have to pull leaves it, and energy never rises in an impact."""
 import itertools
@@ -7,8 +7,8 @@ from importlib import resources
 import numpy as np
 import pytest
 
+from mobile_manip_sim.core import solve_contacts
 from mobile_manip_sim.engine import layout
-from mobile_manip_sim.engine.contacts import solve_contacts
 from mobile_manip_sim.engine.simulation import Simulation
 from mobile_manip_sim.scene.loading import make_integrator, parse_scene, scene_from_text
 
@@ -67,9 +67,7 @@ def test_the_pivoting_solve_is_the_exact_complementarity_solution(seed):
     A = rng.normal(size=(m, m))
     W = A @ A.T + 0.1 * np.eye(m)
     q = rng.normal(size=m)
-    P, w, active = np.zeros(m), np.zeros(m), np.zeros(m, dtype=np.bool_)
-    assert solve_contacts(W, q, np.zeros(m, dtype=np.bool_), active, P, w, np.zeros((m, m + 1)),
-                          np.zeros(m, dtype=np.int64)) >= 0
+    P, w = solve_contacts(W, q)
     assert np.all(P >= 0.0) and np.all(w >= -1e-12) and abs(P @ w) < 1e-12
     assert np.allclose(P, brute_force_lcp(W, q), atol=1e-10)
 

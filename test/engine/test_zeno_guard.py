@@ -1,5 +1,5 @@
 """The Zeno guard holds only true accumulations, and the energy it removes is booked apart
-(docs/model.md, "Resting, leaving, and no Zeno"; engine/events.py `zeno_guard`, stops.py
+(docs/model.md, "Resting, leaving, and no Zeno"; core/include/mms/stops.hpp `zeno_guard`,
 `impact`).
 
 The reference is exact and independent of the engine: two collinear rods on a fixed base with no
@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from engine_cases import paper_doc, simulation
+from mobile_manip_sim.core import zeno_guard
 from mobile_manip_sim.engine import events, layout
 
 LD_1, LD_2 = layout.u_slide(1), layout.u_slide(2)
@@ -124,7 +125,7 @@ class _no_warning:
 
 def guard(times, speeds, T=1.0, k=1, side=-1, n_links=2):
     run = np.zeros((n_links, 2, events.RUN_FIELDS))
-    return [float(events.zeno_guard(run, k, side, t, v, T))
+    return [float(zeno_guard(run, k, side, t, v, T))
             for t, v in zip(times, speeds, strict=True)]
 
 

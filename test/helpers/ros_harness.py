@@ -130,23 +130,3 @@ def cpu_seconds(pid: int) -> float:
     """User + system CPU time of a process so far (s), from /proc."""
     fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")   # utime, stime
-
-
-def warm_kernels(*integrators) -> None:
-    """Compile (or load from numba's cache) the engine kernels of each (method, dt) on the paper
-    scene, end stops included, here where it blocks nobody: numba holds the GIL while
-    compiling, so a node compiling a kernel on its first impact answers no service meanwhile."""
-    from mobile_manip_sim.engine.simulation import Simulation
-    from mobile_manip_sim.scene.loading import load_scene, make_integrator
-    scene = load_scene(None)
-    for method, dt in integrators:
-        sim = Simulation(scene, make_integrator(scene.integrator, method, dt))
-        sim.set_efforts([0.0, 0.0], [0.0] * 4)
-        sim.advance_to(1.5)
-        assert sim.impacts, f"{method}: the warm-up run reached no end stop"
-        sim.load_kernels()
-    # the node's default arm controller (joint_trajectory): its Python-side kernels too
-    from mobile_manip_sim.scene.arm_controller import ArmController
-    for method, dt in integrators:
-        Simulation(scene, make_integrator(scene.integrator, method, dt),
-                   arm_controller=ArmController("joint_trajectory")).load_kernels()

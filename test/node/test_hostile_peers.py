@@ -32,7 +32,7 @@ from test_arm_node import CLIENT, NAMES
 from test_node import FAST
 
 DOMAIN_ID = private_domain(100, 232)
-STARTUP_TIMEOUT = 120.0        # a loaded machine may compile kernels first
+STARTUP_TIMEOUT = 120.0        # a loaded machine starts slowly
 TIMEOUT = 60.0                 # any other condition
 SHUTDOWN_GUARD = 30.0          # a stop must end the process (the node's own bound is 5 s)
 RSS_AFTER_GOALS = 200 << 20    # bytes a node may keep once 100,000-point trajectories ended
@@ -40,11 +40,6 @@ RSS_GROWTH = 16 << 20          # and may add with each later flood of them
 SERVICE_TIMEOUT = 15.0         # ~/pause must answer within this while trajectories pour in
 TRAJECTORY_POINTS = 100_000    # the documented maximum of one trajectory
 TRAJECTORIES = 6               # sent back to back: rclpy alone would take > 12 s to read them
-
-
-@pytest.fixture(autouse=True)
-def kernels(warm_kernels):
-    """The node's kernels compiled (or loaded) here first, where they block nobody."""
 
 
 def free_port() -> int:

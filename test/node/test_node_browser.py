@@ -37,7 +37,7 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
-def test_the_node_shows_its_robot_moving_in_a_browser(tmp_path, warm_kernels):
+def test_the_node_shows_its_robot_moving_in_a_browser(tmp_path):
     node = NodeProcess(tmp_path, "-p", "arm_controller:=effort", "-p",
                        f"browser_port:={free_port()}", env=child_env(DOMAIN_ID))
     try:

@@ -55,7 +55,7 @@ class SimTimeClient:
             return list(self.clock), list(self.robot2)
 
 
-def test_a_follower_is_never_stamped_ahead_of_the_clock_it_hears(warm_kernels, tmp_path):
+def test_a_follower_is_never_stamped_ahead_of_the_clock_it_hears(tmp_path):
     with on_domain(DOMAIN_ID):
         owner = NodeProcess(tmp_path, *FAST, "-r", "__ns:=/robot1", "-p", "frame_prefix:=robot1/",
                             "-p", "real_time_factor:=0.5", env=child_env(DOMAIN_ID))
@@ -150,7 +150,7 @@ class TwoClocks:
                            for node in (self.node, self.other)]
 
 
-def test_a_follower_says_when_two_nodes_publish_the_clock(warm_kernels, tmp_path):
+def test_a_follower_says_when_two_nodes_publish_the_clock(tmp_path):
     with on_domain(DOMAIN_ID):
         follower = NodeProcess(tmp_path, *FAST, "-p", "publish_clock:=false",
                                env=child_env(DOMAIN_ID))

@@ -78,7 +78,7 @@ class HardwareInterface:
 
 
 @pytest.fixture
-def hardware_of(warm_kernels, tmp_path):
+def hardware_of(tmp_path):
     """A node with ``args`` and the hardware interface's client for the block's ``joints``."""
     started = []
 

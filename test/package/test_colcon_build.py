@@ -35,24 +35,17 @@ def workspace(tmp_path_factory):
     return root
 
 
-# The built executables run the engine's pure-Python path here: a build that was never warmed
-# would first compile its kernels for minutes, and what these tests check is the build (entry
-# points, package data, the ament index), not numba; the compiled path is the same code, and
-# the rest of the suite runs it.
-NO_JIT = {"MOBILE_MANIP_SIM_NO_JIT": "1"}
-
-
 def run_built(workspace, command, **kwargs):
     """Run a command the way a user does after `. install/setup.sh`."""
     script = f". install/setup.sh && {command}"
-    env = dict(os.environ, PATH=f"{BIN}:{os.environ['PATH']}", **NO_JIT)
+    env = dict(os.environ, PATH=f"{BIN}:{os.environ['PATH']}")
     return subprocess.run(["bash", "-c", script], cwd=workspace, env=env, capture_output=True,
                           text=True, timeout=600, **kwargs)
 
 
 def test_colcon_build_installs_every_executable_under_lib(workspace):
     lib = workspace / "install" / "mobile_manip_sim" / "lib" / "mobile_manip_sim"
-    for exe in ("simulate", "describe", "simulator", "replay", "plot", "warmup"):
+    for exe in ("simulate", "describe", "simulator", "replay", "plot", "sweep", "bench"):
         assert (lib / exe).is_file() and os.access(lib / exe, os.X_OK), exe
     share = workspace / "install" / "mobile_manip_sim" / "share" / "mobile_manip_sim"
     assert (share / "package.xml").is_file()
@@ -84,7 +77,7 @@ def test_built_simulator_starts_publishes_and_stops_cleanly(workspace):
     node = subprocess.Popen(["bash", "-c",
                              ". install/setup.sh && exec install/mobile_manip_sim/lib/"
                              "mobile_manip_sim/simulator --ros-args -p real_time_factor:=2.0"],
-                            cwd=workspace, env={**env, **NO_JIT}, stdout=subprocess.PIPE,
+                            cwd=workspace, env=env, stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE,
                             text=True)
     listener = ("import rclpy, sys\n"

@@ -16,7 +16,6 @@ ROOT = Path(__file__).resolve().parents[2]
 # requirements.txt (test_rosdep_keys.py checks that package.xml's keys resolve).
 ROSDEP_KEYS = {
     "numpy": "python3-numpy", "scipy": "python3-scipy", "yaml": "python3-yaml",
-    "numba": "python3-numba", "llvmlite": "python3-numba",   # numba's backend, installed with it
     "matplotlib": "python3-matplotlib", "pinocchio": "pinocchio",
     "mujoco": "python3-mujoco-pip", "zstandard": "pip:zstandard", "mcap": "pip:mcap",
     "distributed": "pip:dask[distributed]", "dask": "pip:dask[distributed]",
@@ -53,7 +52,8 @@ def test_every_third_party_import_is_a_package_xml_dependency():
     declared = {element.text.strip() for element in root
                 if element.tag.endswith("depend") and element.text} | pip_requirements()
     imports = third_party_imports()
-    assert {"numpy", "rclpy", "numba", "matplotlib", "zstandard"} <= set(imports)
+    assert {"numpy", "rclpy", "matplotlib", "zstandard"} <= set(imports)
+    assert "numba" not in imports and "llvmlite" not in imports   # one engine: the C++ core
     missing = {module: str(path) for module, path in imports.items()
                if ROSDEP_KEYS.get(module, module) not in declared}
     assert not missing, f"imported but not in package.xml nor requirements.txt: {missing}"

@@ -1,16 +1,14 @@
 """What a run loads: `simulate` and the node import neither SciPy's solvers and linear algebra
-(only radau and bdf need SciPy; scipy.integrate alone is 56 MB) nor matplotlib, and numba's
-implementations are loaded without scipy.linalg (`dynamics/jit.py`). Facts about
-``sys.modules`` in a fresh interpreter, not timings."""
+(only radau and bdf need SciPy; scipy.integrate alone is 56 MB) nor matplotlib, and no compiler
+(numba, LLVM): the engine is compiled ahead of time. Facts about ``sys.modules`` in a fresh
+interpreter, not timings."""
 import json
 import subprocess
 import sys
 
 import pytest
 
-from mobile_manip_sim.dynamics import jit
-
-HEAVY = ("scipy.integrate", "scipy.linalg", "scipy.sparse", "matplotlib")
+HEAVY = ("scipy.integrate", "scipy.linalg", "scipy.sparse", "matplotlib", "numba", "llvmlite")
 
 SIMULATE = """
 import json, sys
@@ -54,18 +52,3 @@ def test_simulate_imports_scipy_integrate_for_radau_only(tmp_path):
 
 def test_the_node_module_and_an_rk4_run_import_neither_scipy_solvers_nor_matplotlib():
     assert heavy(modules_after(NODE)) == []
-
-
-@pytest.mark.skipif(not jit.ENABLED, reason="numba is off")
-def test_a_numba_function_compiled_later_still_gets_blas():
-    # jit.py hides scipy.linalg only while numba loads its implementations
-    code = """
-import numpy as np, numba, sys
-import mobile_manip_sim.dynamics.jit
-assert "scipy.linalg" not in sys.modules
-dot = numba.njit(cache=False)(lambda a, b: np.dot(a, b))
-print(dot(np.arange(3.0), np.ones(3)), "scipy.linalg.cython_blas" in sys.modules)
-"""
-    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                            timeout=600, check=True)
-    assert result.stdout.split() == ["3.0", "True"]

@@ -163,7 +163,7 @@ class Probe:
 
 
 @pytest.fixture(scope="module")
-def probe(warm_kernels):
+def probe():
     with spinning(Probe, DOMAIN_ID) as probe:
         yield probe
 

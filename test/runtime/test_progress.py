@@ -8,7 +8,6 @@ import re
 import select
 import signal
 import subprocess
-import sys
 import threading
 from pathlib import Path
 
@@ -16,7 +15,6 @@ import pytest
 
 from bag_rewrite import rewrite_bag
 from executables import executable
-from mobile_manip_sim.runtime import progress as progress_module
 from mobile_manip_sim.runtime.progress import Progress, duration_text
 from waiting import TimedOut, wait_for
 
@@ -135,22 +133,6 @@ def test_a_status_line_and_a_phase_talk_at_once(terminal):
     assert "work: 0 of 10 s (0 %), 0 s/s, ? to go" in text, text
 
 
-def test_whole_lines_go_anywhere_when_asked_after_a_silence(monkeypatch):
-    """The warm-up's form: a line after TICK s of silence, to a log as well as to a terminal."""
-    monkeypatch.setattr(progress_module, "TICK", 0.2)
-    stream = io.StringIO()
-    progress = Progress("warmup", 4, "kernels", lines=True, always=True, stream=stream)
-    progress.note("warmup: [1/4] euler")
-    progress.update(1)
-    wait_for(lambda: "warmup: 1 of 4 kernels (25 %)" in stream.getvalue(), "the silence's line",
-             SAFETY)
-    progress.close()
-    lines = stream.getvalue().splitlines()
-    assert lines[0] == "warmup: [1/4] euler"
-    assert re.fullmatch(r"warmup: 1 of 4 kernels \(25 %\), \S+ kernels/s, .+ to go", lines[1])
-    assert "\r" not in stream.getvalue()
-
-
 @pytest.mark.parametrize("seconds, text", [(0.4, "0 s"), (42, "42 s"), (200, "3 min 20 s"),
                                            (24_000, "6 h 40 min"), (float("inf"), "?")])
 def test_durations_read_as_people_read_them(seconds, text):
@@ -222,7 +204,7 @@ def test_sweep_talks_in_every_phase_and_counts_from_what_is_done(terminal, tmp_p
                       "--workers", "1")
     for pattern in (rf"sweep: expanding the spec and reading {tmp_path}/out \(\d+ s\)",
                     r"sweep: starting a LocalCluster of 1 worker \(\d+ s\)",
-                    r"sweep: the workers get ready \(loading or compiling the kernels\) \(",
+                    r"sweep: the workers get ready \(",
                     r"sweep: 0 of 4 runs \(0 %\), 0 runs/s, \? to go"):
         terminal.wait_for(pattern, f"the line {pattern!r}", process)
     process.communicate(timeout=SAFETY)
@@ -249,23 +231,9 @@ def test_replay_resimulate_counts_what_is_simulated_not_what_is_read(terminal, t
 
 def test_bench_talks_on_a_terminal_and_stops_on_sigint(terminal, tmp_path):
     process = started(terminal, executable("bench"), "--out", str(tmp_path), "--quick")
-    terminal.wait_for(r"\[1/\d+\] warming up the compiled kernels", "bench's first section",
-                      process)
+    terminal.wait_for(r"\[1/\d+\] ", "bench's first section", process)
     status, text = after_one_sigint(process, terminal)
     assert status == 130 and "Traceback" not in text, text   # stopped at once, no traceback
-
-
-def test_the_warm_up_says_how_long_it_takes_and_names_each_kernel_first():
-    result = subprocess.run([sys.executable, "-m", "mobile_manip_sim.programs.warmup"],
-                            capture_output=True, text=True, timeout=900)
-    assert result.returncode == 0, result.stderr
-    lines = result.stderr.splitlines()
-    assert re.match(r"warmup: compiling 22 kernels \(7 methods on 4 scenes\), once: .*minutes",
-                    lines[0]), lines[0]
-    named = [line for line in lines if re.match(r"warmup: \[\d+/22\] ", line)]
-    assert [line.split("]")[0] for line in named] == [f"warmup: [{k}/22" for k in range(1, 23)]
-    assert "Warning" not in result.stderr
-    assert result.stdout.startswith("warmup: every kernel compiled and cached in ")
 
 
 def test_bootstrap_says_still_while_a_silent_command_runs():
@@ -279,8 +247,7 @@ def test_bootstrap_says_still_while_a_silent_command_runs():
                             timeout=SAFETY)
     assert result.returncode == 3 and result.stdout == "bootstrap: still waiting (10 s)\n"
     text = (tools / "bootstrap.sh").read_text()
-    for phase in ("upgrading pip", "installing the package", "building tf2_msgs and control_msgs",
-                  "compiling the numba kernels"):
+    for phase in ("upgrading pip", "installing the package", "building tf2_msgs and control_msgs"):
         assert f'echo "bootstrap: {phase}' in text   # a line before each phase
 
 

@@ -484,8 +484,8 @@ def test_the_engine_runs_the_settings_of_its_scene():
     sim = simulation(doc, "rk4")
     own = settings(parse_scene(doc))
     assert sim.dynamics.gravity == own.gravity == 10.0
-    assert sim.dynamics.model_record.tip_mass == own.tip_mass == 0.3
-    assert sim.dynamics.model_record.base.wheel_inertia == BASE["wheel_inertia"]
+    assert sim.dynamics.tip_mass == own.tip_mass == 0.3
+    assert sim.dynamics.wheel_inertia and sim.model.base.wheel_inertia == BASE["wheel_inertia"]
     assert sim.system.permanently_locked == own.locked == (0, 1, 4)
     assert np.array_equal(sim.system.damping, own.generalized_damping(sim.model.base))
     assert sim.stop_law == own.stop_law and sim.stops.law.restitution == 0.5

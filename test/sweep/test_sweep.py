@@ -281,30 +281,6 @@ def test_resume_after_sigint_gives_the_same_table_without_redoing_a_run(long_spe
             assert row["cpu_s"] == before[row["run"]]["cpu_s"]
 
 
-def test_ctrl_c_while_the_workers_compile_their_kernels_ends_the_sweep_in_one_line(long_spec,
-                                                                                 tmp_path):
-    """An empty kernel cache: the worker compiles for minutes in its warm-up, before any run.
-    Ctrl-C there (to the process group, as a terminal sends it) ends the sweep at once with
-    its one line and status 130, the cluster's teardown silent."""
-    cold = tmp_path / "cold_cache"
-    cold.mkdir()
-    out = tmp_path / "out"
-    driver = start([executable("sweep"), str(long_spec), "--out", str(out), "--workers", "1"],
-                   env=dict(os.environ, NUMBA_CACHE_DIR=str(cold)))
-    try:
-        # the driver compiles nothing: the first cache file is the worker's warm-up at work
-        wait_for(lambda: any(p.is_file() for p in cold.rglob("*")), "a compiled kernel", 120)
-        assert not parts(out)
-        os.killpg(driver.pid, signal.SIGINT)
-        stdout, stderr = driver.communicate(timeout=60)
-    finally:
-        stop(driver)
-    assert driver.returncode == 130, stderr
-    assert stderr.strip() == (f"sweep: interrupted; 0 of 40 runs are in {out}/runs.parquet "
-                              "(run the same command to finish)"), stderr
-    assert "runs, 0 already in" not in stdout   # it never got past the warm-up
-
-
 @pytest.mark.parametrize("text, key", [
     ("grid:\n  robot.arm.linkz[0].mass: [1.0]\n", "grid.robot.arm.linkz[0].mass: unknown key path"),
     ("grid:\n  robot.arm.links[0].mas: [1.0]\n", "grid.robot.arm.links[0].mas: unknown key"),

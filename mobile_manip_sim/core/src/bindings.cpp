@@ -11,6 +11,7 @@
 #include <cstdio>
 #include <memory>
 #include <cstring>
+#include <numeric>
 #include <ctime>
 #include <stdexcept>
 #include <string>
@@ -28,6 +29,42 @@ namespace nb = nanobind;
 using namespace nb::literals;
 
 namespace mms {
+
+// --- for the benchmarks (bench/) ------------------------------------------------------------
+// A double that counts the arithmetic done on it: the kernels instantiated on it once count the
+// flops of one evaluation, in the kernels' own operation order (bench/'s lanes section). Only
+// operations on state-dependent numbers count: a product of two model constants is a double's.
+struct FlopCounts {
+  long add = 0, sub = 0, mul = 0, div = 0, neg = 0, sqrt = 0, sin = 0, cos = 0;
+};
+inline FlopCounts flop_counts;
+
+struct Counted {
+  double v = 0.0;
+  Counted() = default;
+  Counted(double a) : v(a) {}  // NOLINT: implicit, as a double's literal in the kernels
+};
+inline Counted operator+(Counted a, Counted b) { ++flop_counts.add; return a.v + b.v; }
+inline Counted operator-(Counted a, Counted b) { ++flop_counts.sub; return a.v - b.v; }
+inline Counted operator*(Counted a, Counted b) { ++flop_counts.mul; return a.v * b.v; }
+inline Counted operator/(Counted a, Counted b) { ++flop_counts.div; return a.v / b.v; }
+inline Counted operator-(Counted a) { ++flop_counts.neg; return -a.v; }
+inline Counted& operator+=(Counted& a, Counted b) { return a = a + b; }
+inline Counted& operator-=(Counted& a, Counted b) { return a = a - b; }
+inline Counted& operator*=(Counted& a, Counted b) { return a = a * b; }
+inline bool operator<(Counted a, Counted b) { return a.v < b.v; }
+inline bool operator>(Counted a, Counted b) { return a.v > b.v; }
+template <> struct Traits<Counted> {
+  using Real = double;
+  using Mask = bool;
+};
+inline double value(Counted a) { return a.v; }
+inline Counted select(bool m, Counted a, Counted b) { return m ? a : b; }
+inline Counted sin_(Counted a) { ++flop_counts.sin; return std::sin(a.v); }
+inline Counted cos_(Counted a) { ++flop_counts.cos; return std::cos(a.v); }
+inline Counted sqrt_(Counted a) { ++flop_counts.sqrt; return std::sqrt(a.v); }
+inline void sincos_(Counted a, Counted& s, Counted& c) { s = sin_(a); c = cos_(a); }
+
 namespace {
 
 using In = nb::ndarray<const double, nb::c_contig, nb::device::cpu>;
@@ -59,6 +96,18 @@ Method method_of(const std::string& name) {
   if (name == "semi_implicit_euler") return Method::SemiImplicitEuler;
   if (name == "rk4") return Method::Rk4;
   throw std::invalid_argument("method: expected euler, semi_implicit_euler or rk4, got " + name);
+}
+
+// CPU seconds of this thread per call of `body`, over `calls` calls after one to warm up.
+template <class F>
+double per_call(int calls, F&& body) {
+  body();
+  timespec start, end;
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &start);
+  for (int i = 0; i < calls; ++i) body();
+  clock_gettime(CLOCK_THREAD_CPUTIME_ID, &end);
+  double seconds = (end.tv_sec - start.tv_sec) + 1e-9 * (end.tv_nsec - start.tv_nsec);
+  return seconds / (calls > 0 ? calls : 1);
 }
 
 class Dynamics {
@@ -165,6 +214,22 @@ class Dynamics {
     double* qdot;
     Out out = new_array({size_t(n_q())}, &qdot);
     mms::configuration_rate(model_, q.data(), u.data(), qdot);
+    return out;
+  }
+
+  // q̇ of each row of `samples` (m × at least n_q + n_u: a run's state rows (q, u, …)), m × n_q.
+  Out configuration_rates(In samples) {
+    const size_t m = samples.ndim() == 2 ? samples.shape(0) : 0;
+    const size_t width = samples.ndim() == 2 ? samples.shape(1) : 0;
+    if (samples.ndim() != 2 || width < size_t(n_q() + n_u()))
+      throw std::invalid_argument("samples: expected rows of at least " +
+                                  std::to_string(n_q() + n_u()) + " numbers (q, u, …)");
+    double* qdot;
+    Out out = new_array({m, size_t(n_q())}, &qdot);
+    for (size_t i = 0; i < m; ++i) {
+      const double* row = samples.data() + i * width;
+      mms::configuration_rate(model_, row, row + n_q(), qdot + i * n_q());
+    }
     return out;
   }
 
@@ -364,6 +429,108 @@ class Dynamics {
     return per_call(calls, [&] { jacobians(method, s, h, Q_cmd, B, damping, moving, g); });
   }
 
+  // … of one of the dynamics' algorithms, every pseudo-velocity free (bench/'s scaling): x is
+  // u̇ for the inverse dynamics, Q for the forward. "inverse": frames + one Gibbs–Appell pass;
+  // "inverse_by_columns": Q = M u̇ + h with M assembled column by column (n_u passes);
+  // "forward": frames + the articulated-body recursion; "forward_composite_cholesky" and
+  // "forward_by_columns_cholesky": h by one pass, M by composite rigid bodies or by columns,
+  // then Cholesky.
+  double time_dynamics(const std::string& what, In q, In u, In x, double g, int calls) {
+    check(q, u, x);
+    const int nu = n_u();
+    std::fill(ws_.moving.begin(), ws_.moving.end(), 1.0);
+    std::vector<double> out(nu), h(nu), rhs(nu), zeros(nu, 0.0), unit(nu, 0.0), M(nu * nu),
+        L(nu * nu);
+    std::vector<int> free(nu);
+    std::iota(free.begin(), free.end(), 0);
+    // column j of M: the generalized forces of u̇ = e_j at u = 0 without gravity
+    auto mass_matrix_by_columns = [&] {
+      for (int j = 0; j < nu; ++j) {
+        unit[j] = 1.0;
+        mms::inverse_dynamics(model_, q.data(), zeros.data(), unit.data(), 0.0, ws_, rhs.data());
+        for (int i = 0; i < nu; ++i) M[i * nu + j] = rhs[i];
+        unit[j] = 0.0;
+      }
+    };
+    auto by_cholesky = [&](bool by_columns) {
+      frames(model_, q.data(), ws_);
+      mms::inverse_dynamics(model_, q.data(), u.data(), zeros.data(), g, ws_, h.data());
+      for (int i = 0; i < nu; ++i) rhs[i] = x.data()[i] - h[i];
+      if (by_columns) mass_matrix_by_columns();
+      else mms::mass_matrix(model_, ws_, q.data(), M.data());
+      cholesky_solve(M.data(), nu, rhs.data(), free.data(), nu, L.data(), out.data());
+    };
+    if (what == "inverse")
+      return per_call(calls, [&] {
+        frames(model_, q.data(), ws_);
+        mms::inverse_dynamics(model_, q.data(), u.data(), x.data(), g, ws_, out.data());
+      });
+    if (what == "inverse_by_columns")
+      return per_call(calls, [&] {
+        frames(model_, q.data(), ws_);
+        mass_matrix_by_columns();
+        mms::inverse_dynamics(model_, q.data(), u.data(), zeros.data(), g, ws_, h.data());
+        for (int i = 0; i < nu; ++i) {
+          double s = h[i];
+          for (int j = 0; j < nu; ++j) s += M[i * nu + j] * x.data()[j];
+          out[i] = s;
+        }
+      });
+    if (what == "forward")
+      return per_call(calls, [&] {
+        frames(model_, q.data(), ws_);
+        mms::forward_dynamics(model_, q.data(), u.data(), x.data(), g, ws_, out.data());
+      });
+    if (what == "forward_composite_cholesky")
+      return per_call(calls, [&] { by_cholesky(false); });
+    if (what == "forward_by_columns_cholesky")
+      return per_call(calls, [&] { by_cholesky(true); });
+    throw std::invalid_argument("what: expected inverse, inverse_by_columns, forward, "
+                                "forward_composite_cholesky or forward_by_columns_cholesky, got " +
+                                what);
+  }
+
+  // … of the engine's right-hand side ds/dt (as `rates`), and of one fixed step (as `step`).
+  double time_rates(In s, In Q_cmd, In damping, In moving, double g, int calls) {
+    set_effects(s, Q_cmd, damping, moving);
+    std::vector<double> ds(state_size(model_));
+    Effects<double> fx{g, Q_cmd.data(), damping.size() ? damping.data() : nullptr};
+    return per_call(calls, [&] { mms::rates(model_, fx, s.data(), ds.data(), system_); });
+  }
+
+  double time_step(const std::string& method, In s, double h, In Q_cmd, In damping, In moving,
+                   double g, int calls) {
+    Method m = method_of(method);
+    set_effects(s, Q_cmd, damping, moving);
+    std::vector<double> next(state_size(model_));
+    Effects<double> fx{g, Q_cmd.data(), damping.size() ? damping.data() : nullptr};
+    return per_call(calls, [&] { mms::step(m, model_, fx, s.data(), h, next.data(), system_); });
+  }
+
+  // The arithmetic of one forward-dynamics evaluation (frames + articulated), counted on
+  // `Counted` numbers, every pseudo-velocity free: ({add, sub, mul, div, neg, sqrt, sin, cos},
+  // u̇ as the counted run computed it: the double kernel's, bit for bit, when the counted run
+  // did the same operations).
+  std::tuple<nb::dict, Out> count_forward_dynamics(In q, In u, In Q, double g) {
+    check(q, u, Q);
+    std::vector<Counted> qc(q.data(), q.data() + n_q()), uc(u.data(), u.data() + n_u()),
+        Qc(Q.data(), Q.data() + n_u()), ud(n_u());
+    Workspace<Counted> ws(n());
+    flop_counts = FlopCounts();
+    frames(model_, qc.data(), ws);
+    mms::forward_dynamics(model_, qc.data(), uc.data(), Qc.data(), g, ws, ud.data());
+    const FlopCounts c = flop_counts;
+    nb::dict counts;
+    counts["add"] = c.add, counts["sub"] = c.sub, counts["mul"] = c.mul, counts["div"] = c.div;
+    counts["neg"] = c.neg, counts["sqrt"] = c.sqrt, counts["sin"] = c.sin, counts["cos"] = c.cos;
+    double* values;
+    Out out = new_array({size_t(n_u())}, &values);
+    for (int k = 0; k < n_u(); ++k) values[k] = ud[k].v;
+    return {counts, out};
+  }
+
+  int state_length() const { return state_size(model_); }
+
  private:
   // Exact Jacobians by dual numbers (kDirections directions a pass, one vector register) at one
   // state: value (n_x), ∂/∂x (n_x × n_x), ∂/∂τ (n_x × n_τ), all row-major.
@@ -412,16 +579,6 @@ class Dynamics {
     return static_cast<int>(B.shape(ndim - 1));
   }
 
-  template <class F>
-  static double per_call(int calls, F&& body) {
-    body();
-    timespec start, end;
-    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &start);
-    for (int i = 0; i < calls; ++i) body();
-    clock_gettime(CLOCK_THREAD_CPUTIME_ID, &end);
-    double seconds = (end.tv_sec - start.tv_sec) + 1e-9 * (end.tv_nsec - start.tv_nsec);
-    return seconds / (calls > 0 ? calls : 1);
-  }
 
   void set_effects(const In& s, const In& Q_cmd, const In& damping, const In& moving) {
     need(s, state_size(model_), "s");
@@ -870,6 +1027,40 @@ class Stepper {
     return out;
   }
 
+  // The generalized force each locked pseudo-velocity needs to stay locked at s, M u̇ + h − Q
+  // with u̇ and Q of the right-hand side there (zero on the free ones up to round-off): one
+  // inverse-dynamics pass after `derivative` (counted as it is).
+  Out constraint_forces(In s) {
+    check_state(s);
+    sync_locks(run_);
+    std::vector<double> ds(run_.size);
+    mms::derivative(run_, s.data(), ds.data());
+    const int nq = run_.n_q(), nu = run_.model.n_u();
+    double* out;
+    Out forces = new_array({size_t(nu)}, &out);
+    mms::inverse_dynamics(run_.model, s.data(), s.data() + nq, ds.data() + nq,
+                          run_.system.gravity, run_.ws.dynamics, out);
+    for (int k = 0; k < nu; ++k) out[k] -= run_.ws.Q[k];
+    return forces;
+  }
+
+  // (τ_R, τ_L), N·m: the continuous wheel-speed loop's torques at s (system.hpp's wheel_drive,
+  // as `rates` computes them under velocity commands).
+  std::tuple<double, double> wheel_torques(In s) {
+    check_state(s);
+    const WheelLoop w = wheel_loop(run_.system.control);
+    const Model& m = run_.model;
+    const double* u = s.data() + run_.n_q();
+    const int e = controller_index(m);
+    const double r = m.base.wheel_radius, b = m.base.half_track;
+    double tau_R, tau_L, rate;
+    wheel_drive(w.kp, w.ki, w.target_R, (u[V] + b * u[OMEGA]) / r, s.data()[e], w.limit_R, true,
+                tau_R, rate);
+    wheel_drive(w.kp, w.ki, w.target_L, (u[V] - b * u[OMEGA]) / r, s.data()[e + 1], w.limit_L,
+                true, tau_L, rate);
+    return {tau_R, tau_L};
+  }
+
   // --- the arm controller (arm_control.hpp) -------------------------------------------------
   // Drive the arm by its controller, on the system record's arrays (engine/system.py's
   // SystemData: arm, arm_gains, arm_limits, ref_starts, ref_coeffs, arm_ref, ff_masses); again
@@ -948,7 +1139,7 @@ class Stepper {
   }
 
   // Its step of length h (s): its end state y1 and its interpolant as a power series, rows of
-  // (rows ≤ 7, state) coefficients c_j of y(θ) = y₀ + Σ_j c_j θ^(j+1) (engine/dense.py).
+  // (rows ≤ 7, state) coefficients c_j of y(θ) = y₀ + Σ_j c_j θ^(j+1) (engine/scipy_steps.py).
   void hand_in_step(double h, In y1, In series) {
     AdaptiveRun& a = outside_run("hand_in_step");
     need(y1, run_.size, "y1");
@@ -1052,7 +1243,7 @@ class LaneSet {
   }
 
   // Every lane lanes[j] (its records at index records[j]) from next_sample[lane] towards sample
-  // `last`: code, next_sample and failure per lane as batch/lanes.py's `advance_fixed` gives
+  // `last`: code, next_sample and failure per lane as batch/runs.py reads
   // them; rows (N × samples × (size + 1)) and rows_t (N × samples) its samples with `write`
   // (else one row per lane, never written); log … count each lane's own impact log; paths
   // (N × 2) its grid steps taken in vector blocks and alone. `vector`: plain grid steps in
@@ -1151,9 +1342,73 @@ class LaneSet {
   std::vector<Lane> lanes_;
 };
 
+// The end stops' contact problem alone (stops.hpp `solve_contacts`, every contact unilateral):
+// the LCP P ≥ 0, w = W P + q ≥ 0, Pᵀw = 0 for a symmetric positive definite W (m × m); (P, w).
+std::tuple<Out, Out> contact_solve(In W, In q) {
+  const size_t m = q.ndim() == 1 ? q.shape(0) : 0;
+  if (q.ndim() != 1 || W.ndim() != 2 || W.shape(0) != m || W.shape(1) != m)
+    throw std::invalid_argument("solve_contacts: expected W of shape (m, m) and q of (m,)");
+  std::vector<char> bilateral(m, 0), active(m, 0);
+  std::vector<double> L(m * (m + 1));
+  std::vector<int> idx(m);
+  double *P, *w;
+  Out P_out = new_array({m}, &P), w_out = new_array({m}, &w);
+  if (mms::solve_contacts(W.data(), int(m), q.data(), int(m), bilateral.data(), active.data(), P,
+                          w, L.data(), int(m) + 1, idx.data()) < 0)
+    throw std::runtime_error("solve_contacts: no solution found");
+  return {P_out, w_out};
+}
+
+// The Zeno guard alone (stops.hpp `zeno_guard`) on a record of the stops' runs (n × 2 ×
+// RUN_FIELDS, as `StopsData.run`): rod k meets its stop `side` at t with speed and kinetic
+// energy T; the energy a hold may remove there beyond the law, or −1 without evidence.
+double zeno_guard_alone(F64 runs, int k, int side, double t, double speed, double T) {
+  const size_t n = runs.ndim() == 3 ? runs.shape(0) : 0;
+  if (runs.ndim() != 3 || runs.shape(1) != 2 || runs.shape(2) != size_t(RUN_FIELDS))
+    throw std::invalid_argument("runs: expected an array of shape (n, 2, RUN_FIELDS)");
+  if (k < 1 || size_t(k) > n) throw std::invalid_argument("k: expected a rod 1 … n");
+  return mms::zeno_guard(runs.data(), k, side, t, speed, T);
+}
+
+// The arm's reference (arm_control.hpp `reference`) of segments starting at `starts` (count)
+// with coefficients `coeffs` (count × n_arm × WIDTH, engine/arm_reference.py's layout) at the
+// reference clock tau, the search starting at segment `hint`: (3, n_arm) q_ref, q̇_ref, q̈_ref.
+Out reference_alone(In starts, In coeffs, double tau, int hint) {
+  const size_t count = starts.ndim() == 1 ? starts.shape(0) : 0;
+  if (count == 0 || coeffs.ndim() != 3 || coeffs.shape(0) != count ||
+      coeffs.shape(2) != size_t(REF_WIDTH))
+    throw std::invalid_argument("reference: expected starts (count,) and coeffs (count, n_arm, " +
+                                std::to_string(REF_WIDTH) + ")");
+  if (hint < 0 || size_t(hint) >= count) throw std::invalid_argument("hint: expected a segment");
+  const size_t n_arm = coeffs.shape(1);
+  double* ref;
+  Out out = new_array({3, n_arm}, &ref);
+  mms::reference(starts.data(), coeffs.data(), int(count), int(n_arm), tau, ref, hint);
+  return out;
+}
+
 // a*b + c, as this build computes it: a build that contracts it into one fused multiply-add
 // rounds once and gives another result than IEEE's two roundings (the test checks).
 double multiply_add(double a, double b, double c) { return a * b + c; }
+
+// CPU seconds of this thread per round of 6 independent multiplies and 6 independent additions
+// on vectors of kLaneWidth doubles (12 × kLaneWidth flops; no fused multiply-add in this build):
+// enough chains in flight to hide their latency, few enough to stay in registers. bench/ takes
+// the vector peak from it.
+double time_multiply_add(int rounds) {
+  const Block m(1.0000001);
+  Block p[6], a[6];
+  for (int i = 0; i < 6; ++i) p[i] = Block(1.0 + i), a[i] = Block(1.0 - i);
+  double seconds = per_call(1, [&] {
+    for (int r = 0; r < rounds; ++r)
+      for (int i = 0; i < 6; ++i) p[i] = p[i] * m, a[i] = a[i] + m;
+  });
+  Block sum(0.0);
+  for (int i = 0; i < 6; ++i) sum = sum + p[i] + a[i];
+  volatile double keep = sum[0];  // the chains' results are used: the loop stays
+  (void)keep;
+  return seconds / (rounds > 0 ? rounds : 1);
+}
 
 nb::dict build_info() {
   nb::dict info;
@@ -1167,6 +1422,35 @@ nb::dict build_info() {
   info["fast_math"] = false;
 #endif
   return info;
+}
+
+// The core's vocabulary of the arrays Python hands it: the indices and sizes of the records and
+// the constants of the event and stop laws, owned here and read by the engine's Python modules
+// (engine/status.py, system.py, stepping.py, events.py, stops.py, impact_log.py, step_watch.py).
+nb::dict vocabulary() {
+  nb::dict v;
+#define MMS_NAME(name) v[#name] = +name;
+  MMS_NAME(RHS_EVALS) MMS_NAME(DAMPING_STAGE) MMS_NAME(REDUCED_SOLVE) MMS_NAME(CROSSING_CHECKS)
+  MMS_NAME(CONTROL_STAGE) MMS_NAME(ARM_CONTROL_STAGE)
+  MMS_NAME(HOLDING_ON) MMS_NAME(HOLDING_LEAST_MARGIN)
+  MMS_NAME(WHEEL_VELOCITY_MODE) MMS_NAME(WHEEL_KP) MMS_NAME(WHEEL_KI) MMS_NAME(WHEEL_LIMIT_R)
+  MMS_NAME(WHEEL_LIMIT_L) MMS_NAME(WHEEL_TARGET_R) MMS_NAME(WHEEL_TARGET_L)
+  MMS_NAME(CLOCK_T0) MMS_NAME(CLOCK_DT) MMS_NAME(CLOCK_K) MMS_NAME(CLOCK_STEPS) MMS_NAME(CLOCK_LOST)
+  MMS_NAME(CLOCK_HELD) MMS_NAME(CLOCK_HOLDS) MMS_NAME(CLOCK_UPDATES) MMS_NAME(CLOCK_ENTRIES)
+  MMS_NAME(DONE) MMS_NAME(BUDGET) MMS_NAME(LOG_FULL) MMS_NAME(NOT_FINITE) MMS_NAME(CHATTER)
+  MMS_NAME(STALLED) MMS_NAME(CRAWLING) MMS_NAME(CONTACT_FAILED)
+  MMS_NAME(LOG_TIME) MMS_NAME(LOG_LINK) MMS_NAME(LOG_SIDE) MMS_NAME(LOG_LD_BEFORE)
+  MMS_NAME(LOG_LD_AFTER) MMS_NAME(LOG_LOST) MMS_NAME(LOG_RESTING) MMS_NAME(LOG_HELD)
+  MMS_NAME(LOG_HOLD_LOST) MMS_NAME(LOG_HOLD_BOUND) MMS_NAME(LOG_COLUMNS)
+  MMS_NAME(IMPULSE) MMS_NAME(REFLECT)
+  MMS_NAME(N_SAMPLES) MMS_NAME(SIMULTANEOUS) MMS_NAME(ZENO_TAIL) MMS_NAME(ZENO_RUN)
+  MMS_NAME(ZENO_SHARE) MMS_NAME(RUN_FIELDS) MMS_NAME(CONTACT_SOLVE_FAILED)
+  MMS_NAME(STEP_FLOOR) MMS_NAME(FLOOR_STEPS) MMS_NAME(BUDGET_STEPS) MMS_NAME(BUDGET_SPAN)
+  MMS_NAME(WATCH_SHORT) MMS_NAME(WATCH_MARK) MMS_NAME(WATCH_STEPS)
+  MMS_NAME(LANE_DONE) MMS_NAME(LANE_PAUSED) MMS_NAME(LANE_FAILED)
+  MMS_NAME(REF_COEFFS) MMS_NAME(HELD_QD) MMS_NAME(HELD_QDD) MMS_NAME(REF_WIDTH)
+#undef MMS_NAME
+  return v;
 }
 
 }  // namespace
@@ -1205,6 +1489,7 @@ NB_MODULE(_core, m) {
       .def("energy", &mms::Dynamics::energy, "q"_a, "u"_a, "g"_a)
       .def("joint_origins", &mms::Dynamics::joint_origins, "q"_a)
       .def("link_rotations", &mms::Dynamics::link_rotations, "q"_a)
+      .def("configuration_rates", &mms::Dynamics::configuration_rates, "samples"_a)
       .def("configuration_rate", &mms::Dynamics::configuration_rate, "q"_a, "u"_a)
       .def("forward_dynamics_lanes", &mms::Dynamics::forward_dynamics_lanes, "q"_a, "u"_a,
            "Q"_a, "g"_a, "moving"_a)
@@ -1224,6 +1509,15 @@ NB_MODULE(_core, m) {
            "u"_a, "Q"_a, "g"_a, "moving"_a, "calls"_a)
       .def("time_jacobians", &mms::Dynamics::time_jacobians, "method"_a, "s"_a, "h"_a,
            "Q_cmd"_a, "B"_a, "damping"_a, "moving"_a, "g"_a, "calls"_a)
+      .def("time_dynamics", &mms::Dynamics::time_dynamics, "what"_a, "q"_a, "u"_a, "x"_a, "g"_a,
+           "calls"_a)
+      .def("time_rates", &mms::Dynamics::time_rates, "s"_a, "Q_cmd"_a, "damping"_a, "moving"_a,
+           "g"_a, "calls"_a)
+      .def("time_step", &mms::Dynamics::time_step, "method"_a, "s"_a, "h"_a, "Q_cmd"_a,
+           "damping"_a, "moving"_a, "g"_a, "calls"_a)
+      .def("count_forward_dynamics", &mms::Dynamics::count_forward_dynamics, "q"_a, "u"_a,
+           "Q"_a, "g"_a)
+      .def_prop_ro("state_size", &mms::Dynamics::state_length)
       .def("initial_step", &mms::Dynamics::initial_step, "method"_a, "s"_a, "span"_a, "rtol"_a,
            "atol"_a, "max_step"_a, "Q_cmd"_a, "damping"_a, "moving"_a, "g"_a,
            "wheels"_a.none() = nb::none())
@@ -1234,8 +1528,14 @@ NB_MODULE(_core, m) {
       .def("adaptive_run", &mms::Dynamics::adaptive_run, "method"_a, "s"_a, "times"_a, "rtol"_a,
            "atol"_a, "Q_cmd"_a, "damping"_a, "moving"_a, "g"_a, "wheels"_a.none() = nb::none(),
            "max_steps"_a = 10'000'000, "changes"_a = std::vector<double>());
+  m.attr("vocabulary") = mms::vocabulary();
   m.def("build_info", &mms::build_info);
+  m.def("solve_contacts", &mms::contact_solve, "W"_a, "q"_a);
+  m.def("arm_reference", &mms::reference_alone, "starts"_a, "coeffs"_a, "tau"_a, "hint"_a = 0);
+  m.def("zeno_guard", &mms::zeno_guard_alone, "runs"_a, "k"_a, "side"_a, "t"_a, "speed"_a,
+        "T"_a);
   m.def("multiply_add", &mms::multiply_add, "a"_a, "b"_a, "c"_a);
+  m.def("time_multiply_add", &mms::time_multiply_add, "rounds"_a);
   nb::class_<mms::Stepper>(m, "Stepper")
       .def(nb::init<nb::object, const std::string&, double, mms::In, mms::I64, mms::In, mms::In,
                     mms::I64, mms::F64, mms::Bools, mms::I64, mms::In, mms::Bools, int, double,
@@ -1260,6 +1560,8 @@ NB_MODULE(_core, m) {
       .def("release", &mms::Stepper::release, "s"_a, "at_root"_a)
       .def("holding_margin", &mms::Stepper::holding_margin, "s"_a)
       .def("derivative", &mms::Stepper::derivative, "s"_a)
+      .def("constraint_forces", &mms::Stepper::constraint_forces, "s"_a)
+      .def("wheel_torques", &mms::Stepper::wheel_torques, "s"_a)
       // the arm controller
       .def("drive_arm", &mms::Stepper::drive_arm, "arm"_a, "arm_gains"_a, "arm_limits"_a,
            "ref_starts"_a, "ref_coeffs"_a, "arm_ref"_a, "ff_masses"_a)

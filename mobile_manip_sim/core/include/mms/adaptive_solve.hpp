@@ -1,7 +1,7 @@
 // The adaptive methods' solve (runge_kutta.hpp) as a loop can drive it: one accepted step at a
 // time, the last one kept *in hand* (its start y₀, stages, y₁, f(y₀), f(y₁)), its dense output
-// read at any instant inside it, and a restart that drops it at a discontinuity. As the numba
-// engine's engine/adaptive_stepping.py, without its events (stops, impacts, releases, holds):
+// read at any instant inside it, and a restart that drops it at a discontinuity, without the
+// events (stops, impacts, releases, holds: adaptive_stepping.hpp adds them):
 //
 //   take_step      the next accepted step after the one in hand (FSAL: it starts from y₁ with
 //                  f(y₁)), or the first of a new solve at (t, s), with `initial_step`'s size

@@ -1,7 +1,7 @@
 // The adaptive engine: rk45 and dop853 (runge_kutta.hpp, adaptive_solve.hpp) with error control,
 // advancing a run to a target time (or through sample times) with every step, crossing check,
 // event location on the step's dense output, impact, rest and release, the Zeno guard and the
-// crawl limits inside (engine/adaptive_stepping.py is the reference, operation for operation).
+// crawl limits inside (their records: engine/adaptive_stepping.py, engine/step_watch.py).
 //
 // One solve runs from its start until a discontinuity (an impact, a release, a command change:
 // `restart`); the step is never cut at a target or a sample. The last accepted step stays in hand:
@@ -204,7 +204,7 @@ inline bool reach(Run& run, AdaptiveRun& a, double* s, double* clock, double t_e
 
 // --- an outside solver's steps (SciPy's radau and bdf, engine/scipy_steps.py): each one handed in
 // as the step in hand; `locate_event`, `reach` and `apply_event` do the rest, as for rk45 and
-// dop853 (engine/adaptive_stepping.py's `begin_step`, `hand_in_step` are the reference).
+// dop853 (engine/scipy_steps.py hands them in).
 
 // The outside solver's next step starts at (t0, y0).
 inline void begin_handed_step(Run& run, AdaptiveRun& a, double t0, const double* y0) {

@@ -11,7 +11,7 @@
 // turning points, then located by the Illinois method. A release is watched at every evaluation
 // of the right-hand side (run.hpp's `derivative`); where one saw a stop pull, the margin is
 // sampled at 16 instants of the step and the first pull located by the same root finder.
-// engine/events.py is the reference, operation for operation.
+// (Their constants: events.hpp, stops.hpp, read by engine/events.py through `core.vocabulary`.)
 #pragma once
 
 #include <cmath>
@@ -107,7 +107,8 @@ struct OwnStep {
 
 // An outside solver's step (SciPy's radau and bdf, stepped from Python one step at a time): its
 // interpolant handed in as a power series in θ = h'/h, y(θ) = y₀ + Σ_j c_j θ^(j+1)
-// (engine/dense.py's POWER), summed by Horner's rule over every row (the unused ones are zero).
+// (engine/scipy_steps.py's `power_series`), summed by Horner's rule over every row (the unused
+// ones are zero).
 struct PowerSeries {
   const std::vector<std::vector<double>>& c;  // (rows × n) c_j
   const double* s0;                           // y₀, the state at the step's start

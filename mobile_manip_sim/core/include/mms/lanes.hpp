@@ -1,6 +1,6 @@
 // The batch's lanes: many runs, each its own `Run` (run.hpp) with its own state and clock, advanced
 // in one call over several threads. Each lane follows the very calls a simulation alone makes
-// (batch/lanes.py is the contract, and the numba lanes the reference while both exist): for every
+// (batch/runs.py drives them, batch/lane_logs.py holds their logs): for every
 // sample time an `advance` with the simulation's step budget, again after BUDGET, and after every
 // call the impact log emptied into the lane's own log (`keep_impacts`), which Python reads after
 // the call. A lane pauses only when that log is full, and goes on in the next call once Python has
@@ -25,7 +25,7 @@
 
 namespace mms {
 
-// a lane's outcome after a call (batch/lanes.py); LANE_GOES_ON: not yet; NEED_STEP: the lane
+// a lane's outcome after a call (batch/lane_logs.py); LANE_GOES_ON: not yet; NEED_STEP: the lane
 // waits for its next whole grid step
 enum LaneCode { LANE_DONE = 0, LANE_PAUSED = 1, LANE_FAILED = 2, LANE_GOES_ON = -1,
                 NEED_STEP = -2 };
@@ -38,7 +38,7 @@ struct Lane {
   double* clock = nullptr;
 };
 
-// A lane's own impact log (batch/lanes.py's ImpactLogs): rows of the stops' log moved there.
+// A lane's own impact log (batch/lane_logs.py's ImpactLogs): rows of the stops' log moved there.
 struct LaneLog {
   double* log;           // (rows × LOG_COLUMNS)
   double* log_q;         // (rows × n_q)

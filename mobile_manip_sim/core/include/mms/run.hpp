@@ -80,7 +80,7 @@ struct StepArrays {
   std::int64_t* crossed = nullptr;  // (n) the stop each rod is past at the bracket's end
 };
 
-// An impact's and a release's scratch (engine/stops.py's ImpactScratch), owned here.
+// An impact's and a release's scratch, owned here.
 struct ImpactScratch {
   std::vector<double> M, L;          // (n_u × n_u) the mass matrix, its factor
   std::vector<double> unit;          // (n_u) a contact's direction

@@ -22,8 +22,7 @@
 // h_new = h·min(kMaxFactor, kSafety·‖err‖^(−1/(p̂+1))) (no growth right after a rejection), after
 // a rejected one h·max(kMinFactor, kSafety·‖err‖^(−1/(p̂+1))), p̂ the error estimator's order.
 //
-// Every kernel keeps the operation order of the numba engine's engine/runge_kutta.py, so that
-// double results are bit for bit the same. The stage, error and dense-output kernels take the
+// The stage, error and dense-output kernels take the
 // step length as RealOf<S> (one per lane for Lanes); the step-size control decides on numbers
 // (`value` of a Dual), so it is for scalars whose RealOf is double: a run, or its derivatives.
 #pragma once
@@ -51,7 +50,7 @@ inline const Tableau& tableau(Adaptive method) {
 }
 
 // Python's min and max of two numbers (the first unless the second is strictly beyond it): the
-// numba kernels' choice where the two tie or one is NaN.
+// choice SciPy's controller makes where the two tie or one is NaN.
 inline double first_min(double a, double b) { return b < a ? b : a; }
 inline double first_max(double a, double b) { return b > a ? b : a; }
 
@@ -262,7 +261,7 @@ int dense_prepare(Adaptive method, F& f, const S* s, const RealOf<S>& h, StepWor
 // `dense_prepare`'s 7th-order interpolant; always false for rk45, whose interpolant costs
 // nothing anyway. The extension is of order 6; its error is estimated at θ = ½ by its
 // difference to the 5th-order extension of the same stages (free_check) in `error_norm`'s scaled
-// RMS norm, which must not exceed 1 (engine/runge_kutta.py says why that bounds it).
+// RMS norm, which must not exceed 1 (the step's own tolerance bounds the samples read from it).
 template <class S>
 bool dense_from_stages(Adaptive method, int n, const S* s, double h, StepWork<S>& work,
                        double rtol, double atol) {

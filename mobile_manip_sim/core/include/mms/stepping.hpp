@@ -1,7 +1,7 @@
 // The fixed-step engine: advance a run to a target time (or through sample times) with every
 // step, crossing check, event location, impact, rest and release inside, and the updates of
-// sampled controllers (engine/stepping.py and engine/sampling.py are the reference, operation for
-// operation). The time line: t = t0 + k·dt with an integer step
+// sampled controllers (docs/controllers.md, "The control rate"). The time line: t = t0 + k·dt
+// with an integer step
 // count k (long runs land exactly on k·dt); a target off that grid ends in one shorter step,
 // after which the grid restarts there. A call returns after `max_steps` steps (BUDGET) so that
 // the caller can act on signals, and when the impact log needs emptying (LOG_FULL).
@@ -19,12 +19,19 @@ inline bool finite(const double* s, int n) {
   return true;
 }
 
-// --- sampled controllers (engine/sampling.py): the wheel-speed loop and the arm controller
-// updated at the control rate, their outputs held between updates. An update is a discrete map at
-// t_m = m / rate, outside the right-hand side: τ_m = sat(law(s(t_m))) held until t_{m+1}, each
-// integral advanced by one forward-Euler step of its rate (control_toolbox's compute_command
-// with conditional integration), then, as at a command change, a resting rod the new efforts
-// pull is released. The steps end at every update (a step boundary, as a command change is).
+// --- sampled controllers: the wheel-speed loop and the arm controller updated at the control
+// rate, as ros2_control's controller manager runs them at its update_rate and the hardware holds
+// each command until the next update. An update is a discrete map at t_m = m / rate, outside the
+// right-hand side, which only reads what it left (system.held): τ_m = sat(law(s(t_m))) held until
+// t_{m+1}, each integral advanced by one forward-Euler step of its rate, or not at all while the
+// output is saturated in the error's direction (control_toolbox's Pid::compute_command with its
+// conditional integration: i_term += dt · i_gain · error after the command); then, as at a command
+// change, a resting rod the new efforts pull is released. The steps end at every update (a step
+// boundary, as a command change is; the adaptive solves restart there). The count of updates
+// applied is the clock's (CLOCK_UPDATES). A call that ends at an update instant leaves that update
+// to the next call, which applies it first: a command given between the calls, at the instant, is
+// taken at that update, as ros2_control reads its commands in the update. A rate of 0 keeps the
+// continuous controllers: no update, no hold.
 
 // The instant (s) of the next update after `updates` of them; +inf when continuous, or when no
 // controller drives (the arm in effort mode, the wheels under torque commands): such a run is not

@@ -1,7 +1,7 @@
 // Stroke end stops (docs/model.md, "Several stops at once" and "Resting, leaving, and no Zeno"):
 // the contact problem of m rods at their stops, the impact law, resting at a stop and leaving it,
-// and the Zeno guard's evidence. The engine's numba kernels (engine/contacts.py, engine/stops.py,
-// engine/events.py) are the reference, operation for operation.
+// and the Zeno guard's evidence (engine/stops.py holds the records, engine/events.py names the
+// constants).
 //
 // - `solve_contacts`: the LCP P ≥ 0, w = W P + q ≥ 0, Pᵀw = 0 (W the Delassus matrix Eᵀ M⁻¹ E,
 //   symmetric positive definite, so the solution is unique), by Murty's least-index principal
@@ -132,7 +132,7 @@ inline bool solve_set(Run& run, const double* q, int m) {
                         c.w.data(), c.cholesky.data(), n + 1, c.index.data()) >= 0;
 }
 
-// The Zeno guard's evidence (engine/events.py): rod k meets its stop `side` at time t with
+// The Zeno guard's evidence (docs/model.md, "Resting, leaving, and no Zeno"): rod k meets its stop `side` at time t with
 // arrival speed `speed`, the kinetic energy being T. Records the impact and returns the energy a
 // hold may remove there beyond the law, or −1 without evidence of an accumulation point.
 inline double zeno_guard(double* runs, int k, int side, double t, double speed, double T) {

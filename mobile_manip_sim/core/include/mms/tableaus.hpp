@@ -5,7 +5,7 @@
 // 8(5,3) as Hairer's DOP853 code, with its 7th-order interpolant and the 6th-order continuous
 // extension from the step's own stages (engine/continuous_extension.py derives it; a
 // least-squares solve). The numbers are the exact bits of the Python tableaus (hexadecimal
-// literals): the compiled methods step bit for bit as the numba kernels did. Unused entries are 0.
+// literals), the very numbers engine/tableaus.py holds. Unused entries are 0.
 #pragma once
 
 namespace mms {
