@@ -19,6 +19,7 @@
 #include "mms/adaptive_solve.hpp"
 #include "mms/articulated.hpp"
 #include "mms/dynamics.hpp"
+#include "mms/event_jacobians.hpp"
 #include "mms/fixed_step.hpp"
 #include "mms/adaptive_stepping.hpp"
 #include "mms/lanes.hpp"
@@ -59,6 +60,37 @@ Method method_of(const std::string& name) {
   if (name == "semi_implicit_euler") return Method::SemiImplicitEuler;
   if (name == "rk4") return Method::Rk4;
   throw std::invalid_argument("method: expected euler, semi_implicit_euler or rk4, got " + name);
+}
+
+// Dual numbers seeded for the pass of directions first … first + kDirections − 1 of exact
+// Jacobians: direction j seeds x_j (j < n_x: the first n_x entries of s), else the effort j − n_x,
+// whose generalized forces are Q_cmd + B (τ − τ₀) (B: n_u × n_τ).
+void seed_pass(int first, const double* s, int size, int nx, const double* Q_cmd, const double* B,
+               int nu, int ntau, DualD* sd, DualD* Qd) {
+  auto seed = [&](int j) {
+    Directions d(0.0);
+    if (j >= first && j < first + kDirections) d.set(j - first, 1.0);
+    return d;
+  };
+  for (int i = 0; i < size; ++i) sd[i] = DualD(s[i], i < nx ? seed(i) : Directions(0.0));
+  for (int i = 0; i < nu; ++i) {
+    Directions d(0.0);
+    for (int j = 0; j < ntau; ++j) d = d + B[i * ntau + j] * seed(nx + j);
+    Qd[i] = DualD(Q_cmd[i], d);
+  }
+}
+
+// The pass's results out (n_x) into value (n_x), ∂/∂x (n_x × n_x), ∂/∂τ (n_x × n_τ), row-major.
+void read_pass(int first, const DualD* out, int nx, int ntau, double* value, double* dx,
+               double* dtau) {
+  for (int r = 0; r < nx; ++r) {
+    value[r] = out[r].val;
+    for (int lane = 0; lane < kDirections && first + lane < nx + ntau; ++lane) {
+      int j = first + lane;
+      if (j < nx) dx[r * nx + j] = out[r].d[lane];
+      else dtau[r * ntau + j - nx] = out[r].d[lane];
+    }
+  }
 }
 
 class Dynamics {
@@ -377,29 +409,11 @@ class Dynamics {
     std::vector<DualD> sd(ns), Qd(nu), out(ns);
     Effects<DualD> fx{g, Qd.data(), damping};
     for (int first = 0; first < total; first += kDirections) {
-      // direction j (first ≤ j < first + kDirections) seeds x_j, or the effort j − n_x
-      auto seed = [&](int j) {
-        Directions d(0.0);
-        if (j >= first && j < first + kDirections) d.set(j - first, 1.0);
-        return d;
-      };
-      for (int i = 0; i < ns; ++i) sd[i] = DualD(s[i], i < nx ? seed(i) : Directions(0.0));
-      for (int i = 0; i < nu; ++i) {
-        Directions d(0.0);
-        for (int j = 0; j < ntau; ++j) d = d + B[i * ntau + j] * seed(nx + j);
-        Qd[i] = DualD(Q_cmd[i], d);
-      }
+      seed_pass(first, s, ns, nx, Q_cmd, B, nu, ntau, sd.data(), Qd.data());
       if (adaptive) adaptive_step_map(adaptive_of(method), fx, sd.data(), h, out.data());
       else if (of_step) mms::step(m, model_, fx, sd.data(), h, out.data(), dual_system());
       else mms::rates(model_, fx, sd.data(), out.data(), dual_system());
-      for (int r = 0; r < nx; ++r) {
-        value[r] = out[r].val;
-        for (int lane = 0; lane < kDirections && first + lane < total; ++lane) {
-          int j = first + lane;
-          if (j < nx) dx[r * nx + j] = out[r].d[lane];
-          else dtau[r * ntau + j - nx] = out[r].d[lane];
-        }
-      }
+      read_pass(first, out.data(), nx, ntau, value, dx, dtau);
     }
   }
 
@@ -870,6 +884,61 @@ class Stepper {
     return out;
   }
 
+  // (x⁺, A, B, events) of one whole step h of the run's fixed-step method from s at the time of
+  // `clock`, with the run's efforts, locks and stops: the end (q, u) (n_x), A = ∂x⁺/∂x
+  // (n_x × n_x) and B = ∂x⁺/∂τ (n_x × n_τ, the efforts' generalized forces Q_cmd + B_τ (τ − τ₀),
+  // B_τ n_u × n_τ), through every event the step holds (event_jacobians.hpp), and how many it
+  // held. The run's records are left as they were.
+  std::tuple<Out, Out, Out, int> step_jacobians(In s, In clock, double h, In B_tau) {
+    check_state(s);
+    need(clock, CLOCK_ENTRIES, "clock");
+    if (adaptive_) throw std::invalid_argument("step_jacobians: a fixed-step run only");
+    if (run_.velocity_mode() || run_.arm_on())
+      throw std::invalid_argument("step_jacobians: the robot driven by efforts only");
+    if (!(h > 0.0 && std::isfinite(h))) throw std::invalid_argument("h: expected a positive step");
+    const Model& model = run_.model;
+    const int nu = model.n_u(), nx = model.n_q() + nu, size = run_.size;
+    if (B_tau.ndim() != 2 || B_tau.shape(0) != size_t(nu))
+      throw std::invalid_argument("B: expected an array of shape (" + std::to_string(nu) +
+                                  ", efforts)");
+    const int ntau = int(B_tau.shape(1)), total = nx + ntau;
+    // the double run's step, its events recorded, the run's records restored after it
+    std::vector<double> x(s.data(), s.data() + size), clk(clock.data(), clock.data() + CLOCK_ENTRIES);
+    const double t = clk[CLOCK_T0] + clk[CLOCK_K] * clk[CLOCK_DT];
+    Status status;
+    {
+      Records kept(run_, counters_);
+      sync_locks(run_);
+      EventScript script;
+      run_.script = &script;
+      status = step_with_events(run_, method_, x.data(), h, t, clk.data());
+      run_.script = nullptr;
+      kept.restore(run_);
+      script_ = std::move(script);
+    }
+    if (status != DONE)
+      throw std::runtime_error("step_jacobians: the step did not complete (status " +
+                               std::to_string(int(status)) + ")");
+    if (!dual_) {
+      dual_ = std::make_unique<SystemWorkspace<DualD>>(model);
+      event_work_ = std::make_unique<EventWork<DualD>>(size, nu, std::max(model.n(), 1));
+    }
+    std::vector<DualD> sd(size), Qd(nu), out(size);
+    Effects<DualD> fx{run_.system.gravity, Qd.data(), run_.system.damping};
+    auto rates = [&](const DualD* at, DualD* rate) { mms::rates(model, fx, at, rate, *dual_); };
+    double *value, *dx, *dtau;
+    Out o_value = new_array({size_t(nx)}, &value), o_dx = new_array({size_t(nx), size_t(nx)}, &dx),
+        o_dtau = new_array({size_t(nx), size_t(ntau)}, &dtau);
+    const double* B = B_tau.data();
+    for (int first = 0; first < total; first += kDirections) {
+      seed_pass(first, s.data(), size, nx, run_.system.Q_cmd, B, nu, ntau, sd.data(), Qd.data());
+      step_through_events(method_, model, run_.stops, script_, rates, *dual_, sd.data(), h,
+                          out.data(), *event_work_, size);
+      read_pass(first, out.data(), nx, ntau, value, dx, dtau);
+    }
+    return {o_value, o_dx, o_dtau, int(script_.events.size())};
+  }
+
   // --- the arm controller (arm_control.hpp) -------------------------------------------------
   // Drive the arm by its controller, on the system record's arrays (engine/system.py's
   // SystemData: arm, arm_gains, arm_limits, ref_starts, ref_coeffs, arm_ref, ff_masses); again
@@ -1016,6 +1085,48 @@ class Stepper {
                                   "(hand_in_step, reach)");
   }
 
+  // What a step changes of the run's records beyond its state (which rods rest and are watched,
+  // the impact log's rows in use, the Zeno guard's records, the counters, the holding watch, the
+  // locks, the arm's last evaluation), kept to be put back after a step taken for its derivative.
+  struct Records {
+    std::vector<std::int64_t> resting, counters, free;
+    std::vector<char> watched;
+    std::vector<double> runs, holding, last;
+    std::int64_t count, failed;
+    double segment = 0;
+    Records(const Run& run, size_t n_counters)
+        : resting(run.stops.resting, run.stops.resting + run.n()),
+          counters(run.system.counters, run.system.counters + n_counters),
+          free(run.system.free, run.system.free + run.n_u()),
+          watched(run.stops.watched, run.stops.watched + run.n()),
+          runs(run.stops.run, run.stops.run + run.n() * 2 * RUN_FIELDS),
+          holding(run.system.holding, run.system.holding + 2), count(run.stops.count[0]),
+          failed(run.stops.failed[0]) {
+      if (run.arm.settings != nullptr) {
+        segment = run.arm.settings[ARM_SEGMENT];
+        last.assign(run.arm.last, run.arm.last + ARM_ROWS * (run.n_u() - 2));
+      }
+    }
+    void restore(Run& run) const {
+      std::copy(resting.begin(), resting.end(), run.stops.resting);
+      std::copy(counters.begin(), counters.end(), run.system.counters);
+      std::copy(free.begin(), free.end(), run.system.free);
+      for (int k = 0; k < run.n(); ++k) run.stops.watched[k] = watched[k] != 0;
+      std::copy(runs.begin(), runs.end(), run.stops.run);
+      std::copy(holding.begin(), holding.end(), run.system.holding);
+      run.stops.count[0] = count;
+      run.stops.failed[0] = failed;
+      if (run.arm.settings != nullptr) {
+        run.arm.settings[ARM_SEGMENT] = segment;
+        std::copy(last.begin(), last.end(), run.arm.last);
+      }
+      sync_locks(run);
+    }
+  };
+
+  EventScript script_;  // the events of the last step differentiated
+  std::unique_ptr<SystemWorkspace<DualD>> dual_;     // made at the first derivative
+  std::unique_ptr<EventWork<DualD>> event_work_;
   nb::object owner_;   // the Dynamics whose model the run uses
   nb::object arrays_;  // the arrays the run points into, kept alive
   Method method_ = Method::Rk4;
@@ -1260,6 +1371,7 @@ NB_MODULE(_core, m) {
       .def("release", &mms::Stepper::release, "s"_a, "at_root"_a)
       .def("holding_margin", &mms::Stepper::holding_margin, "s"_a)
       .def("derivative", &mms::Stepper::derivative, "s"_a)
+      .def("step_jacobians", &mms::Stepper::step_jacobians, "s"_a, "clock"_a, "h"_a, "B"_a)
       // the arm controller
       .def("drive_arm", &mms::Stepper::drive_arm, "arm"_a, "arm_gains"_a, "arm_limits"_a,
            "ref_starts"_a, "ref_coeffs"_a, "arm_ref"_a, "ff_masses"_a)
