@@ -9,15 +9,18 @@ An effort held at its limit by the effort-limits effect has a zero column (the c
 
 One step: the exact derivative of the step map of each fixed-step method — the core's own step
 (`core/include/mms/fixed_step.hpp`: euler, semi_implicit_euler, rk4) instantiated for dual
-numbers, so that A and B are the derivatives of the very map the step computes. The step is the
-one between events: a step that would hold an impact or a release is not differentiated through
-its event here.
+numbers, so that A and B are the derivatives of the very map the step computes. A step that holds
+events — a rod reaching its stop (the impact, with its rebound or the rod coming to rest there), a
+resting rod released — is differentiated through them (`core/include/mms/event_jacobians.hpp`):
+the event time's dependence on the state (the saltation) and the impact law on the contact set the
+step found are in A and B, which then equal the derivative of the step map wherever a perturbation
+keeps the same events. `step_jacobians_many` differentiates the event-free step at each state.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from ..scene.errors import UserError
+from ..scene.errors import SimulationError, UserError
 from ..scene.limits import ANGLE, SPEED
 from ..scene.methods import METHODS
 
@@ -96,11 +99,30 @@ def _step_settings(sim, what: str, dt) -> tuple[str, float]:
 
 def step_jacobians(sim, q=None, u=None, dt: float | None = None):
     """(A, B) = (∂x⁺/∂x, ∂x⁺/∂τ) of one step of the run's fixed-step method of length dt
-    (default: the run's) from (q, u) (default: the current state)."""
-    method, h = _step_settings(sim, "step_jacobians", dt)
-    q, u = _state(sim, q, u)
-    _, A, B = jacobians(sim, method, q, u, h)
+    (default: the run's) from (q, u) (default: the current state) at the current time, with the
+    run's efforts, locks and resting rods, through the events the step holds (module doc)."""
+    A, B, _ = _step_jacobians(sim, "step_jacobians", q, u, dt)
     return A, B
+
+
+def _step_jacobians(sim, what: str, q, u, dt):
+    """(A, B, events): `step_jacobians`, and how many events the step held (the compiled
+    stepper's double run of the step finds them; with the numba kernels, the event-free step's
+    A and B and no events)."""
+    method, h = _step_settings(sim, what, dt)
+    q, u = _state(sim, q, u)
+    if sim._stepper is None:
+        _, A, B = jacobians(sim, method, q, u, h)
+        return A, B, 0
+    _, B_tau = efforts_in_force(sim, np.concatenate([sim.wheel_efforts, sim.joint_efforts]))
+    s = sim.s.copy()
+    s[:sim.nq], s[sim.nq:sim.nq + sim.nu] = q, u
+    try:
+        _, A, B, events = sim._stepper.step_jacobians(s, sim._clock, h, B_tau)
+    except RuntimeError as error:
+        raise SimulationError(f"t = {sim.t:.9g} s: {what}: the step from this state failed "
+                              f"({error}); try a smaller dt") from None
+    return A, B, events
 
 
 def step_jacobians_many(sim, q, u, efforts=None, dt: float | None = None):
@@ -132,19 +154,18 @@ def step_jacobians_many(sim, q, u, efforts=None, dt: float | None = None):
 def jacobians_along(sim, t_end: float):
     """Advance the run to t_end step by step and return (t, A, B, event): the start time of every
     step (K), its (A, B) at the state it starts from (K × n_x × n_x, K × n_x × n_u), and whether
-    an event (an impact, a rod coming to rest or leaving its stop) happened inside it — there A
-    and B are the event-free step's, not the step the run took."""
+    the step held an event (an impact, a rod coming to rest or leaving its stop) — A and B are
+    then differentiated through it (module doc)."""
     method, h = _step_settings(sim, "jacobians_along", None)
     times, As, Bs, events = [], [], [], []
     k = int(round(sim.t / h))
     while (k + 1) * h <= t_end + 0.5 * h:
-        A, B = step_jacobians(sim)
-        impacts, locked = len(sim.impacts), sim.system.locked
+        A, B, held = _step_jacobians(sim, "jacobians_along", None, None, None)
         times.append(sim.t)
         sim.advance_to((k + 1) * h)
         As.append(A)
         Bs.append(B)
-        events.append(len(sim.impacts) != impacts or sim.system.locked != locked)
+        events.append(held > 0)
         k += 1
     nx = sim.nq + sim.nu
     return (np.array(times), np.array(As).reshape(-1, nx, nx),

@@ -1,27 +1,29 @@
 """`Simulation.linearize` and `Simulation.step_jacobians` — exact Jacobians by dual numbers through
-the compiled core — against central differences of the engine's own compiled right-hand side and
-step (numba, an independent implementation), on random robots with payloads, damping, locked
-joints and rods held at a stop, for every fixed-step method and a sweep of step sizes."""
+the compiled core — against central differences of the core's own `double` right-hand side and
+step (`core.Dynamics.rates`, `.step`), and, for steps that hold an impact, a rod coming to rest or
+a release, of the engine's whole step (the compiled stepper's double run, events included), on
+random robots with payloads, damping, locked joints and rods held at a stop, for every fixed-step
+method and a sweep of step sizes."""
 import numpy as np
 import pytest
 
 import robots
 from differences import best_agreement
-from mobile_manip_sim.engine import fixed_step
-from mobile_manip_sim.engine.linearization import effort_map
+from mobile_manip_sim.engine.linearization import effort_map, jacobians_along, moving_mask
 from mobile_manip_sim.engine.simulation import Simulation
 from mobile_manip_sim.scene.coordinates import SLIDES_U
 from mobile_manip_sim.scene.errors import UserError
 from mobile_manip_sim.scene.loading import IntegratorSettings, load_scene, parse_scene
-from mobile_manip_sim.scene.methods import IDS
 
 FIXED = ("euler", "semi_implicit_euler", "rk4")
+# perturbations small enough to keep a step's events in it (central differences, extrapolated)
+EVENT_STEPS = (1e-5, 3e-6, 1e-6)
 
 
-def random_simulation(seed, n, method="rk4", dt=1e-3, effort_limits=None):
+def random_simulation(seed, n, method="rk4", dt=1e-3, effort_limits=None, stops=None):
     """A random robot of n links with a payload, joint and wheel damping, one locked joint (when
     n ≥ 2), random efforts and a random state; the rod of link 1 held at a stop (locked as the
-    engine locks a resting rod) when seed is odd."""
+    engine locks a resting rod) when seed is odd; `stops` the scene's stroke_limits."""
     rng = np.random.default_rng(seed)
     doc = robots.random_robot_document(rng, n)
     names = [f"arm_{kind}_{k}" for k in range(1, n + 1) for kind in ("revolute", "prismatic")]
@@ -33,6 +35,8 @@ def random_simulation(seed, n, method="rk4", dt=1e-3, effort_limits=None):
         doc["effects"]["locked_joints"] = [names[2]]
     if effort_limits is not None:
         doc["effects"]["effort_limits"] = effort_limits
+    if stops is not None:
+        doc["effects"]["stroke_limits"] = stops
     doc["integrator"] = {"method": method, "dt": dt}
     sim = Simulation(parse_scene(doc))
     sim.set_efforts(wheels=rng.normal(size=2), joints=rng.normal(size=2 * n))
@@ -40,48 +44,85 @@ def random_simulation(seed, n, method="rk4", dt=1e-3, effort_limits=None):
     for k in sim.system.permanently_locked:
         u[k] = 0.0
     sim.set_state(q, u)
-    if seed % 2 and n:
+    if seed % 2 and n and stops is None:
         held = range(sim.nu)[SLIDES_U][0]
         sim.system.set_locked((held,))
     return sim
 
 
-class EngineMaps:
-    """The engine's own right-hand side and step of x = (q, u) and τ, through its compiled
-    kernels: the efforts enter as the engine takes them, Q_cmd = B τ."""
+class CoreMaps:
+    """The compiled core's own `double` right-hand side and step of x = (q, u) and τ (the
+    instantiations for double of the templates the dual numbers differentiate): the efforts enter
+    as the engine takes them, Q_cmd = B τ, with the simulation's damping and locks."""
 
     def __init__(self, sim):
-        self.sim, self.nq, self.nu = sim, sim.nq, sim.nu
+        self.core, self.g = sim.dynamics.core, sim.dynamics.gravity
+        self.damping, self.moving = sim.system.damping, moving_mask(sim)
+        self.nx = sim.nq + sim.nu
         self.B = effort_map(sim.model)
         self.tau = np.concatenate([sim.wheel_efforts, sim.joint_efforts])
-        self.s = sim.s.copy()
+        self.s = sim.s[:self.nx + 3].copy()
 
-    def _state(self, x, tau):
+    def _state(self, x):
         s = self.s.copy()
-        s[:self.nq + self.nu] = x
-        self.sim.system.Q_cmd[:] = self.B @ tau
+        s[:self.nx] = x
         return s
 
     def rate(self, x, tau):
-        Q_cmd = self.sim.system.Q_cmd.copy()
-        rate = self.sim.system.derivative(self._state(x, tau))[:self.nq + self.nu]
-        self.sim.system.Q_cmd[:] = Q_cmd   # the simulation's efforts as they were
-        return rate
+        return self.core.rates(self._state(x), self.B @ tau, self.damping, self.moving,
+                               self.g)[:self.nx]
 
     def step(self, x, tau, method, h):
-        Q_cmd = self.sim.system.Q_cmd.copy()
-        s = self._state(x, tau)
-        out, stages = np.empty_like(s), np.empty((4, s.size))
-        fixed_step.step(IDS[method], self.sim.system.data, s, h, out, stages)
-        self.sim.system.Q_cmd[:] = Q_cmd
-        return out[:self.nq + self.nu]
+        return self.core.step(method, self._state(x), h, self.B @ tau, self.damping, self.moving,
+                              self.g)[:self.nx]
+
+
+class EngineStep:
+    """One whole step h of the engine from x = (q, u) with efforts τ: the compiled stepper's
+    double run (`Simulation.advance_to`), its events, impacts and rests included, from the
+    simulation's records as they are now, which every call puts back. Each call checks that the
+    step held the same events as from the unperturbed state (the map differentiated is that
+    branch)."""
+
+    def __init__(self, sim, h):
+        self.sim, self.h, self.nx = sim, h, sim.nq + sim.nu
+        self.B = effort_map(sim.model)
+        self.tau = np.concatenate([sim.wheel_efforts, sim.joint_efforts])
+        self.x = sim.s[:self.nx].copy()
+        stops, data = sim.stops, sim.system.data
+        self.arrays = (stops.resting, stops.watched, stops.count, stops.run, stops.failed,
+                       data.counters, data.holding, data.free, data.Q_cmd, sim._clock)
+        self.kept = [a.copy() for a in self.arrays]
+        self.s, self.impacts = sim.s.copy(), len(sim.impacts)
+        self.end, self.events = self._run(self.x, self.tau)
+
+    def _run(self, x, tau):
+        sim = self.sim
+        sim.s = self.s.copy()
+        sim.s[:self.nx] = x
+        sim.system.data.Q_cmd[:] = self.B @ tau
+        sim.advance_to(sim.t + self.h)
+        end = sim.s[:self.nx].copy()
+        events = ([(i.link, i.stop, i.resting) for i in sim.impacts[self.impacts:]],
+                  sim.stops.resting.tolist(), sim.stops.watched.tolist())
+        for array, kept in zip(self.arrays, self.kept, strict=True):
+            array[...] = kept
+        sim.s = self.s.copy()
+        del sim.impacts[self.impacts:], sim.impact_details[self.impacts:]
+        sim._relock()
+        return end, events
+
+    def __call__(self, x, tau=None):
+        end, events = self._run(x, self.tau if tau is None else tau)
+        assert events == self.events, "a perturbation changed the step's events"
+        return end
 
 
 @pytest.mark.parametrize("n", [0, 1, 2, 3, 5])
 @pytest.mark.parametrize("seed", [1, 2])
-def test_linearize_agrees_with_central_differences_of_the_engines_right_hand_side(seed, n):
+def test_linearize_agrees_with_central_differences_of_the_cores_right_hand_side(seed, n):
     sim = random_simulation(seed, n)
-    maps = EngineMaps(sim)
+    maps = CoreMaps(sim)
     x = np.concatenate([sim.q, sim.u])
     F_x, F_tau = sim.linearize()
     assert best_agreement(lambda x: maps.rate(x, maps.tau), x, F_x) <= 1e-8
@@ -93,9 +134,9 @@ def test_linearize_agrees_with_central_differences_of_the_engines_right_hand_sid
 @pytest.mark.parametrize("method", FIXED)
 @pytest.mark.parametrize("dt", [1e-3, 1e-2])
 @pytest.mark.parametrize("n", [0, 2, 4])
-def test_step_jacobians_are_the_derivative_of_the_engines_step_map(method, dt, n):
+def test_step_jacobians_are_the_derivative_of_the_cores_step_map(method, dt, n):
     sim = random_simulation(7 + n, n, method=method, dt=dt)
-    maps = EngineMaps(sim)
+    maps = CoreMaps(sim)
     x = np.concatenate([sim.q, sim.u])
     A, B = sim.step_jacobians()
     assert best_agreement(lambda x: maps.step(x, maps.tau, method, dt), x, A) <= 1e-8
@@ -156,17 +197,83 @@ def test_many_states_at_once_equal_each_state_alone():
     assert not B[2, :, 0].any() and B[1, :, 0].any()
 
 
-def test_jacobians_along_a_run_are_those_of_its_steps_and_flag_the_impacts():
+def test_jacobians_along_a_run_are_those_of_its_steps_and_flag_its_events():
     """Along the paper run (rk4, 2 ms, its end stops), every step's (A, B) is the step Jacobian
-    at the state the step starts from, and the steps that hold an impact are the ones flagged."""
-    from mobile_manip_sim.engine.linearization import jacobians_along
+    at the state the step starts from, and the steps flagged are those in which a rod hit its stop
+    or a resting rod left it, as a twin run sees them."""
     scene = load_scene()
     sim = Simulation(scene, integrator=IntegratorSettings(method="rk4", dt=0.002))
     twin = Simulation(scene, integrator=IntegratorSettings(method="rk4", dt=0.002))
     t, A, B, event = jacobians_along(sim, 1.5)
     assert t.size == 750 and A.shape == (750, 15, 15) and B.shape == (750, 15, 6)
-    assert event.sum() == len(sim.impacts) > 0
-    for k in (0, 123, int(np.flatnonzero(event)[0]), 749):
+    seen = []
+    for k in range(t.size):
+        impacts, resting = len(twin.impacts), twin.resting.copy()
+        twin.advance_to(t[k] + 0.002)
+        seen.append(len(twin.impacts) > impacts or not np.array_equal(twin.resting, resting))
+    assert np.array_equal(event, seen) and event.sum() == 4   # 3 impacts, 1 release
+    twin = Simulation(scene, integrator=IntegratorSettings(method="rk4", dt=0.002))
+    for k in (0, 123, *np.flatnonzero(event), 749):
         twin.advance_to(t[k])
         A_k, B_k = twin.step_jacobians()
         assert np.array_equal(A[k], A_k) and np.array_equal(B[k], B_k)
+
+
+def driven_into_a_stop(seed, n, method, dt, stops):
+    """A random robot (`random_simulation`) whose rod 1 reaches its lower stop within the next
+    step, at 2 m/s, about 0.4 of the step in (the other rods mid-stroke)."""
+    sim = random_simulation(seed, n, method, dt, stops=stops)
+    stroke = np.asarray(sim.model.stroke, dtype=float).reshape(-1, 2)
+    q, u = sim.q.copy(), sim.u.copy()
+    q[range(sim.nq)[6::2]] = stroke.mean(axis=1)
+    q[6], u[3] = stroke[0, 0] + 0.8 * dt, -2.0
+    sim.set_state(q, u)
+    return sim
+
+
+@pytest.mark.parametrize("method", FIXED)
+@pytest.mark.parametrize(("n", "dt", "stops"), [
+    (1, 1e-3, {"restitution": 0.5}),                    # a rebound
+    (2, 5e-3, {"restitution": 0.0}),                    # the rod comes to rest at its stop
+    (3, 2e-3, {"restitution": 0.7, "law": "reflect"}),  # the paper's law
+])
+def test_step_jacobians_through_an_impact_are_the_derivative_of_the_engines_step(method, n, dt,
+                                                                                  stops):
+    """A and B of a step in which a rod hits its stop (random robots, every fixed-step method)
+    against central differences of the engine's own step — the stepper's double run, the impact
+    located and applied — over perturbations that keep the step's events; the end state the dual
+    numbers carry is the engine's bit for bit. The event-free step's A does not match (the
+    saltation and the impact are what this checks)."""
+    sim = driven_into_a_stop(11 + n, n, method, dt, stops)
+    engine = EngineStep(sim, dt)
+    assert engine.events[0], "the step holds an impact"
+    A, B = sim.step_jacobians()
+    assert best_agreement(engine, engine.x, A, EVENT_STEPS) <= 1e-8
+    assert best_agreement(lambda tau: engine(engine.x, tau), engine.tau, B, EVENT_STEPS) <= 1e-8
+    value, _, _, _ = sim._stepper.step_jacobians(sim.s, sim._clock, dt, engine.B)
+    assert np.array_equal(value, engine.end)
+    A_free, _ = CoreMaps(sim).core.jacobians(method, sim.s[:engine.nx + 3], dt, sim.system.Q_cmd,
+                                             engine.B, sim.system.damping, moving_mask(sim),
+                                             sim.dynamics.gravity)[1:]
+    assert best_agreement(engine, engine.x, A_free, EVENT_STEPS) > 1e-3
+
+
+def test_step_jacobians_through_a_release_are_the_derivative_of_the_engines_step():
+    """The paper run's step at 1.132 s, in which its resting rod 2 is pulled off its stop: A
+    against central differences of the engine's step along the directions that keep the rods at
+    rest on their stops (a resting rod's l and l̇ perturbed leave its stop, or move into it: an
+    impact, another branch of the map)."""
+    sim = Simulation(load_scene(), integrator=IntegratorSettings(method="rk4", dt=0.002))
+    sim.advance_to(1.132)
+    engine = EngineStep(sim, 0.002)
+    assert sim.resting.tolist() == [1, -1]
+    assert engine.events == ([], [1, 0], [False, True])   # rod 2 left its stop, nothing hit
+    A, _ = sim.step_jacobians()
+    on_stops = [6, 8, sim.nq + 3, sim.nq + 5]              # l_1, l_2, l̇_1, l̇_2
+    kept = [j for j in range(engine.nx) if j not in on_stops]
+
+    def along_kept(y):
+        x = engine.x.copy()
+        x[kept] = y
+        return engine(x)
+    assert best_agreement(along_kept, engine.x[kept], A[:, kept], EVENT_STEPS) <= 1e-8
