@@ -12,7 +12,7 @@ from differences import best_agreement
 from mobile_manip_sim.engine.linearization import effort_map, jacobians_along, moving_mask
 from mobile_manip_sim.engine.simulation import Simulation
 from mobile_manip_sim.scene.coordinates import SLIDES_U
-from mobile_manip_sim.scene.errors import UserError
+from mobile_manip_sim.scene.errors import SimulationError, UserError
 from mobile_manip_sim.scene.loading import IntegratorSettings, load_scene, parse_scene
 
 FIXED = ("euler", "semi_implicit_euler", "rk4")
@@ -277,3 +277,17 @@ def test_step_jacobians_through_a_release_are_the_derivative_of_the_engines_step
         x[kept] = y
         return engine(x)
     assert best_agreement(along_kept, engine.x[kept], A[:, kept], EVENT_STEPS) <= 1e-8
+
+
+def test_a_step_that_fails_is_said_in_one_line_and_leaves_the_run_as_it_was():
+    """A step differentiated from a state where it goes non-finite: one SimulationError line; the
+    run's time, state, rests and impacts untouched, and it runs on."""
+    sim = Simulation(load_scene(), integrator=IntegratorSettings(method="rk4", dt=0.002))
+    s = sim.s.copy()
+    with pytest.raises(SimulationError, match=r"^t = 0 s: step_jacobians: the step from this "
+                                              r"state failed \(the step did not complete "
+                                              r"\(status 3\)\); try a smaller dt$"):
+        sim.step_jacobians(u=np.full(sim.nu, 9e3), dt=10.0)
+    assert np.array_equal(sim.s, s) and sim.t == 0.0 and not sim.resting.any() and not sim.impacts
+    sim.advance_to(0.01)
+    assert sim.t == 0.01

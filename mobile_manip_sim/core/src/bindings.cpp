@@ -917,7 +917,7 @@ class Stepper {
       script_ = std::move(script);
     }
     if (status != DONE)
-      throw std::runtime_error("step_jacobians: the step did not complete (status " +
+      throw std::runtime_error("the step did not complete (status " +
                                std::to_string(int(status)) + ")");
     if (!dual_) {
       dual_ = std::make_unique<SystemWorkspace<DualD>>(model);
