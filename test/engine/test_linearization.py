@@ -9,8 +9,15 @@ import pytest
 
 import robots
 from differences import best_agreement
-from mobile_manip_sim.engine.linearization import effort_map, jacobians_along, moving_mask
+from mobile_manip_sim.engine.linearization import (
+    effort_map,
+    jacobians_along,
+    moving_mask,
+    reference_jacobian,
+    step_jacobians_many,
+)
 from mobile_manip_sim.engine.simulation import Simulation
+from mobile_manip_sim.scene.arm_controller import ArmController
 from mobile_manip_sim.scene.coordinates import SLIDES_U
 from mobile_manip_sim.scene.errors import SimulationError, UserError
 from mobile_manip_sim.scene.loading import IntegratorSettings, load_scene, parse_scene
@@ -78,42 +85,56 @@ class CoreMaps:
 
 
 class EngineStep:
-    """One whole step h of the engine from x = (q, u) with efforts τ: the compiled stepper's
-    double run (`Simulation.advance_to`), its events, impacts and rests included, from the
-    simulation's records as they are now, which every call puts back. Each call checks that the
-    step held the same events as from the unperturbed state (the map differentiated is that
-    branch)."""
+    """One whole step h of the engine from the state x with efforts τ (and, where a controller
+    drives the arm, its held target r): the compiled stepper's double run
+    (`Simulation.advance_to`), its events, impacts, rests and controller updates included, from
+    the simulation's records as they are now, which every call puts back. x = (q, u), then with an
+    arm controller its PID integrals z and, sampled, the arm efforts it holds; τ the efforts
+    (the wheels' alone with an arm controller). Each call checks that the step held the same
+    events as from the unperturbed state (the map differentiated is that branch)."""
 
     def __init__(self, sim, h):
         self.sim, self.h, self.nx = sim, h, sim.nq + sim.nu
         self.B = effort_map(sim.model)
-        self.tau = np.concatenate([sim.wheel_efforts, sim.joint_efforts])
-        self.x = sim.s[:self.nx].copy()
+        controlled = sim.arm_controller.active
+        self.tau = np.concatenate([sim.wheel_efforts, [] if controlled else sim.joint_efforts])
+        self.z = slice(self.nx + 3, self.nx + 3 + sim.nu - 2) if controlled else slice(0, 0)
+        self.held = slice(2, sim.nu) if controlled and sim.sampled else slice(0, 0)
         stops, data = sim.stops, sim.system.data
+        self.target = data.ref_coeffs[0, :, 0 if sim.arm_controller.mode == "position" else 1]
         self.arrays = (stops.resting, stops.watched, stops.count, stops.run, stops.failed,
-                       data.counters, data.holding, data.free, data.Q_cmd, sim._clock)
+                       data.counters, data.holding, data.free, data.Q_cmd, data.held, data.arm,
+                       data.arm_ref, data.ref_coeffs, sim._clock)
         self.kept = [a.copy() for a in self.arrays]
-        self.s, self.impacts = sim.s.copy(), len(sim.impacts)
-        self.end, self.events = self._run(self.x, self.tau)
+        self.s, self.impacts, self.efforts = sim.s.copy(), len(sim.impacts), sim.wheel_efforts
+        self.x, self.r = self._state(self.s), self.target.copy()
+        self.end, self.events = self._run(self.x, self.tau, self.r)
 
-    def _run(self, x, tau):
-        sim = self.sim
+    def _state(self, s):
+        return np.concatenate([s[:self.nx], s[self.z], self.sim.system.data.held[self.held]])
+
+    def _run(self, x, tau, r):
+        sim, data = self.sim, self.sim.system.data
         sim.s = self.s.copy()
-        sim.s[:self.nx] = x
-        sim.system.data.Q_cmd[:] = self.B @ tau
+        sim.s[:self.nx], sim.s[self.z] = x[:self.nx], x[self.nx:self.nx + sim.s[self.z].size]
+        data.held[self.held] = x[self.nx + sim.s[self.z].size:]
+        full = np.zeros(sim.nu)
+        full[:tau.size] = tau
+        data.Q_cmd[:tau.size] = (self.B @ full)[:tau.size]
+        self.target[:] = r
         sim.advance_to(sim.t + self.h)
-        end = sim.s[:self.nx].copy()
+        end = self._state(sim.s)
         events = ([(i.link, i.stop, i.resting) for i in sim.impacts[self.impacts:]],
                   sim.stops.resting.tolist(), sim.stops.watched.tolist())
         for array, kept in zip(self.arrays, self.kept, strict=True):
             array[...] = kept
-        sim.s = self.s.copy()
+        sim.s, sim.wheel_efforts = self.s.copy(), self.efforts
         del sim.impacts[self.impacts:], sim.impact_details[self.impacts:]
         sim._relock()
         return end, events
 
-    def __call__(self, x, tau=None):
-        end, events = self._run(x, self.tau if tau is None else tau)
+    def __call__(self, x, tau=None, r=None):
+        end, events = self._run(x, self.tau if tau is None else tau, self.r if r is None else r)
         assert events == self.events, "a perturbation changed the step's events"
         return end
 
@@ -178,7 +199,6 @@ def test_what_is_not_differentiated_is_refused_in_one_line():
 def test_many_states_at_once_equal_each_state_alone():
     """`step_jacobians_many` (one compiled loop) gives, state by state, what `step_jacobians`
     gives at that state, with efforts per state (one of them clamped by its limit)."""
-    from mobile_manip_sim.engine.linearization import step_jacobians_many
     limits = {"wheels": 0.5, "joints": [3.0, 3.0, 3.0, 3.0]}
     sim = random_simulation(9, 2, effort_limits=limits)
     rng = np.random.default_rng(9)
@@ -269,14 +289,21 @@ def test_step_jacobians_through_a_release_are_the_derivative_of_the_engines_step
     assert sim.resting.tolist() == [1, -1]
     assert engine.events == ([], [1, 0], [False, True])   # rod 2 left its stop, nothing hit
     A, _ = sim.step_jacobians()
-    on_stops = [6, 8, sim.nq + 3, sim.nq + 5]              # l_1, l_2, l̇_1, l̇_2
-    kept = [j for j in range(engine.nx) if j not in on_stops]
+    assert agreement_off_the_stops(engine, A) <= 1e-8
+
+
+def agreement_off_the_stops(engine, A) -> float:
+    """`best_agreement` of A with the engine's step along the directions that keep every resting
+    rod on its stop: its own l and l̇ left out (moved, it leaves its stop or presses into it)."""
+    sim = engine.sim
+    on_stops = [j for k in np.flatnonzero(sim.resting) + 1 for j in (4 + 2 * k, sim.nq + 1 + 2 * k)]
+    kept = [j for j in range(engine.x.size) if j not in on_stops]
 
     def along_kept(y):
         x = engine.x.copy()
         x[kept] = y
         return engine(x)
-    assert best_agreement(along_kept, engine.x[kept], A[:, kept], EVENT_STEPS) <= 1e-8
+    return best_agreement(along_kept, engine.x[kept], A[:, kept], EVENT_STEPS)
 
 
 def test_a_step_that_fails_is_said_in_one_line_and_leaves_the_run_as_it_was():
@@ -291,3 +318,81 @@ def test_a_step_that_fails_is_said_in_one_line_and_leaves_the_run_as_it_was():
     assert np.array_equal(sim.s, s) and sim.t == 0.0 and not sim.resting.any() and not sim.impacts
     sim.advance_to(0.01)
     assert sim.t == 0.01
+
+
+def controlled_simulation(mode, rate, method, dt, target=None):
+    """The paper robot with its arm driven by the position or velocity controller (default gains,
+    gravity feed-forward) at `rate` (0: continuous), wheel efforts given, a command at t = 0."""
+    sim = Simulation(load_scene(), integrator=IntegratorSettings(method=method, dt=dt),
+                     arm_controller=ArmController(mode), control_rate=rate)
+    if mode == "position":
+        sim.set_arm_positions(sim.q[5:] + 0.3 if target is None else target)
+    else:
+        sim.set_arm_velocities([0.5, 0.1, -0.3, 0.05])
+    sim.set_efforts(wheels=[0.3, 0.1])
+    return sim
+
+
+@pytest.mark.parametrize(("mode", "rate", "method", "dt", "t"), [
+    ("position", 0.0, "rk4", 1e-3, 0.1),                    # continuous
+    ("velocity", 0.0, "semi_implicit_euler", 1e-3, 0.1),
+    ("position", 1000.0, "rk4", 1e-3, 0.1),                 # sampled: an update every step
+    ("position", 100.0, "euler", 1e-3, 0.105),              # between two updates
+    ("velocity", 500.0, "euler", 2e-3, 0.2),
+])
+def test_closed_loop_step_jacobians_are_the_derivative_of_the_engines_step(mode, rate, method,
+                                                                           dt, t):
+    """With the arm controller in charge, A (x = (q, u, z), and the held efforts when sampled), B
+    (the wheel efforts) and R (the held position or velocity target) against central differences
+    of the engine's step, the controllers' update included where one is due. Facts beside: an
+    update due at the step's start makes the held efforts depend on the target, between updates
+    they do not (R's rows of them are zero, and of everything else too: the target acts through
+    them alone)."""
+    sim = controlled_simulation(mode, rate, method, dt)
+    sim.advance_to(t)
+    engine = EngineStep(sim, dt)
+    A, B = sim.step_jacobians()
+    R = reference_jacobian(sim)
+    n_arm = sim.nu - 2
+    assert A.shape == (engine.x.size,) * 2 == (sim.nq + sim.nu + n_arm * (2 if rate else 1),) * 2
+    assert B.shape == (A.shape[0], 2) and R.shape == (A.shape[0], n_arm)
+    assert best_agreement(engine, engine.x, A, EVENT_STEPS) <= 1e-8
+    assert best_agreement(lambda tau: engine(engine.x, tau), engine.tau, B, EVENT_STEPS) <= 1e-8
+    assert best_agreement(lambda r: engine(engine.x, r=r), engine.r, R, EVENT_STEPS) <= 1e-8
+    update_due = rate > 0 and sim.next_update <= sim.t
+    assert update_due == (rate > 0 and t != 0.105)
+    assert (np.abs(R).max() > 0.1) == (rate == 0 or update_due)
+
+
+@pytest.mark.parametrize("t", [0.398, 0.49])
+def test_the_closed_loop_through_an_impact_is_the_derivative_of_the_engines_step(t):
+    """The continuous position controller drives rod 1 onto its lower stop and rod 2 onto its
+    upper one: the step at 0.398 s holds rod 1's impact (it comes to rest), the one at 0.49 s rod
+    2's, whose impact frees the resting rod 1; A and R are differentiated through them (central
+    differences of the engine's step, perturbations keeping the impact)."""
+    sim = controlled_simulation("position", 0.0, "rk4", 1e-3, target=[0.3, 0.0, -0.2, 1.0])
+    sim.advance_to(t)
+    engine = EngineStep(sim, 1e-3)
+    assert len(engine.events[0]) == 1
+    A, _ = sim.step_jacobians()
+    assert agreement_off_the_stops(engine, A) <= 1e-8
+    R = reference_jacobian(sim)
+    assert best_agreement(lambda r: engine(engine.x, r=r), engine.r, R, EVENT_STEPS) <= 1e-8
+
+
+def test_what_the_closed_loop_cannot_be_differentiated_for_is_refused_in_one_line():
+    """A trajectory has no single held target; a step that an update would cut; the continuous-time
+    Jacobians and many states at once are of the robot driven by efforts."""
+    sim = controlled_simulation("position", 100.0, "rk4", 3e-3)
+    sim.advance_to(0.009)          # the next step, to 0.012 s, would hold the update at 0.01
+    with pytest.raises(UserError, match=r"dt: the controllers' next update falls inside the step"):
+        sim.step_jacobians()
+    with pytest.raises(UserError, match="linearize is of the robot driven by efforts"):
+        sim.linearize()
+    with pytest.raises(UserError, match="step_jacobians_many is of the robot driven by efforts"):
+        step_jacobians_many(sim, sim.q[None], sim.u[None])
+    trajectory = Simulation(load_scene("config/arm_trajectory.yaml"),
+                            integrator=IntegratorSettings(method="rk4", dt=1e-3))
+    with pytest.raises(UserError, match="joint_trajectory mode: the derivative is with respect "
+                                        "to the held target of position or velocity mode"):
+        reference_jacobian(trajectory)

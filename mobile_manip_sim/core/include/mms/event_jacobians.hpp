@@ -34,11 +34,11 @@ namespace mms {
 // The replay's scratch, for one scalar S (Dual<double, D>).
 template <class S>
 struct EventWork {
-  std::vector<S> segment, trial, plain, x, rate, M, L, unit, MinvE, W, c_minus, qv, P, cholesky;
+  std::vector<S> segment, trial, x, rate, M, L, unit, MinvE, W, c_minus, qv, P, cholesky;
   std::vector<std::vector<S>> k;
   std::vector<int> free, index;
   EventWork(int size, int n_u, int n)
-      : segment(size), trial(size), plain(size), x(size), rate(size), M(n_u * n_u), L(n_u * n_u),
+      : segment(size), trial(size), x(size), rate(size), M(n_u * n_u), L(n_u * n_u),
         unit(n_u), MinvE(n * n_u), W(n * n), c_minus(n), qv(n), P(n), cholesky(n * (n + 1)),
         k(4, std::vector<S>(size)), free(n_u), index(n) {}
 };
@@ -119,13 +119,16 @@ void impact_map(const RecordedEvent& event, const StopsArrays& stops, const Mode
     if (event.hits[r - 1] != 0 && value(x[nq + u_slide(r)]) == 0.0) x[nq + u_slide(r)] = S(0.0);
 }
 
-// One step of `method` of length h (dt: the run's grid step, whose 1e-15 ends a step at an event)
-// from s, through the events of `script`, in dual numbers (module doc): out. `rates(x, rate)` the
-// right-hand side in S with ws (whose locks `moving` this sets for each stretch).
+// One step of `method` of length h from s, through the events of `script`, in dual numbers
+// (module doc): out. `rates(x, rate)` the right-hand side in S with ws (whose locks `moving` this
+// sets for each stretch). slopes[i] is dg/dh* of event i, found by a call with `find_slopes` in
+// which nothing is seeded (s, the efforts and every other input plain: h* alone is, along the
+// first direction), then read by the calls that carry the seeds.
 template <class S, class Rates>
 void step_through_events(Method method, const Model& model, const StopsArrays& stops,
                          const EventScript& script, Rates&& rates, SystemWorkspace<S>& ws,
-                         const S* s, double h, S* out, EventWork<S>& w, int size) {
+                         const S* s, double h, S* out, EventWork<S>& w, int size,
+                         std::vector<double>& slopes, bool find_slopes) {
   S* k[4] = {w.k[0].data(), w.k[1].data(), w.k[2].data(), w.k[3].data()};
   auto stretch = [&](const S* from, const S& length, S* to) {
     step_with(method, model, rates, from, length, to, k, w.x.data(), size);
@@ -133,17 +136,19 @@ void step_through_events(Method method, const Model& model, const StopsArrays& s
   std::copy(s, s + size, w.segment.begin());
   std::copy(script.moving.begin(), script.moving.end(), ws.dynamics.moving.begin());
   S left(h);
-  for (const RecordedEvent& event : script.events) {
-    // g and its derivatives along the seeds at the located h*, then dg/dh* alone (the plain
-    // values of the stretch's start, h* seeded along the first direction)
+  if (find_slopes) slopes.assign(script.events.size(), 0.0);
+  for (size_t e = 0; e < script.events.size(); ++e) {
+    const RecordedEvent& event = script.events[e];
+    if (find_slopes) {  // dg/dh*: h* seeded along the first direction, nothing else
+      S seeded(event.h);
+      seeded.d.set(0, 1.0);
+      stretch(w.segment.data(), seeded, w.trial.data());
+      slopes[e] = event_function(event, stops, model, w.trial.data(), rates, ws, w.rate.data()).d[0];
+    }
+    // g and its derivatives along the seeds at the located h*
     stretch(w.segment.data(), S(event.h), w.trial.data());
     S g = event_function(event, stops, model, w.trial.data(), rates, ws, w.rate.data());
-    for (int i = 0; i < size; ++i) w.plain[i] = S(value(w.segment[i]));
-    S seeded(event.h);
-    seeded.d.set(0, 1.0);
-    stretch(w.plain.data(), seeded, w.trial.data());
-    S g_h = event_function(event, stops, model, w.trial.data(), rates, ws, w.rate.data());
-    S h_event(event.h, -g.d / g_h.d[0]);
+    S h_event(event.h, -g.d / slopes[e]);
     stretch(w.segment.data(), h_event, w.trial.data());
     left = left - h_event;
     if (event.kind == CROSSING) impact_map(event, stops, model, w.trial.data(), ws, w);
