@@ -185,9 +185,10 @@ def step_jacobians_many(sim, q, u, efforts=None, dt: float | None = None):
 
 def jacobians_along(sim, t_end: float):
     """Advance the run to t_end step by step and return (t, A, B, event): the start time of every
-    step (K), its (A, B) at the state it starts from (K × n_x × n_x, K × n_x × n_u), and whether
-    the step held an event (an impact, a rod coming to rest or leaving its stop) — A and B are
-    then differentiated through it (module doc)."""
+    step (K), its (A, B) at the state it starts from (K × n_x × n_x, K × n_x × n_τ: the x and τ
+    of `step_jacobians`, the closed loop's with an arm controller), and whether the step held an
+    event (an impact, a rod coming to rest or leaving its stop) — A and B are then differentiated
+    through it (module doc)."""
     method, h = _step_settings(sim, "jacobians_along", None, arm_controller=True)
     times, As, Bs, events = [], [], [], []
     k = int(round(sim.t / h))
