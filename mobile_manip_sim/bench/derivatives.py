@@ -6,6 +6,9 @@ same process.
   of one rk4 step of 1 ms (`Simulation.step_jacobians`), exact, by dual numbers through the
   compiled core: CPU time of the kernel alone (a loop in C++, `Dynamics.time_jacobians`) and of
   the call from Python. One forward-dynamics evaluation, scalar and per lane of a vector block.
+  A, B of the step of that run that holds its first impact (at 0.5879 s, the rod coming to
+  rest), differentiated through it (the stepper's double run of the step, then the dual numbers
+  through its event): from Python.
   The paper run without its stops (no events), dop853 at rtol 1e-10, sampled at 100 Hz: the
   compiled core's adaptive loop alone (`Dynamics.adaptive_run`) and the whole engine
   (`Simulation.sample`: its events watched, its samples handed back to Python).
@@ -44,6 +47,7 @@ class DerivativesResult:
     fd_scalar: float
     fd_lane: float
     lane_width: int
+    rk4_impact_python: float = float("nan")  # s per call, a step holding an impact
     dop853_core: float = float("nan")     # s per 1.5 s paper run without stops
     dop853_simulation: float = float("nan")
     mujoco_forward: float = float("nan")
@@ -80,6 +84,10 @@ def measure(progress, quick: bool = False) -> DerivativesResult:
              f"(from Python {result.continuous_python * 1e6:.2f}), rk4 A, B "
              f"{result.rk4_kernel * 1e6:.2f} us (from Python {result.rk4_python * 1e6:.2f}); "
              f"FD {result.fd_scalar * 1e9:.0f} ns, {result.fd_lane * 1e9:.0f} ns per lane")
+    impact = Simulation(scene, integrator=IntegratorSettings(method="rk4", dt=1e-3))
+    impact.advance_to(0.587)   # the step to 0.588 s holds the run's first impact
+    result.rk4_impact_python = per_python_call(impact.step_jacobians)
+    progress(f"rk4 A, B through an impact: from Python {result.rk4_impact_python * 1e6:.2f} us")
     result.dop853_core, result.dop853_simulation = _adaptive_run(scene)
     progress(f"the paper run without stops, dop853: compiled loop "
              f"{result.dop853_core * 1e3:.2f} ms, Simulation.sample "
@@ -135,6 +143,8 @@ def section(result: DerivativesResult, number: int) -> str:
         ("A, B of one rk4 step (15 × 21), exact",
          f"{result.rk4_kernel * us:.2f} µs (from Python {result.rk4_python * us:.1f})",
          verdict(result.rk4_kernel <= TARGETS["rk4"], "goal ≤ 10 µs")),
+        ("A, B of the rk4 step holding the run's first impact, exact through it",
+         f"from Python {result.rk4_impact_python * us:.1f} µs", ""),
         ("MuJoCo `mjd_transitionFD`, Euler, forward differences (14 × 20)",
          f"{result.mujoco_forward * us:.2f} µs", ""),
         ("MuJoCo `mjd_transitionFD`, Euler, centred differences (14 × 20)",

@@ -9,15 +9,26 @@ An effort held at its limit by the effort-limits effect has a zero column (the c
 
 One step: the exact derivative of the step map of each fixed-step method — the core's own step
 (`core/include/mms/fixed_step.hpp`: euler, semi_implicit_euler, rk4) instantiated for dual
-numbers, so that A and B are the derivatives of the very map the step computes. The step is the
-one between events: a step that would hold an impact or a release is not differentiated through
-its event here.
+numbers, so that A and B are the derivatives of the very map the step computes. A step that holds
+events — a rod reaching its stop (the impact, with its rebound or the rod coming to rest there), a
+resting rod released — is differentiated through them (`core/include/mms/event_jacobians.hpp`):
+the event time's dependence on the state (the saltation) and the impact law on the contact set the
+step found are in A and B, which then equal the derivative of the step map wherever a perturbation
+keeps the same events. `step_jacobians_many` differentiates the event-free step at each state.
+
+With a controller driving the arm (position, velocity or joint_trajectory mode), a step's A and B
+are those of the closed loop: x = (q, u, z), z the PID integrals (n_arm), and for sampled
+controllers (controller.rate > 0) also the arm efforts they hold between updates (n_arm) — an
+update due at the step's start is applied first, as the run applies it —; τ = (τ_R, τ_L), the
+wheel efforts (the arm's efforts are its controller's). `reference_jacobian` gives ∂x⁺/∂r of
+the held target r of position mode (the set-point q_ref) or velocity mode (q̇_ref, q_ref moving
+with it from the command's instant).
 """
 from __future__ import annotations
 
 import numpy as np
 
-from ..scene.errors import UserError
+from ..scene.errors import SimulationError, UserError
 from ..scene.limits import ANGLE, SPEED
 from ..scene.methods import METHODS
 
@@ -33,14 +44,20 @@ def effort_map(model) -> np.ndarray:
     return B
 
 
-def check_effort_mode(sim, what: str) -> None:
-    """The Jacobians are of the robot driven by efforts: say so where a controller drives it."""
+# the held targets whose derivatives `reference_jacobian` gives (core's TargetKind)
+TARGETS = {"position": 1, "velocity": 2}
+
+
+def check_effort_mode(sim, what: str, arm_controller: bool = False) -> None:
+    """The Jacobians are of the robot driven by efforts (and, where `arm_controller`, of the arm
+    driven by its controller): say so where a controller not differentiated drives it."""
     if sim.velocity_mode:
         raise UserError(what, "the base takes velocity commands (its wheel-speed loop is not "
                               "differentiated yet): give wheel efforts (set_efforts) first")
-    if sim.arm_controller.active:
-        raise UserError(what, f"the arm is driven by its {sim.arm_controller.mode} controller "
-                              f"(not differentiated yet): linearize in effort mode")
+    if sim.arm_controller.active and not arm_controller:
+        raise UserError(what, f"the arm is driven by its {sim.arm_controller.mode} controller: "
+                              f"{what} is of the robot driven by efforts (step_jacobians gives "
+                              f"the closed loop's)")
 
 
 def moving_mask(sim) -> np.ndarray:
@@ -80,9 +97,9 @@ def linearize(sim, q=None, u=None):
     return F_x, F_tau
 
 
-def _step_settings(sim, what: str, dt) -> tuple[str, float]:
+def _step_settings(sim, what: str, dt, arm_controller: bool = False) -> tuple[str, float]:
     """The run's method (one the core differentiates) and the step length (default the run's)."""
-    check_effort_mode(sim, what)
+    check_effort_mode(sim, what, arm_controller)
     method = sim.settings.method
     if method not in DIFFERENTIATED:
         kind = "adaptive" if not METHODS[method].fixed_step else "not differentiated"
@@ -96,11 +113,44 @@ def _step_settings(sim, what: str, dt) -> tuple[str, float]:
 
 def step_jacobians(sim, q=None, u=None, dt: float | None = None):
     """(A, B) = (∂x⁺/∂x, ∂x⁺/∂τ) of one step of the run's fixed-step method of length dt
-    (default: the run's) from (q, u) (default: the current state)."""
-    method, h = _step_settings(sim, "step_jacobians", dt)
-    q, u = _state(sim, q, u)
-    _, A, B = jacobians(sim, method, q, u, h)
+    (default: the run's) from (q, u) (default: the current state) at the current time, with the
+    run's efforts, locks, resting rods and controllers, through the events the step holds
+    (module doc: x and τ of the closed loop where a controller drives the arm)."""
+    A, B, _, _ = _step_jacobians(sim, "step_jacobians", q, u, dt)
     return A, B
+
+
+def reference_jacobian(sim, q=None, u=None, dt: float | None = None) -> np.ndarray:
+    """R = ∂x⁺/∂r (n_x × n_arm) of `step_jacobians`' step, r the target the arm controller holds:
+    the position set-point of position mode, the velocity of velocity mode (module doc)."""
+    mode = sim.arm_controller.mode
+    if mode not in TARGETS:
+        raise UserError("reference_jacobian", f"the arm is in {mode} mode: the derivative is "
+                                              f"with respect to the held target of position or "
+                                              f"velocity mode")
+    return _step_jacobians(sim, "reference_jacobian", q, u, dt, TARGETS[mode])[2]
+
+
+def _step_jacobians(sim, what: str, q, u, dt, target: int = 0):
+    """(A, B, R, events): `step_jacobians`, `reference_jacobian` (None without a target), and
+    how many events the step held (the compiled stepper's double run of the step finds them)."""
+    controlled = sim.arm_controller.active
+    method, h = _step_settings(sim, what, dt, arm_controller=True)
+    q, u = _state(sim, q, u)
+    _, B_tau = efforts_in_force(sim, np.concatenate([sim.wheel_efforts, sim.joint_efforts]))
+    if controlled:
+        B_tau = np.ascontiguousarray(B_tau[:, :2])
+    s = sim.s.copy()
+    s[:sim.nq], s[sim.nq:sim.nq + sim.nu] = q, u
+    try:
+        _, A, C, events = sim._stepper.step_jacobians(s, sim._clock, h, B_tau, target)
+    except RuntimeError as error:
+        raise SimulationError(f"t = {sim.t:.9g} s: {what}: the step from this state failed "
+                              f"({error}); try a smaller dt") from None
+    except ValueError as error:   # the core's invalid_argument: a step not on the update grid
+        raise UserError("dt", str(error).removeprefix("h: ")) from None
+    n_tau = B_tau.shape[1]
+    return A, C[:, :n_tau], (C[:, n_tau:] if target else None), events
 
 
 def step_jacobians_many(sim, q, u, efforts=None, dt: float | None = None):
@@ -131,24 +181,24 @@ def step_jacobians_many(sim, q, u, efforts=None, dt: float | None = None):
 
 def jacobians_along(sim, t_end: float):
     """Advance the run to t_end step by step and return (t, A, B, event): the start time of every
-    step (K), its (A, B) at the state it starts from (K × n_x × n_x, K × n_x × n_u), and whether
-    an event (an impact, a rod coming to rest or leaving its stop) happened inside it — there A
-    and B are the event-free step's, not the step the run took."""
-    method, h = _step_settings(sim, "jacobians_along", None)
+    step (K), its (A, B) at the state it starts from (K × n_x × n_x, K × n_x × n_τ: the x and τ
+    of `step_jacobians`, the closed loop's with an arm controller), and whether the step held an
+    event (an impact, a rod coming to rest or leaving its stop) — A and B are then differentiated
+    through it (module doc)."""
+    method, h = _step_settings(sim, "jacobians_along", None, arm_controller=True)
     times, As, Bs, events = [], [], [], []
     k = int(round(sim.t / h))
     while (k + 1) * h <= t_end + 0.5 * h:
-        A, B = step_jacobians(sim)
-        impacts, locked = len(sim.impacts), sim.system.locked
+        A, B, _, held = _step_jacobians(sim, "jacobians_along", None, None, None)
         times.append(sim.t)
         sim.advance_to((k + 1) * h)
         As.append(A)
         Bs.append(B)
-        events.append(len(sim.impacts) != impacts or sim.system.locked != locked)
+        events.append(held > 0)
         k += 1
-    nx = sim.nq + sim.nu
+    nx, n_tau = (As[0].shape[0], Bs[0].shape[1]) if As else (sim.nq + sim.nu, sim.nu)
     return (np.array(times), np.array(As).reshape(-1, nx, nx),
-            np.array(Bs).reshape(-1, nx, sim.nu), np.array(events, dtype=bool))
+            np.array(Bs).reshape(-1, nx, n_tau), np.array(events, dtype=bool))
 
 
 def _state(sim, q, u):

@@ -273,7 +273,8 @@ class Simulation(ArmCommands, BaseCommands, ScipySteps, CoreCalls, SampledContro
 
     def step_jacobians(self, q=None, u=None, dt=None):
         """(A, B) = (∂x⁺/∂x, ∂x⁺/∂τ) of one step of the run's fixed-step method (`linearize`'s
-        x and τ), the exact derivative of the step map (`linearization.py`)."""
+        x and τ; the closed loop's with an arm controller), the exact derivative of the step map,
+        through the events the step holds (`linearization.py`)."""
         return linearization.step_jacobians(self, q, u, dt)
 
     def set_efforts(self, wheels=None, joints=None) -> None:

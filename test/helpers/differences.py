@@ -17,7 +17,7 @@ def central_differences(function, x, h):
     return (4.0 * plain(h / 2.0) - plain(h)) / 3.0
 
 
-def best_agreement(function, x, exact) -> float:
+def best_agreement(function, x, exact, steps=STEPS) -> float:
     """The smallest difference from `exact` over the sweep of steps, relative to its size."""
-    error = min(np.abs(central_differences(function, x, h) - exact).max() for h in STEPS)
+    error = min(np.abs(central_differences(function, x, h) - exact).max() for h in steps)
     return error / max(1.0, np.abs(exact).max())

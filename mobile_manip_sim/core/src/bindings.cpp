@@ -20,6 +20,7 @@
 #include "mms/adaptive_solve.hpp"
 #include "mms/articulated.hpp"
 #include "mms/dynamics.hpp"
+#include "mms/event_jacobians.hpp"
 #include "mms/fixed_step.hpp"
 #include "mms/adaptive_stepping.hpp"
 #include "mms/lanes.hpp"
@@ -108,6 +109,41 @@ double per_call(int calls, F&& body) {
   clock_gettime(CLOCK_THREAD_CPUTIME_ID, &end);
   double seconds = (end.tv_sec - start.tv_sec) + 1e-9 * (end.tv_nsec - start.tv_nsec);
   return seconds / (calls > 0 ? calls : 1);
+}
+
+// The unit derivative direction j, in the pass of directions first … first + kDirections − 1
+// (zero outside it).
+Directions direction(int first, int j) {
+  Directions d(0.0);
+  if (j >= first && j < first + kDirections) d.set(j - first, 1.0);
+  return d;
+}
+
+// Dual numbers seeded for the pass of directions first … first + kDirections − 1 of exact
+// Jacobians: direction j seeds x_j (j < n_x: the first n_x entries of s), else the effort j − n_x,
+// whose generalized forces are Q_cmd + B (τ − τ₀) (B: n_u × n_τ).
+void seed_pass(int first, const double* s, int size, int nx, const double* Q_cmd, const double* B,
+               int nu, int ntau, DualD* sd, DualD* Qd) {
+  auto seed = [&](int j) { return direction(first, j); };
+  for (int i = 0; i < size; ++i) sd[i] = DualD(s[i], i < nx ? seed(i) : Directions(0.0));
+  for (int i = 0; i < nu; ++i) {
+    Directions d(0.0);
+    for (int j = 0; j < ntau; ++j) d = d + B[i * ntau + j] * seed(nx + j);
+    Qd[i] = DualD(Q_cmd[i], d);
+  }
+}
+
+// The pass's results out (n_x) into value (n_x), ∂/∂x (n_x × n_x), ∂/∂τ (n_x × n_τ), row-major.
+void read_pass(int first, const DualD* out, int nx, int ntau, double* value, double* dx,
+               double* dtau) {
+  for (int r = 0; r < nx; ++r) {
+    value[r] = out[r].val;
+    for (int lane = 0; lane < kDirections && first + lane < nx + ntau; ++lane) {
+      int j = first + lane;
+      if (j < nx) dx[r * nx + j] = out[r].d[lane];
+      else dtau[r * ntau + j - nx] = out[r].d[lane];
+    }
+  }
 }
 
 class Dynamics {
@@ -544,29 +580,11 @@ class Dynamics {
     std::vector<DualD> sd(ns), Qd(nu), out(ns);
     Effects<DualD> fx{g, Qd.data(), damping};
     for (int first = 0; first < total; first += kDirections) {
-      // direction j (first ≤ j < first + kDirections) seeds x_j, or the effort j − n_x
-      auto seed = [&](int j) {
-        Directions d(0.0);
-        if (j >= first && j < first + kDirections) d.set(j - first, 1.0);
-        return d;
-      };
-      for (int i = 0; i < ns; ++i) sd[i] = DualD(s[i], i < nx ? seed(i) : Directions(0.0));
-      for (int i = 0; i < nu; ++i) {
-        Directions d(0.0);
-        for (int j = 0; j < ntau; ++j) d = d + B[i * ntau + j] * seed(nx + j);
-        Qd[i] = DualD(Q_cmd[i], d);
-      }
+      seed_pass(first, s, ns, nx, Q_cmd, B, nu, ntau, sd.data(), Qd.data());
       if (adaptive) adaptive_step_map(adaptive_of(method), fx, sd.data(), h, out.data());
       else if (of_step) mms::step(m, model_, fx, sd.data(), h, out.data(), dual_system());
       else mms::rates(model_, fx, sd.data(), out.data(), dual_system());
-      for (int r = 0; r < nx; ++r) {
-        value[r] = out[r].val;
-        for (int lane = 0; lane < kDirections && first + lane < total; ++lane) {
-          int j = first + lane;
-          if (j < nx) dx[r * nx + j] = out[r].d[lane];
-          else dtau[r * ntau + j - nx] = out[r].d[lane];
-        }
-      }
+      read_pass(first, out.data(), nx, ntau, value, dx, dtau);
     }
   }
 
@@ -1059,6 +1077,124 @@ class Stepper {
     wheel_drive(w.kp, w.ki, w.target_L, (u[V] - b * u[OMEGA]) / r, s.data()[e + 1], w.limit_L,
                 true, tau_L, rate);
     return {tau_R, tau_L};
+  // (x⁺, A, C, events) of one whole step h of the run's fixed-step method from s at the time of
+  // `clock`, with the run's efforts, locks, stops and controllers, through every event the step
+  // holds (event_jacobians.hpp), and how many it held; the run's records are left as they were.
+  // x = (q, u), then, with a controller driving the arm, its state: the PID integrals z (n_arm),
+  // and for sampled controllers the arm efforts they hold (n_arm; an update due at the step's
+  // start is applied first, as `advance` does). A = ∂x⁺/∂x; C = ∂x⁺/∂(τ, r): τ the efforts whose
+  // generalized forces are Q_cmd + B_τ (τ − τ₀) (B_τ: n_u × n_τ), then r the held reference's
+  // target (`target`, arm_control.hpp's TargetKind: n_arm columns, none for TARGET_NONE).
+  std::tuple<Out, Out, Out, int> step_jacobians(In s, In clock, double h, In B_tau, int target) {
+    check_state(s);
+    need(clock, CLOCK_ENTRIES, "clock");
+    if (adaptive_) throw std::invalid_argument("step_jacobians: a fixed-step run only");
+    if (run_.velocity_mode())
+      throw std::invalid_argument("step_jacobians: the base takes velocity commands");
+    if (!(h > 0.0 && std::isfinite(h))) throw std::invalid_argument("h: expected a positive step");
+    const bool arm = run_.arm_on(), sampled = arm && run_.system.rate > 0.0;
+    if (target < TARGET_NONE || target > TARGET_VELOCITY || (target != TARGET_NONE && !arm))
+      throw std::invalid_argument("target: expected 0 (none), or 1 (position) or 2 (velocity) "
+                                  "with an arm controller");
+    const Model& model = run_.model;
+    const int nu = model.n_u(), nx = model.n_q() + nu, size = run_.size, n_arm = nu - 2;
+    if (B_tau.ndim() != 2 || B_tau.shape(0) != size_t(nu))
+      throw std::invalid_argument("B: expected an array of shape (" + std::to_string(nu) +
+                                  ", efforts)");
+    const int ntau = int(B_tau.shape(1)), n_ref = target != TARGET_NONE ? n_arm : 0;
+    const int n_state = nx + (arm ? n_arm : 0), rows = n_state + (sampled ? n_arm : 0);
+    const int i_z = arm ? arm_integrals_index(model) : 0;
+    // the double run's step (after the update due at its start), its events recorded, the run's
+    // records put back after it
+    std::vector<double> x(s.data(), s.data() + size), clk(clock.data(), clock.data() + CLOCK_ENTRIES);
+    const double t = clk[CLOCK_T0] + clk[CLOCK_K] * clk[CLOCK_DT];
+    bool update_due = false;
+    std::vector<double> update_moving;
+    Status status = DONE;
+    {
+      Records kept(run_, counters_);
+      sync_locks(run_);
+      if (sampled) {
+        const double period = 1.0 / run_.system.rate, t_update = next_update(run_, clk[CLOCK_UPDATES]);
+        update_due = t_update <= t;
+        if ((update_due ? t_update + period : t_update) < t + h - 1e-9 * h) {
+          kept.restore(run_);
+          throw std::invalid_argument("h: the controllers' next update falls inside the step "
+                                      "(choose a step that divides 1/controller.rate)");
+        }
+        update_moving = run_.ws.dynamics.moving;
+        if (update_due) status = update_controllers(run_, x.data());
+      }
+      EventScript script;
+      run_.script = &script;
+      if (status == DONE) status = step_with_events(run_, method_, x.data(), h, t, clk.data());
+      run_.script = nullptr;
+      kept.restore(run_);
+      script_ = std::move(script);
+    }
+    if (status != DONE)
+      throw std::runtime_error("the step did not complete (status " +
+                               std::to_string(int(status)) + ")");
+    if (!dual_) {
+      dual_ = std::make_unique<SystemWorkspace<DualD>>(model);
+      event_work_ = std::make_unique<EventWork<DualD>>(size, nu, std::max(model.n(), 1));
+    }
+    // sampled: the plant between updates takes the held efforts as its arm's (q, u, e, W only)
+    const int stepped = sampled ? state_size(model) : size;
+    std::vector<DualD> sd(size), Qd(nu), out(size), held(n_arm), x_rows(rows), law(size);
+    Effects<DualD> fx{run_.system.gravity, Qd.data(), run_.system.damping, nullptr, nullptr,
+                      arm && !sampled ? &run_.arm : nullptr};
+    auto rates = [&](const DualD* at, DualD* rate) { mms::rates(model, fx, at, rate, *dual_); };
+    dual_->arm.target_kind = target;
+    double *value, *dx, *dc;
+    Out o_value = new_array({size_t(rows)}, &value),
+        o_dx = new_array({size_t(rows), size_t(rows)}, &dx),
+        o_dc = new_array({size_t(rows), size_t(ntau + n_ref)}, &dc);
+    const double* B = B_tau.data();
+    // one pass of directions first … first + kDirections − 1 (none for kPlain: dg/dh* of the
+    // events found)
+    constexpr int kPlain = -2 * kDirections;
+    auto pass = [&](int first) {
+      auto along = [&](int j) { return direction(first, j); };
+      for (int i = 0; i < size; ++i) {
+        int j = i < nx ? i : (arm && i >= i_z && i < i_z + n_arm ? nx + i - i_z : -1);
+        sd[i] = DualD(s.data()[i], j >= 0 ? along(j) : Directions(0.0));
+      }
+      for (int i = 0; i < nu; ++i) {
+        Directions d(0.0);
+        for (int j = 0; j < ntau; ++j) d = d + B[i * ntau + j] * along(rows + j);
+        Qd[i] = DualD(run_.system.Q_cmd[i], d);
+      }
+      for (int j = 0; j < n_ref; ++j) dual_->arm.target[j] = DualD(0.0, along(rows + ntau + j));
+      if (sampled) {
+        for (int j = 0; j < n_arm; ++j)
+          held[j] = DualD(run_.system.held[2 + j], along(n_state + j));
+        if (update_due) {  // stepping.hpp's update_controllers, the arm's part
+          const double period = 1.0 / run_.system.rate;
+          std::vector<DualD> Q(Qd);
+          std::copy(update_moving.begin(), update_moving.end(), dual_->dynamics.moving.begin());
+          frames(model, sd.data(), dual_->dynamics);
+          arm_efforts(model, run_.arm, run_.system.gravity, run_.system.damping, sd.data(),
+                      law.data(), Q.data(), dual_->dynamics, dual_->arm);
+          for (int j = 0; j < n_arm; ++j) {
+            held[j] = Q[2 + j];
+            sd[i_z + j] += period * law[i_z + j];
+          }
+        }
+        for (int j = 0; j < n_arm; ++j) Qd[2 + j] = held[j];
+      }
+      step_through_events(method_, model, run_.stops, script_, rates, *dual_, sd.data(), h,
+                          out.data(), *event_work_, stepped, slopes_, first == kPlain);
+      if (first == kPlain) return;
+      for (int j = 0; j < n_state; ++j)
+        x_rows[j] = j < nx ? out[j] : (sampled ? sd[i_z + j - nx] : out[i_z + j - nx]);
+      for (int j = n_state; j < rows; ++j) x_rows[j] = held[j - n_state];
+      read_pass(first, x_rows.data(), rows, ntau + n_ref, value, dx, dc);
+    };
+    if (!script_.events.empty()) pass(kPlain);
+    for (int first = 0; first < rows + ntau + n_ref; first += kDirections) pass(first);
+    dual_->arm.target_kind = TARGET_NONE;
+    return {o_value, o_dx, o_dc, int(script_.events.size())};
   }
 
   // --- the arm controller (arm_control.hpp) -------------------------------------------------
@@ -1207,6 +1343,52 @@ class Stepper {
                                   "(hand_in_step, reach)");
   }
 
+  // What a step changes of the run's records beyond its state (which rods rest and are watched,
+  // the impact log's rows in use, the Zeno guard's records, the counters, the holding watch, the
+  // locks, the arm's last evaluation, the efforts sampled controllers hold), kept to be put back
+  // after a step taken for its derivative.
+  struct Records {
+    std::vector<std::int64_t> resting, counters, free;
+    std::vector<char> watched;
+    std::vector<double> runs, holding, last, held;
+    std::int64_t count, failed;
+    double segment = 0;
+    Records(const Run& run, size_t n_counters)
+        : resting(run.stops.resting, run.stops.resting + run.n()),
+          counters(run.system.counters, run.system.counters + n_counters),
+          free(run.system.free, run.system.free + run.n_u()),
+          watched(run.stops.watched, run.stops.watched + run.n()),
+          runs(run.stops.run, run.stops.run + run.n() * 2 * RUN_FIELDS),
+          holding(run.system.holding, run.system.holding + 2),
+          held(run.system.held, run.system.held + run.n_u()), count(run.stops.count[0]),
+          failed(run.stops.failed[0]) {
+      if (run.arm.settings != nullptr) {
+        segment = run.arm.settings[ARM_SEGMENT];
+        last.assign(run.arm.last, run.arm.last + ARM_ROWS * (run.n_u() - 2));
+      }
+    }
+    void restore(Run& run) const {
+      std::copy(resting.begin(), resting.end(), run.stops.resting);
+      std::copy(counters.begin(), counters.end(), run.system.counters);
+      std::copy(free.begin(), free.end(), run.system.free);
+      for (int k = 0; k < run.n(); ++k) run.stops.watched[k] = watched[k] != 0;
+      std::copy(runs.begin(), runs.end(), run.stops.run);
+      std::copy(holding.begin(), holding.end(), run.system.holding);
+      std::copy(held.begin(), held.end(), run.system.held);
+      run.stops.count[0] = count;
+      run.stops.failed[0] = failed;
+      if (run.arm.settings != nullptr) {
+        run.arm.settings[ARM_SEGMENT] = segment;
+        std::copy(last.begin(), last.end(), run.arm.last);
+      }
+      sync_locks(run);
+    }
+  };
+
+  EventScript script_;  // the events of the last step differentiated
+  std::vector<double> slopes_;  // … dg/dh* of each
+  std::unique_ptr<SystemWorkspace<DualD>> dual_;     // made at the first derivative
+  std::unique_ptr<EventWork<DualD>> event_work_;
   nb::object owner_;   // the Dynamics whose model the run uses
   nb::object arrays_;  // the arrays the run points into, kept alive
   Method method_ = Method::Rk4;
@@ -1562,6 +1744,8 @@ NB_MODULE(_core, m) {
       .def("derivative", &mms::Stepper::derivative, "s"_a)
       .def("constraint_forces", &mms::Stepper::constraint_forces, "s"_a)
       .def("wheel_torques", &mms::Stepper::wheel_torques, "s"_a)
+      .def("step_jacobians", &mms::Stepper::step_jacobians, "s"_a, "clock"_a, "h"_a, "B"_a,
+           "target"_a = 0)
       // the arm controller
       .def("drive_arm", &mms::Stepper::drive_arm, "arm"_a, "arm_gains"_a, "arm_limits"_a,
            "ref_starts"_a, "ref_coeffs"_a, "arm_ref"_a, "ff_masses"_a)

@@ -61,16 +61,39 @@ struct ArmControl {
   int feedforward() const { return int(settings[ARM_FEEDFORWARD]); }
 };
 
+// What a held reference's target is, for derivatives with respect to it: none, the position
+// target of position mode (q_ref = r), the velocity target of velocity mode (q_ref = q₀ + r τ,
+// q̇_ref = r).
+enum TargetKind { TARGET_NONE = 0, TARGET_POSITION = 1, TARGET_VELOCITY = 2 };
+
 // One evaluation's scratch of the law (n_u each, n_arm for the rows).
 template <class S>
 struct ArmWorkspace {
   std::vector<S> ud, Q_id, col_v, col_w, zero;  // (n_u) the inverse-dynamics passes
   std::vector<S> ref;                            // (3 × n_arm) q_ref, q̇_ref, q̈_ref
   std::vector<S> ff;                             // (n_arm) the feed-forward
+  // (n_arm) zeros carrying the derivatives of the target (`target_kind`), added to the reference
+  // where it depends on the target (dual numbers only: TARGET_NONE leaves the law untouched)
+  std::vector<S> target;
+  int target_kind = TARGET_NONE;
   explicit ArmWorkspace(int n_u)
       : ud(n_u), Q_id(n_u), col_v(n_u), col_w(n_u), zero(n_u, S(0.0)), ref(3 * (n_u - 2)),
-        ff(n_u - 2) {}
+        ff(n_u - 2), target(n_u - 2, S(0.0)) {}
 };
+
+// The target's derivatives into the reference of the segment in use at clock tau (values kept).
+template <class S>
+void seed_target(const ArmControl& arm, int n_arm, const S& tau, ArmWorkspace<S>& w) {
+  const S t = tau - arm.starts[int(arm.settings[ARM_SEGMENT])];
+  for (int j = 0; j < n_arm; ++j) {
+    if (w.target_kind == TARGET_POSITION) {
+      w.ref[Q_REF * n_arm + j] += w.target[j];
+    } else {
+      w.ref[Q_REF * n_arm + j] += w.target[j] * t;
+      w.ref[QD_REF * n_arm + j] += w.target[j];
+    }
+  }
+}
 
 // angles::shortest_angular_distance(start, end): end − start moved by whole turns into (−π, π].
 inline double shortest_angle(double start, double end) {
@@ -214,6 +237,7 @@ void arm_efforts(const Model& plant, const ArmControl& arm, double g, const doub
   double* settings = arm.settings;
   settings[ARM_SEGMENT] = reference(arm.starts, arm.coeffs, int(settings[ARM_SEGMENTS]), n_arm,
                                     s[i_clock], w.ref.data(), int(settings[ARM_SEGMENT]));
+  if (w.target_kind != TARGET_NONE) seed_target(arm, n_arm, s[i_clock], w);
   feedforward(plant, arm, g, damping, s, Q, ws, w);
   for (int j = 0; j < n_arm; ++j) {
     const S& q_j = s[q_turn(1) + j];

@@ -20,16 +20,17 @@ enum class Method { Euler, SemiImplicitEuler, Rk4 };
 
 // One step with the right-hand side `f(x, dx)` given (the engine's counts its stages and watches
 // the holding forces); k[0 … 3] are the stages (with `k1_ready`, k[0] already holds f(s)), x a
-// stage's state; n entries of s.
-template <class S, class P, class F>
-void step_with(Method method, const ModelOf<P>& model, F&& f, const S* s, double h, S* out,
+// stage's state; n entries of s. The length h is a double, or a scalar S where the step's length
+// itself carries derivatives (a step that ends at a located event: event_jacobians.hpp).
+template <class S, class H, class P, class F>
+void step_with(Method method, const ModelOf<P>& model, F&& f, const S* s, H h, S* out,
                S* const* k, S* x, int n, bool k1_ready = false) {
   const int nq = model.n_q();
   if (method == Method::Rk4) {
     for (int stage = k1_ready ? 1 : 0; stage < 4; ++stage) {
       const S* at = s;
       if (stage > 0) {  // s + c h k_(stage−1), c = ½, ½, 1
-        double c = stage == 3 ? h : 0.5 * h;
+        H c = stage == 3 ? h : 0.5 * h;
         for (int i = 0; i < n; ++i) x[i] = s[i] + c * k[stage - 1][i];
         at = x;
       }

@@ -80,6 +80,34 @@ struct StepArrays {
   std::int64_t* crossed = nullptr;  // (n) the stop each rod is past at the bracket's end
 };
 
+// The contact solve an impact's outcome came from: its m contacts (rod, direction σ, restitution
+// e) and which were active (for the `reflect` law, the rods reflected).
+struct ContactSolution {
+  int m = 0;
+  std::vector<int> rods;
+  std::vector<double> sigma, e;
+  std::vector<char> active;
+  explicit ContactSolution(int n = 0) : rods(n), sigma(n), e(n), active(n) {}
+};
+
+// One event of a step as a double run took it, for the step's derivative (event_jacobians.hpp).
+struct RecordedEvent {
+  int kind = 0;               // events.hpp's EventKind: CROSSING or RELEASE
+  double h = 0;               // s: where it was located, into what was left of the step
+  int rod = 0, side = 0;      // CROSSING: the rod whose crossing was located, and its stop
+  std::vector<std::int64_t> resting;  // (n) the rods resting before it (their stop's side)
+  std::vector<int> hits;      // (n) CROSSING: the stop each rod was hit at (0: none)
+  ContactSolution solution;   // CROSSING: the impact's outcome
+  std::vector<double> moving; // (n_u) the locks for what is left of the step
+};
+
+// The events of one step (`step_with_events` records them where Run::script is set).
+struct EventScript {
+  std::vector<double> moving;  // (n_u) the locks at the step's start
+  std::vector<RecordedEvent> events;
+  bool last_stretch = true;    // the step went on after its last event (else it ended there)
+};
+
 // An impact's and a release's scratch, owned here.
 struct ImpactScratch {
   std::vector<double> M, L;          // (n_u × n_u) the mass matrix, its factor
@@ -93,10 +121,13 @@ struct ImpactScratch {
   std::vector<double> cholesky;      // (n × (n + 1)) the solve's factor and right-hand side
   std::vector<double> saved_u;       // (2 × n_u) u before the impact, after the law
   std::vector<std::int64_t> saved_flags;  // (4 × n) resting and watched, before and after
+  ContactSolution solution;          // the last impact's outcome (`solve_impact`)
+  ContactSolution saved_solution[2];  // … before the impact, after the law
   ImpactScratch(int n_u, int n)
       : M(n_u * n_u), L(n_u * n_u), unit(n_u), free(n_u), rods(n), hits(n), index(n), bilateral(n),
         active(n), sigma(n), e(n), c_minus(n), qv(n), P(n), w(n), MinvE(n * n_u), W(n * n),
-        cholesky(n * (n + 1)), saved_u(2 * n_u), saved_flags(4 * n) {}
+        cholesky(n * (n + 1)), saved_u(2 * n_u), saved_flags(4 * n), solution(n),
+        saved_solution{ContactSolution(n), ContactSolution(n)} {}
 };
 
 struct Run {
@@ -109,6 +140,7 @@ struct Run {
   ImpactScratch impact;
   std::vector<double> x;  // (size) a stage's state
   int size;               // entries of s
+  EventScript* script = nullptr;  // where set, the events of `step_with_events` are recorded
   Run(const Model& m, int state_entries)
       : model(m), ws(m), impact(m.n_u(), std::max(m.n(), 1)), x(state_entries),
         size(state_entries) {}

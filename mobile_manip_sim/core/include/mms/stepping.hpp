@@ -136,6 +136,25 @@ inline Status step_with_events(Run& run, Method method, double* s, double h, dou
   const int capacity = run.stops.capacity, n = run.n();
   double* out = run.step.out;
   double* trial = run.step.trial;
+  EventScript* script = run.script;
+  if (script != nullptr) {
+    script->moving = run.ws.dynamics.moving;
+    script->events.clear();
+  }
+  // what a recorded event needs of the run as it was before it (the run's derivative replays it)
+  auto record = [&](int kind, double h_event, int rod, int side) {
+    if (script == nullptr) return;
+    RecordedEvent event;
+    event.kind = kind;
+    event.h = h_event;
+    event.rod = rod;
+    event.side = side;
+    event.resting.assign(run.stops.resting, run.stops.resting + n);
+    script->events.push_back(event);
+  };
+  auto locks_after = [&] {
+    if (script != nullptr) script->events.back().moving = run.ws.dynamics.moving;
+  };
   for (int i = 0; i < 2 * capacity; ++i) {
     clear_holding(run);
     run_step(run, method, s, h, out);
@@ -149,27 +168,35 @@ inline Status step_with_events(Run& run, Method method, double* s, double h, dou
       h_leave = first_release(run, path, s, h);
     if (hit.k == 0 && h_leave < 0.0) {  // no event (or the Hermite path dipped, the step did not)
       std::copy(out, out + run.size, s);
+      if (script != nullptr) script->last_stretch = true;
       return DONE;
     }
     if (hit.k == 0 || (0.0 <= h_leave && h_leave < hit.h)) {
       // a resting rod is pulled off its stop: released at that instant, not a step later
       step_state(run, path, s, h_leave, trial);
       std::copy(trial, trial + run.size, s);
+      record(RELEASE, h_leave, 0, 0);
       h -= h_leave;
       t += h_leave;
       release(run, s, true);
       if (run.stops.failed[0] != 0) return CONTACT_FAILED;
+      locks_after();
     } else {
       if (run.stops.count[0] + n > capacity) return CHATTER;  // the log is full within one step
       step_state(run, path, s, hit.h, trial);
       std::copy(trial, trial + run.size, s);
       s[q_slide(hit.k)] = run.stops.stroke[2 * (hit.k - 1) + (hit.side < 0 ? 0 : 1)];
+      record(CROSSING, hit.h, hit.k, hit.side);
       h -= hit.h;
       t += hit.h;
       book(clock, impact(run, s, hit.k, hit.side, t));
       if (run.stops.failed[0] != 0) return CONTACT_FAILED;
+      locks_after();
     }
-    if (h <= 1e-15 * dt) return DONE;
+    if (h <= 1e-15 * dt) {
+      if (script != nullptr) script->last_stretch = false;
+      return DONE;
+    }
   }
   return CHATTER;
 }

@@ -38,6 +38,38 @@ constexpr int CONTACT_SOLVE_FAILED = 1;
 
 inline int ld_index(const Run& run, int k) { return run.n_q() + u_slide(k); }
 
+// P_A = −W_AA⁻¹ q_A by Cholesky on the active rows idx[:n_active], P zero elsewhere (m entries);
+// L (n_active × (n_active + 1), row stride ldl) scratch. Generic in the scalar: the same solve,
+// operation for operation, gives an impact's impulses in double and their derivatives in dual
+// numbers (event_jacobians.hpp), the active set held.
+template <class S>
+inline void active_impulses(const S* W, int ldw, const S* q, int m, const int* idx, int n_active,
+                            S* L, int ldl, S* P) {
+  const int n = n_active;
+  for (int a = 0; a < n; ++a)
+    for (int c = 0; c <= a; ++c) {
+      S s = W[idx[a] * ldw + idx[c]];
+      for (int k = 0; k < c; ++k) s -= L[a * ldl + k] * L[c * ldl + k];
+      if (a == c)
+        L[a * ldl + a] = select(is_positive(value(s)), sqrt_(s), S(NAN));
+      else
+        L[a * ldl + c] = s / L[c * ldl + c];
+    }
+  auto y = [&](int a) -> S& { return L[a * ldl + m]; };
+  for (int a = 0; a < n; ++a) {
+    S s = -q[idx[a]];
+    for (int k = 0; k < a; ++k) s -= L[a * ldl + k] * y(k);
+    y(a) = s / L[a * ldl + a];
+  }
+  for (int a = n - 1; a >= 0; --a) {
+    S s = y(a);
+    for (int k = a + 1; k < n; ++k) s -= L[k * ldl + a] * y(k);
+    y(a) = s / L[a * ldl + a];
+  }
+  for (int i = 0; i < m; ++i) P[i] = S(0.0);
+  for (int a = 0; a < n; ++a) P[idx[a]] = y(a);
+}
+
 // The LCP above for m contacts: W (m × m, row stride ldw), q (m); P, w (m) out; L (m × (m + 1),
 // row stride ldl) and idx (m) scratch. Returns the pivots taken, or −1 when none converged.
 inline int solve_contacts(const double* W, int ldw, const double* q, int m, const char* bilateral,
@@ -48,32 +80,10 @@ inline int solve_contacts(const double* W, int ldw, const double* q, int m, cons
   const double tol = 1e-13 * scale;
   const long tries = 1L << std::min(m + 4, 30);
   for (long pivots = 0; pivots < tries; ++pivots) {
-    // P_A = −W_AA⁻¹ q_A by Cholesky on the active rows, zero elsewhere
     int n = 0;
     for (int i = 0; i < m; ++i)
       if (active[i]) idx[n++] = i;
-    for (int a = 0; a < n; ++a)
-      for (int c = 0; c <= a; ++c) {
-        double s = W[idx[a] * ldw + idx[c]];
-        for (int k = 0; k < c; ++k) s -= L[a * ldl + k] * L[c * ldl + k];
-        if (a == c)
-          L[a * ldl + a] = s > 0.0 ? std::sqrt(s) : NAN;
-        else
-          L[a * ldl + c] = s / L[c * ldl + c];
-      }
-    auto y = [&](int a) -> double& { return L[a * ldl + m]; };
-    for (int a = 0; a < n; ++a) {
-      double s = -q[idx[a]];
-      for (int k = 0; k < a; ++k) s -= L[a * ldl + k] * y(k);
-      y(a) = s / L[a * ldl + a];
-    }
-    for (int a = n - 1; a >= 0; --a) {
-      double s = y(a);
-      for (int k = a + 1; k < n; ++k) s -= L[k * ldl + a] * y(k);
-      y(a) = s / L[a * ldl + a];
-    }
-    for (int i = 0; i < m; ++i) P[i] = 0.0;
-    for (int a = 0; a < n; ++a) P[idx[a]] = y(a);
+    active_impulses(W, ldw, q, m, idx, n, L, ldl, P);
     for (int i = 0; i < m; ++i) {
       double s = q[i];
       for (int j = 0; j < m; ++j) s += W[i * ldw + j] * P[j];
@@ -245,6 +255,14 @@ inline void solve_impact(Run& run, double* s, int first, int row, Holds holds) {
       }
     contact_impulses(run, s, m);
   }
+  ContactSolution& solution = c.solution;
+  solution.m = m;
+  for (int a = 0; a < m; ++a) {
+    solution.rods[a] = c.rods[a];
+    solution.sigma[a] = c.sigma[a];
+    solution.e[a] = c.e[a];
+    solution.active[a] = stops.law == IMPULSE ? c.active[a] : 1;
+  }
 }
 
 // Keep (which 0: before the impact, 1: after the law) or bring back u and the resting and
@@ -257,6 +275,7 @@ inline void save_outcome(Run& run, const double* s, int which) {
     c.saved_flags[(2 * which) * n + r] = run.stops.resting[r];
     c.saved_flags[(2 * which + 1) * n + r] = run.stops.watched[r] ? 1 : 0;
   }
+  c.saved_solution[which] = c.solution;
 }
 
 inline void restore_outcome(Run& run, double* s, int which) {
@@ -267,6 +286,7 @@ inline void restore_outcome(Run& run, double* s, int which) {
     run.stops.resting[r] = c.saved_flags[(2 * which) * n + r];
     run.stops.watched[r] = c.saved_flags[(2 * which + 1) * n + r] != 0;
   }
+  c.solution = c.saved_solution[which];
   relock(run);
 }
 
@@ -334,6 +354,7 @@ inline ImpactEnergies impact(Run& run, double* s, int k, int side, double t) {
   ImpactScratch& c = run.impact;
   const int nq = run.n_q(), nu = run.n_u(), n = run.n();
   simultaneous_hits(run, s, k, side);
+  if (run.script != nullptr) run.script->events.back().hits = c.hits;
   double T_before = kinetic_energy_at(run, s);
   double allowance = -1.0;  // what a hold may remove beyond the law (J); −1: no evidence
   double bound = 0.0;       // ZENO_SHARE of the largest run energy among the stops hit (J)
@@ -427,6 +448,7 @@ inline ImpactEnergies impact(Run& run, double* s, int k, int side, double t) {
   log[LOG_LOST] = energies.lost;
   log[LOG_HOLD_LOST] = energies.removed;
   log[LOG_HOLD_BOUND] = bound;
+  if (run.script != nullptr) run.script->events.back().solution = c.solution;
   if (any_resting(run)) release(run, s, false);
   return energies;
 }
