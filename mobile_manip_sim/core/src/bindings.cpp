@@ -1077,6 +1077,8 @@ class Stepper {
     wheel_drive(w.kp, w.ki, w.target_L, (u[V] - b * u[OMEGA]) / r, s.data()[e + 1], w.limit_L,
                 true, tau_L, rate);
     return {tau_R, tau_L};
+  }
+
   // (x⁺, A, C, events) of one whole step h of the run's fixed-step method from s at the time of
   // `clock`, with the run's efforts, locks, stops and controllers, through every event the step
   // holds (event_jacobians.hpp), and how many it held; the run's records are left as they were.
