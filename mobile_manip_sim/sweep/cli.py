@@ -334,7 +334,13 @@ def _kill_workers(cluster) -> None:
 
 
 def main(argv=None) -> int:
-    return cli.run(_main, argv, sigterm=True)
+    """The `sweep` executable. Stopped (Ctrl-C, SIGTERM), it ends the process at once once its
+    line is said and the cluster closed (`cli.exit_at_once`): the stop is the user's, and the
+    interpreter's teardown was most of its time."""
+    status = cli.run(_main, argv, sigterm=True)
+    if status in (130, cli.EXIT_TERMINATED):
+        cli.exit_at_once(status)
+    return status
 
 
 if __name__ == "__main__":

@@ -21,7 +21,7 @@ from waiting import wait_for
 
 # 400 runs of about 40 ms, one per task: a sweep that is still running when the test acts.
 MANY = LONG.replace("count: 20", "count: 200")
-STOP_BOUND = 4.0   # s from the signal to the sweep's exit
+STOP_BOUND = 2.0   # s from the signal to the sweep's exit (the issue's)
 NOISE = ("Traceback", "leaked semaphore", "CommClosedError", "Exception", "Task was destroyed")
 
 
@@ -160,8 +160,9 @@ def test_a_stop_ends_a_dask_sweep_at_once_in_one_line_keeping_its_rows(many_spec
         stop(driver)
     assert driver.returncode == status, stderr
     line = assert_one_line(stderr, f"sweep: {word}; ")
-    # about 1 s on an idle machine, the interpreter's exit included; the bound leaves a loaded
-    # one room (before, the close waited 13 s for the worker, and Ctrl-C did not end it at all)
+    # the 2 s: 0.2–0.5 s with two CPU hogs on a 2-core machine (the interpreter's own
+    # teardown, skipped now, took 0.6–1.5 s of it; before that the close waited 13 s for the
+    # worker, and Ctrl-C did not end it at all)
     assert took < STOP_BOUND, f"the sweep took {took:.1f} s to end"
     assert not left, f"processes left in the sweep's session: {left}"
     assert line.endswith(f"of 400 runs are in {out}/runs.parquet (run the same command to finish)")
