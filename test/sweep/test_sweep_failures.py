@@ -1,8 +1,8 @@
 """`sweep` when things around it fail, with real processes: its output directory filling up,
 turning read-only or removed mid-sweep (a small tmpfs where the test may mount one); Ctrl-C and
-SIGTERM mid-sweep; a worker of a real `dask scheduler` lost while the workers get ready; the
-scheduler itself lost. Each ends in one line (or none, when the sweep survives), every finished
-run kept, no traceback, no process left."""
+SIGTERM mid-sweep; a worker of a real `dask scheduler` lost while the workers get ready or while
+the last rows come back; the scheduler itself lost. Each ends in one line (or none, when the
+sweep survives), every finished run kept, no traceback, no process left."""
 import contextlib
 import errno
 import os
@@ -195,6 +195,57 @@ def test_a_worker_lost_while_the_workers_get_ready_costs_no_run(tmp_path):
     assert [row["run"] for row in rows] == list(range(40))
     assert {row["status"] for row in rows} == {"ok"}
     assert {row["worker"] for row in rows} == {workers[0]}
+
+
+def test_a_worker_lost_while_the_last_rows_come_back_costs_no_run_and_says_nothing(tmp_path):
+    """The sweep's end: every run finished, worker A holding half the rows, and A killed while
+    the scheduler fetches one of them for the sweep. Nothing is left to timing: the sweep is
+    stopped (SIGSTOP) until every run is finished, A is frozen (SIGSTOP) before the sweep goes
+    on, and A is killed once the scheduler holds a connection to it (the fetch, waiting for
+    A's answer). The rows A held run again on B: status 0, every row ok, nothing on stderr
+    (distributed's "Couldn't gather 1 keys, rescheduling" line was printed before)."""
+    import psutil  # distributed's own dependency
+    from distributed import Client
+
+    spec = tmp_path / "long.yaml"
+    spec.write_text(LONG)
+    out = tmp_path / "out"
+    with dask_cluster([{}, {}]) as (address, scheduler, processes, workers), \
+            Client(address, timeout=90) as client:
+        victim, port = processes[0], int(workers[0].rsplit(":", 1)[1])
+        driver = start([executable("sweep"), str(spec), "--out", str(out), "--scheduler",
+                        address])
+        try:
+            wait_for(lambda: parts(out), "the first finished run", 180)
+            driver.send_signal(signal.SIGSTOP)
+
+            def states(dask_scheduler):   # nested: pickled by value for the scheduler
+                return {str(key): (task.state, [w.address for w in task.who_has or ()])
+                        for key, task in dask_scheduler.tasks.items()}
+
+            def every_run_finished():
+                tasks = {key: value for key, value in client.run_on_scheduler(states).items()
+                         if key.startswith("runs-")}
+                return (len(tasks) + len(parts(out)) >= 40
+                        and all(state == "memory" for state, _ in tasks.values()) and tasks)
+            tasks = wait_for(every_run_finished, "every run finished", 120)
+            assert any(workers[0] in holders for _, holders in tasks.values())
+            victim.send_signal(signal.SIGSTOP)
+            driver.send_signal(signal.SIGCONT)
+            wait_for(lambda: any(c.raddr and c.raddr.port == port and c.pid == scheduler.pid
+                                 for c in psutil.net_connections("tcp")),
+                     "the scheduler fetching rows from worker A", 60)
+            victim.send_signal(signal.SIGKILL)
+            victim.wait(timeout=10)
+            _, stderr = driver.communicate(timeout=120)
+        finally:
+            driver.send_signal(signal.SIGCONT)
+            stop(driver)
+    assert driver.returncode == 0, stderr
+    assert stderr == "", stderr
+    rows = table(out)
+    assert [row["run"] for row in rows] == list(range(40))
+    assert {row["status"] for row in rows} == {"ok"}
 
 
 def test_a_lost_scheduler_is_one_line_and_keeps_the_rows(many_spec, tmp_path):
