@@ -431,6 +431,45 @@ def test_a_watchdog_abandon_never_lets_the_old_thread_touch_the_new_engine():
         rclpy.shutdown(context=context)
 
 
+def test_an_in_process_node_leaves_the_graph_when_destroyed():
+    """A SimulatorNode in this process (as the test above makes one) is seen in the graph by a
+    watcher in another process, and is gone from it once destroyed and its context shut down:
+    its action server's handle kept it there (under its name, in its domain) until the
+    garbage collector found the node object."""
+    from mobile_manip_sim.node.shell import SimulatorNode
+
+    domain = next(d for d in iter(lambda: private_domain(100, 232), None) if d != DOMAIN_ID)
+    watcher = subprocess.Popen([sys.executable, str(Path(__file__).parents[1] / "helpers" /
+                                                    "graph_watch.py")],
+                               stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+                               env=child_env(domain))
+    seen = []
+    reader = threading.Thread(target=lambda: seen.extend(watcher.stdout), daemon=True)
+    reader.start()
+    context = Context()
+    try:
+        with on_domain(domain):
+            rclpy.init(context=context, domain_id=domain)
+            node = SimulatorNode(context=context, parameter_overrides=[
+                Parameter("integrator.method", value="rk4"),
+                Parameter("real_time_factor", value=0.0)])
+        assert node.arm.trajectories is not None   # the default arm controller, its action
+        node.start()
+        wait_for(lambda: seen and "mobile_manip_sim" in seen[-1].strip().split(","),
+                 "the node in the watcher's graph", TIMEOUT)
+        node.stop()
+        node.close()
+        node.destroy_node()
+        rclpy.shutdown(context=context)
+        wait_for(lambda: "mobile_manip_sim" not in seen[-1].strip().split(","),
+                 "the node gone from the watcher's graph", TIMEOUT)
+    finally:
+        if context.ok():
+            rclpy.shutdown(context=context)
+        watcher.stdin.close()
+        watcher.wait(timeout=SHUTDOWN_GUARD)
+
+
 # --- goals that get answers, stops while goals run ------------------------------------------
 
 def test_every_goal_is_answered_and_a_stop_while_one_runs_is_clean(action_env, tmp_path):
