@@ -117,8 +117,10 @@ def test_an_output_directory_that_fails_mid_sweep_is_one_line_and_keeps_the_rows
                 fill(disk)
             elif failure == "read-only":
                 make_read_only(disk, out)
-            else:
-                shutil.rmtree(out)
+            else:   # at once, as the sweep sees it: rmtree alone raced with the parts it
+                gone = out.with_name("removed")   # was writing (a part written between its
+                out.rename(gone)                  # listing and its rmdir failed the rmdir;
+                shutil.rmtree(gone)               # runs.parquet rebuilt in DIR before DIR went)
         driver, stderr = act_on_first_run([executable("sweep"), str(many_spec), "--out",
                                            str(out), where], out, fail)
         assert driver.returncode == 2, stderr
