@@ -117,10 +117,13 @@ class System:
 
     def set_reference(self, starts: np.ndarray, coeffs: np.ndarray) -> None:
         """The arm's reference from now on (`arm_reference.py`): copied into the compiled
-        record, whose arrays grow (the record is rebuilt: re-read ``data``) when too small."""
+        record, whose arrays grow when too small and shrink to fit when four times too large
+        (the record is rebuilt: re-read ``data``): a node that ran a 100,000-point trajectory
+        kept its 24 MB of coefficients for as long as it ran."""
         count = starts.size
-        if count > self.data.ref_starts.size:
-            capacity = max(count, 2 * self.data.ref_starts.size)
+        size = self.data.ref_starts.size
+        if count > size or 4 * count < size:
+            capacity = max(count, 2 * size) if count > size else count
             self.data = self.data._replace(ref_starts=np.zeros(capacity),
                                            ref_coeffs=np.zeros((capacity,) + coeffs.shape[1:]))
         self.data.ref_starts[:count] = starts

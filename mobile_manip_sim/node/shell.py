@@ -341,6 +341,13 @@ class SimulatorNode(Node):
         self.view.close()
 
 
+    def destroy_node(self) -> None:
+        """The action server first (`TrajectoryInterface.destroy`), then what rclpy destroys."""
+        if self.arm is not None and self.arm.trajectories is not None:
+            self.arm.trajectories.destroy()
+        super().destroy_node()
+
+
 def _init(argv) -> None:
     """rclpy.init; bad --ros-args (a missing or unparsable --params-file, ...) is a UserError,
     and the line rcl logs itself then ("Failed to parse global arguments") is left out."""

@@ -244,6 +244,15 @@ class TrajectoryInterface:
                 self._warn(("trajectory", outcome.code),
                            f"{relative(TRAJECTORY_TOPIC)}: {outcome.text}")
 
+    def destroy(self) -> None:
+        """Destroy the action server (idempotent): rclpy's destroy_node leaves a node's
+        waitables alone, and the server's handle kept the node's alive (and in the ROS graph,
+        under its name) after destroy_node and the context's shutdown, until the garbage
+        collector found the node object."""
+        if self._action is not None:
+            self._action.destroy()
+            self._action = None
+
     def start(self) -> None:
         """After __init__'s log lines: say once when the action is off."""
         if not self.available:

@@ -8,7 +8,7 @@ import sys
 import tempfile
 import threading
 from contextlib import contextmanager
-from typing import Callable
+from typing import Callable, NoReturn
 
 from ..scene.errors import EXIT_USER_ERROR, SimulationError, StepLimitError, UserError
 
@@ -133,6 +133,20 @@ def run(main: Callable[[list[str] | None], int | None], argv: list[str] | None =
         print(f"{prog}: error: {error}", file=sys.stderr)
         # A StepLimitError names the settings that cannot follow the run: a user's choice.
         return EXIT_USER_ERROR if isinstance(error, StepLimitError) else 1
+
+
+def exit_at_once(status: int) -> NoReturn:
+    """End the process now with `status`, stdout and stderr flushed, without the interpreter's
+    teardown: for a program that has closed everything it opened and only has to go. That
+    teardown (freeing every object of numba, LLVM, pyarrow and Dask, a full collection among
+    them) took 0.6–1.5 s of a stopped sweep's 0.8–1.9 s on a loaded 2-core machine, the
+    sweep's own stop about 0.2 s."""
+    for stream in (sys.stdout, sys.stderr):
+        try:
+            stream.flush()
+        except (OSError, ValueError):   # a closed pipe or stream: nothing more can be said
+            pass
+    os._exit(status)
 
 
 @contextmanager

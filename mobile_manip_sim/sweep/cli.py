@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import logging
 import math
 import os
 import signal
@@ -150,7 +151,6 @@ def _quiet_dask() -> None:
     """When the sweep stops early: the cluster's own complaints while it is torn down (workers
     that stopped mid-task, broadcasts to them, heartbeats to a closed scheduler) are the stop
     itself, not news."""
-    import logging
     families = ("distributed", "tornado", "asyncio")
     names = [name for name in logging.root.manager.loggerDict   # children set their own level
              if name.split(".")[0] in families]
@@ -167,8 +167,6 @@ def fingerprint(spec: Spec) -> str:
 
 
 def _connect(args):
-    import logging
-
     from distributed import Client, LocalCluster
     if args.scheduler:
         with Progress("sweep", None, f"connecting to {args.scheduler}"):
@@ -264,6 +262,7 @@ def _run(client, spec: Spec, runs: list, chunks: list, store, progress, out: str
 
     from . import runner
     csv_dir = _csv_dir(spec, out)
+    logging.getLogger("distributed.client").addFilter(_Refetched)
     futures = {}
     failures = 0
     for ids in chunks:
@@ -275,7 +274,7 @@ def _run(client, spec: Spec, runs: list, chunks: list, store, progress, out: str
     for future in as_completed(futures):
         ids = futures[future]
         try:
-            rows = future.result()
+            rows = _fetch(client, future)
         except KilledWorker as error:
             rows = [{"run": i, "status": "failed",
                      "error": f"KilledWorker: every worker that ran it died ({error})"}
@@ -288,6 +287,45 @@ def _run(client, spec: Spec, runs: list, chunks: list, store, progress, out: str
                      "error": f"{type(error).__name__}: {error}".splitlines()[0]}
                     for i in ids]
         failures = _keep(store, rows, runs, progress, failures)
+
+
+FETCH_LOOK = 0.2   # s between looks at a chunk's rows still being fetched
+
+
+def _fetch(client, future) -> list:
+    """The rows of a finished chunk, fetched from its worker through the scheduler. A worker
+    lost meanwhile (killed, its machine gone) can leave that fetch retrying the dead address for
+    the scheduler's connect timeout (distributed.comm.timeouts.connect, 30 s) while the chunk
+    already runs again elsewhere: the fetch is given up once the scheduler no longer lists the
+    workers it had the rows on, and made again when the rows are back. distributed's own line
+    for a fetch that failed, the chunk rescheduled ("Couldn't gather …"), is no news either:
+    a worker lost mid-sweep costs no run and says nothing (`_Refetched`)."""
+    import asyncio
+
+    from distributed import wait
+    while True:
+        holders = set(client.who_has(future).get(future.key, ()))
+        fetch = asyncio.run_coroutine_threadsafe(client.gather(future, asynchronous=True),
+                                                 client.loop.asyncio_loop)
+        while True:
+            try:
+                return fetch.result(timeout=FETCH_LOOK)
+            except TimeoutError:
+                pass
+            if future.status != "finished" or \
+                    not holders <= set(client.who_has(future).get(future.key, ())):
+                fetch.cancel()
+                break
+        wait(future)   # computed again (or failed for good: the next fetch raises its error)
+
+
+class _Refetched:
+    """A logging filter for distributed's client: drops its warning that a finished chunk's
+    rows could not be fetched and the chunk runs again (its worker was lost; `_fetch`)."""
+
+    @staticmethod
+    def filter(record) -> bool:
+        return not str(record.msg).startswith("Couldn't gather")
 
 
 def _keep(store, rows: list, runs: list, progress, failures: int) -> int:
@@ -332,7 +370,13 @@ def _kill_workers(cluster) -> None:
 
 
 def main(argv=None) -> int:
-    return cli.run(_main, argv, sigterm=True)
+    """The `sweep` executable. Stopped (Ctrl-C, SIGTERM), it ends the process at once once its
+    line is said and the cluster closed (`cli.exit_at_once`): the stop is the user's, and the
+    interpreter's teardown was most of its time."""
+    status = cli.run(_main, argv, sigterm=True)
+    if status in (130, cli.EXIT_TERMINATED):
+        cli.exit_at_once(status)
+    return status
 
 
 if __name__ == "__main__":

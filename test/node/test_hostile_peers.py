@@ -37,6 +37,7 @@ TIMEOUT = 60.0                 # any other condition
 SHUTDOWN_GUARD = 30.0          # a stop must end the process (the node's own bound is 5 s)
 RSS_AFTER_GOALS = 200 << 20    # bytes a node may keep once 100,000-point trajectories ended
 RSS_GROWTH = 16 << 20          # and may add with each later flood of them
+RSS_RETURNED = 12 << 20        # bytes a node may keep once one such trajectory was replaced
 SERVICE_TIMEOUT = 15.0         # ~/pause must answer within this while trajectories pour in
 TRAJECTORY_POINTS = 100_000    # the documented maximum of one trajectory
 TRAJECTORIES = 6               # sent back to back: rclpy alone would take > 12 s to read them
@@ -323,6 +324,36 @@ def test_pause_answers_while_100000_point_trajectories_pour_in_on_the_topic(tmp_
 
 # rad, m, rad, m: none of heavy_trajectory's values
 LAST_TARGETS = ((0.1, 0.3, 0.1, 0.3), (0.0, 0.25, 0.0, 0.25))
+HEAVY_TARGET = (0.3, 0.5, -0.2, 0.5)   # every point of heavy_trajectory
+
+
+def test_a_100000_point_trajectory_gives_its_memory_back_once_replaced(tmp_path):
+    """One 100,000-point trajectory on the topic, seen applied (the arm at its points), then
+    replaced by a short one, seen applied too: the node's RSS is back within RSS_RETURNED of
+    what it was before (after a short trajectory of its own, so that the code paths are
+    warm). The engine kept the reference's 24 MB of coefficients for as long as it ran
+    (133 → 159 MB measured); now 1 MB stays (bench/NODE.md)."""
+    message = heavy_trajectory()
+    node = started(tmp_path, "-p", "arm_controller:=joint_trajectory")
+    try:
+        with on_domain(DOMAIN_ID), spinning(Caller, DOMAIN_ID) as caller:
+            wait_for(lambda: caller.trajectories.get_subscription_count() > 0,
+                     "the node's trajectory subscription", TIMEOUT)
+            caller.trajectories.publish(short_trajectory(LAST_TARGETS[0]))
+            wait_for(lambda: caller.arm_at(LAST_TARGETS[0]), "the arm at the first target",
+                     TIMEOUT)
+            before = resident(node.pid)
+            caller.trajectories.publish(message)
+            wait_for(lambda: caller.arm_at(HEAVY_TARGET), "the arm on the long trajectory",
+                     TIMEOUT)
+            caller.trajectories.publish(short_trajectory(LAST_TARGETS[1]))
+            wait_for(lambda: caller.arm_at(LAST_TARGETS[1]), "the arm at the last target",
+                     TIMEOUT)
+            after = resident(node.pid)
+        assert after <= before + RSS_RETURNED, (
+            f"{after >> 20} MB after the trajectory, {before >> 20} MB before")
+    finally:
+        assert node.stop(signal.SIGINT) == 0
 
 
 def short_trajectory(target) -> JointTrajectory:
@@ -393,6 +424,45 @@ def test_a_watchdog_abandon_never_lets_the_old_thread_touch_the_new_engine():
         node.close()
         node.destroy_node()
         rclpy.shutdown(context=context)
+
+
+def test_an_in_process_node_leaves_the_graph_when_destroyed():
+    """A SimulatorNode in this process (as the test above makes one) is seen in the graph by a
+    watcher in another process, and is gone from it once destroyed and its context shut down:
+    its action server's handle kept it there (under its name, in its domain) until the
+    garbage collector found the node object."""
+    from mobile_manip_sim.node.shell import SimulatorNode
+
+    domain = next(d for d in iter(lambda: private_domain(100, 232), None) if d != DOMAIN_ID)
+    watcher = subprocess.Popen([sys.executable, str(Path(__file__).parents[1] / "helpers" /
+                                                    "graph_watch.py")],
+                               stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True,
+                               env=child_env(domain))
+    seen = []
+    reader = threading.Thread(target=lambda: seen.extend(watcher.stdout), daemon=True)
+    reader.start()
+    context = Context()
+    try:
+        with on_domain(domain):
+            rclpy.init(context=context, domain_id=domain)
+            node = SimulatorNode(context=context, parameter_overrides=[
+                Parameter("integrator.method", value="rk4"),
+                Parameter("real_time_factor", value=0.0)])
+        assert node.arm.trajectories is not None   # the default arm controller, its action
+        node.start()
+        wait_for(lambda: seen and "mobile_manip_sim" in seen[-1].strip().split(","),
+                 "the node in the watcher's graph", TIMEOUT)
+        node.stop()
+        node.close()
+        node.destroy_node()
+        rclpy.shutdown(context=context)
+        wait_for(lambda: "mobile_manip_sim" not in seen[-1].strip().split(","),
+                 "the node gone from the watcher's graph", TIMEOUT)
+    finally:
+        if context.ok():
+            rclpy.shutdown(context=context)
+        watcher.stdin.close()
+        watcher.wait(timeout=SHUTDOWN_GUARD)
 
 
 # --- goals that get answers, stops while goals run ------------------------------------------

@@ -1,8 +1,8 @@
 """`sweep` when things around it fail, with real processes: its output directory filling up,
 turning read-only or removed mid-sweep (a small tmpfs where the test may mount one); Ctrl-C and
-SIGTERM mid-sweep; a worker of a real `dask scheduler` lost while the workers get ready; the
-scheduler itself lost. Each ends in one line (or none, when the sweep survives), every finished
-run kept, no traceback, no process left."""
+SIGTERM mid-sweep; a worker of a real `dask scheduler` lost while the workers get ready or while
+the last rows come back; the scheduler itself lost. Each ends in one line (or none, when the
+sweep survives), every finished run kept, no traceback, no process left."""
 import contextlib
 import errno
 import os
@@ -21,7 +21,7 @@ from waiting import TimedOut, wait_for
 
 # 400 runs of about 40 ms, one per task: a sweep that is still running when the test acts.
 MANY = LONG.replace("count: 20", "count: 200")
-STOP_BOUND = 4.0   # s from the signal to the sweep's exit
+STOP_BOUND = 2.0   # s from the signal to the sweep's exit (the issue's)
 NOISE = ("Traceback", "leaked semaphore", "CommClosedError", "Exception", "Task was destroyed")
 
 
@@ -117,8 +117,10 @@ def test_an_output_directory_that_fails_mid_sweep_is_one_line_and_keeps_the_rows
                 fill(disk)
             elif failure == "read-only":
                 make_read_only(disk, out)
-            else:
-                shutil.rmtree(out)
+            else:   # at once, as the sweep sees it: rmtree alone raced with the parts it
+                gone = out.with_name("removed")   # was writing (a part written between its
+                out.rename(gone)                  # listing and its rmdir failed the rmdir;
+                shutil.rmtree(gone)               # runs.parquet rebuilt in DIR before DIR went)
         driver, stderr = act_on_first_run([executable("sweep"), str(many_spec), "--out",
                                            str(out), where], out, fail)
         assert driver.returncode == 2, stderr
@@ -164,8 +166,9 @@ def test_a_stop_ends_a_dask_sweep_at_once_in_one_line_keeping_its_rows(many_spec
         stop(driver)
     assert driver.returncode == status, stderr
     line = assert_one_line(stderr, f"sweep: {word}; ")
-    # about 1 s on an idle machine, the interpreter's exit included; the bound leaves a loaded
-    # one room (before, the close waited 13 s for the worker, and Ctrl-C did not end it at all)
+    # the issue's 2 s: 0.2–0.5 s with two CPU hogs on a 2-core machine (the interpreter's own
+    # teardown, skipped now, took 0.6–1.5 s of it; before that the close waited 13 s for the
+    # worker, and Ctrl-C did not end it at all)
     assert took < STOP_BOUND, f"the sweep took {took:.1f} s to end"
     assert not left, f"processes left in the sweep's session: {left}"
     assert line.endswith(f"of 400 runs are in {out}/runs.parquet (run the same command to finish)")
@@ -194,6 +197,57 @@ def test_a_worker_lost_as_the_sweep_starts_costs_no_run(tmp_path):
     assert [row["run"] for row in rows] == list(range(40))
     assert {row["status"] for row in rows} == {"ok"}
     assert {row["worker"] for row in rows} == {workers[0]}
+
+
+def test_a_worker_lost_while_the_last_rows_come_back_costs_no_run_and_says_nothing(tmp_path):
+    """The sweep's end: every run finished, worker A holding half the rows, and A killed while
+    the scheduler fetches one of them for the sweep. Nothing is left to timing: the sweep is
+    stopped (SIGSTOP) until every run is finished, A is frozen (SIGSTOP) before the sweep goes
+    on, and A is killed once the scheduler holds a connection to it (the fetch, waiting for
+    A's answer). The rows A held run again on B: status 0, every row ok, nothing on stderr
+    (distributed's "Couldn't gather 1 keys, rescheduling" line was printed before)."""
+    import psutil  # distributed's own dependency
+    from distributed import Client
+
+    spec = tmp_path / "long.yaml"
+    spec.write_text(LONG)
+    out = tmp_path / "out"
+    with dask_cluster([{}, {}]) as (address, scheduler, processes, workers), \
+            Client(address, timeout=90) as client:
+        victim, port = processes[0], int(workers[0].rsplit(":", 1)[1])
+        driver = start([executable("sweep"), str(spec), "--out", str(out), "--scheduler",
+                        address])
+        try:
+            wait_for(lambda: parts(out), "the first finished run", 180)
+            driver.send_signal(signal.SIGSTOP)
+
+            def states(dask_scheduler):   # nested: pickled by value for the scheduler
+                return {str(key): (task.state, [w.address for w in task.who_has or ()])
+                        for key, task in dask_scheduler.tasks.items()}
+
+            def every_run_finished():
+                tasks = {key: value for key, value in client.run_on_scheduler(states).items()
+                         if key.startswith("runs-")}
+                return (len(tasks) + len(parts(out)) >= 40
+                        and all(state == "memory" for state, _ in tasks.values()) and tasks)
+            tasks = wait_for(every_run_finished, "every run finished", 120)
+            assert any(workers[0] in holders for _, holders in tasks.values())
+            victim.send_signal(signal.SIGSTOP)
+            driver.send_signal(signal.SIGCONT)
+            wait_for(lambda: any(c.raddr and c.raddr.port == port and c.pid == scheduler.pid
+                                 for c in psutil.net_connections("tcp")),
+                     "the scheduler fetching rows from worker A", 60)
+            victim.send_signal(signal.SIGKILL)
+            victim.wait(timeout=10)
+            _, stderr = driver.communicate(timeout=120)
+        finally:
+            driver.send_signal(signal.SIGCONT)
+            stop(driver)
+    assert driver.returncode == 0, stderr
+    assert stderr == "", stderr
+    rows = table(out)
+    assert [row["run"] for row in rows] == list(range(40))
+    assert {row["status"] for row in rows} == {"ok"}
 
 
 def test_a_lost_scheduler_is_one_line_and_keeps_the_rows(many_spec, tmp_path):
