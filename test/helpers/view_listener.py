@@ -4,9 +4,11 @@ imports tf2_msgs: tools/bootstrap.sh builds it into the venv). Subscribes to /tf
 NAMESPACE/joint_states and NAMESPACE/odom, collects until /tf brought COUNT messages (or STATIC
 latched /tf_static messages when COUNT is 0) — COUNT from each publisher of a frame prefix in
 PREFIXES (comma-separated; a listener that heard one publisher first could otherwise fill its count
-before it heard the other) — then prints one JSON document:
+before it heard the other) — and until MATCHED of the /tf stamps have come on joint_states and
+odom too (each topic's subscription is matched on its own: the first /tf messages may come before
+the listener hears the others), then prints one JSON document:
 
-    view_listener.py COUNT [NAMESPACE] [STATIC] [PREFIXES]
+    view_listener.py COUNT [NAMESPACE] [STATIC] [PREFIXES] [MATCHED]
 
 {"tf": [[stamp, parent, child, x, y, z, qx, qy, qz, qw], ...], "static": [[...same...], ...]
  (one list per /tf_static message), "description": URDF or null, "joints": {stamp: [names,
@@ -40,6 +42,7 @@ def main() -> int:
     namespace = sys.argv[2].rstrip("/") if len(sys.argv) > 2 else ""
     statics = int(sys.argv[3]) if len(sys.argv) > 3 else 1
     prefixes = sys.argv[4].split(",") if len(sys.argv) > 4 else [""]
+    matched = int(sys.argv[5]) if len(sys.argv) > 5 else 0
     rclpy.init()
     node = rclpy.create_node("view_listener")
     seen = {"tf": [], "static": [], "description": None, "joints": {}, "odom": {}}
@@ -76,7 +79,9 @@ def main() -> int:
     try:
         code = spin_until(node, lambda: min(tf_count.values()) >= count
                           and len(seen["static"]) >= statics
-                          and seen["description"] is not None)
+                          and seen["description"] is not None
+                          and len({row[0] for row in seen["tf"]} & seen["joints"].keys()
+                                  & seen["odom"].keys()) >= matched)
     except KeyboardInterrupt:   # the test gave up: say what came
         print(f"/tf {tf_count} of {count} each, /tf_static {len(seen['static'])} of {statics}, "
               f"description {seen['description'] is not None}", file=sys.stderr)
