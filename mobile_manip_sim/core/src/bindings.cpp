@@ -1066,16 +1066,9 @@ class Stepper {
   // as `rates` computes them under velocity commands).
   std::tuple<double, double> wheel_torques(In s) {
     check_state(s);
-    const WheelLoop w = wheel_loop(run_.system.control);
-    const Model& m = run_.model;
-    const double* u = s.data() + run_.n_q();
-    const int e = controller_index(m);
-    const double r = m.base.wheel_radius, b = m.base.half_track;
-    double tau_R, tau_L, rate;
-    wheel_drive(w.kp, w.ki, w.target_R, (u[V] + b * u[OMEGA]) / r, s.data()[e], w.limit_R, true,
-                tau_R, rate);
-    wheel_drive(w.kp, w.ki, w.target_L, (u[V] - b * u[OMEGA]) / r, s.data()[e + 1], w.limit_L,
-                true, tau_L, rate);
+    double tau_R, tau_L, rate_R, rate_L;
+    wheels_drive(run_.model, wheel_loop(run_.system.control), s.data(), true, tau_R, tau_L,
+                 rate_R, rate_L);
     return {tau_R, tau_L};
   }
 

@@ -52,14 +52,10 @@ inline Status update_controllers(Run& run, double* s) {
   double* held = run.system.held;
   for (int k = 0; k < nu; ++k) run.ws.Q[k] = run.system.Q_cmd[k];
   if (run.velocity_mode()) {
-    const WheelLoop w = wheel_loop(run.system.control);
     const double r = run.model.base.wheel_radius, b = run.model.base.half_track;
-    const double v = s[nq + V], om = s[nq + OMEGA];
     double rate_R, rate_L;
-    wheel_drive(w.kp, w.ki, w.target_R, (v + b * om) / r, s[e], w.limit_R, false, held[0],
-                rate_R);
-    wheel_drive(w.kp, w.ki, w.target_L, (v - b * om) / r, s[e + 1], w.limit_L, false, held[1],
-                rate_L);
+    wheels_drive(run.model, wheel_loop(run.system.control), s, false, held[0], held[1], rate_R,
+                 rate_L);
     s[e] += period * rate_R;
     s[e + 1] += period * rate_L;
     run.ws.Q[V] = (held[0] + held[1]) / r;

@@ -47,8 +47,8 @@ struct Effects {
                                         // segment per evaluation, not one per lane)
 };
 
-// One wheel's PI loop (WheelLoop): its torque and its integral's rate. Anti-windup
-// (engine/system.py's wheel_drive): `tracking` (the continuous loop) back-calculation with
+// One wheel's PI loop (WheelLoop): its torque and its integral's rate. Anti-windup: with
+// `tracking` (the continuous loop) back-calculation with
 // control_toolbox's default T_t = kp/ki, ė = error + (τ − raw)/kp, continuous in the state;
 // otherwise (a sampled update) conditional integration.
 template <class S>
@@ -65,6 +65,20 @@ inline void wheel_drive(double kp, double ki, double target, const S& speed, con
   auto held = ((value(raw) > limit) & (value(error) > 0.0)) |
               ((value(raw) < -limit) & (value(error) < 0.0));
   rate = select(held, S(0.0), error);
+}
+
+// Both wheels' loops at the state s (u from index n_q, the integrals e_R, e_L at `e`): each wheel
+// on its speed θ̇ = (v ± b ω)/r, its torque and its integral's rate (`wheel_drive`).
+template <class S, class P>
+inline void wheels_drive(const ModelOf<P>& model, const WheelLoop& w, const S* s, bool tracking,
+                         S& tau_R, S& tau_L, S& rate_R, S& rate_L) {
+  const S* u = s + model.n_q();
+  const int e = controller_index(model);
+  P r = model.base.wheel_radius, b = model.base.half_track;
+  wheel_drive(w.kp, w.ki, w.target_R, (u[V] + b * u[OMEGA]) / r, s[e], w.limit_R, tracking, tau_R,
+              rate_R);
+  wheel_drive(w.kp, w.ki, w.target_L, (u[V] - b * u[OMEGA]) / r, s[e + 1], w.limit_L, tracking,
+              tau_L, rate_L);
 }
 
 // One evaluation's scratch beside the dynamics' workspace.
@@ -95,13 +109,9 @@ void rates(const ModelOf<P>& model, const Effects<S>& fx, const S* s, S* ds, Sys
   ds[e] = S(0.0);
   ds[e + 1] = S(0.0);
   if (fx.wheels != nullptr) {
-    const WheelLoop& w = *fx.wheels;
     P r = model.base.wheel_radius, b = model.base.half_track;
     S tau_R, tau_L;
-    wheel_drive(w.kp, w.ki, w.target_R, (u[V] + b * u[OMEGA]) / r, s[e], w.limit_R, true,
-                tau_R, ds[e]);
-    wheel_drive(w.kp, w.ki, w.target_L, (u[V] - b * u[OMEGA]) / r, s[e + 1], w.limit_L, true,
-                tau_L, ds[e + 1]);
+    wheels_drive(model, *fx.wheels, s, true, tau_R, tau_L, ds[e], ds[e + 1]);
     ws.Q[V] = (tau_R + tau_L) / r;
     ws.Q[OMEGA] = b * (tau_R - tau_L) / r;
   } else if (fx.held_wheels != nullptr) {  // sampled: the last update's torques (ė = 0)
