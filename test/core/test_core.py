@@ -186,3 +186,21 @@ def test_the_wheel_speed_loop_follows_its_documented_law(n):
         ud = core.forward_dynamics(s[:nq], u, Q, c["g"], c["moving"])
         assert ds[nq:nq + nu] == pytest.approx(ud, rel=1e-12, abs=1e-12), trial
     assert saturated > 0   # some torques were clipped (the back-calculation acted)
+
+
+@pytest.mark.parametrize("n", [0, 2, 5])
+def test_configuration_rates_of_many_rows_are_each_rows_own(n):
+    """`configuration_rates` (the sweep's residual check reads it) on rows (q, u, …) of different
+    states: each row is `configuration_rate` of its own q and u, bit for bit; rows too short are
+    refused naming the argument."""
+    c = system_case(700 + n, n)
+    rng, robot, core = c["rng"], c["robot"], c["core"]
+    rows = np.array([np.concatenate([*robots.random_state(rng, robot), rng.normal(size=3)])
+                     for _ in range(7)])
+    rates = core.configuration_rates(rows)
+    nq = robot.n_q
+    for row, rate in zip(rows, rates, strict=True):
+        assert identical(rate, core.configuration_rate(row[:nq], row[nq:nq + robot.n_u]))
+    assert len({rate.tobytes() for rate in rates}) == len(rows)
+    with pytest.raises(ValueError, match=r"^samples: expected rows of at least"):
+        core.configuration_rates(rows[:, :nq])

@@ -140,3 +140,23 @@ def test_unequal_wheel_limits_give_unequal_torques():
     sim.set_base_velocity(1.0, 0.0)
     sim.advance_to(0.01)
     assert sim.wheel_torques().tolist() == [0.5, 0.1]
+
+
+@pytest.mark.parametrize("limit", [None, 0.05])
+def test_the_wheel_torques_said_are_those_the_right_hand_side_applies(limit):
+    """`wheel_torques` under velocity commands (free and saturated) against the right-hand side:
+    the accelerations now are M⁻¹(Q − h) with the wheels' Q made from the torques said."""
+    sim = paper(locked=False, **({} if limit is None else {"effort_limits": {"wheels": limit}}))
+    sim.set_base_velocity(0.8, -0.6)
+    r, b = sim.model.base.wheel_radius, sim.model.base.half_track
+    for k in range(1, 6):
+        sim.advance_to(0.05 * k)
+        tau_R, tau_L = sim.wheel_torques()
+        Q = sim.system.Q_cmd.copy()
+        Q[V], Q[OMEGA] = (tau_R + tau_L) / r, b * (tau_R - tau_L) / r
+        if sim.system.damping.size:
+            Q -= sim.system.damping * sim.u
+        expected = sim.dynamics.forward_dynamics(sim.q, sim.u, Q)
+        assert np.allclose(sim.acceleration(), expected, rtol=1e-12, atol=1e-12), k
+        if limit is not None:
+            assert max(abs(tau_R), abs(tau_L)) <= limit
