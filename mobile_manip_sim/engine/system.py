@@ -113,7 +113,7 @@ class System:
         self.held = self.data.held
         self.set_locked(())
         size = layout.state_size(nu) + (layout.arm_state_size(nu) if arm is not None else 0)
-        self._scratch = np.zeros(size)
+        self.size = size   # entries of s
 
     def set_reference(self, starts: np.ndarray, coeffs: np.ndarray) -> None:
         """The arm's reference from now on (`arm_reference.py`): copied into the compiled
@@ -148,8 +148,8 @@ class System:
 
     def _check(self, s: np.ndarray) -> np.ndarray:
         s = np.ascontiguousarray(s, dtype=float)
-        if s.shape != self._scratch.shape:
-            raise ValueError(f"state vector of length {s.size}, expected {self._scratch.size} "
+        if s.shape != (self.size,):
+            raise ValueError(f"state vector of length {s.size}, expected {self.size} "
                              f"(layout.py)")
         return s
 
